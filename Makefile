@@ -1,0 +1,55 @@
+# skelfem: two commands do everything on a fresh Debian 12 / Ubuntu machine.
+#   make demo   install what is missing, simulate geometry/finger.toml into results/finger
+#   make test   install what is missing, run the test suite
+SHELL := /bin/bash
+.DEFAULT_GOAL := demo
+
+# DOLFINx 0.5.2 and its stack come from Debian; everything else lives in a
+# venv that sees the system site-packages (numpy/scipy pinned to Debian's).
+APT_PACKAGES := python3-dolfinx python3-gmsh python3-meshio python3-venv \
+	python3-scipy python3-matplotlib python3-pytest python3-setuptools \
+	libopenblas0-pthread openmpi-bin
+SYSPY := /usr/bin/python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.skelfem-installed
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+
+export OMPI_ALLOW_RUN_AS_ROOT := 1
+export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
+export OMPI_MCA_rmaps_base_oversubscribe := 1
+export OPENBLAS_NUM_THREADS := 1
+export OMP_NUM_THREADS := 1
+export MPLBACKEND := Agg
+
+.PHONY: demo test setup system clean
+
+demo: setup
+	$(VENV)/bin/skelfem simulate geometry/finger.toml --out results/finger
+
+test: setup
+	$(PY) -m pytest -q
+
+setup: $(STAMP)
+
+# System packages: installed only when one is missing.
+system:
+	@missing=$$(for p in $(APT_PACKAGES); do \
+		dpkg-query -W -f='$${Status}' $$p 2>/dev/null | grep -q "install ok installed" || echo $$p; done); \
+	if [ -n "$$missing" ]; then \
+		echo "installing system packages:" $$missing; \
+		$(SUDO) apt-get update -qq && \
+		DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq --no-install-recommends $$missing; \
+	fi
+
+$(STAMP): pyproject.toml | system
+	@[ -x $(PY) ] || $(SYSPY) -m venv --system-site-packages $(VENV)
+	@$(SYSPY) -c "import numpy, scipy, matplotlib; \
+		print(f'numpy=={numpy.__version__}\nscipy=={scipy.__version__}\nmatplotlib=={matplotlib.__version__}')" \
+		> $(VENV)/constraints.txt
+	$(PY) -m pip install -q --no-build-isolation --no-deps -c $(VENV)/constraints.txt -e .
+	@$(PY) -c "import dolfinx, skelfem; print('skelfem ready: dolfinx', dolfinx.__version__)"
+	@touch $@
+
+clean:
+	rm -rf $(VENV) results .pytest_cache

@@ -1,0 +1,193 @@
+"""Tendons and ligaments: unilateral springs routed through via points.
+
+A cable's sketch (polyline) is cut wherever it crosses a facet of the mesh
+(edges in 2D, triangles in 3D); each cut and each sketch vertex is a via
+point X_j, a material point that moves with its cell: x_j = X_j + (S u)_j.
+With segment vectors d_i = x_{i+1} - x_i = d0_i + (B u)_i (B = D S, D the
+difference operator), the cable length is
+
+    l(u) = sum_i |d_i|,
+
+and the cable stores the unilateral spring energy (paper eq. 3)
+
+    U = k Q(l - L),  Q(s) = s^2/2 for s > 0, 0 otherwise,
+
+with rest length L = L0 - u_c for a tendon contracted by u_c and
+L = L0 - p for a ligament pretensioned by p (L0: sketch length). Its
+derivatives, with t_i = d_i/|d_i| and s = max(l - L, 0):
+
+    grad U = k s g,                    g = B^T t
+    hess U = k [l > L] (g g^T + s B^T W B),   W = blockdiag((I - t_i t_i^T)/|d_i|)
+
+Dropping the curvature term k s B^T W B costs Newton its quadratic
+convergence, so it stays.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from .points import interpolation_matrix, locate_cells
+
+_EPS = 1e-10
+
+
+def _mesh_facets(mesh) -> np.ndarray:
+    """Vertex coordinates of every facet, shape (n_facets, tdim, gdim)."""
+    tdim = mesh.topology.dim
+    mesh.topology.create_connectivity(tdim - 1, 0)
+    f2v = mesh.topology.connectivity(tdim - 1, 0).array.reshape(-1, tdim)
+    # geometry nodes coincide with topology vertices for affine meshes
+    from dolfinx.cpp.mesh import entities_to_geometry
+    nodes = entities_to_geometry(mesh._mesh, tdim - 1, np.arange(len(f2v), dtype=np.int32), False)
+    return mesh.geometry.x[nodes][:, :, :mesh.geometry.dim]
+
+
+def _crossings_2d(p, q, facets) -> np.ndarray:
+    """Parameters t in (0, 1) where segment p->q crosses edges a->b."""
+    a, b = facets[:, 0], facets[:, 1]
+    r, e = q - p, b - a
+    den = r[0] * e[:, 1] - r[1] * e[:, 0]
+    ok = np.abs(den) > 1e-14 * np.linalg.norm(r) * np.linalg.norm(e, axis=1)
+    ap = a - p
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (ap[:, 0] * e[:, 1] - ap[:, 1] * e[:, 0]) / den
+        s = (ap[:, 0] * r[1] - ap[:, 1] * r[0]) / den
+    hit = ok & (t > -_EPS) & (t < 1 + _EPS) & (s > -_EPS) & (s < 1 + _EPS)
+    return t[hit]
+
+
+def _crossings_3d(p, q, facets) -> np.ndarray:
+    """Parameters t in (0, 1) where segment p->q crosses triangles (Moller-Trumbore)."""
+    v0, e1, e2 = facets[:, 0], facets[:, 1] - facets[:, 0], facets[:, 2] - facets[:, 0]
+    r = q - p
+    h = np.cross(r, e2)
+    det = np.einsum("ij,ij->i", e1, h)
+    ok = np.abs(det) > 1e-14 * np.linalg.norm(r) * np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / det
+        sv = p - v0
+        a = inv * np.einsum("ij,ij->i", sv, h)
+        qv = np.cross(sv, e1)
+        b = inv * (qv @ r)
+        t = inv * np.einsum("ij,ij->i", e2, qv)
+    hit = ok & (a > -_EPS) & (b > -_EPS) & (a + b < 1 + _EPS) & (t > -_EPS) & (t < 1 + _EPS)
+    return t[hit]
+
+
+def via_points(mesh, path: np.ndarray) -> np.ndarray:
+    """Sketch vertices plus every crossing with a mesh facet, in order along the path."""
+    path = np.asarray(path, dtype=float)
+    facets = _mesh_facets(mesh)
+    lo_f, hi_f = facets.min(axis=1), facets.max(axis=1)
+    crossings = _crossings_2d if mesh.geometry.dim == 2 else _crossings_3d
+    out = []
+    for p, q in zip(path[:-1], path[1:]):  # loop over sketch segments, not DOFs
+        lo, hi = np.minimum(p, q), np.maximum(p, q)
+        tol = 1e-9 * (1.0 + np.abs(hi).max())
+        near = np.all((hi_f >= lo - tol) & (lo_f <= hi + tol), axis=1)
+        t = np.concatenate([[0.0], np.clip(crossings(p, q, facets[near]), 0.0, 1.0)])
+        t = np.unique(t)
+        seg_len = np.linalg.norm(q - p)
+        keep = np.concatenate([[True], np.diff(t) * seg_len > 1e-9 * max(seg_len, 1.0)])
+        out.append(p + t[keep, None] * (q - p))
+    points = np.vstack(out + [path[-1:]])
+    gap = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    return points[np.concatenate([[True], gap > 1e-12])]
+
+
+def _block_diagonal(blocks: np.ndarray) -> sp.csr_matrix:
+    """Sparse block-diagonal matrix from stacked (n, b, b) blocks, no Python loop."""
+    n, b, _ = blocks.shape
+    base = (np.arange(n) * b)[:, None, None]
+    rows = np.broadcast_to(base + np.arange(b)[None, :, None], blocks.shape)
+    cols = np.broadcast_to(base + np.arange(b)[None, None, :], blocks.shape)
+    return sp.csr_matrix((blocks.ravel(), (rows.ravel(), cols.ravel())), shape=(n * b, n * b))
+
+
+@dataclass(eq=False)
+class Cable:
+    """One tendon or ligament, with its via points bound to the mesh."""
+
+    name: str
+    kind: str                # "tendon" or "ligament"
+    k: float                 # spring constant, N/mm
+    X: np.ndarray            # via points at rest, (n, gdim)
+    dofs: np.ndarray         # local DOF indices the cable touches, (m,)
+    S: sp.csr_matrix         # via point interpolation restricted to dofs, (n*gdim, m)
+    B: sp.csr_matrix         # D S restricted to dofs, (n_seg*gdim, m)
+    d0: np.ndarray           # rest segment vectors D X, (n_seg, gdim)
+    L0: float                # sketch length at rest
+    contraction: float = 0.0
+    pretension: float = 0.0
+
+    @classmethod
+    def build(cls, V, spec) -> "Cable":
+        mesh = V.mesh
+        X = via_points(mesh, spec.path)
+        cells = locate_cells(mesh, X)
+        if np.any(cells < 0):
+            raise ValueError(f"cable {spec.name!r} leaves the mesh")
+        S = interpolation_matrix(V, X, cells)
+        gdim = mesh.geometry.dim
+        n = len(X)
+        D = sp.kron(sp.diags([-np.ones(n - 1), np.ones(n - 1)], [0, 1], shape=(n - 1, n)),
+                    sp.identity(gdim), format="csr")
+        dofs = np.unique(S.tocsr().indices)          # columns touched
+        S = S.tocsc()[:, dofs].tocsr()
+        d0 = np.diff(X, axis=0)
+        return cls(spec.name, spec.kind, float(spec.stiffness), X, dofs.astype(np.int32),
+                   S, (D @ S).tocsr(), d0, float(np.linalg.norm(d0, axis=1).sum()),
+                   float(spec.contraction), float(spec.pretension))
+
+    # -- state ---------------------------------------------------------------
+    def rest_length(self, factor: float = 1.0) -> float:
+        """L = L0 - u_c (tendon) or L0 - p (ligament), ramped by the load factor."""
+        shortening = self.contraction if self.kind == "tendon" else self.pretension
+        return self.L0 - factor * shortening
+
+    def segments(self, u: np.ndarray) -> np.ndarray:
+        """Current segment vectors d_i, (n_seg, gdim)."""
+        return self.d0 + (self.B @ u[self.dofs]).reshape(self.d0.shape)
+
+    def positions(self, u: np.ndarray) -> np.ndarray:
+        """Current via point positions, (n, gdim)."""
+        return self.X + (self.S @ u[self.dofs]).reshape(self.X.shape)
+
+    def length(self, u: np.ndarray) -> float:
+        return float(np.linalg.norm(self.segments(u), axis=1).sum())
+
+    def tension(self, u: np.ndarray, L: float) -> float:
+        return self.k * max(0.0, self.length(u) - L)
+
+    # -- energy and derivatives -------------------------------------------------
+    def energy(self, u: np.ndarray, L: float) -> float:
+        s = max(0.0, self.length(u) - L)
+        return 0.5 * self.k * s * s
+
+    def _t_and_g(self, u):
+        d = self.segments(u)
+        norm = np.linalg.norm(d, axis=1)
+        t = d / norm[:, None]
+        return d, norm, t, self.B.T @ t.ravel()
+
+    def gradient(self, u: np.ndarray, L: float) -> np.ndarray:
+        """Gradient on self.dofs: k s g."""
+        _, norm, _, g = self._t_and_g(u)
+        s = max(0.0, norm.sum() - L)
+        return self.k * s * g
+
+    def hessian(self, u: np.ndarray, L: float) -> np.ndarray:
+        """Dense Hessian on self.dofs: k [s > 0] (g g^T + s B^T W B)."""
+        d, norm, t, g = self._t_and_g(u)
+        s = norm.sum() - L
+        m = len(self.dofs)
+        if s <= 0.0:
+            return np.zeros((m, m))
+        gdim = d.shape[1]
+        blocks = (np.eye(gdim)[None] - t[:, :, None] * t[:, None, :]) / norm[:, None, None]
+        W = _block_diagonal(blocks)
+        BtWB = (self.B.T @ (W @ self.B)).toarray()
+        return self.k * (np.outer(g, g) + s * BtWB)

@@ -1,0 +1,152 @@
+"""Design outlines -> Gmsh model -> tagged DOLFINx mesh.
+
+The body (outline minus holes) and the bones are fragmented with the OCC
+kernel, so the triangulation conforms to every bone boundary. Physical groups
+carry the design's names: ``body`` for the silicone and ``bone:<name>`` for
+each bone. Only rank 0 talks to Gmsh; gmshio distributes the mesh.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from mpi4py import MPI
+
+BODY = "body"
+
+
+def bone_tag_name(name: str) -> str:
+    return f"bone:{name}"
+
+
+@dataclass
+class TaggedMesh:
+    """A DOLFINx mesh with its cell tags and the names of the tags."""
+
+    mesh: object
+    cell_tags: object
+    tags: dict          # physical name -> integer tag, e.g. {"body": 1, "bone:proximal": 2}
+
+    @property
+    def names(self) -> dict:
+        return {v: k for k, v in self.tags.items()}
+
+
+class MeshingError(RuntimeError):
+    pass
+
+
+def _add_polygon(occ, points) -> int:
+    """OCC plane surface from a closed polygon (n, 2); returns its tag."""
+    pts = [occ.addPoint(float(x), float(y), 0.0) for x, y in points]
+    lines = [occ.addLine(pts[i], pts[(i + 1) % len(pts)]) for i in range(len(pts))]
+    return occ.addPlaneSurface([occ.addCurveLoop(lines)])
+
+
+def _add_solid(occ, primitive: dict) -> int:
+    """OCC volume from one 3D primitive of the design format; returns its tag."""
+    (kind, p), = primitive.items()
+    if kind == "box":
+        lo, hi = np.asarray(p["min"], float), np.asarray(p["max"], float)
+        return occ.addBox(*lo, *(hi - lo))
+    if kind == "cylinder":
+        a, b = np.asarray(p["from"], float), np.asarray(p["to"], float)
+        return occ.addCylinder(*a, *(b - a), float(p["radius"]))
+    if kind == "sphere":
+        return occ.addSphere(*np.asarray(p["center"], float), float(p["radius"]))
+    if kind == "extrude":
+        z0, z1 = (float(z) for z in p["z"])
+        pts = [occ.addPoint(float(x), float(y), z0) for x, y in p["outline"]]
+        lines = [occ.addLine(pts[i], pts[(i + 1) % len(pts)]) for i in range(len(pts))]
+        surface = occ.addPlaneSurface([occ.addCurveLoop(lines)])
+        out = occ.extrude([(2, surface)], 0, 0, z1 - z0)
+        return next(tag for dim, tag in out if dim == 3)
+    raise MeshingError(f"unknown solid primitive {kind!r}")
+
+
+def _union(occ, dim: int, tags: list[int]) -> list[int]:
+    if len(tags) == 1:
+        return tags
+    out, _ = occ.fuse([(dim, tags[0])], [(dim, t) for t in tags[1:]])
+    return [t for _, t in out]
+
+
+def _build_model(gmsh, design) -> dict:
+    """Create the geometry in the current Gmsh model; returns name -> entity tags."""
+    occ = gmsh.model.occ
+    dim = design.dim
+    if dim == 2:
+        body = [_add_polygon(occ, design.body.outline)]
+        if design.body.holes:
+            holes = [(2, _add_polygon(occ, h)) for h in design.body.holes]
+            out, _ = occ.cut([(2, body[0])], holes)
+            body = [t for _, t in out]
+        bones = {b.name: [_add_polygon(occ, b.outline)] for b in design.bones}
+    else:
+        body = _union(occ, 3, [_add_solid(occ, s) for s in design.body.solids])
+        bones = {b.name: _union(occ, 3, [_add_solid(occ, s) for s in b.solids])
+                 for b in design.bones}
+    bone_list = [(name, t) for name, tags in bones.items() for t in tags]
+    if not bone_list:
+        occ.synchronize()
+        return {BODY: body}
+    _, children = occ.fragment([(dim, t) for t in body], [(dim, t) for _, t in bone_list])
+    occ.synchronize()
+    groups = {bone_tag_name(name): [] for name in bones}
+    for (name, _), kids in zip(bone_list, children[len(body):]):
+        groups[bone_tag_name(name)] += [t for _, t in kids]
+    in_bones = {t for tags in groups.values() for t in tags}
+    groups[BODY] = sorted({t for kids in children[:len(body)] for _, t in kids} - in_bones)
+    return groups
+
+
+_GMSH_READY = False
+
+
+def _ensure_gmsh(gmsh) -> None:
+    """Initialise Gmsh once per process (gmsh 4.8 cannot tell if it is)."""
+    global _GMSH_READY
+    if not _GMSH_READY:
+        gmsh.initialize(readConfigFiles=False)
+        _GMSH_READY = True
+
+
+def mesh_design(design, comm=MPI.COMM_WORLD, verbose: bool = False) -> TaggedMesh:
+    """Mesh the design's body and bones with Gmsh (rank 0) and return a TaggedMesh."""
+    import gmsh
+    from dolfinx.io import gmshio
+
+    dim = design.dim
+    names = [BODY] + [bone_tag_name(b.name) for b in design.bones]
+    tags = {name: i + 1 for i, name in enumerate(names)}
+    if comm.rank == 0:
+        _ensure_gmsh(gmsh)
+        gmsh.option.setNumber("General.Terminal", 1 if verbose else 0)
+        gmsh.model.add(design.name)
+        try:
+            groups = _build_model(gmsh, design)
+            for name, entities in groups.items():
+                if not entities:
+                    raise MeshingError(f"region {name!r} vanished while meshing")
+                gmsh.model.addPhysicalGroup(dim, entities, tags[name])
+                gmsh.model.setPhysicalName(dim, tags[name], name)
+            h = float(design.mesh.size)
+            gmsh.option.setNumber("Mesh.MeshSizeMax", h)
+            gmsh.option.setNumber("Mesh.MeshSizeMin", 0.1 * h)
+            gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
+            gmsh.option.setNumber("Mesh.Algorithm", 6)
+            gmsh.model.mesh.generate(dim)
+            error = None
+        except Exception as exc:  # reported on every rank below
+            error = str(exc) or type(exc).__name__
+    else:
+        error = None
+    error = comm.bcast(error, root=0)
+    if error is not None:
+        if comm.rank == 0:
+            gmsh.model.remove()
+        raise MeshingError(f"meshing failed: {error}")
+    mesh, cell_tags, _ = gmshio.model_to_mesh(gmsh.model, comm, 0, gdim=dim)
+    if comm.rank == 0:
+        gmsh.model.remove()
+    return TaggedMesh(mesh, cell_tags, tags)

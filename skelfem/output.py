@@ -1,0 +1,218 @@
+"""Results on disk: result.json, solution.xdmf (ParaView/meshio) and deformed.png.
+
+Every file is written to a temporary name in the output folder and renamed
+into place, so a reader never sees a half-written file. Only rank 0 writes.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+FORMAT = 1
+
+
+# -- small helpers ---------------------------------------------------------------------------
+def atomic_write(path: Path, write) -> None:
+    """Call write(tmp_path) and rename the result onto path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def write_json(path: Path, data: dict) -> None:
+    def write(tmp):
+        with open(tmp, "w") as f:
+            json.dump(data, f, indent=2)
+            f.write("\n")
+    atomic_write(path, write)
+
+
+def _floats(a) -> list:
+    return [float(v) for v in np.asarray(a, dtype=float).ravel()]
+
+
+# -- the state as numbers ------------------------------------------------------------------------
+def vertex_displacements(scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rest node coordinates, displacement at the nodes, triangles/tets) of the P1 geometry."""
+    mesh, V = scene.mesh, scene.V
+    tdim, gdim = mesh.topology.dim, mesh.geometry.dim
+    x = mesh.geometry.x[:, :gdim]
+    geo = mesh.geometry.dofmap.array.reshape(-1, tdim + 1)
+    dofs = V.dofmap.list.array.reshape(len(geo), -1)[:, :tdim + 1]   # vertex DOFs come first
+    node_dof = np.empty(len(x), dtype=np.int64)
+    node_dof[geo.ravel()] = dofs.ravel()
+    u = scene.u.x.array.reshape(-1, scene.bs)[node_dof]
+    return x, u, geo
+
+
+def cell_regions(scene) -> np.ndarray:
+    """Tag value of every local cell (body = 1, bones after)."""
+    n = scene.mesh.topology.index_map(scene.mesh.topology.dim).size_local
+    tags = np.zeros(n, dtype=np.int32)
+    ct = scene.tm.cell_tags
+    owned = ct.indices < n
+    tags[ct.indices[owned]] = ct.values[owned]
+    return tags
+
+
+def cable_states(scene) -> list[dict]:
+    u = scene.u.x.array
+    out = []
+    for c, L in zip(scene.cables, scene.rest_lengths()):
+        out.append({"name": c.name, "kind": c.kind, "rest": c.X, "deformed": c.positions(u),
+                    "length": c.length(u), "rest_length": L, "tension": c.tension(u, L)})
+    return out
+
+
+def result_dict(design, scene, report, timings: dict) -> dict:
+    """result.json as the design-format contract defines it."""
+    converged = bool(report.converged)
+    res = {
+        "format": FORMAT,
+        "design": design.name,
+        "converged": converged,
+        "status": report.status,
+        "newton_iterations": int(report.newton_iterations),
+        "load_steps": int(report.load_steps),
+        "energy": float(report.energy) if converged else None,
+        "dofs": int(scene.V.dofmap.index_map.size_global * scene.bs),
+        "cells": int(scene.mesh.topology.index_map(scene.mesh.topology.dim).size_global),
+        "degree": int(design.mesh.degree),
+        "min_jacobian": float(report.min_jacobian),
+    }
+    if converged:
+        positions = scene.marker_positions()
+        res["markers"] = {
+            name: {"reference": _floats(X), "position": _floats(x), "displacement": _floats(x - X)}
+            for name, X, x in zip(scene.marker_names, scene.marker_X, positions)}
+        res["cables"] = {
+            c["name"]: {"kind": c["kind"],
+                        "contraction": float(next(s.contraction for s in design.cables if s.name == c["name"])),
+                        "rest_length": float(c["rest_length"]), "length": float(c["length"]),
+                        "tension": float(c["tension"])}
+            for c in cable_states(scene)}
+        res["pins"] = {name: {"reaction": _floats(r)} for name, r in scene.reactions().items()}
+        res["grounds"] = {g.name: {"force": _floats(f)} for g, f in zip(design.grounds, scene.ground_forces())}
+    else:
+        res.update(markers=None, cables=None, pins=None, grounds=None)
+    res["residual_history"] = [[float(r) for r in step] for step in report.residual_history]
+    res["timings"] = {k: round(float(v), 4) for k, v in timings.items()}
+    return res
+
+
+# -- files ------------------------------------------------------------------------------------------
+def write_xdmf(path: Path, scene) -> None:
+    """Mesh (rest coordinates) with displacement, region tag, and cables as polylines.
+
+    Cables are extra points and line cells in the same grid, carrying their
+    tension and an id (the cable's position in the design), so a single file
+    opens in ParaView (Warp By Vector on `displacement`) and in meshio.
+    """
+    import meshio
+
+    x, u, cells = vertex_displacements(scene)
+    gdim = x.shape[1]
+    cell_type = "triangle" if scene.mesh.topology.dim == 2 else "tetra"
+    points, disp = [x], [u]
+    lines, tension, cable_id = [], [], []
+    offset = len(x)
+    for i, c in enumerate(cable_states(scene)):
+        n = len(c["rest"])
+        points.append(c["rest"])
+        disp.append(c["deformed"] - c["rest"])
+        lines.append(offset + np.column_stack([np.arange(n - 1), np.arange(1, n)]))
+        tension += [c["tension"]] * (n - 1)
+        cable_id += [i] * (n - 1)
+        offset += n
+    pts = np.vstack(points)
+    if gdim == 2:
+        pts = np.column_stack([pts, np.zeros(len(pts))])
+    d = np.vstack(disp)
+    d3 = np.column_stack([d, np.zeros(len(d))]) if gdim == 2 else d
+    blocks = [(cell_type, cells)]
+    region = [cell_regions(scene).astype(float)]
+    tens = [np.zeros(len(cells))]
+    ids = [np.full(len(cells), -1.0)]
+    if lines:
+        blocks.append(("line", np.vstack(lines)))
+        region.append(np.full(len(tension), -1.0))
+        tens.append(np.asarray(tension, float))
+        ids.append(np.asarray(cable_id, float))
+    m = meshio.Mesh(pts, blocks, point_data={"displacement": d3},
+                    cell_data={"region": region, "tension": tens, "cable": ids})
+    atomic_write(path, lambda tmp: meshio.xdmf.write(tmp, m, data_format="XML"))
+
+
+REGION_COLORS = {"body": "#f4b6a6", "bone": "#e8e4d8"}
+CABLE_COLORS = {"tendon": "#1f5fbf", "ligament": "#d9822b"}
+
+
+def plot_deformed(path: Path, scene, title: str = "", ax=None, show_rest: bool = True):
+    """Rest outline, deformed mesh coloured by region, cables, markers and pins (2D)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import PolyCollection
+
+    design = scene.design
+    x, u, tri = vertex_displacements(scene)
+    y = x + u
+    own = ax is None
+    if own:
+        fig, ax = plt.subplots(figsize=(6, 7), dpi=120)
+    regions = cell_regions(scene)
+    body_tag = scene.tm.tags["body"]
+    colors = np.where(regions == body_tag, REGION_COLORS["body"], REGION_COLORS["bone"])
+    ax.add_collection(PolyCollection(y[tri], facecolors=colors, edgecolors="#7a6a66",
+                                     linewidths=0.15))
+    if show_rest:
+        loops = [design.body.outline, *design.body.holes, *(b.outline for b in design.bones)]
+        for loop in loops:
+            closed = np.vstack([loop, loop[:1]])
+            ax.plot(closed[:, 0], closed[:, 1], color="0.55", lw=0.8, ls="--", zorder=1)
+    for c in cable_states(scene):
+        p = c["deformed"]
+        lw = 1.2 + (1.5 if c["tension"] > 0 else 0.0)
+        label = f"{c['name']} ({c['kind']}): {c['tension']:.3g} N"
+        ax.plot(p[:, 0], p[:, 1], color=CABLE_COLORS[c["kind"]], lw=lw, zorder=3,
+                ls="-" if c["tension"] > 0 else ":", label=label)
+    for pin in design.pins:
+        (x0, y0), (x1, y1) = pin.region
+        ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, hatch="////",
+                                   ec="0.3", lw=0.6, zorder=2))
+    for g in design.grounds:
+        t = np.array([-g.normal[1], g.normal[0]])
+        ends = np.array([g.point - 1e3 * t, g.point + 1e3 * t])
+        ax.plot(ends[:, 0], ends[:, 1], color="k", lw=1.5, zorder=2)
+    if scene.marker_names:
+        pos = scene.marker_positions()
+        ax.plot(pos[:, 0], pos[:, 1], "o", color="#222222", ms=4, zorder=4)
+        for name, p in zip(scene.marker_names, pos):
+            ax.annotate(name, p, textcoords="offset points", xytext=(5, 5), fontsize=8)
+    allpts = np.vstack([y, x]) if show_rest else y
+    lo, hi = allpts.min(axis=0), allpts.max(axis=0)
+    pad = 0.06 * (hi - lo).max()
+    ax.set_xlim(lo[0] - pad, hi[0] + pad)
+    ax.set_ylim(lo[1] - pad, hi[1] + pad)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [mm]")
+    ax.set_ylabel("y [mm]")
+    if title:
+        ax.set_title(title, fontsize=10)
+    if scene.cables:
+        ax.legend(loc="best", fontsize=7, framealpha=0.8)
+    if own:
+        fig.tight_layout()
+        atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
+        plt.close(fig)
