@@ -7,7 +7,7 @@ SHELL := /bin/bash
 # DOLFINx 0.5.2 and its stack come from Debian; everything else lives in a
 # venv that sees the system site-packages (numpy/scipy pinned to Debian's).
 APT_PACKAGES := python3-dolfinx python3-gmsh python3-meshio python3-venv \
-	python3-scipy python3-matplotlib python3-pytest python3-setuptools \
+	python3-scipy python3-matplotlib python3-pytest python3-setuptools python3-h5py \
 	libopenblas0-pthread openmpi-bin
 SYSPY := /usr/bin/python3
 VENV := .venv

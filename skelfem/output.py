@@ -24,6 +24,9 @@ def atomic_write(path: Path, write) -> None:
     os.close(fd)
     try:
         write(tmp)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
@@ -211,7 +214,7 @@ def plot_deformed(path: Path, scene, title: str = "", ax=None, show_rest: bool =
     if title:
         ax.set_title(title, fontsize=10)
     if scene.cables:
-        ax.legend(loc="best", fontsize=7, framealpha=0.8)
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.09), ncol=2, fontsize=7, frameon=False)
     if own:
         fig.tight_layout()
         atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))

@@ -105,6 +105,11 @@ class Scene:
         self.residual_form = fem.form(R)
         self.jacobian_form = fem.form(ufl.derivative(R, self.u, du))
         self.detF = min_jacobian_expression(self.u)
+        # round-off of Pi: psi sums terms of size mu, lam that cancel, so
+        # differences below eps * t int (mu + lam) dx cannot be resolved
+        scale = fem.assemble_scalar(fem.form(t * (mu + lam) * ufl.dx))
+        from mpi4py import MPI
+        self.energy_noise = 64 * np.finfo(float).eps * self.comm.allreduce(scale, op=MPI.SUM)
 
         # point terms: cables, loads, markers
         self.cables = [self._build_cable(c) for c in design.cables]

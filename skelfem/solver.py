@@ -180,7 +180,7 @@ class NewtonSolver:
             trial.array_w[:] = x0 + a * p + scene.rigid_correction(x0, p, a)
             return scene.energy(trial) if scene.admissible(trial) else np.inf
 
-        noise = 1e-12 * (abs(e0) + 1e-12)
+        noise = max(scene.energy_noise, 1e-12 * abs(e0))
         alpha, e = 1.0, phi(1.0)
         try:
             for _ in range(40):

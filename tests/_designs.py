@@ -1,0 +1,34 @@
+"""Small design dictionaries shared by the tests (parsed with skelfem.design.parse_design)."""
+import copy
+
+
+def strip(length=60.0, width=10.0, size=2.0, degree=1, tendon_offset=3.0, contraction=0.1,
+          k=1.0, E=1.0, nu=0.3, thickness=10.0, bones=False):
+    """A soft strip standing on its pinned base with one straight tendon at an offset."""
+    x_t = width / 2 + tendon_offset
+    d = {
+        "format": 1, "name": "strip", "dim": 2, "thickness": thickness,
+        "mesh": {"size": size, "degree": degree},
+        "materials": {"soft": {"E": E, "nu": nu}, "hard": {"E": 1000.0 * E, "nu": 0.35}},
+        "body": {"outline": [[0, 0], [width, 0], [width, length], [0, length]], "material": "soft"},
+        "cables": [{"name": "flexor", "kind": "tendon", "path": [[x_t, 0], [x_t, length]],
+                    "stiffness": k, "contraction": contraction}],
+        "pins": [{"name": "base", "region": [[-1, -1], [width + 1, 1e-6]], "kind": "fixed"}],
+        "markers": {"tip": [width / 2, length]},
+    }
+    if bones:
+        d["bones"] = [{"name": "b1", "outline": [[2, 5], [8, 5], [8, 25], [2, 25]], "material": "hard"},
+                      {"name": "b2", "outline": [[2, 30], [8, 30], [8, 55], [2, 55]], "material": "hard"}]
+    return d
+
+
+def variant(d, **changes):
+    """Deep copy of a design dict with dotted-key changes, e.g. variant(d, **{"mesh.size": 1})."""
+    d = copy.deepcopy(d)
+    for key, value in changes.items():
+        *path, last = key.split(".")
+        node = d
+        for part in path:
+            node = node.setdefault(part, {})
+        node[last] = value
+    return d
