@@ -99,8 +99,9 @@ def simulate(args) -> int:
     if report.converged:
         write_xdmf(out / "solution.xdmf", scene) if comm.size == 1 else None
         if not args.no_picture and comm.size == 1:
-            title = f"{design.name}: " + ", ".join(
-                f"{c.name} u={c.contraction:g} mm" for c in design.cables if c.kind == "tendon")
+            pulled = [f"{c.name} u={c.contraction:g} mm" for c in design.cables
+                      if c.kind == "tendon" and c.contraction > 0]
+            title = f"{design.name}: " + (", ".join(pulled) if pulled else "no contraction")
             plot_deformed(out / "deformed.png", scene, title)
     result["timings"]["total"] = round(time.perf_counter() - t0, 4)
     if comm.rank == 0:

@@ -64,7 +64,7 @@ def parse_design(data, source="<design>", overrides=()):
                thickness=float(data.get("thickness", 1.0)), mesh=_ns(size=float(m.get("size", 2.0)), degree=int(m.get("degree", 1))),
                materials=mats, body=body, bones=bones, cables=cables, pins=pins, loads=loads, grounds=grounds,
                contact=_ns(self_contact=False, dhat=0.3), markers={k: A(v) for k, v in data.get("markers", {}).items()},
-               solver=_ns(steps=int(s.get("steps", 1)), max_iterations=50, rtol=1e-9, atol=1e-10, line_search="energy"), raw=data)
+               solver=_ns(steps=int(s.get("steps", 1)), max_iterations=int(s.get("max_iterations", 50)), rtol=1e-9, atol=1e-10, line_search="energy"), raw=data)
 
 
 def load_design(path, overrides=()):

@@ -1,0 +1,102 @@
+"""The assembled energy, its derivatives and the static solver on small scenes."""
+import numpy as np
+import pytest
+
+from _designs import strip, variant
+from skelfem.design import parse_design
+from skelfem.geometry import mesh_design
+from skelfem.points import interpolation_matrix
+from skelfem.scene import Scene
+from skelfem.solver import NewtonSolver
+
+
+def _scene(d):
+    design = parse_design(d)
+    return Scene(design, mesh_design(design))
+
+
+def _full_scene_dict(degree):
+    """Bones, a tendon, a taut ligament, a spring pin, a point load and a ground."""
+    d = strip(length=40.0, size=2.5, degree=degree, bones=False)
+    d["materials"]["hard"]["E"] = 50.0
+    d["bones"] = [{"name": "b", "outline": [[3, 10], [7, 10], [7, 25], [3, 25]], "material": "hard"}]
+    d["cables"].append({"name": "lig", "kind": "ligament", "path": [[2, 5], [4, 20], [2, 35]],
+                        "stiffness": 2.0, "pretension": 1.0})
+    d["pins"].append({"name": "side", "region": [[-1, 30], [0.5, 40]], "kind": "spring", "stiffness": 5.0})
+    d["loads"] = [{"name": "push", "at": [5, 38], "force": [0.3, -0.2]}]
+    d["grounds"] = [{"name": "wall", "point": [10.5, 0], "normal": [-1, 0], "stiffness": 10.0}]
+    return d
+
+
+@pytest.mark.parametrize("degree", [1, 2])
+def test_taylor_remainders_of_total_energy_and_gradient(degree):
+    """Pi(x + h d) - Pi(x) - h R.d = O(h^2) and R(x + h d) - R(x) - h J d = O(h^2)."""
+    sc = _scene(_full_scene_dict(degree))
+    sc.set_factor(1.0)
+    rng = np.random.default_rng(3)
+    x = sc.u.vector.copy()
+    X = sc._dof_X
+    x.array[:] = 0.02 * rng.normal(size=x.array.shape)
+    x.array[0::2] += 0.15 * X[:, 1] / 40.0 * 4  # push into the wall so the ground is active
+    sc.apply_bcs(x)
+    assert sc.admissible(x)
+    assert any(c.tension(x.array, L) > 0 for c, L in zip(sc.cables, sc.rest_lengths()))
+    b, A = x.duplicate(), sc.create_matrix()
+    sc.gradient(x, b)
+    sc.jacobian(x, A)
+    g = b.array.copy()
+    d = x.duplicate()
+    d.array[:] = rng.normal(size=d.array.shape)
+    d.array[sc.fixed] = 0.0
+    Ad = d.duplicate()
+    A.mult(d, Ad)
+    e0 = sc.energy(x)
+    r1, r2 = [], []
+    hs = [1e-2, 5e-3, 2.5e-3, 1.25e-3]
+    for h in hs:
+        xh = x.copy()
+        xh.axpy(h, d)
+        bh = x.duplicate()
+        sc.gradient(xh, bh)
+        r1.append(abs(sc.energy(xh) - e0 - h * (g @ d.array)))
+        r2.append(np.linalg.norm((bh.array - g - h * Ad.array)[~sc.fixed]))
+    for r in (r1, r2):
+        rates = np.log2(np.array(r[:-1]) / np.array(r[1:]))
+        assert np.all(rates > 1.9), (r, rates)
+
+
+def test_no_load_gives_zero_displacement():
+    sc = _scene(strip(contraction=0.0, size=3.0))
+    report = NewtonSolver(sc, sc.design.solver).solve(1)
+    assert report.converged
+    assert report.newton_iterations == 0
+    assert np.abs(sc.u.x.array).max() == 0.0
+    assert report.min_jacobian == pytest.approx(1.0)
+
+
+def test_tendon_bends_strip_into_beam_theory_arc():
+    """Curvature of the mid-length neutral axis vs kappa = T d / (E' I), plane strain."""
+    E, nu, t, w, d_off = 1.0, 0.3, 10.0, 10.0, 3.0
+    sc = _scene(strip(length=100.0, width=w, size=1.0, degree=2, tendon_offset=d_off,
+                      contraction=0.2, k=1.0, E=E, nu=nu, thickness=t))
+    report = NewtonSolver(sc, sc.design.solver).solve(1)
+    assert report.converged
+    ys = np.linspace(30.0, 70.0, 41)
+    P = np.column_stack([np.full_like(ys, w / 2), ys])
+    ux = (interpolation_matrix(sc.V, P) @ sc.u.x.array).reshape(-1, 2)[:, 0]
+    kappa = 2.0 * np.polyfit(ys, ux, 2)[0]
+    T = sc.cables[0].tension(sc.u.x.array, sc.rest_lengths()[0])
+    kappa_beam = T * d_off / (E / (1 - nu ** 2) * t * w ** 3 / 12)
+    assert T > 0
+    assert kappa == pytest.approx(kappa_beam, rel=0.03)
+
+
+def test_failed_solve_reports_status_and_keeps_last_equilibrium():
+    d = variant(strip(size=3.0, contraction=3.0, k=20.0), **{"solver.max_iterations": 1})
+    sc = _scene(d)
+    solver = NewtonSolver(sc, sc.design.solver)
+    solver.max_cuts = 1
+    report = solver.solve(1)
+    assert not report.converged
+    assert report.status == "max_iterations"
+    assert np.abs(sc.u.x.array).max() == 0.0   # the last accepted equilibrium (rest), not a half-step
