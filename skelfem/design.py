@@ -1,75 +1,614 @@
-"""TEMPORARY minimal loader (replaced by the full validating module)."""
+"""Design files: load a TOML design, apply ``--set`` overrides, validate.
+
+The contract is ``shared/design-format.md`` (summarised in the README). Every
+problem is raised as a :class:`DesignError` whose message names the file and
+the offending key, e.g. ``finger.toml: cables.flexor.stiffness: must be > 0``;
+the CLI prints it as one ``error:`` line. Nothing here imports DOLFINx, so a
+bad design is rejected before any heavy import or meshing.
+"""
 from __future__ import annotations
-import copy, tomllib
+
+import copy
+import math
+import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
+
 import numpy as np
+
+from . import polygons
+
+FORMAT = 1
+LINE_SEARCHES = ("energy", "residual", "none", "trust_region")
+SECTIONS_BY_NAME = ("bones", "cables", "pins", "loads", "grounds")
+PRIMITIVES = ("box", "cylinder", "sphere", "extrude")
 
 
 class DesignError(ValueError):
-    pass
+    """A design that cannot be simulated; the message is one line for the user."""
+
+
+# -- the validated design --------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class Material:
+    name: str
+    E: float          # Young's modulus, MPa
+    nu: float         # Poisson's ratio
 
 
 @dataclass(frozen=True, eq=False)
-class Material:
-    name: str; E: float; nu: float
+class MeshSpec:
+    size: float = 2.0     # target edge length, mm
+    degree: int = 1       # Lagrange degree of u
 
 
-def _ns(**kw):
-    from types import SimpleNamespace
-    return SimpleNamespace(**kw)
+@dataclass(frozen=True, eq=False)
+class Body:
+    material: str
+    outline: np.ndarray | None = None        # 2D: (n, 2)
+    holes: tuple = ()                        # 2D: tuple of (m, 2)
+    solids: tuple = ()                       # 3D: tuple of primitive dicts
 
 
-def apply_override(data, assignment, source):
-    if "=" not in assignment:
-        raise DesignError(f"{source}: {assignment}: expected KEY=VALUE")
-    key, value = assignment.split("=", 1)
+@dataclass(frozen=True, eq=False)
+class Bone:
+    name: str
+    material: str
+    outline: np.ndarray | None = None
+    solids: tuple = ()
+
+
+@dataclass(frozen=True, eq=False)
+class CableSpec:
+    name: str
+    kind: str             # "tendon" or "ligament"
+    path: np.ndarray      # (n, dim) sketch polyline
+    stiffness: float      # k, N/mm
+    contraction: float = 0.0   # tendon: u, mm
+    pretension: float = 0.0    # ligament: rest-length shortening, mm
+
+
+@dataclass(frozen=True, eq=False)
+class PinSpec:
+    name: str
+    region: np.ndarray    # (2, dim): [min, max]
+    kind: str = "fixed"   # "fixed" (Dirichlet) or "spring" (penalty)
+    stiffness: float = 0.0
+    move: np.ndarray | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class LoadSpec:
+    name: str
+    at: np.ndarray
+    force: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class GroundSpec:
+    name: str
+    point: np.ndarray
+    normal: np.ndarray    # unit normal, pointing to the side the body stays on
+    stiffness: float
+
+
+@dataclass(frozen=True, eq=False)
+class ContactSpec:
+    self_contact: bool = False
+    dhat: float = 0.3
+
+
+@dataclass(frozen=True, eq=False)
+class SolverSpec:
+    steps: int = 1
+    max_iterations: int = 50
+    line_search: str = "energy"
+    rtol: float = 1e-9
+    atol: float = 1e-10
+
+
+@dataclass(frozen=True, eq=False)
+class Design:
+    source: str
+    name: str
+    dim: int
+    thickness: float
+    mesh: MeshSpec
+    materials: dict
+    body: Body
+    bones: tuple
+    cables: tuple
+    pins: tuple
+    loads: tuple = ()
+    grounds: tuple = ()
+    contact: ContactSpec = field(default_factory=ContactSpec)
+    markers: dict = field(default_factory=dict)
+    solver: SolverSpec = field(default_factory=SolverSpec)
+    format: int = FORMAT
+    raw: dict = field(default_factory=dict)   # the TOML data after overrides
+
+    @property
+    def tendons(self) -> tuple:
+        return tuple(c for c in self.cables if c.kind == "tendon")
+
+    def cable(self, name: str) -> CableSpec:
+        return next(c for c in self.cables if c.name == name)
+
+
+# -- reading typed values -------------------------------------------------------------------------
+_REQUIRED = object()
+
+
+class _Table:
+    """Keys of one TOML table, taken one at a time; leftovers are unknown keys."""
+
+    def __init__(self, data, where: str, source: str):
+        self.source, self.where = source, where
+        if not isinstance(data, dict):
+            self.fail("", "must be a table")
+        self.data = dict(data)
+
+    def key(self, name: str) -> str:
+        return f"{self.where}.{name}" if self.where else name
+
+    def fail(self, name: str, message: str):
+        where = self.key(name) if name else self.where
+        raise DesignError(f"{self.source}: {where}: {message}" if where else f"{self.source}: {message}")
+
+    def has(self, name: str) -> bool:
+        return name in self.data
+
+    def take(self, name: str, kind: str, default=_REQUIRED, dim: int | None = None):
+        if name not in self.data:
+            if default is _REQUIRED:
+                self.fail(name, "missing (required)")
+            return default
+        value = self.data.pop(name)
+        return _convert(value, kind, dim, lambda msg: self.fail(name, msg))
+
+    def done(self) -> None:
+        if self.data:
+            self.fail(sorted(self.data)[0], "unknown key")
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _convert(value, kind: str, dim, fail):
+    if kind == "number":
+        if not _is_number(value) or not math.isfinite(value):
+            fail(f"must be a number, got {value!r}")
+        return float(value)
+    if kind == "int":
+        if not isinstance(value, int) or isinstance(value, bool):
+            fail(f"must be an integer, got {value!r}")
+        return int(value)
+    if kind == "str":
+        if not isinstance(value, str):
+            fail(f"must be a string, got {value!r}")
+        return value
+    if kind == "bool":
+        if not isinstance(value, bool):
+            fail(f"must be true or false, got {value!r}")
+        return value
+    if kind in ("vector", "points"):
+        shape = (dim,) if kind == "vector" else (None, dim)
+        try:
+            a = np.asarray(value, dtype=float)
+            ok = all(_is_number(x) for x in np.ravel(np.asarray(value, dtype=object)))
+        except (ValueError, TypeError):
+            ok = False
+        if not ok or a.ndim != len(shape) or a.shape[-1] != dim:
+            what = f"{dim} numbers" if kind == "vector" else f"a list of points with {dim} coordinates each"
+            fail(f"must be {what}")
+        if not np.all(np.isfinite(a)):
+            fail("must be finite")
+        return a
+    if kind == "table":
+        if not isinstance(value, dict):
+            fail("must be a table")
+        return value
+    if kind == "tables":
+        if not isinstance(value, list) or not all(isinstance(x, dict) for x in value):
+            fail("must be an array of tables ([[...]])")
+        return value
+    if kind == "list":
+        if not isinstance(value, list):
+            fail("must be a list")
+        return value
+    raise AssertionError(kind)
+
+
+def _positive(t: _Table, name: str, value: float, strict: bool = True) -> float:
+    if value < 0 or (strict and value == 0):
+        t.fail(name, f"must be {'>' if strict else '>='} 0, got {value:g}")
+    return value
+
+
+# -- overrides ------------------------------------------------------------------------------------------
+def _parse_value(text: str):
     try:
-        value = tomllib.loads("v = " + value)["v"]
+        return tomllib.loads("v = " + text)["v"]
     except tomllib.TOMLDecodeError:
-        pass
-    parts = key.split(".")
-    node = data
+        return text.strip()
+
+
+def apply_override(data: dict, assignment: str, source: str) -> None:
+    """Apply ``KEY=VALUE`` (KEY dotted; named entries addressed by name) to data in place."""
+    def fail(msg):
+        raise DesignError(f"{source}: --set {assignment}: {msg}")
+    if "=" not in assignment:
+        fail("expected KEY=VALUE")
+    key, text = assignment.split("=", 1)
+    parts = [p.strip() for p in key.strip().split(".")]
+    if not all(parts):
+        fail("empty key")
+    node, walked = data, []
     for part in parts[:-1]:
+        walked.append(part)
         if isinstance(node, list):
-            node = next(e for e in node if e.get("name") == part)
+            match = [e for e in node if isinstance(e, dict) and e.get("name") == part]
+            if not match:
+                names = ", ".join(str(e.get("name")) for e in node if isinstance(e, dict))
+                fail(f"no entry named {part!r} in {'.'.join(walked[:-1])} (have: {names or 'none'})")
+            node = match[0]
+        elif isinstance(node, dict):
+            if part not in node:
+                if parts[0] in SECTIONS_BY_NAME and len(walked) == 1:
+                    fail(f"the design has no {part!r} section")
+                node[part] = {}
+            node = node[part]
         else:
-            node = node.setdefault(part, {})
-    node[parts[-1]] = value
+            fail(f"{'.'.join(walked[:-1])} is a value, not a table")
+    if isinstance(node, list):
+        fail(f"address an entry of {'.'.join(parts[:-1])} by name")
+    if not isinstance(node, dict):
+        fail(f"{'.'.join(parts[:-1])} is a value, not a table")
+    node[parts[-1]] = _parse_value(text)
 
 
-def parse_design(data, source="<design>", overrides=()):
+# -- geometry checks (2D) --------------------------------------------------------------------------------
+def _polygon(t: _Table, name: str, pts: np.ndarray, tol: float) -> np.ndarray:
+    if len(pts) < 3:
+        t.fail(name, "a polygon needs at least 3 points")
+    if np.any(np.linalg.norm(pts - np.roll(pts, -1, axis=0), axis=1) <= tol):
+        t.fail(name, "repeated consecutive points (degenerate polygon)")
+    if abs(polygons.signed_area(pts)) <= tol * max(np.ptp(pts, axis=0).max(), tol):
+        t.fail(name, "polygon has zero area (degenerate)")
+    if not polygons.is_simple(pts, tol):
+        t.fail(name, "polygon is not simple (edges cross or touch)")
+    return pts
+
+
+class _Region2D:
+    """The body's closed region: inside the outline and outside every hole."""
+
+    def __init__(self, outline, holes, tol):
+        self.outline, self.holes, self.tol = outline, holes, tol
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        ok = polygons.contains(self.outline, points, self.tol)
+        for h in self.holes:
+            ok &= ~polygons.strictly_inside(h, points, self.tol)
+        return ok
+
+    def contains_path(self, path: np.ndarray) -> bool:
+        return bool(np.all(self.contains(polygons.sample_polyline(path, [self.outline, *self.holes]))))
+
+
+# -- sections -------------------------------------------------------------------------------------------
+def _named_entries(top: _Table, section: str, required: bool = False) -> list[_Table]:
+    entries = top.take(section, "tables", default=None)
+    if entries is None:
+        if required:
+            top.fail(section, "missing: at least one entry is required")
+        return []
+    if required and not entries:
+        top.fail(section, "at least one entry is required")
+    tables, seen = [], set()
+    for i, e in enumerate(entries):
+        name = e.get("name")
+        label = name if isinstance(name, str) and name else str(i)
+        t = _Table(e, f"{section}.{label}", top.source)
+        name = t.take("name", "str")
+        if not name or "." in name or "=" in name:
+            t.fail("name", "must be a non-empty name without '.' or '='")
+        if name in seen:
+            t.fail("name", f"duplicate name {name!r} in {section}")
+        seen.add(name)
+        tables.append(t)
+    return tables
+
+
+def _materials(top: _Table) -> dict:
+    mt = _Table(top.take("materials", "table"), "materials", top.source)
+    if not mt.data:
+        mt.fail("", "at least one material is required")
+    out = {}
+    for name in list(mt.data):
+        t = _Table(mt.take(name, "table"), f"materials.{name}", top.source)
+        E = _positive(t, "E", t.take("E", "number"))
+        nu = t.take("nu", "number")
+        if not -1.0 < nu < 0.5:
+            t.fail("nu", f"must lie in (-1, 0.5), got {nu:g}")
+        t.done()
+        out[name] = Material(name, E, nu)
+    return out
+
+
+def _material_ref(t: _Table, materials: dict) -> str:
+    name = t.take("material", "str")
+    if name not in materials:
+        t.fail("material", f"unknown material {name!r} (defined: {', '.join(materials)})")
+    return name
+
+
+def _solid(t: _Table, i: int, prim, dim: int, tol: float) -> dict:
+    where = f"{t.where}.solids[{i}]"
+    if not isinstance(prim, dict) or len(prim) != 1 or next(iter(prim)) not in PRIMITIVES:
+        raise DesignError(f"{t.source}: {where}: must be one of "
+                          + ", ".join(f"{{ {p} = {{...}} }}" for p in PRIMITIVES))
+    (kind, params), = prim.items()
+    p = _Table(params, f"{where}.{kind}", t.source)
+    if kind == "box":
+        lo, hi = p.take("min", "vector", dim=3), p.take("max", "vector", dim=3)
+        if np.any(hi - lo <= tol):
+            p.fail("max", "must exceed min in every coordinate")
+        out = {"min": lo, "max": hi}
+    elif kind == "cylinder":
+        a, b = p.take("from", "vector", dim=3), p.take("to", "vector", dim=3)
+        if np.linalg.norm(b - a) <= tol:
+            p.fail("to", "must differ from 'from'")
+        out = {"from": a, "to": b, "radius": _positive(p, "radius", p.take("radius", "number"))}
+    elif kind == "sphere":
+        out = {"center": p.take("center", "vector", dim=3),
+               "radius": _positive(p, "radius", p.take("radius", "number"))}
+    else:
+        outline = _polygon(p, "outline", p.take("outline", "points", dim=2), tol)
+        z = p.take("z", "vector", dim=2)
+        if z[1] - z[0] <= tol:
+            p.fail("z", "must be [z0, z1] with z1 > z0")
+        out = {"outline": outline, "z": z}
+    p.done()
+    return {kind: out}
+
+
+def _solids(t: _Table, dim: int, tol: float) -> tuple:
+    prims = t.take("solids", "list")
+    if not prims:
+        t.fail("solids", "at least one primitive is required")
+    return tuple(_solid(t, i, p, dim, tol) for i, p in enumerate(prims))
+
+
+def _body(top: _Table, dim: int, materials: dict):
+    t = _Table(top.take("body", "table"), "body", top.source)
+    material = _material_ref(t, materials)
+    if dim == 3:
+        body = Body(material, solids=_solids(t, dim, 1e-12))
+        t.done()
+        return body, None, 1e-9
+    outline = t.take("outline", "points", dim=2)
+    tol = 1e-9 * max(float(np.ptp(outline, axis=0).max()) if len(outline) else 1.0, 1.0)
+    outline = _polygon(t, "outline", outline, tol)
+    holes = []
+    for i, h in enumerate(t.take("holes", "list", default=[])):
+        hname = f"holes[{i}]"
+        h = _polygon(t, hname, _convert(h, "points", 2, lambda m: t.fail(hname, m)), tol)
+        if not np.all(polygons.strictly_inside(outline, h, tol)) or polygons.boundaries_meet(outline, h, tol):
+            t.fail(hname, "a hole must lie strictly inside the outline")
+        for j, other in enumerate(holes):
+            if polygons.overlap(h, other, tol):
+                t.fail(hname, f"overlaps holes[{j}]")
+        holes.append(h)
+    t.done()
+    return Body(material, outline=outline, holes=tuple(holes)), _Region2D(outline, holes, tol), tol
+
+
+def _bones(top: _Table, dim: int, materials: dict, region, tol) -> tuple:
+    bones, outlines = [], []
+    for t in _named_entries(top, "bones"):
+        name = t.where.split(".", 1)[1]
+        material = _material_ref(t, materials)
+        if dim == 3:
+            bones.append(Bone(name, material, solids=_solids(t, dim, tol)))
+            t.done()
+            continue
+        outline = _polygon(t, "outline", t.take("outline", "points", dim=2), tol)
+        inside = np.all(polygons.strictly_inside(region.outline, outline, tol))
+        if not inside or polygons.boundaries_meet(region.outline, outline, tol):
+            t.fail("outline", "a bone must lie strictly inside the body outline")
+        for i, h in enumerate(region.holes):
+            if polygons.overlap(outline, h, tol):
+                t.fail("outline", f"overlaps body.holes[{i}]")
+        for other, o in zip(bones, outlines):
+            if polygons.overlap(outline, o, tol):
+                t.fail("outline", f"overlaps or touches bone {other.name!r}")
+        t.done()
+        bones.append(Bone(name, material, outline=outline))
+        outlines.append(outline)
+    return tuple(bones)
+
+
+def _inside(t: _Table, key: str, points: np.ndarray, region, what: str) -> None:
+    if region is not None and not np.all(region.contains(np.atleast_2d(points))):
+        t.fail(key, f"{what} lies outside the body")
+
+
+def _cables(top: _Table, dim: int, region, tol) -> tuple:
+    cables = []
+    for t in _named_entries(top, "cables"):
+        name = t.where.split(".", 1)[1]
+        kind = t.take("kind", "str")
+        if kind not in ("tendon", "ligament"):
+            t.fail("kind", f"must be \"tendon\" or \"ligament\", got {kind!r}")
+        path = t.take("path", "points", dim=dim)
+        if len(path) < 2:
+            t.fail("path", "a cable path needs at least 2 points")
+        seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
+        if np.any(seg <= tol):
+            t.fail("path", "repeated consecutive points (zero-length segment)")
+        if region is not None and not region.contains_path(path):
+            t.fail("path", "the cable leaves the body (it must run inside it or on its boundary)")
+        k = _positive(t, "stiffness", t.take("stiffness", "number"))
+        contraction = pretension = 0.0
+        if kind == "tendon":
+            contraction = _positive(t, "contraction", t.take("contraction", "number", 0.0), strict=False)
+            if t.has("pretension"):
+                t.fail("pretension", "only ligaments take a pretension (a tendon is shortened by contraction)")
+        else:
+            pretension = _positive(t, "pretension", t.take("pretension", "number", 0.0), strict=False)
+            if t.has("contraction"):
+                t.fail("contraction", "ligaments are passive and never contracted (use pretension)")
+        if max(contraction, pretension) >= seg.sum():
+            t.fail("contraction" if kind == "tendon" else "pretension",
+                   f"must be shorter than the cable ({seg.sum():g} mm)")
+        t.done()
+        cables.append(CableSpec(name, kind, path, k, contraction, pretension))
+    return tuple(cables)
+
+
+def _pins(top: _Table, dim: int) -> tuple:
+    pins = []
+    for t in _named_entries(top, "pins", required=True):
+        name = t.where.split(".", 1)[1]
+        region = t.take("region", "points", dim=dim)
+        if region.shape != (2, dim) or np.any(region[1] < region[0]):
+            t.fail("region", "must be [min, max] corners of a box with min <= max")
+        kind = t.take("kind", "str", "fixed")
+        if kind not in ("fixed", "spring"):
+            t.fail("kind", f"must be \"fixed\" or \"spring\", got {kind!r}")
+        if kind == "spring" or t.has("stiffness"):
+            k = _positive(t, "stiffness", t.take("stiffness", "number"))
+        else:
+            k = 0.0
+        move = t.take("move", "vector", np.zeros(dim), dim=dim)
+        t.done()
+        pins.append(PinSpec(name, region, kind, k, move))
+    return tuple(pins)
+
+
+def _loads(top: _Table, dim: int, region) -> tuple:
+    loads = []
+    for t in _named_entries(top, "loads"):
+        at = t.take("at", "vector", dim=dim)
+        _inside(t, "at", at, region, "the load point")
+        force = t.take("force", "vector", dim=dim)
+        t.done()
+        loads.append(LoadSpec(t.where.split(".", 1)[1], at, force))
+    return tuple(loads)
+
+
+def _grounds(top: _Table, dim: int) -> tuple:
+    grounds = []
+    for t in _named_entries(top, "grounds"):
+        point = t.take("point", "vector", dim=dim)
+        normal = t.take("normal", "vector", dim=dim)
+        if np.linalg.norm(normal) == 0:
+            t.fail("normal", "must be a non-zero vector")
+        k = _positive(t, "stiffness", t.take("stiffness", "number"))
+        t.done()
+        grounds.append(GroundSpec(t.where.split(".", 1)[1], point, normal / np.linalg.norm(normal), k))
+    return tuple(grounds)
+
+
+def _markers(top: _Table, dim: int, region) -> dict:
+    t = _Table(top.take("markers", "table", {}), "markers", top.source)
+    out = {}
+    for name in list(t.data):
+        if "." in name:
+            t.fail(name, "marker names must not contain '.'")
+        X = t.take(name, "vector", dim=dim)
+        _inside(t, name, X, region, "the marker")
+        out[name] = X
+    return out
+
+
+def _contact(top: _Table) -> ContactSpec:
+    t = _Table(top.take("contact", "table", {}), "contact", top.source)
+    spec = ContactSpec(t.take("self", "bool", False), _positive(t, "dhat", t.take("dhat", "number", 0.3)))
+    t.done()
+    return spec
+
+
+def _solver(top: _Table) -> SolverSpec:
+    t = _Table(top.take("solver", "table", {}), "solver", top.source)
+    d = SolverSpec()
+    steps = t.take("steps", "int", d.steps)
+    if steps < 1:
+        t.fail("steps", "must be >= 1")
+    its = t.take("max_iterations", "int", d.max_iterations)
+    if its < 1:
+        t.fail("max_iterations", "must be >= 1")
+    ls = t.take("line_search", "str", d.line_search)
+    if ls not in LINE_SEARCHES:
+        t.fail("line_search", f"must be one of {', '.join(LINE_SEARCHES)}; got {ls!r}")
+    rtol = _positive(t, "rtol", t.take("rtol", "number", d.rtol))
+    atol = _positive(t, "atol", t.take("atol", "number", d.atol))
+    t.done()
+    return SolverSpec(steps, its, ls, rtol, atol)
+
+
+# -- entry points -----------------------------------------------------------------------------------------
+def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
+    """Validate a design given as parsed TOML (a dict); overrides are ``KEY=VALUE`` strings."""
     data = copy.deepcopy(data)
-    for o in overrides:
-        apply_override(data, o, source)
-    dim = data.get("dim", 2)
-    A = lambda v: np.asarray(v, float)
-    mats = {k: Material(k, float(v["E"]), float(v["nu"])) for k, v in data["materials"].items()}
-    b = data["body"]
-    body = _ns(outline=A(b["outline"]) if "outline" in b else None, holes=tuple(A(h) for h in b.get("holes", [])),
-               solids=tuple(b.get("solids", [])), material=b["material"])
-    bones = tuple(_ns(name=x["name"], outline=A(x["outline"]) if "outline" in x else None,
-                      solids=tuple(x.get("solids", [])), material=x["material"]) for x in data.get("bones", []))
-    cables = tuple(_ns(name=c["name"], kind=c["kind"], path=A(c["path"]), stiffness=float(c["stiffness"]),
-                       contraction=float(c.get("contraction", 0.0)), pretension=float(c.get("pretension", 0.0)))
-                   for c in data.get("cables", []))
-    pins = tuple(_ns(name=p["name"], region=A(p["region"]), kind=p.get("kind", "fixed"),
-                     stiffness=float(p.get("stiffness", 0.0)), move=A(p.get("move", [0.0] * dim))) for p in data["pins"])
-    loads = tuple(_ns(name=l["name"], at=A(l["at"]), force=A(l["force"])) for l in data.get("loads", []))
-    grounds = tuple(_ns(name=g["name"], point=A(g["point"]), normal=A(g["normal"]) / np.linalg.norm(g["normal"]),
-                        stiffness=float(g["stiffness"])) for g in data.get("grounds", []))
-    s = data.get("solver", {})
-    m = data.get("mesh", {})
-    return _ns(source=str(source), format=1, name=data.get("name", "design"), dim=dim,
-               thickness=float(data.get("thickness", 1.0)), mesh=_ns(size=float(m.get("size", 2.0)), degree=int(m.get("degree", 1))),
-               materials=mats, body=body, bones=bones, cables=cables, pins=pins, loads=loads, grounds=grounds,
-               contact=_ns(self_contact=False, dhat=0.3), markers={k: A(v) for k, v in data.get("markers", {}).items()},
-               solver=_ns(steps=int(s.get("steps", 1)), max_iterations=int(s.get("max_iterations", 50)), rtol=1e-9, atol=1e-10, line_search="energy"), raw=data)
+    for assignment in overrides:
+        apply_override(data, assignment, source)
+    top = _Table(data, "", source)
+    fmt = top.take("format", "int")
+    if fmt != FORMAT:
+        top.fail("format", f"unsupported format {fmt} (this version reads format = {FORMAT})")
+    name = top.take("name", "str", Path(source).stem if source != "<design>" else "design")
+    dim = top.take("dim", "int", 2)
+    if dim not in (2, 3):
+        top.fail("dim", f"must be 2 or 3, got {dim}")
+    thickness = 1.0
+    if dim == 2:
+        thickness = _positive(top, "thickness", top.take("thickness", "number", 1.0))
+    elif top.has("thickness"):
+        top.fail("thickness", "is for dim = 2 only")
+    mt = _Table(top.take("mesh", "table", {}), "mesh", source)
+    mesh = MeshSpec(_positive(mt, "size", mt.take("size", "number", MeshSpec.size)),
+                    mt.take("degree", "int", MeshSpec.degree))
+    if mesh.degree not in (1, 2):
+        mt.fail("degree", f"must be 1 or 2, got {mesh.degree}")
+    mt.done()
+    materials = _materials(top)
+    body, region, tol = _body(top, dim, materials)
+    design = Design(
+        source=str(source), name=name, dim=dim, thickness=thickness, mesh=mesh,
+        materials=materials, body=body,
+        bones=_bones(top, dim, materials, region, tol),
+        cables=_cables(top, dim, region, tol),
+        pins=_pins(top, dim),
+        loads=_loads(top, dim, region),
+        grounds=_grounds(top, dim),
+        contact=_contact(top),
+        markers=_markers(top, dim, region),
+        solver=_solver(top),
+        raw=data,
+    )
+    top.done()
+    return design
 
 
-def load_design(path, overrides=()):
+def load_design(path, overrides=()) -> Design:
+    """Read, override and validate a design file; raises DesignError for any problem."""
     path = Path(path)
-    with open(path, "rb") as f:
-        data = tomllib.load(f)
+    source = str(path)
+    try:
+        with open(path, "rb") as f:
+            data = tomllib.load(f)
+    except FileNotFoundError:
+        raise DesignError(f"{source}: no such file") from None
+    except IsADirectoryError:
+        raise DesignError(f"{source}: is a folder, not a design file") from None
+    except PermissionError:
+        raise DesignError(f"{source}: permission denied") from None
+    except UnicodeDecodeError:
+        raise DesignError(f"{source}: not a text (UTF-8) file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise DesignError(f"{source}: malformed TOML: {exc}") from None
     data.setdefault("name", path.stem)
-    return parse_design(data, str(path), overrides)
+    return parse_design(data, source, overrides)

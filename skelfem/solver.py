@@ -24,9 +24,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from petsc4py import PETSc
 
+from .design import LINE_SEARCHES as STRATEGIES
+
 log = logging.getLogger("skelfem")
 
-STRATEGIES = ("energy", "residual", "none", "trust_region")
 
 _REASONS = {
     PETSc.SNES.ConvergedReason.DIVERGED_MAX_IT: "max_iterations",

@@ -100,3 +100,26 @@ def test_failed_solve_reports_status_and_keeps_last_equilibrium():
     assert not report.converged
     assert report.status == "max_iterations"
     assert np.abs(sc.u.x.array).max() == 0.0   # the last accepted equilibrium (rest), not a half-step
+
+
+@pytest.mark.parametrize("kind", ["fixed", "spring"])
+def test_pin_reactions_balance_the_applied_load(kind):
+    d = strip(size=3.0, contraction=0.0)
+    d["pins"][0].update(kind=kind, stiffness=50.0)
+    d["loads"] = [{"name": "tip", "at": [5, 59], "force": [0.02, -0.05]}]
+    sc = _scene(d)
+    assert NewtonSolver(sc, sc.design.solver).solve(1).converged
+    reaction = sc.reactions()["base"]
+    assert np.allclose(reaction + np.array([0.02, -0.05]), 0.0, atol=1e-8)
+
+
+@pytest.mark.parametrize("kind", ["fixed", "spring"])
+def test_moved_pin_translates_a_free_body_rigidly(kind):
+    d = strip(size=3.0, contraction=0.0)
+    d["pins"][0].update(kind=kind, stiffness=50.0, move=[1.5, -0.5])
+    sc = _scene(d)
+    report = NewtonSolver(sc, sc.design.solver).solve(2)
+    assert report.converged
+    u = sc.u.x.array.reshape(-1, 2)
+    assert np.allclose(u, [1.5, -0.5], atol=1e-7)
+    assert np.allclose(sc.reactions()["base"], 0.0, atol=1e-8)
