@@ -1,7 +1,8 @@
 """Command line: ``skelfem simulate DESIGN [--out DIR] [--set KEY=VALUE ...]``.
 
 Exit status: 0 on success, 1 for bad input (one ``error:`` line on stderr),
-2 when the solve does not converge (result.json says why).
+2 when the solve does not converge (result.json says why), 3 for an
+internal error.
 """
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from pathlib import Path
 
 log = logging.getLogger("skelfem")
 
-EXIT_OK, EXIT_INPUT, EXIT_SOLVE = 0, 1, 2
+EXIT_OK, EXIT_INPUT, EXIT_SOLVE, EXIT_INTERNAL = 0, 1, 2, 3
 
 
 class _RankZero(logging.Filter):
@@ -36,18 +37,36 @@ def setup_logging(verbosity: int) -> None:
         logging.getLogger(name).setLevel(logging.WARNING)
 
 
+def common_arguments(parser: argparse.ArgumentParser, out_help: str = "output folder (default: results/<name>)") -> None:
+    """Arguments every command that runs a design shares."""
+    parser.add_argument("design", type=Path, help="design file (TOML)")
+    parser.add_argument("--out", type=Path, default=None, help=out_help)
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="override one design value, e.g. cables.flexor.contraction=8")
+    parser.add_argument("-q", "--quiet", action="store_true", help="print only errors")
+    parser.add_argument("-v", "--verbose", action="store_true", help="print every Newton iteration")
+
+
+# Modules that add sub-commands: each has add_parsers(subparsers), and every
+# parser it adds sets `handler` (a function args -> exit status).
+COMMAND_MODULES = ()
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="skelfem", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
     s = sub.add_parser("simulate", help="static equilibrium of a design")
-    s.add_argument("design", type=Path, help="design file (TOML)")
-    s.add_argument("--out", type=Path, default=None, help="output folder (default: results/<name>)")
-    s.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override one design value, e.g. cables.flexor.contraction=8")
+    common_arguments(s)
     s.add_argument("--no-picture", action="store_true", help="skip deformed.png")
-    s.add_argument("-q", "--quiet", action="store_true", help="print only errors")
-    s.add_argument("-v", "--verbose", action="store_true", help="print every Newton iteration")
+    s.set_defaults(handler=simulate)
+    import importlib
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).add_parsers(sub)
     return p
+
+
+class InputError(Exception):
+    """Bad input found by a command; main prints it as one error line and exits 1."""
 
 
 def error(message: str) -> None:
@@ -56,49 +75,63 @@ def error(message: str) -> None:
         print(f"error: {message}", file=sys.stderr)
 
 
-def simulate(args) -> int:
+def prepare(args):
+    """Load, validate and mesh args.design; returns (design, scene, timings) or raises InputError."""
     from mpi4py import MPI
 
     from .design import DesignError, load_design
     from .geometry import MeshingError, mesh_design
-    from .output import plot_deformed, result_dict, write_json, write_xdmf
     from .scene import Scene
+
+    t0 = time.perf_counter()
+    try:
+        design = load_design(args.design, args.overrides)
+        out = output_folder(args, design)
+        log.info("%s: meshing (size %g mm, P%d)", design.name, design.mesh.size, design.mesh.degree)
+        tm = mesh_design(design, MPI.COMM_WORLD)
+        t_mesh = time.perf_counter()
+        scene = Scene(design, tm)
+    except (DesignError, MeshingError) as exc:
+        raise InputError(str(exc)) from None
+    args.out = out
+    return design, scene, {"mesh": t_mesh - t0, "compile": time.perf_counter() - t_mesh}
+
+
+def output_folder(args, design) -> Path:
+    out = args.out or Path("results") / design.name
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: output path exists and is not a folder")
+    return out
+
+
+def simulate(args) -> int:
+    from mpi4py import MPI
+
+    from .output import plot_deformed, result_dict, write_json, write_xdmf
     from .solver import NewtonSolver
 
     comm = MPI.COMM_WORLD
     t0 = time.perf_counter()
-    try:
-        design = load_design(args.design, args.overrides)
-    except DesignError as exc:
-        error(str(exc))
-        return EXIT_INPUT
-    out = args.out or Path("results") / design.name
-    if out.exists() and not out.is_dir():
-        error(f"{out}: output path exists and is not a folder")
-        return EXIT_INPUT
-    log.info("%s: meshing (size %g mm, P%d)", design.name, design.mesh.size, design.mesh.degree)
-    try:
-        tm = mesh_design(design, comm)
-        t_mesh = time.perf_counter()
-        scene = Scene(design, tm)
-    except (DesignError, MeshingError) as exc:
-        error(str(exc))
-        return EXIT_INPUT
+    design, scene, timings = prepare(args)
+    out = args.out
+    t1 = time.perf_counter()
     solver = NewtonSolver(scene, design.solver)
-    t_compile = time.perf_counter()
+    timings["compile"] += time.perf_counter() - t1
     log.info("%s: %d DOFs, %d cells; solving in %d load step(s)", design.name,
              scene.V.dofmap.index_map.size_global * scene.bs,
-             tm.mesh.topology.index_map(tm.mesh.topology.dim).size_global, design.solver.steps)
+             scene.mesh.topology.index_map(scene.mesh.topology.dim).size_global, design.solver.steps)
+    t2 = time.perf_counter()
     report = solver.solve(design.solver.steps)
-    t_solve = time.perf_counter()
-    timings = {"mesh": t_mesh - t0, "compile": t_compile - t_mesh, "solve": t_solve - t_compile}
+    timings["solve"] = time.perf_counter() - t2
     timings["total"] = time.perf_counter() - t0
     result = result_dict(design, scene, report, timings)
     if comm.rank == 0:
         out.mkdir(parents=True, exist_ok=True)
-    if report.converged:
-        write_xdmf(out / "solution.xdmf", scene) if comm.size == 1 else None
-        if not args.no_picture and comm.size == 1:
+        for stale in ("solution.xdmf", "solution.h5", "deformed.png"):
+            (out / stale).unlink(missing_ok=True)    # never leave an old equilibrium beside a new result
+    if report.converged and comm.size == 1:
+        write_xdmf(out / "solution.xdmf", scene)
+        if not args.no_picture:
             pulled = [f"{c.name} u={c.contraction:g} mm" for c in design.cables
                       if c.kind == "tendon" and c.contraction > 0]
             title = f"{design.name}: " + (", ".join(pulled) if pulled else "no contraction")
@@ -132,10 +165,21 @@ def _summary(result: dict, out: Path) -> None:
 
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
-    setup_logging(0 if args.quiet else (2 if args.verbose else 1))
-    if args.command == "simulate":
-        return simulate(args)
-    return EXIT_INPUT
+    verbosity = 0 if getattr(args, "quiet", False) else (2 if getattr(args, "verbose", False) else 1)
+    setup_logging(verbosity)
+    try:
+        return args.handler(args)
+    except InputError as exc:
+        error(str(exc))
+        return EXIT_INPUT
+    except KeyboardInterrupt:
+        error("interrupted")
+        return 130
+    except Exception as exc:  # a bug, not bad input: say so in one line unless -v asks for the traceback
+        if verbosity >= 2:
+            raise
+        error(f"internal error: {type(exc).__name__}: {exc} (run with -v for the traceback)")
+        return EXIT_INTERNAL
 
 
 if __name__ == "__main__":
