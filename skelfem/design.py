@@ -274,10 +274,12 @@ def _polygon(t: _Table, name: str, pts: np.ndarray, tol: float) -> np.ndarray:
         t.fail(name, "a polygon needs at least 3 points")
     if np.any(np.linalg.norm(pts - np.roll(pts, -1, axis=0), axis=1) <= tol):
         t.fail(name, "repeated consecutive points (degenerate polygon)")
-    if abs(polygons.signed_area(pts)) <= tol * max(np.ptp(pts, axis=0).max(), tol):
+    if np.ptp(pts, axis=0).min() <= tol:
         t.fail(name, "polygon has zero area (degenerate)")
     if not polygons.is_simple(pts, tol):
         t.fail(name, "polygon is not simple (edges cross or touch)")
+    if abs(polygons.signed_area(pts)) <= tol * np.ptp(pts, axis=0).max():
+        t.fail(name, "polygon has zero area (degenerate)")
     return pts
 
 
