@@ -53,7 +53,8 @@ COMMAND_MODULES = ()
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="skelfem", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="skelfem", description="Simulate and control cable-driven soft robots "
+                                "with embedded skeletons.")
     sub = p.add_subparsers(dest="command", required=True)
     s = sub.add_parser("simulate", help="static equilibrium of a design")
     common_arguments(s)

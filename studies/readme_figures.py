@@ -1,0 +1,99 @@
+"""Figures for the README: the demo finger, three skeletons side by side, Newton's residuals.
+
+    python studies/readme_figures.py [--out studies/figures] [--size 2.0]
+
+run(**params) returns the numbers shown in the figures; main(argv) writes the PNGs.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+CONDITIONS = {"finger": "bones + ligaments", "finger_bones": "bones only", "finger_soft": "no bones"}
+
+
+def solve(name: str, overrides=()):
+    """Load geometry/<name>.toml, mesh, solve; returns (scene, report)."""
+    from skelfem.design import load_design
+    from skelfem.geometry import mesh_design
+    from skelfem.scene import Scene
+    from skelfem.solver import NewtonSolver
+
+    design = load_design(ROOT / "geometry" / f"{name}.toml", overrides)
+    scene = Scene(design, mesh_design(design))
+    return scene, NewtonSolver(scene, design.solver).solve(design.solver.steps)
+
+
+def run(size: float = 2.0, contraction: float = 8.0, out: Path | None = None) -> dict:
+    """Solve the three finger conditions; if out is given, write the figures there."""
+    overrides = [f"mesh.size={size}", f"cables.flexor.contraction={contraction}"]
+    results, scenes = {}, {}
+    for name in CONDITIONS:
+        scene, report = solve(name, overrides)
+        if not report.converged:
+            raise RuntimeError(f"{name}: {report.status}")
+        tip = scene.marker_positions()[0]
+        results[name] = {"tip": tip.tolist(), "newton_iterations": report.newton_iterations,
+                         "residual_history": report.residual_history,
+                         "tension": scene.cables[0].tension(scene.u.x.array, scene.rest_lengths()[0])}
+        scenes[name] = scene
+    if out is not None:
+        _figures(Path(out), scenes, results, contraction)
+    return results
+
+
+def _figures(out: Path, scenes: dict, results: dict, contraction: float) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from skelfem.output import atomic_write, plot_deformed
+
+    out.mkdir(parents=True, exist_ok=True)
+    plot_deformed(out / "finger.png", scenes["finger"], f"finger.toml: flexor contracted {contraction:g} mm")
+
+    fig, axes = plt.subplots(1, 3, figsize=(12, 5.2), dpi=110, sharey=True)
+    for ax, (name, label) in zip(axes, CONDITIONS.items()):
+        plot_deformed(None, scenes[name], f"{label}\ntip at ({results[name]['tip'][0]:.1f}, "
+                      f"{results[name]['tip'][1]:.1f}) mm, T = {results[name]['tension']:.2f} N", ax=ax)
+        ax.legend().remove() if ax.get_legend() else None
+    fig.suptitle(f"Same tendon contraction ({contraction:g} mm), three skeletons", fontsize=11)
+    fig.tight_layout()
+    atomic_write(out / "skeletons.png", lambda tmp: fig.savefig(tmp, format="png"))
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(6, 3.6), dpi=110)
+    offset = 0
+    for k, hist in enumerate(results["finger"]["residual_history"]):
+        its = np.arange(offset, offset + len(hist))
+        ax.semilogy(its, hist, "o-", ms=3, label=f"load step {k + 1}")
+        offset += len(hist)
+    ax.set_xlabel("Newton iteration (cumulative)")
+    ax.set_ylabel("|grad Pi| [N]")
+    ax.set_title("finger.toml: residual per Newton iteration", fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    atomic_write(out / "newton.png", lambda tmp: fig.savefig(tmp, format="png"))
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--out", type=Path, default=ROOT / "studies" / "figures")
+    p.add_argument("--size", type=float, default=2.0)
+    p.add_argument("--contraction", type=float, default=8.0)
+    a = p.parse_args(argv)
+    res = run(a.size, a.contraction, a.out)
+    for name, r in res.items():
+        print(f"{name:13s} tip ({r['tip'][0]:7.2f}, {r['tip'][1]:7.2f}) mm  tension {r['tension']:.3f} N  "
+              f"{r['newton_iterations']} Newton iterations")
+    print(f"figures in {a.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

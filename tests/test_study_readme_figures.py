@@ -1,0 +1,24 @@
+"""studies/readme_figures.py at a coarse size: it runs, orders the skeletons, writes its PNGs."""
+import importlib.util
+from pathlib import Path
+
+STUDY = Path(__file__).resolve().parents[1] / "studies" / "readme_figures.py"
+
+
+def _load():
+    spec = importlib.util.spec_from_file_location("readme_figures", STUDY)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_readme_figures_tiny(tmp_path):
+    study = _load()
+    res = study.run(size=4.0, contraction=6.0, out=tmp_path)
+    assert set(res) == {"finger", "finger_bones", "finger_soft"}
+    # every finger curls toward its flexor (-x); the soft one carries less tendon tension
+    assert all(r["tip"][0] < 0 for r in res.values())
+    assert res["finger_soft"]["tension"] < res["finger"]["tension"]
+    for name in ("finger.png", "skeletons.png", "newton.png"):
+        assert (tmp_path / name).stat().st_size > 5_000
+    assert not list(tmp_path.glob(".*"))
