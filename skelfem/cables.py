@@ -73,7 +73,7 @@ def _crossings_3d(p, q, facets) -> np.ndarray:
         qv = np.cross(sv, e1)
         b = inv * (qv @ r)
         t = inv * np.einsum("ij,ij->i", e2, qv)
-    hit = ok & (a > -_EPS) & (b > -_EPS) & (a + b < 1 + _EPS) & (t > -_EPS) & (t < 1 + _EPS)
+        hit = ok & (a > -_EPS) & (b > -_EPS) & (a + b < 1 + _EPS) & (t > -_EPS) & (t < 1 + _EPS)
     return t[hit]
 
 

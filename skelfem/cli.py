@@ -31,8 +31,14 @@ def setup_logging(verbosity: int) -> None:
     log.handlers[:] = [handler]
     log.setLevel(level)
     log.propagate = False
-    # FFCx/distutils chatter on first compilation goes to the root logger
-    logging.getLogger().setLevel(logging.WARNING)
+    # FFCx/setuptools chatter on a first compilation goes to the root logger,
+    # whose level setuptools raises to INFO: give the root a handler that
+    # passes warnings only (this also stops logging.info from adding one).
+    root = logging.getLogger()
+    quiet = logging.StreamHandler(sys.stderr)
+    quiet.setLevel(logging.WARNING)
+    root.handlers[:] = [quiet]
+    root.setLevel(logging.WARNING)
     for name in ("FFCx", "UFL", "ffcx", "ufl"):
         logging.getLogger(name).setLevel(logging.WARNING)
 
@@ -108,7 +114,7 @@ def output_folder(args, design) -> Path:
 def simulate(args) -> int:
     from mpi4py import MPI
 
-    from .output import plot_deformed, result_dict, write_json, write_xdmf
+    from .output import plot_deformed, plot_deformed_3d, result_dict, write_json, write_xdmf
     from .solver import NewtonSolver
 
     comm = MPI.COMM_WORLD
@@ -136,7 +142,7 @@ def simulate(args) -> int:
             pulled = [f"{c.name} u={c.contraction:g} mm" for c in design.cables
                       if c.kind == "tendon" and c.contraction > 0]
             title = f"{design.name}: " + (", ".join(pulled) if pulled else "no contraction")
-            plot_deformed(out / "deformed.png", scene, title)
+            (plot_deformed if design.dim == 2 else plot_deformed_3d)(out / "deformed.png", scene, title)
     result["timings"]["total"] = round(time.perf_counter() - t0, 4)
     if comm.rank == 0:
         write_json(out / "result.json", result)
@@ -156,7 +162,7 @@ def _summary(result: dict, out: Path) -> None:
     if hist:
         print("  last step |R|: " + " ".join(f"{r:.1e}" for r in hist[-5:]))
     for name, m in (result["markers"] or {}).items():
-        print(f"  marker {name}: ({m['position'][0]:.2f}, {m['position'][1]:.2f}) mm, "
+        print(f"  marker {name}: ({', '.join(f'{p:.2f}' for p in m['position'])}) mm, "
               f"moved ({', '.join(f'{d:+.2f}' for d in m['displacement'])}) mm")
     for name, c in (result["cables"] or {}).items():
         print(f"  {c['kind']} {name}: tension {c['tension']:.3f} N, length {c['length']:.2f} mm")

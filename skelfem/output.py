@@ -219,3 +219,51 @@ def plot_deformed(path: Path, scene, title: str = "", ax=None, show_rest: bool =
         fig.tight_layout()
         atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
         plt.close(fig)
+
+
+def plot_deformed_3d(path: Path, scene, title: str = "", window_size=(900, 900)) -> None:
+    """Off-screen PNG of a 3D result: translucent body, opaque bones, cables, markers.
+
+    Rendered with pyvista/VTK through EGL, so it needs no display.
+    """
+    os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+    import pyvista as pv
+
+    x, u, tets = vertex_displacements(scene)
+    y = x + u
+    regions = cell_regions(scene)
+    body_tag = scene.tm.tags["body"]
+    cells = np.column_stack([np.full(len(tets), 4), tets]).ravel()
+    grid = pv.UnstructuredGrid(cells, np.full(len(tets), pv.CellType.TETRA, dtype=np.uint8), y)
+    grid.cell_data["region"] = regions
+    rest = pv.UnstructuredGrid(cells, np.full(len(tets), pv.CellType.TETRA, dtype=np.uint8), x)
+    p = pv.Plotter(off_screen=True, window_size=window_size)
+    p.set_background("white")
+    body = grid.extract_cells(np.flatnonzero(regions == body_tag)).extract_surface(algorithm=None)
+    p.add_mesh(rest.extract_surface(algorithm=None).extract_feature_edges(30.0), color="#888888", line_width=1.0)
+    p.add_mesh(body, color=REGION_COLORS["body"], opacity=0.35, show_edges=False)
+    bones = np.flatnonzero(regions != body_tag)
+    if len(bones):
+        p.add_mesh(grid.extract_cells(bones).extract_surface(algorithm=None), color=REGION_COLORS["bone"],
+                   show_edges=True, edge_color="#9a9080", line_width=0.3)
+    for c in cable_states(scene):
+        line = pv.lines_from_points(c["deformed"])
+        width = 5 if c["tension"] > 0 else 2
+        p.add_mesh(line, color=CABLE_COLORS[c["kind"]], line_width=width, render_lines_as_tubes=True)
+    if scene.marker_names:
+        pos = scene.marker_positions()
+        p.add_point_labels(pos, scene.marker_names, point_size=12, font_size=14, point_color="#222222",
+                           shape=None, always_visible=True)
+    if title:
+        p.add_text(title, font_size=11, color="black")
+    p.add_axes(color="black")
+    extent = np.ptp(x, axis=0)
+    if extent[2] < 0.5 * extent[:2].max():   # a slab (extruded 2D design) bends in x-y: look along z
+        p.view_xy()
+        p.camera.Elevation(-20)
+        p.camera.Azimuth(25)
+    else:
+        p.view_isometric()
+    p.reset_camera()
+    atomic_write(path, lambda tmp: p.screenshot(tmp))
+    p.close()
