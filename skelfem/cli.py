@@ -87,21 +87,17 @@ def prepare(args):
     from mpi4py import MPI
 
     from .design import DesignError, load_design
-    from .geometry import MeshingError, mesh_design
-    from .scene import Scene
+    from .geometry import MeshingError
+    from .run import build_scene
 
-    t0 = time.perf_counter()
     try:
         design = load_design(args.design, args.overrides)
-        out = output_folder(args, design)
+        args.out = output_folder(args, design)
         log.info("%s: meshing (size %g mm, P%d)", design.name, design.mesh.size, design.mesh.degree)
-        tm = mesh_design(design, MPI.COMM_WORLD)
-        t_mesh = time.perf_counter()
-        scene = Scene(design, tm)
+        scene, timings = build_scene(design, MPI.COMM_WORLD)
     except (DesignError, MeshingError) as exc:
         raise InputError(str(exc)) from None
-    args.out = out
-    return design, scene, {"mesh": t_mesh - t0, "compile": time.perf_counter() - t_mesh}
+    return design, scene, timings
 
 
 def output_folder(args, design) -> Path:
@@ -114,44 +110,18 @@ def output_folder(args, design) -> Path:
 def simulate(args) -> int:
     from mpi4py import MPI
 
-    from .output import plot_deformed, plot_deformed_3d, result_dict, write_json, write_xdmf
-    from .solver import NewtonSolver
+    from .run import solve, write_results
 
-    comm = MPI.COMM_WORLD
     t0 = time.perf_counter()
     design, scene, timings = prepare(args)
-    out = args.out
-    t1 = time.perf_counter()
-    solver = NewtonSolver(scene, design.solver)
-    timings["compile"] += time.perf_counter() - t1
-    log.info("%s: %d DOFs, %d cells; solving in %d load step(s)", design.name,
-             scene.V.dofmap.index_map.size_global * scene.bs,
-             scene.mesh.topology.index_map(scene.mesh.topology.dim).size_global, design.solver.steps)
-    t2 = time.perf_counter()
-    report = solver.solve(design.solver.steps)
-    timings["solve"] = time.perf_counter() - t2
-    timings["total"] = time.perf_counter() - t0
-    result = result_dict(design, scene, report, timings)
-    if comm.rank == 0:
-        out.mkdir(parents=True, exist_ok=True)
-        for stale in ("solution.xdmf", "solution.h5", "deformed.png"):
-            (out / stale).unlink(missing_ok=True)    # never leave an old equilibrium beside a new result
-    if report.converged and comm.size == 1:
-        write_xdmf(out / "solution.xdmf", scene)
-        if not args.no_picture:
-            pulled = [f"{c.name} u={c.contraction:g} mm" for c in design.cables
-                      if c.kind == "tendon" and c.contraction > 0]
-            title = f"{design.name}: " + (", ".join(pulled) if pulled else "no contraction")
-            (plot_deformed if design.dim == 2 else plot_deformed_3d)(out / "deformed.png", scene, title)
-    result["timings"]["total"] = round(time.perf_counter() - t0, 4)
-    if comm.rank == 0:
-        write_json(out / "result.json", result)
+    report, _ = solve(design, scene, timings)
+    result = write_results(design, scene, report, args.out, timings, t0, picture=not args.no_picture)
     if not report.converged:
         error(f"{design.name}: solve failed ({report.status}) after {report.load_steps} load step(s); "
-              f"try more [solver].steps or a finer mesh; details in {out / 'result.json'}")
+              f"try more [solver].steps or a finer mesh; details in {args.out / 'result.json'}")
         return EXIT_SOLVE
-    if not args.quiet and comm.rank == 0:
-        _summary(result, out)
+    if not args.quiet and MPI.COMM_WORLD.rank == 0:
+        _summary(result, args.out)
     return EXIT_OK
 
 
