@@ -55,7 +55,7 @@ def common_arguments(parser: argparse.ArgumentParser, out_help: str = "output fo
 
 # Modules that add sub-commands: each has add_parsers(subparsers), and every
 # parser it adds sets `handler` (a function args -> exit status).
-COMMAND_MODULES = ()
+COMMAND_MODULES = ("skelfem.cli_sweep",)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -159,5 +159,6 @@ def main(argv=None) -> int:
         return EXIT_INTERNAL
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+if __name__ == "__main__":    # prefer `python -m skelfem`: one copy of this module
+    from skelfem.cli import main as _main
+    sys.exit(_main())
