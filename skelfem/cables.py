@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from .points import interpolation_matrix, locate_cells
+from .points import DofGather, global_interpolation
 
 _EPS = 1e-10
 
@@ -78,18 +78,26 @@ def _crossings_3d(p, q, facets) -> np.ndarray:
 
 
 def via_points(mesh, path: np.ndarray) -> np.ndarray:
-    """Sketch vertices plus every crossing with a mesh facet, in order along the path."""
+    """Sketch vertices plus every crossing with a mesh facet, in order along the path.
+
+    Each rank cuts the sketch with its own facets; the cuts are gathered, so
+    every rank gets the same via points as a serial run.
+    """
     path = np.asarray(path, dtype=float)
     facets = _mesh_facets(mesh)
     lo_f, hi_f = facets.min(axis=1), facets.max(axis=1)
     crossings = _crossings_2d if mesh.geometry.dim == 2 else _crossings_3d
-    out = []
+    cuts = []
     for p, q in zip(path[:-1], path[1:]):  # loop over sketch segments, not DOFs
         lo, hi = np.minimum(p, q), np.maximum(p, q)
         tol = 1e-9 * (1.0 + np.abs(hi).max())
         near = np.all((hi_f >= lo - tol) & (lo_f <= hi + tol), axis=1)
-        t = np.concatenate([[0.0], np.clip(crossings(p, q, facets[near]), 0.0, 1.0)])
-        t = np.unique(t)
+        cuts.append(np.clip(crossings(p, q, facets[near]), 0.0, 1.0))
+    if mesh.comm.size > 1:
+        cuts = [np.concatenate(mesh.comm.allgather(t)) for t in cuts]
+    out = []
+    for p, q, t in zip(path[:-1], path[1:], cuts):
+        t = np.unique(np.concatenate([[0.0], t]))
         seg_len = np.linalg.norm(q - p)
         keep = np.concatenate([[True], np.diff(t) * seg_len > 1e-9 * max(seg_len, 1.0)])
         out.append(p + t[keep, None] * (q - p))
@@ -115,7 +123,7 @@ class Cable:
     kind: str                # "tendon" or "ligament"
     k: float                 # spring constant, N/mm
     X: np.ndarray            # via points at rest, (n, gdim)
-    dofs: np.ndarray         # local DOF indices the cable touches, (m,)
+    dofs: np.ndarray         # global DOF numbers the cable touches, sorted (m,); local = global in serial
     S: sp.csr_matrix         # via point interpolation restricted to dofs, (n*gdim, m)
     B: sp.csr_matrix         # D S restricted to dofs, (n_seg*gdim, m)
     d0: np.ndarray           # rest segment vectors D X, (n_seg, gdim)
@@ -123,24 +131,23 @@ class Cable:
     contraction: float = 0.0
     pretension: float = 0.0
 
+    gather: DofGather | None = None   # u (local array) -> u on `dofs`, on every rank
+
     @classmethod
     def build(cls, V, spec) -> "Cable":
         mesh = V.mesh
         X = via_points(mesh, spec.path)
-        cells = locate_cells(mesh, X)
-        if np.any(cells < 0):
+        S, gather, owner = global_interpolation(V, X)
+        if np.any(owner == mesh.comm.size):
             raise ValueError(f"cable {spec.name!r} leaves the mesh")
-        S = interpolation_matrix(V, X, cells)
         gdim = mesh.geometry.dim
         n = len(X)
         D = sp.kron(sp.diags([-np.ones(n - 1), np.ones(n - 1)], [0, 1], shape=(n - 1, n)),
                     sp.identity(gdim), format="csr")
-        dofs = np.unique(S.tocsr().indices)          # columns touched
-        S = S.tocsc()[:, dofs].tocsr()
         d0 = np.diff(X, axis=0)
-        return cls(spec.name, spec.kind, float(spec.stiffness), X, dofs.astype(np.int32),
+        return cls(spec.name, spec.kind, float(spec.stiffness), X, gather.dofs,
                    S, (D @ S).tocsr(), d0, float(np.linalg.norm(d0, axis=1).sum()),
-                   float(spec.contraction), float(spec.pretension))
+                   float(spec.contraction), float(spec.pretension), gather)
 
     # -- state ---------------------------------------------------------------
     def rest_length(self, factor: float = 1.0) -> float:
@@ -148,13 +155,17 @@ class Cable:
         shortening = self.contraction if self.kind == "tendon" else self.pretension
         return self.L0 - factor * shortening
 
+    def values(self, u: np.ndarray) -> np.ndarray:
+        """u on the cable's DOFs (`dofs`), from the local array u."""
+        return self.gather(u) if self.gather is not None else u[self.dofs]
+
     def segments(self, u: np.ndarray) -> np.ndarray:
         """Current segment vectors d_i, (n_seg, gdim)."""
-        return self.d0 + (self.B @ u[self.dofs]).reshape(self.d0.shape)
+        return self.d0 + (self.B @ self.values(u)).reshape(self.d0.shape)
 
     def positions(self, u: np.ndarray) -> np.ndarray:
         """Current via point positions, (n, gdim)."""
-        return self.X + (self.S @ u[self.dofs]).reshape(self.X.shape)
+        return self.X + (self.S @ self.values(u)).reshape(self.X.shape)
 
     def length(self, u: np.ndarray) -> float:
         return float(np.linalg.norm(self.segments(u), axis=1).sum())

@@ -70,3 +70,95 @@ def interpolation_matrix(V, points: np.ndarray, cells: np.ndarray | None = None)
     S = sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(len(points) * bs, n_local))
     S.eliminate_zeros()
     return S
+
+
+# -- material points under MPI ------------------------------------------------------------------
+def global_dof_numbers(V) -> np.ndarray:
+    """Global (unrolled) DOF number of every local DOF, owned and ghost."""
+    bs = V.dofmap.index_map_bs
+    imap = V.dofmap.index_map
+    nodes = imap.local_to_global(np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32))
+    return (nodes[:, None] * bs + np.arange(bs)).ravel().astype(np.int64)
+
+
+class DofGather:
+    """The values of a few global DOFs, known on every rank.
+
+    A cable or a marker touches DOFs that may be owned by several ranks. Each
+    rank copies the ones it owns into a short vector and one Allreduce sums
+    them, so every rank sees u restricted to `dofs` (global, sorted). In serial
+    this is plain indexing. Gradients go back with `scatter_add`, into owned
+    entries only, so nothing is counted twice.
+    """
+
+    def __init__(self, V, dofs: np.ndarray):
+        from mpi4py import MPI
+        self.comm = V.mesh.comm
+        bs = V.dofmap.index_map_bs
+        imap = V.dofmap.index_map
+        lo, n = imap.local_range[0] * bs, imap.size_local * bs
+        self.dofs = np.asarray(dofs, dtype=np.int64)
+        owned = (self.dofs >= lo) & (self.dofs < lo + n)
+        self.pos = np.flatnonzero(owned)                       # where in dofs this rank owns
+        self.local = (self.dofs[owned] - lo).astype(np.int32)  # their local indices
+        self._sum = MPI.SUM
+        self.serial = self.comm.size == 1
+
+    def __len__(self) -> int:
+        return len(self.dofs)
+
+    def __call__(self, u_local: np.ndarray) -> np.ndarray:
+        if self.serial:
+            return u_local[self.local]
+        from mpi4py import MPI
+        uc = np.zeros(len(self.dofs))
+        uc[self.pos] = u_local[self.local]
+        self.comm.Allreduce(MPI.IN_PLACE, uc, op=self._sum)
+        return uc
+
+    def scatter_add(self, values: np.ndarray, g_local: np.ndarray) -> None:
+        """g_local[owned] += values (values given on all of `dofs`)."""
+        g_local[self.local] += values[self.pos]
+
+    @property
+    def owned_dofs(self) -> np.ndarray:
+        """Global numbers of the DOFs this rank owns (its rows of a matrix)."""
+        return self.dofs[self.pos]
+
+
+def owner_ranks(mesh, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(owner rank of each point, its local cell on this rank or -1).
+
+    A point belongs to the lowest rank that owns a cell containing it;
+    the owner is comm.size where no rank does.
+    """
+    from mpi4py import MPI
+    comm = mesh.comm
+    cells = locate_cells(mesh, points)
+    n_owned = mesh.topology.index_map(mesh.topology.dim).size_local
+    cells[cells >= n_owned] = -1                                  # ghost cells belong to others
+    owner = np.where(cells >= 0, comm.rank, comm.size).astype(np.int32)
+    if comm.size > 1:
+        comm.Allreduce(MPI.IN_PLACE, owner, op=MPI.MIN)
+    return owner, np.where(owner == comm.rank, cells, -1)
+
+
+def global_interpolation(V, points: np.ndarray):
+    """S (n_points*bs x len(dofs)) and the sorted global DOFs it touches, identical on every rank.
+
+    Returns (S, DofGather, owner); points with owner == comm.size lie outside the mesh.
+    """
+    comm = V.mesh.comm
+    bs = V.dofmap.index_map_bs
+    points = np.asarray(points, dtype=float).reshape(-1, V.mesh.geometry.dim)
+    owner, cells = owner_ranks(V.mesh, points)
+    mine = np.flatnonzero(owner == comm.rank)
+    S = interpolation_matrix(V, points[mine], cells[mine]).tocoo()
+    rows = (mine[S.row // bs] * bs + S.row % bs).astype(np.int64)
+    cols = global_dof_numbers(V)[S.col]
+    vals = S.data
+    if comm.size > 1:
+        rows, cols, vals = (np.concatenate(comm.allgather(a)) for a in (rows, cols, vals))
+    dofs, cols = np.unique(cols, return_inverse=True)
+    S = sp.csr_matrix((vals, (rows, cols)), shape=(len(points) * bs, len(dofs)))
+    return S, DofGather(V, dofs), owner
