@@ -78,6 +78,37 @@ def cable_states(scene) -> list[dict]:
     return out
 
 
+def snapshot(scene):
+    """The whole state on rank 0, for files and pictures (collective; None on other ranks).
+
+    Under MPI each rank holds its part of the mesh; nodes are matched by their
+    input (Gmsh) numbers, so rank 0 gets the same arrays as a serial run.
+    Returns a namespace with x (rest nodes), u (their displacement), cells,
+    regions (tag per cell), cables (see cable_states), markers (name -> position).
+    """
+    from types import SimpleNamespace
+
+    comm = scene.comm
+    x, u, cells = vertex_displacements(scene)
+    n_cells = scene.mesh.topology.index_map(scene.mesh.topology.dim).size_local
+    cells, regions = cells[:n_cells], cell_regions(scene)
+    cables = cable_states(scene)
+    markers = dict(zip(scene.marker_names, scene.marker_positions())) if scene.marker_names else {}
+    if comm.size > 1:
+        orig = np.asarray(scene.mesh.geometry.input_global_indices, dtype=np.int64)
+        parts = comm.gather((orig, x, u, orig[cells], regions), root=0)
+        if comm.rank != 0:
+            return None
+        orig_all = np.concatenate([p[0] for p in parts])
+        numbers, first = np.unique(orig_all, return_index=True)
+        x = np.concatenate([p[1] for p in parts])[first]
+        u = np.concatenate([p[2] for p in parts])[first]
+        cells = np.searchsorted(numbers, np.concatenate([p[3] for p in parts]))
+        regions = np.concatenate([p[4] for p in parts])
+    return SimpleNamespace(x=x, u=u, cells=cells, regions=regions, cables=cables, markers=markers,
+                           body_tag=scene.tm.tags["body"], design=scene.design)
+
+
 def result_dict(design, scene, report, timings: dict) -> dict:
     """result.json as the design-format contract defines it."""
     converged = bool(report.converged)
@@ -124,13 +155,16 @@ def write_xdmf(path: Path, scene) -> None:
     """
     import meshio
 
-    x, u, cells = vertex_displacements(scene)
+    snap = snapshot(scene)
+    if snap is None:
+        return
+    x, u, cells = snap.x, snap.u, snap.cells
     gdim = x.shape[1]
-    cell_type = "triangle" if scene.mesh.topology.dim == 2 else "tetra"
+    cell_type = "triangle" if gdim == 2 else "tetra"
     points, disp = [x], [u]
     lines, tension, cable_id = [], [], []
     offset = len(x)
-    for i, c in enumerate(cable_states(scene)):
+    for i, c in enumerate(snap.cables):
         n = len(c["rest"])
         points.append(c["rest"])
         disp.append(c["deformed"] - c["rest"])
@@ -144,7 +178,7 @@ def write_xdmf(path: Path, scene) -> None:
     d = np.vstack(disp)
     d3 = np.column_stack([d, np.zeros(len(d))]) if gdim == 2 else d
     blocks = [(cell_type, cells)]
-    region = [cell_regions(scene).astype(float)]
+    region = [snap.regions.astype(float)]
     tens = [np.zeros(len(cells))]
     ids = [np.full(len(cells), -1.0)]
     if lines:
@@ -168,14 +202,17 @@ def plot_deformed(path: Path, scene, title: str = "", ax=None, show_rest: bool =
     import matplotlib.pyplot as plt
     from matplotlib.collections import PolyCollection
 
-    design = scene.design
-    x, u, tri = vertex_displacements(scene)
+    snap = snapshot(scene)
+    if snap is None:
+        return
+    design = snap.design
+    x, u, tri = snap.x, snap.u, snap.cells
     y = x + u
     own = ax is None
     if own:
         fig, ax = plt.subplots(figsize=(6, 7), dpi=120)
-    regions = cell_regions(scene)
-    body_tag = scene.tm.tags["body"]
+    regions = snap.regions
+    body_tag = snap.body_tag
     colors = np.where(regions == body_tag, REGION_COLORS["body"], REGION_COLORS["bone"])
     ax.add_collection(PolyCollection(y[tri], facecolors=colors, edgecolors="#7a6a66",
                                      linewidths=0.15))
@@ -184,7 +221,7 @@ def plot_deformed(path: Path, scene, title: str = "", ax=None, show_rest: bool =
         for loop in loops:
             closed = np.vstack([loop, loop[:1]])
             ax.plot(closed[:, 0], closed[:, 1], color="0.55", lw=0.8, ls="--", zorder=1)
-    for c in cable_states(scene):
+    for c in snap.cables:
         p = c["deformed"]
         lw = 1.2 + (1.5 if c["tension"] > 0 else 0.0)
         label = f"{c['name']} ({c['kind']}): {c['tension']:.3g} N"
@@ -198,10 +235,10 @@ def plot_deformed(path: Path, scene, title: str = "", ax=None, show_rest: bool =
         t = np.array([-g.normal[1], g.normal[0]])
         ends = np.array([g.point - 1e3 * t, g.point + 1e3 * t])
         ax.plot(ends[:, 0], ends[:, 1], color="k", lw=1.5, zorder=2)
-    if scene.marker_names:
-        pos = scene.marker_positions()
+    if snap.markers:
+        pos = np.array(list(snap.markers.values()))
         ax.plot(pos[:, 0], pos[:, 1], "o", color="#222222", ms=4, zorder=4)
-        for name, p in zip(scene.marker_names, pos):
+        for name, p in snap.markers.items():
             ax.annotate(name, p, textcoords="offset points", xytext=(5, 5), fontsize=8)
     allpts = np.vstack([y, x]) if show_rest else y
     lo, hi = allpts.min(axis=0), allpts.max(axis=0)
@@ -213,7 +250,7 @@ def plot_deformed(path: Path, scene, title: str = "", ax=None, show_rest: bool =
     ax.set_ylabel("y [mm]")
     if title:
         ax.set_title(title, fontsize=10)
-    if scene.cables:
+    if snap.cables:
         ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.09), ncol=2, fontsize=7, frameon=False)
     if own:
         fig.tight_layout()
@@ -229,10 +266,13 @@ def plot_deformed_3d(path: Path, scene, title: str = "", window_size=(900, 900))
     os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
     import pyvista as pv
 
-    x, u, tets = vertex_displacements(scene)
+    snap = snapshot(scene)
+    if snap is None:
+        return
+    x, u, tets = snap.x, snap.u, snap.cells
     y = x + u
-    regions = cell_regions(scene)
-    body_tag = scene.tm.tags["body"]
+    regions = snap.regions
+    body_tag = snap.body_tag
     cells = np.column_stack([np.full(len(tets), 4), tets]).ravel()
     grid = pv.UnstructuredGrid(cells, np.full(len(tets), pv.CellType.TETRA, dtype=np.uint8), y)
     grid.cell_data["region"] = regions
@@ -246,13 +286,13 @@ def plot_deformed_3d(path: Path, scene, title: str = "", window_size=(900, 900))
     if len(bones):
         p.add_mesh(grid.extract_cells(bones).extract_surface(algorithm=None), color=REGION_COLORS["bone"],
                    show_edges=True, edge_color="#9a9080", line_width=0.3)
-    for c in cable_states(scene):
+    for c in snap.cables:
         line = pv.lines_from_points(c["deformed"])
         width = 5 if c["tension"] > 0 else 2
         p.add_mesh(line, color=CABLE_COLORS[c["kind"]], line_width=width, render_lines_as_tubes=True)
-    if scene.marker_names:
-        pos = scene.marker_positions()
-        p.add_point_labels(pos, scene.marker_names, point_size=12, font_size=14, point_color="#222222",
+    if snap.markers:
+        pos = np.array(list(snap.markers.values()))
+        p.add_point_labels(pos, list(snap.markers), point_size=12, font_size=14, point_color="#222222",
                            shape=None, always_visible=True)
     if title:
         p.add_text(title, font_size=11, color="black")

@@ -63,7 +63,7 @@ def write_results(design, scene, report, out: Path, timings: dict, t0: float,
         out.mkdir(parents=True, exist_ok=True)
         for stale in STALE:
             (out / stale).unlink(missing_ok=True)   # never leave an old equilibrium beside a new result
-    if report.converged and comm.size == 1:
+    if report.converged:                         # collective: every rank takes part, rank 0 writes
         write_xdmf(out / "solution.xdmf", scene)
         if picture:
             plot = plot_deformed if design.dim == 2 else plot_deformed_3d
