@@ -1,4 +1,4 @@
-"""Figures for the README: the demo finger, three skeletons side by side, Newton's residuals.
+"""Figures for the README: the demo finger, three skeletons side by side, Newton's residuals, the 3D arm.
 
     python studies/readme_figures.py [--out studies/figures] [--size 2.0]
 
@@ -27,8 +27,8 @@ def solve(name: str, overrides=()):
     return scene, NewtonSolver(scene, design.solver).solve(design.solver.steps)
 
 
-def run(size: float = 2.0, contraction: float = 8.0, out: Path | None = None) -> dict:
-    """Solve the three finger conditions; if out is given, write the figures there."""
+def run(size: float = 2.0, contraction: float = 8.0, out: Path | None = None, arm: bool = False) -> dict:
+    """Solve the three finger conditions (and arm3d.toml if arm); if out is given, write the figures there."""
     overrides = [f"mesh.size={size}", f"cables.flexor.contraction={contraction}"]
     results, scenes = {}, {}
     for name in CONDITIONS:
@@ -42,7 +42,21 @@ def run(size: float = 2.0, contraction: float = 8.0, out: Path | None = None) ->
         scenes[name] = scene
     if out is not None:
         _figures(Path(out), scenes, results, contraction)
+    if arm:
+        results["arm3d"] = _arm(out)
     return results
+
+
+def _arm(out: Path | None) -> dict:
+    from skelfem.output import plot_deformed_3d
+    from skelfem.run import picture_title
+
+    scene, report = solve("arm3d")
+    if not report.converged:
+        raise RuntimeError(f"arm3d: {report.status}")
+    if out is not None:
+        plot_deformed_3d(Path(out) / "arm3d.png", scene, picture_title(scene.design))
+    return {"hand": scene.marker_positions()[1].tolist(), "newton_iterations": report.newton_iterations}
 
 
 def _figures(out: Path, scenes: dict, results: dict, contraction: float) -> None:
@@ -86,8 +100,13 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path, default=ROOT / "studies" / "figures")
     p.add_argument("--size", type=float, default=2.0)
     p.add_argument("--contraction", type=float, default=8.0)
+    p.add_argument("--no-arm", action="store_true", help="skip the 3D arm picture")
     a = p.parse_args(argv)
-    res = run(a.size, a.contraction, a.out)
+    res = run(a.size, a.contraction, a.out, arm=not a.no_arm)
+    arm = res.pop("arm3d", None)
+    if arm:
+        print(f"arm3d         hand at ({', '.join(f'{v:.2f}' for v in arm['hand'])}) mm, "
+              f"{arm['newton_iterations']} Newton iterations")
     for name, r in res.items():
         print(f"{name:13s} tip ({r['tip'][0]:7.2f}, {r['tip'][1]:7.2f}) mm  tension {r['tension']:.3f} N  "
               f"{r['newton_iterations']} Newton iterations")
