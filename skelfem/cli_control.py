@@ -1,0 +1,412 @@
+"""Command line for control: ``skelfem ik`` (one target) and ``skelfem track`` (a path).
+
+    skelfem ik DESIGN --marker NAME --target X Y [--max-contraction TENDON=MM ...] [--reg RHO]
+    skelfem track DESIGN --marker NAME (--line X0 Y0 X1 Y1 --steps N | --csv FILE)
+
+Both start from the design's own contractions (clipped to the bounds), solved
+with its [solver] steps, and write into --out (default results/<name>):
+ik.json + ik.png, or track.csv + track.json + track.png. An unreachable target
+is not an error: the closest admissible pose is written with reached = false
+(exit 0). Bad input is one ``error:`` line (exit 1, nothing written); a failed
+initial equilibrium exits 2.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import cli
+from .output import FORMAT, atomic_write, write_json
+
+TARGET_COLOR, ACHIEVED_COLOR = "#d62728", "#2ca02c"
+
+
+def add_parsers(subparsers) -> None:
+    """Add the ``ik`` and ``track`` sub-commands."""
+    p = subparsers.add_parser("ik", help="Soft IK: tendon contractions that bring a marker to a target")
+    _control_arguments(p)
+    p.add_argument("--target", type=float, nargs="+", required=True, metavar="X",
+                   help="target position of the marker, mm (one value per dimension)")
+    p.set_defaults(handler=ik_command)
+
+    t = subparsers.add_parser("track", help="Soft IK along a sequence of targets, warm-started")
+    _control_arguments(t)
+    src = t.add_mutually_exclusive_group(required=True)
+    src.add_argument("--line", type=float, nargs="+", metavar="X",
+                     help="start and end of a straight target path, e.g. X0 Y0 X1 Y1")
+    src.add_argument("--csv", type=Path, help="targets, one per line: x,y (a header line is allowed)")
+    t.add_argument("--steps", type=int, default=None, help="number of targets on --line (both ends included)")
+    t.set_defaults(handler=track_command)
+
+
+def _control_arguments(p: argparse.ArgumentParser) -> None:
+    cli.common_arguments(p)
+    p.add_argument("--marker", required=True, help="name of the marker to steer")
+    p.add_argument("--max-contraction", action="append", default=[], metavar="TENDON=MM",
+                   help="upper bound on one tendon's contraction (repeatable); lower bound is 0")
+    p.add_argument("--reg", type=float, default=0.0, metavar="RHO",
+                   help="regulariser rho in |y - y'|^2 + rho |u|^2 (default 0)")
+    p.add_argument("--tol", type=float, default=None, metavar="MM",
+                   help="distance that counts as reached (default 1e-3 x finger length)")
+    p.add_argument("--max-solves", type=int, default=40, metavar="N",
+                   help="forward solves allowed per target (default 40)")
+
+
+# -- input ---------------------------------------------------------------------------------------
+def _bounds(items: list[str]) -> dict:
+    """{tendon: u_max} from TENDON=MM strings."""
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            sep = ""
+        if not sep or not out[name.strip()] > 0:
+            raise cli.InputError(f"--max-contraction {item}: expected TENDON=MM with MM > 0")
+    return out
+
+
+def _check_numbers(args) -> None:
+    if args.reg < 0:
+        raise cli.InputError(f"--reg {args.reg:g}: must be >= 0")
+    if args.tol is not None and not args.tol > 0:
+        raise cli.InputError(f"--tol {args.tol:g}: must be > 0")
+    if args.max_solves < 1:
+        raise cli.InputError(f"--max-solves {args.max_solves}: must be >= 1")
+
+
+def _peek(args):
+    """The design as read (cheap, before meshing), to check names and targets early."""
+    from .design import DesignError, load_design
+    try:
+        design = load_design(args.design, args.overrides)
+    except DesignError as exc:
+        raise cli.InputError(str(exc)) from None
+    if args.marker not in design.markers:
+        have = ", ".join(design.markers) or "none"
+        raise cli.InputError(f"{args.design}: marker '{args.marker}' not in design (have: {have})")
+    tendons = [c.name for c in design.cables if c.kind == "tendon"]
+    for name in _bounds(args.max_contraction):
+        if name not in tendons:
+            raise cli.InputError(f"--max-contraction: '{name}' is not a tendon of the design "
+                                 f"(tendons: {', '.join(tendons) or 'none'})")
+    return design
+
+
+def _setup(args):
+    """Design, scene and SoftIK from the arguments; InputError for bad input."""
+    from .control import SoftIK
+    from .solver import NewtonSolver
+
+    design, scene, timings = cli.prepare(args)
+    t0 = time.perf_counter()
+    solver = NewtonSolver(scene, design.solver)
+    ik = SoftIK(scene, solver, args.marker, upper=_bounds(args.max_contraction), reg=args.reg, tol=args.tol,
+                max_solves=args.max_solves)
+    timings["compile"] += time.perf_counter() - t0
+    if not args.verbose:                        # one line per target, not per Newton solve
+        cli.log.setLevel(logging.WARNING)
+    return design, scene, ik, timings
+
+
+def _points(values: list[float], dim: int, what: str) -> np.ndarray:
+    if len(values) % dim:
+        raise cli.InputError(f"{what}: expected a multiple of {dim} coordinates, got {len(values)}")
+    return np.asarray(values, dtype=float).reshape(-1, dim)
+
+
+def read_targets(path: Path, dim: int) -> np.ndarray:
+    """Targets from a CSV file: one point per line, comma or whitespace separated."""
+    try:
+        text = Path(path).read_text()
+    except OSError as exc:
+        raise cli.InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    rows = []
+    for n, line in enumerate(text.splitlines(), start=1):
+        fields = [f for f in line.replace(",", " ").split() if f]
+        if not fields or line.lstrip().startswith("#"):
+            continue
+        try:
+            values = [float(f) for f in fields]
+        except ValueError:
+            if not rows and n == _first_content_line(text):
+                continue                          # a header
+            raise cli.InputError(f"{path}: line {n}: expected {dim} numbers, got {line.strip()!r}") from None
+        if len(values) != dim or not np.all(np.isfinite(values)):
+            raise cli.InputError(f"{path}: line {n}: expected {dim} finite numbers, got {line.strip()!r}")
+        rows.append(values)
+    if not rows:
+        raise cli.InputError(f"{path}: no targets")
+    return np.array(rows)
+
+
+def _first_content_line(text: str) -> int:
+    for n, line in enumerate(text.splitlines(), start=1):
+        if line.strip() and not line.lstrip().startswith("#"):
+            return n
+    return 0
+
+
+def line_targets(ends: np.ndarray, steps: int) -> np.ndarray:
+    """`steps` targets evenly spaced from ends[0] to ends[1], both included."""
+    return ends[0] + np.linspace(0.0, 1.0, steps)[:, None] * (ends[1] - ends[0])
+
+
+def _track_targets(args, dim: int) -> np.ndarray:
+    if args.csv is not None:
+        if args.steps is not None:
+            raise cli.InputError("--steps goes with --line, not with --csv")
+        return read_targets(args.csv, dim)
+    ends = _points(args.line, dim, "--line")
+    if len(ends) != 2:
+        raise cli.InputError(f"--line: expected {2 * dim} numbers (start and end), got {len(args.line)}")
+    if args.steps is None or args.steps < 2:
+        raise cli.InputError("--line needs --steps N with N >= 2")
+    return line_targets(ends, args.steps)
+
+
+def _settle(design, ik, out: Path) -> float | None:
+    """Initial equilibrium at the design's contractions; returns its time, None on failure."""
+    from .solver import SolveError
+    t0 = time.perf_counter()
+    try:
+        ik.settle(design.solver.steps)
+    except SolveError as exc:
+        cli.error(f"{design.name}: initial {exc}; nothing written to {out}")
+        return None
+    return time.perf_counter() - t0
+
+
+# -- results as numbers ------------------------------------------------------------------------------
+def _named(names, values) -> dict:
+    return {n: float(v) for n, v in zip(names, values)}
+
+
+def tensions(scene) -> dict:
+    """Cable tensions k max(0, l - L) at the scene's state, N."""
+    u = scene.u.x.array
+    return {c.name: float(c.tension(u, L)) for c, L in zip(scene.cables, scene.rest_lengths())}
+
+
+def ik_dict(design, ik, res, timings: dict) -> dict:
+    """ik.json: the pose Soft IK found for one target."""
+    return {
+        "format": FORMAT, "design": design.name, "marker": ik.marker,
+        "target": [float(v) for v in res.target], "position": [float(v) for v in res.position],
+        "error": float(res.error), "tol": float(ik.tol), "reached": bool(res.reached), "status": res.status,
+        "contractions": _named(ik.names, res.contractions),
+        "max_contraction": {n: (None if np.isinf(v) else float(v)) for n, v in zip(ik.names, ik.upper)},
+        "reg": float(ik.reg), "finger_length": float(ik.length),
+        "forward_solves": int(res.forward_solves), "failed_solves": int(res.failed_solves),
+        "iterations": int(res.iterations), "errors": [float(e) for e in res.errors],
+        "tensions": tensions(ik.scene), "time": round(float(res.time), 4),
+        "timings": {k: round(float(v), 4) for k, v in timings.items()},
+    }
+
+
+def track_rows(names, results, dim: int) -> tuple[list[str], list[list]]:
+    """Header and rows of track.csv: one row per target."""
+    axes = "xyz"[:dim]
+    header = (["step"] + [f"target_{a}" for a in axes] + list(axes) + ["error", "reached"]
+              + list(names) + ["forward_solves", "seconds"])
+    rows = [[i, *r.target, *r.position, r.error, int(r.reached), *r.contractions, r.forward_solves,
+             round(r.time, 4)] for i, r in enumerate(results)]
+    return header, rows
+
+
+def write_csv(path: Path, header, rows) -> None:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(header)
+    w.writerows([[f"{v:.10g}" if isinstance(v, float) else v for v in row] for row in rows])
+    atomic_write(path, lambda tmp: Path(tmp).write_text(buf.getvalue()))
+
+
+def track_summary(design, ik, results, timings: dict) -> dict:
+    """track.json: how well the marker followed the path."""
+    err = np.array([r.error for r in results])
+    solves = np.array([r.forward_solves for r in results])
+    secs = np.array([r.time for r in results])
+    return {
+        "format": FORMAT, "design": design.name, "marker": ik.marker, "targets": len(results),
+        "reached": int(sum(r.reached for r in results)), "tol": float(ik.tol),
+        "finger_length": float(ik.length),
+        "error": {"max": float(err.max()), "mean": float(err.mean()), "median": float(np.median(err)),
+                  "max_relative": float(err.max() / ik.length)},
+        "forward_solves": {"total": int(solves.sum()), "min": int(solves.min()),
+                           "median": float(np.median(solves)), "max": int(solves.max())},
+        "seconds_per_target": {"median": float(np.median(secs)), "max": float(secs.max())},
+        "contractions": {n: [float(v) for v in col] for n, col in
+                         zip(ik.names, np.array([r.contractions for r in results]).T)},
+        "reg": float(ik.reg),
+        "timings": {k: round(float(v), 4) for k, v in timings.items()},
+    }
+
+
+# -- pictures -------------------------------------------------------------------------------------------
+def plot_ik(path: Path, scene, res, title: str = "") -> None:
+    """The deformed pose with the target (cross) and the achieved marker (circle)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .output import plot_deformed
+    fig, ax = plt.subplots(figsize=(6, 7), dpi=120)
+    plot_deformed(None, scene, title, ax=ax)
+    _mark(ax, res.target, res.position)
+    _include(ax, np.array([res.target]))
+    fig.tight_layout()
+    atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
+    plt.close(fig)
+
+
+def _mark(ax, target, achieved):
+    ax.plot(*target[:2], "x", color=TARGET_COLOR, ms=10, mew=2.5, zorder=6, label="target")
+    ax.plot(*achieved[:2], "o", mfc="none", mec=ACHIEVED_COLOR, ms=11, mew=2, zorder=6, label="achieved")
+
+
+def _include(ax, points: np.ndarray, pad: float = 3.0) -> None:
+    """Widen the axis limits to show points."""
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    lo, hi = points[:, :2].min(axis=0) - pad, points[:, :2].max(axis=0) + pad
+    ax.set_xlim(min(x0, lo[0]), max(x1, hi[0]))
+    ax.set_ylim(min(y0, lo[1]), max(y1, hi[1]))
+
+
+def plot_poses(ax, scene, poses: list, alpha: float = 0.3) -> None:
+    """Deformed poses (local DOF arrays) drawn faded on one axis; scene.u is restored after."""
+    from matplotlib.legend import Legend
+
+    from .output import plot_deformed
+    keep = scene.u.x.array.copy()
+    lims = []
+    for i, pose in enumerate(poses):
+        scene.u.x.array[:] = pose
+        before = set(ax.get_children())
+        plot_deformed(None, scene, ax=ax, show_rest=(i == 0))
+        for artist in set(ax.get_children()) - before:
+            if hasattr(artist, "set_alpha") and not isinstance(artist, Legend):
+                artist.set_alpha(alpha if i < len(poses) - 1 else min(1.0, 2 * alpha))
+        lims.append((*ax.get_xlim(), *ax.get_ylim()))
+    scene.u.x.array[:] = keep
+    if lims:
+        lims = np.array(lims)
+        ax.set_xlim(lims[:, 0].min(), lims[:, 1].max())
+        ax.set_ylim(lims[:, 2].min(), lims[:, 3].max())
+
+
+def draw_track(ax, scene, results, poses: list, title: str = "") -> None:
+    """Target and achieved paths over a few faded deformed poses, on one axis."""
+    plot_poses(ax, scene, poses)
+    if ax.get_legend() is not None:
+        ax.get_legend().remove()                # the cables' legend: too long for several poses
+    target = np.array([r.target for r in results])
+    achieved = np.array([r.position for r in results])
+    h1, = ax.plot(target[:, 0], target[:, 1], "x--", color=TARGET_COLOR, ms=5, lw=1, zorder=6, label="target")
+    h2, = ax.plot(achieved[:, 0], achieved[:, 1], "o-", color=ACHIEVED_COLOR, ms=3, lw=1.2, zorder=7,
+                  mfc="none", label="achieved")
+    _include(ax, np.vstack([target, achieved]))
+    ax.legend(handles=[h1, h2], loc="upper right", fontsize=8)
+    if title:
+        ax.set_title(title, fontsize=10)
+
+
+def plot_track(path: Path, scene, results, poses: list, title: str = "") -> None:
+    """track.png: draw_track on its own figure."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 7), dpi=120)
+    draw_track(ax, scene, results, poses, title)
+    fig.tight_layout()
+    atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
+    plt.close(fig)
+
+
+def pose_indices(n: int, count: int = 4) -> list[int]:
+    """A few evenly spread targets whose poses the track picture shows."""
+    return sorted(set(np.linspace(0, n - 1, min(n, count)).round().astype(int).tolist()))
+
+
+# -- commands ------------------------------------------------------------------------------------------
+def ik_command(args) -> int:
+    from mpi4py import MPI
+    t0 = time.perf_counter()
+    _check_numbers(args)
+    dim = _peek(args).dim
+    target = _points(args.target, dim, "--target")
+    if len(target) != 1:
+        raise cli.InputError(f"--target: expected {dim} numbers, got {len(args.target)}")
+    design, scene, ik, timings = _setup(args)
+    settle = _settle(design, ik, args.out)
+    if settle is None:
+        return cli.EXIT_SOLVE
+    res = ik.solve(target[0])
+    timings.update(initial_solve=settle, ik=res.time, total=time.perf_counter() - t0)
+    result = ik_dict(design, ik, res, timings)
+    if MPI.COMM_WORLD.rank == 0:
+        write_json(args.out / "ik.json", result)
+        if MPI.COMM_WORLD.size == 1:
+            u_text = ", ".join(f"{u:.2f}" for u in res.contractions)
+            plot_ik(args.out / "ik.png", scene, res,
+                    f"{design.name}: Soft IK, error {res.error:.3g} mm\nu = ({u_text}) mm")
+    if not args.quiet and MPI.COMM_WORLD.rank == 0:
+        _print_ik(result, args.out)
+    return cli.EXIT_OK
+
+
+def _print_ik(result: dict, out: Path) -> None:
+    state = "reached" if result["reached"] else f"not reached ({result['status']})"
+    print(f"{result['design']}: marker {result['marker']} at ({', '.join(f'{v:.2f}' for v in result['position'])})"
+          f" mm, target ({', '.join(f'{v:.2f}' for v in result['target'])}): error {result['error']:.3g} mm,"
+          f" {state}; {result['forward_solves']} forward solves, {result['time']:.2f} s")
+    print("  contractions: " + ", ".join(f"{n} {u:.3f} mm" for n, u in result["contractions"].items()))
+    print(f"  results in {out}/ (ik.json, ik.png)")
+
+
+def track_command(args) -> int:
+    from mpi4py import MPI
+
+    from .control import track
+    t0 = time.perf_counter()
+    _check_numbers(args)
+    targets = _track_targets(args, _peek(args).dim)
+    design, scene, ik, timings = _setup(args)
+    settle = _settle(design, ik, args.out)
+    if settle is None:
+        return cli.EXIT_SOLVE
+    show = pose_indices(len(targets))
+    poses = []
+    talk = not args.quiet and MPI.COMM_WORLD.rank == 0
+
+    def on_target(i, res):
+        if i in show:
+            poses.append(scene.u.x.array.copy())
+        if talk:
+            print(f"  {i + 1:3d}/{len(targets)} target ({', '.join(f'{v:.2f}' for v in res.target)}): "
+                  f"error {res.error:.3g} mm {'' if res.reached else '(not reached) '}"
+                  f"{res.forward_solves} solves {res.time:.2f} s", flush=True)
+
+    results = track(ik, targets, on_target)
+    timings.update(initial_solve=settle, track=sum(r.time for r in results), total=time.perf_counter() - t0)
+    header, rows = track_rows(ik.names, results, scene.dim)
+    summary = track_summary(design, ik, results, timings)
+    if MPI.COMM_WORLD.rank == 0:
+        write_csv(args.out / "track.csv", header, rows)
+        write_json(args.out / "track.json", summary)
+        if MPI.COMM_WORLD.size == 1:
+            plot_track(args.out / "track.png", scene, results, poses,
+                       f"{design.name}: tracking with Soft IK, max error {summary['error']['max']:.3g} mm")
+    if talk:
+        print(f"{design.name}: {summary['reached']}/{len(results)} targets reached, max error "
+              f"{summary['error']['max']:.3g} mm, {summary['forward_solves']['total']} forward solves, "
+              f"{timings['track']:.1f} s; results in {args.out}/ (track.csv, track.json, track.png)")
+    return cli.EXIT_OK

@@ -1,0 +1,39 @@
+"""studies/ik_trajectories.py at a coarse size: it runs, tracks both lines, writes its files."""
+import csv
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+
+STUDY = Path(__file__).resolve().parents[1] / "studies" / "ik_trajectories.py"
+
+
+def _load():
+    spec = importlib.util.spec_from_file_location("ik_trajectories", STUDY)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_ik_trajectories_tiny(tmp_path):
+    study = _load()
+    res = study.run(size=4.0, targets=3, random=1, out=tmp_path)
+    assert res["finger_length"] == 100.0 and res["tol"] == 0.1
+    h = res["horizontal"]
+    assert h["targets"] == 3 and h["reached"] >= 2 and h["max_error_reached"] < res["tol"]
+    assert res["vertical"]["reached"] >= 1 and res["vertical"]["reachable_from"] == [10.0, 97.0]
+    assert res["random"]["targets"] == 1 and res["random"]["reached"] == 1
+    assert res["random"]["forward_solves"]["max"] <= 15
+    with open(tmp_path / "horizontal.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 3
+    assert np.allclose([float(r["target_y"]) for r in rows], 88.0)
+    errors = [float(r["error"]) for r in rows]
+    assert h["max_error"] > 0 and abs(max(errors) - h["max_error"]) < 1e-9
+    assert json.loads((tmp_path / "summary.json").read_text())["horizontal"]["reached"] == h["reached"]
+    for name in ("paths.png", "contractions.png"):
+        assert (tmp_path / name).stat().st_size > 10_000
+    assert (tmp_path / "random.csv").exists() and (tmp_path / "vertical.csv").exists()
+    assert not list(tmp_path.glob(".*"))
+
