@@ -1,16 +1,29 @@
 """A Scene binds a design to a mesh: the total energy and its derivatives.
 
-    Pi(u; a) = Pi_el(u) + sum_pins Pi_pin(u; a) + sum_cables k Q(l(u) - L(a))
-               - sum_loads a f . u(X_load)
+    Pi(u; a) = Pi_el(u) + sum_pins Pi_pin(u; a) + sum_grounds Pi_g(u)
+               + sum_cables k Q(l(u) - L(a)) - sum_loads a f . u(X_load) + Pi_c(u)
 
 where a in [0, 1] is the load factor that ramps contractions, pretensions,
-loads and pin moves. Pi_el and the spring pins are UFL forms (compiled once per
-scene); cables and point loads act through interpolation matrices at material
-points and add hand-written gradients and Hessians. Fixed pins are Dirichlet
-conditions u = a * move on the boundary inside their region.
+loads and pin moves. Pi_el, the spring pins and the grounds are UFL forms
+(compiled once per scene). Everything else is an *energy term*: an object
+on the local DOF vector u with
 
-The solver only sees ``energy``, ``residual``, ``jacobian``, ``admissible``
-and ``create_matrix``.
+    energy(u) -> float
+    gradient(u) -> (dofs, values)                   grad, on local DOFs (dofs unique)
+    hessian(u) -> [(dofs, dense block), ...]        hess, inside pattern()
+    pattern() -> [nodes, ...]                       node blocks the Hessian may fill
+    max_step(u0, p) -> alpha in [0, 1]              admissible part of the step u0 + s p
+    admissible(u) -> bool
+    bounds_steps: bool                              whether max_step can be < 1
+    set_factor(a)
+
+Cables, point loads and self-contact (skelfem.contact, the IPC barrier Pi_c)
+are such terms; adding one touches neither the matrix code nor the solver.
+Fixed pins are Dirichlet conditions u = a * move on the boundary inside their
+region; their rows and columns never carry term entries.
+
+The solver only sees ``energy``, ``residual``, ``jacobian``, ``admissible``,
+``max_step`` and ``create_matrix``.
 """
 from __future__ import annotations
 
@@ -25,6 +38,7 @@ from petsc4py import PETSc
 from .cables import Cable
 from .design import DesignError
 from .geometry import BODY, bone_tag_name
+from .grounds import build_grounds, ground_energy, ground_forces
 from .materials import cell_values_min, elastic_energy, material_fields, min_jacobian_expression
 from .points import interpolation_matrix, locate_cells
 
@@ -52,6 +66,68 @@ def _box_marker(region: np.ndarray, tol: float):
         d = len(lo)
         return np.all((x[:d].T >= lo) & (x[:d].T <= hi), axis=1)
     return inside
+
+
+class CableTerm:
+    """A cable (skelfem.cables.Cable) as an energy term; its rest length follows the load factor."""
+
+    bounds_steps = False
+
+    def __init__(self, cable: Cable, bs: int):
+        self.cable, self.name, self.factor = cable, cable.name, 0.0
+        self.nodes = np.unique(cable.dofs // bs).astype(np.int32)
+
+    def set_factor(self, a: float) -> None:
+        self.factor = float(a)
+
+    def energy(self, u):
+        return self.cable.energy(u, self.cable.rest_length(self.factor))
+
+    def gradient(self, u):
+        return self.cable.dofs, self.cable.gradient(u, self.cable.rest_length(self.factor))
+
+    def hessian(self, u):
+        return [(self.cable.dofs, self.cable.hessian(u, self.cable.rest_length(self.factor)))]
+
+    def pattern(self):
+        return [self.nodes]
+
+    def max_step(self, u0, p):
+        return 1.0
+
+    def admissible(self, u):
+        return True
+
+
+class LoadTerm:
+    """Point loads: -a f . (S u), linear in u (no Hessian)."""
+
+    name = "loads"
+    bounds_steps = False
+
+    def __init__(self, S, f: np.ndarray):
+        self.S, self.f, self.factor = S, f, 0.0
+
+    def set_factor(self, a: float) -> None:
+        self.factor = float(a)
+
+    def energy(self, u):
+        return -self.factor * float(self.f @ (self.S @ u))
+
+    def gradient(self, u):
+        return np.arange(self.S.shape[1]), -self.factor * (self.S.T @ self.f)
+
+    def hessian(self, u):
+        return []
+
+    def pattern(self):
+        return []
+
+    def max_step(self, u0, p):
+        return 1.0
+
+    def admissible(self, u):
+        return True
 
 
 class Scene:
@@ -97,10 +173,10 @@ class Scene:
             Pi_springs = sum(springs[1:], springs[0])
             self.spring_form = fem.form(ufl.derivative(Pi_springs, self.u, v))
             Pi = Pi + Pi_springs
+        self.grounds = build_grounds(design.grounds, self.u, t)
+        if self.grounds:
+            Pi = Pi + ground_energy(self.grounds)
         R = ufl.derivative(Pi, self.u, v)
-        ground_energy, self.ground_force_forms = self._grounds(t)
-        if ground_energy is not None:
-            Pi = Pi + ground_energy
         self.energy_form = fem.form(Pi)
         self.residual_form = fem.form(R)
         self.jacobian_form = fem.form(ufl.derivative(R, self.u, du))
@@ -122,6 +198,14 @@ class Scene:
         self.marker_X = np.array([design.markers[n] for n in self.marker_names], float).reshape(-1, self.dim)
         self.global_dofs = self._global_dofs()
         self.rigid_groups = self._bone_dofs()
+
+        # hand-written energy terms
+        self.contact = self._build_contact() if design.contact.self_contact else None
+        self.terms = [CableTerm(c, self.bs) for c in self.cables]
+        if len(self.load_f):
+            self.terms.append(LoadTerm(self.load_S, self.load_f))
+        if self.contact is not None:
+            self.terms.append(self.contact)
 
     # -- construction helpers ----------------------------------------------------
     def _region_materials(self) -> dict:
@@ -154,31 +238,29 @@ class Scene:
         tags = dmesh.meshtags(mesh, fdim, facets.astype(np.int32), values[order][idx])
         return pins, tags
 
-    def _grounds(self, t):
-        """Penalty half-spaces: Pi_g = k t/2 int_boundary min(gap, 0)^2 ds, gap = (x - p) . n.
-
-        The force on the plane is k t int min(gap, 0) ds * n (it points into
-        the plane when the body presses on it).
-        """
-        if not self.design.grounds:
-            return None, []
-        X = ufl.SpatialCoordinate(self.mesh)
-        energy, forces = None, []
-        for g in self.design.grounds:
-            n = fem.Constant(self.mesh, np.asarray(g.normal, dtype=PETSc.ScalarType))
-            p = fem.Constant(self.mesh, np.asarray(g.point, dtype=PETSc.ScalarType))
-            k = fem.Constant(self.mesh, PETSc.ScalarType(g.stiffness))
-            pen = ufl.min_value(ufl.dot(X + self.u - p, n), 0.0)
-            term = 0.5 * k * t * pen ** 2 * ufl.ds
-            energy = term if energy is None else energy + term
-            forces.append((np.asarray(g.normal, float), fem.form(k * t * pen * ufl.ds)))
-        return energy, forces
-
     def ground_forces(self) -> list[np.ndarray]:
-        """Net force the body exerts on each ground plane, N."""
-        from mpi4py import MPI
-        return [n * self.comm.allreduce(fem.assemble_scalar(form), op=MPI.SUM)
-                for n, form in self.ground_force_forms]
+        """Net force the body exerts on each ground plane, N (see skelfem.grounds)."""
+        return ground_forces(self.grounds, self.comm)
+
+    def _build_contact(self):
+        """The IPC self-contact term; refuses designs it cannot honour (one-line DesignError)."""
+        from .contact import SelfContact
+        d, where = self.design, f"{self.design.source}: contact.self"
+        if d.dim != 2:
+            raise DesignError(f"{where}: self-contact is implemented for dim = 2 only")
+        if self.comm.size > 1:
+            raise DesignError(f"{where}: self-contact runs on one MPI process (got {self.comm.size})")
+        if d.solver.line_search != "energy":
+            raise DesignError(f"{where}: self-contact needs solver.line_search = \"energy\" "
+                              f"(got {d.solver.line_search!r}): only it limits steps to collision-free ones")
+        E_body = d.materials[d.body.material].E
+        contact = SelfContact(self.V, d.contact.dhat, E_body, self.thickness)
+        d0 = contact.min_distance(np.zeros(self.n_local))
+        if d0 <= d.contact.dhat:
+            raise DesignError(f"{self.design.source}: contact.dhat: {d.contact.dhat:g} mm is not below the "
+                              f"smallest rest distance between boundary parts ({d0:.3g} mm); "
+                              "lower dhat or coarsen the mesh")
+        return contact
 
     def _build_cable(self, spec) -> Cable:
         try:
@@ -253,6 +335,8 @@ class Scene:
         self.factor = float(a)
         for p in self.pins:
             p.set_factor(a)
+        for term in self.terms:
+            term.set_factor(a)
 
     def rest_lengths(self) -> list[float]:
         return [c.rest_length(self.factor) for c in self.cables]
@@ -277,7 +361,28 @@ class Scene:
         return self.comm.allreduce(cell_values_min(self.detF, self.num_cells), op=MPI.MIN)
 
     def admissible(self, x: PETSc.Vec) -> bool:
-        return self.min_jacobian(x) > 0.0
+        """det F > 0 everywhere and every term accepts the state (e.g. no self-intersection)."""
+        if not self.min_jacobian(x) > 0.0:
+            return False
+        u = self.u.x.array
+        return all(term.admissible(u) for term in self.terms)
+
+    @property
+    def bounds_steps(self) -> bool:
+        """Whether some term limits the step (only the energy line search honours that)."""
+        return any(term.bounds_steps for term in self.terms)
+
+    def max_step(self, x0: np.ndarray, p: np.ndarray) -> float:
+        """Largest alpha in [0, 1] such that every term admits the path x0 + s p, s <= alpha.
+
+        x0 and p are local DOF arrays. Bones lie strictly inside the body, so
+        the line search's rigid-rotation correction never moves a boundary
+        node: contact sees exactly the straight path.
+        """
+        alpha = 1.0
+        for term in self.terms:
+            alpha = min(alpha, term.max_step(x0, p))
+        return float(alpha)
 
     def energy(self, x: PETSc.Vec) -> float:
         """Total energy Pi(x) in N mm."""
@@ -287,18 +392,14 @@ class Scene:
         return e + self._point_energy(u)
 
     def _point_energy(self, u: np.ndarray) -> float:
-        e = sum(c.energy(u, L) for c, L in zip(self.cables, self.rest_lengths()))
-        if len(self.load_f):
-            e -= self.factor * float(self.load_f @ (self.load_S @ u))
-        return e
+        return float(sum(term.energy(u) for term in self.terms))
 
     def point_gradient(self, u: np.ndarray) -> np.ndarray:
-        """Gradient of the cable and load terms, on local DOFs."""
+        """Gradient of the energy terms (cables, loads, contact), on local DOFs."""
         g = np.zeros(self.n_local)
-        for c, L in zip(self.cables, self.rest_lengths()):
-            g[c.dofs] += c.gradient(u, L)
-        if len(self.load_f):
-            g -= self.factor * (self.load_S.T @ self.load_f)
+        for term in self.terms:
+            dofs, values = term.gradient(u)
+            g[dofs] += values
         return g
 
     def gradient(self, x: PETSc.Vec, b: PETSc.Vec) -> None:
@@ -318,13 +419,28 @@ class Scene:
 
     # -- Jacobian --------------------------------------------------------------------------
     def create_matrix(self) -> PETSc.Mat:
-        """Matrix whose pattern holds the UFL Hessian and every cable's dense block."""
+        """Matrix whose pattern holds the UFL Hessian and every term's node blocks.
+
+        DOLFINx only preallocates row lengths, and PETSc drops unused slots at
+        the first final assembly; so the whole pattern is filled with explicit
+        zeros here. It never changes afterwards (new entries raise), blocks a
+        term leaves empty in one iteration stay available for the next, and
+        the symbolic factorisation is reused across Newton iterations.
+        """
         pattern = fem.create_sparsity_pattern(self.jacobian_form)
-        for c in self.cables:
-            nodes = np.unique(c.dofs // self.bs).astype(np.int32)
-            pattern.insert(nodes, nodes)
+        for term in self.terms:
+            for nodes in term.pattern():
+                nodes = np.asarray(nodes, dtype=np.int32)
+                pattern.insert(nodes, nodes)
         pattern.assemble()
         A = _cpp.la.petsc.create_matrix(self.comm, pattern)
+        graph = pattern.graph
+        n_owned = pattern.index_map(0).size_local
+        offsets = graph.offsets[:n_owned + 1]
+        zeros = np.zeros(offsets[-1] * self.bs * self.bs, dtype=PETSc.ScalarType)
+        A.setValuesBlockedLocalCSR(offsets.astype(PETSc.IntType), graph.array[:offsets[-1]].astype(PETSc.IntType),
+                                   zeros, addv=PETSc.InsertMode.INSERT_VALUES)
+        A.assemble()
         A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
         return A
 
@@ -336,12 +452,12 @@ class Scene:
                                        _pack_coefficients(self.jacobian_form), self.bcs)
         A.assemblyBegin(PETSc.Mat.AssemblyType.FLUSH)
         A.assemblyEnd(PETSc.Mat.AssemblyType.FLUSH)
-        for c, L in zip(self.cables, self.rest_lengths()):
-            H = c.hessian(u, L)
-            free = ~self.fixed[c.dofs]
-            H = H * free[:, None] * free[None, :]
-            rows = self.global_dofs[c.dofs]
-            A.setValues(rows, rows, H, addv=PETSc.InsertMode.ADD_VALUES)
+        for term in self.terms:
+            for dofs, H in term.hessian(u):
+                free = ~self.fixed[dofs]
+                H = H * free[:, None] * free[None, :]
+                rows = self.global_dofs[dofs]
+                A.setValues(rows, rows, H, addv=PETSc.InsertMode.ADD_VALUES)
         A.assemblyBegin(PETSc.Mat.AssemblyType.FLUSH)
         A.assemblyEnd(PETSc.Mat.AssemblyType.FLUSH)
         _cpp.fem.petsc.insert_diagonal(A, self.V._cpp_object, self.bcs, 1.0)

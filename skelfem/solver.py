@@ -2,8 +2,10 @@
 
 Newton's direction p solves H p = -grad Pi (MUMPS LDL^T, the matrix pattern
 fixed so the symbolic factorisation is reused). The default line search
-("energy") runs in SNES's pre-check: it backtracks alpha from 1 until the
-trial state has det F > 0 in every element and satisfies the Armijo condition
+("energy") runs in SNES's pre-check: it starts from the scene's admissible
+step alpha_max = scene.max_step(x, p) <= 1 (e.g. the collision-free step of
+self-contact) and backtracks until the trial state is admissible (det F > 0
+in every element, no term objects) and satisfies the Armijo condition
 
     Pi(x + alpha p) <= Pi(x) + c alpha grad Pi . p,
 
@@ -70,6 +72,9 @@ class NewtonSolver:
         self.strategy = getattr(spec, "line_search", "energy") if spec else "energy"
         if self.strategy not in STRATEGIES:
             raise ValueError(f"unknown line search {self.strategy!r}")
+        if self.strategy != "energy" and scene.bounds_steps:
+            raise ValueError(f"line search {self.strategy!r} cannot limit steps to the scene's "
+                             "admissible ones; use 'energy'")
         self.max_iterations = getattr(spec, "max_iterations", 50) if spec else 50
         self.rtol = getattr(spec, "rtol", 1e-9) if spec else 1e-9
         self.atol = getattr(spec, "atol", 1e-10) if spec else 1e-10
@@ -151,11 +156,11 @@ class NewtonSolver:
         if 0.0 <= -slope <= self.etol * max(abs(e0), 1e-300):
             # Newton decrement at round-off level: x is the minimiser to machine precision
             self._decrement_converged = True
-            return self._take(x, y, p, 1.0) or True
+            return self._take(x, y, p, self._max_step(x0, p)) or True
         if slope > 0.0:                             # not a descent direction: turn around
             p, slope = -p, -slope
         f0 = float(np.sqrt(scene.comm.allreduce(r @ r)))
-        alpha, accepted = self._backtrack(x, x0, p, e0, slope, f0)
+        alpha, accepted = self._backtrack(x, x0, p, e0, slope, f0, self._max_step(x0, p))
         scene._sync(x)
         if not accepted:
             self._failure = "line_search_failed"
@@ -166,10 +171,15 @@ class NewtonSolver:
                   -slope, e0)
         return True
 
-    def _backtrack(self, x, x0, p, e0, slope, f0, c1=1e-4):
-        """Armijo backtracking with quadratic interpolation on phi(a) = Pi(x + a p).
+    def _max_step(self, x0: np.ndarray, p: np.ndarray) -> float:
+        """The scene's admissible step along p, agreed over ranks."""
+        from mpi4py import MPI
+        return float(self.scene.comm.allreduce(self.scene.max_step(x0, p), op=MPI.MIN))
 
-        A trial state with an inverted element has phi = +inf. Within round-off
+    def _backtrack(self, x, x0, p, e0, slope, f0, alpha0=1.0, c1=1e-4):
+        """Armijo backtracking with quadratic interpolation on phi(a) = Pi(x + a p), a <= alpha0.
+
+        A trial state that is not admissible has phi = +inf. Within round-off
         of e0 a step is accepted if it lowers |grad Pi|. Bones move along the
         exact rotation whose linearisation is p (see Scene.rigid_correction),
         so a stiff bone's rotation does not turn into stretch.
@@ -182,7 +192,10 @@ class NewtonSolver:
             return scene.energy(trial) if scene.admissible(trial) else np.inf
 
         noise = max(scene.energy_noise, 1e-12 * abs(e0))
-        alpha, e = 1.0, phi(1.0)
+        if alpha0 <= 0.0:
+            trial.destroy()
+            return 0.0, False
+        alpha, e = alpha0, phi(alpha0)
         try:
             for _ in range(40):
                 if e <= e0 + c1 * alpha * slope:
@@ -206,10 +219,10 @@ class NewtonSolver:
             trial.destroy()
 
     def _take(self, x, y, p, alpha) -> bool:
-        """Set the SNES step to alpha p if x + alpha p is admissible, else to zero."""
+        """Set the SNES step to alpha p if x + alpha p is admissible (and alpha > 0), else to zero."""
         trial = x.copy()
         trial.array_w[:] += alpha * p
-        ok = self.scene.admissible(trial)
+        ok = alpha > 0.0 and self.scene.admissible(trial)
         trial.destroy()
         self.scene._sync(x)
         if ok:
@@ -250,8 +263,9 @@ class NewtonSolver:
         current = u.copy()
         scene.apply_bcs(current)
         scene.apply_bcs(guess)
-        if scene.admissible(guess) and (not scene.admissible(current)
-                                        or scene.energy(guess) < scene.energy(current)):
+        reachable = self._max_step(u.array_r, guess.array_r - u.array_r) >= 1.0
+        if reachable and scene.admissible(guess) and (not scene.admissible(current)
+                                                      or scene.energy(guess) < scene.energy(current)):
             guess.copy(u)
         for v in (guess, current):
             v.destroy()

@@ -1,0 +1,227 @@
+"""Self-contact: the IPC barrier between parts of the body's boundary (2D).
+
+The collision mesh is the boundary polygon of the mesh (outline and holes):
+its vertices are the boundary nodes of the displacement space, x = X + u,
+and its edges the boundary facets. For P1 these are the mesh's boundary
+vertices and edges; for P2 every boundary facet is split at its midpoint
+node, so the polygon interpolates the (slightly curved) quadratic boundary
+through all its nodes -- the contact surface is that polygon, an O(h^2)
+approximation of the P2 boundary.
+
+With d_k the distance of collision k (vertex-edge pairs within dhat, found by
+ipctk), w_k its weight (half the vertex's boundary length, so the sum is a
+quadrature of a boundary integral) and the clamped log barrier on squared
+distances, b(s) = -(s - dhat^2)^2 ln(s / dhat^2) for s < dhat^2 (ipctk's
+"physical" scaling divides it by dhat^3, a length),
+
+    Pi_c(u) = t kappa sum_k w_k b(d_k^2) / dhat^3,
+
+kappa in MPa (default: the body's Young's modulus), t the slab thickness.
+Pi_c is +inf at contact, so a state reached from an intersection-free one
+along a collision-free path never interpenetrates: every Newton step is
+limited before the line search starts to 0.8 times the time of first contact
+along the straight path x0 + s p (continuous collision detection), so no
+trial state comes closer than a fifth of the gap it had to close.
+
+Gradient and Hessian come from ipctk on the collision mesh's DOFs and are
+mapped to the space's DOFs through one index array (node * bs + component);
+the Hessian is projected to positive semi-definite per collision (ipctk's
+CLAMP) for Newton, and `project=False` gives the exact one (FD tests,
+sensitivities). The projection keeps Newton's directions descent ones while
+contacts come and go, at the price of a linearly converging tail once the
+faces touch; the exact Hessian converges quadratically there but may
+wander before. Contact pairs change between iterations, so the matrix
+pattern holds the whole boundary-node x boundary-node block.
+
+Runs on one MPI process: ipctk needs the whole boundary.
+"""
+from __future__ import annotations
+
+import ipctk
+import numpy as np
+from dolfinx import mesh as dmesh
+
+
+def boundary_polygon(V) -> tuple[np.ndarray, np.ndarray]:
+    """Boundary nodes of V (local node indices, sorted) and edges (pairs of positions in nodes).
+
+    A boundary facet's nodes come from its cell's DOFs through the element's
+    facet closure (vertices first, then the P2 midpoint), all vectorised.
+    """
+    mesh = V.mesh
+    tdim = mesh.topology.dim
+    if tdim != 2:
+        raise NotImplementedError("self-contact is implemented in 2D")
+    mesh.topology.create_connectivity(tdim - 1, tdim)
+    mesh.topology.create_connectivity(tdim, tdim - 1)
+    facets = dmesh.exterior_facet_indices(mesh.topology)
+    f2c = mesh.topology.connectivity(tdim - 1, tdim)
+    cells = f2c.array[f2c.offsets[facets]]                        # the one cell of a boundary facet
+    c2f = mesh.topology.connectivity(tdim, tdim - 1).array.reshape(-1, tdim + 1)
+    local = np.argmax(c2f[cells] == facets[:, None], axis=1)      # facet's local index in that cell
+    layout = V.dofmap.dof_layout
+    closure = np.array([layout.entity_closure_dofs(tdim - 1, i) for i in range(tdim + 1)])
+    cell_dofs = V.dofmap.list.array.reshape(-1, layout.num_dofs)
+    fdofs = cell_dofs[cells[:, None], closure[local]]             # (n_facets, 2 or 3)
+    if fdofs.shape[1] == 2:
+        pairs = fdofs
+    else:                                                         # P2: a -> midpoint -> b
+        pairs = np.vstack([fdofs[:, [0, 2]], fdofs[:, [2, 1]]])
+    nodes = np.unique(pairs)
+    return nodes.astype(np.int32), np.searchsorted(nodes, pairs).astype(np.int32)
+
+
+def _fortran(a) -> np.ndarray:
+    return np.asfortranarray(a, dtype=float)
+
+
+class SelfContact:
+    """The IPC barrier term over the body's boundary; an energy term of the Scene."""
+
+    name = "self-contact"
+    bounds_steps = True
+
+    def __init__(self, V, dhat: float, stiffness: float, thickness: float = 1.0, project: bool = True):
+        self.bs = V.dofmap.index_map_bs
+        self.nodes, self.edges = boundary_polygon(V)
+        self.dofs = (self.nodes[:, None] * self.bs + np.arange(self.bs)).ravel()   # unrolled, node-major
+        self.X = V.tabulate_dof_coordinates()[self.nodes, :self.bs]
+        self.dhat, self.kappa, self.t = float(dhat), float(stiffness), float(thickness)
+        self.project = project
+        self.approach = 0.8       # fraction of the way to first contact a step may go
+        self.mesh = ipctk.CollisionMesh(_fortran(self.X), np.asfortranarray(self.edges))
+        self.barrier = ipctk.BarrierPotential(self.dhat, self.kappa, True)
+
+    # -- geometry ------------------------------------------------------------------------
+    def positions(self, u: np.ndarray) -> np.ndarray:
+        """Current boundary node positions x = X + u, (n_nodes, 2)."""
+        return self.X + u[self.dofs].reshape(-1, self.bs)
+
+    def collisions(self, y: np.ndarray, dhat: float | None = None) -> ipctk.NormalCollisions:
+        c = ipctk.NormalCollisions()
+        c.use_area_weighting = True
+        c.build(self.mesh, _fortran(y), self.dhat if dhat is None else float(dhat))
+        return c
+
+    def min_distance(self, u: np.ndarray) -> float:
+        """Smallest distance between non-adjacent boundary parts, mm (inf if none).
+
+        ipctk 1.6's NormalCollisions.compute_minimum_distance returns the
+        *squared* distance (checked against a brute-force distance in the
+        tests), hence the square root.
+        """
+        y = self.positions(u)
+        reach = float(np.linalg.norm(np.ptp(y, axis=0)))
+        d2 = self.collisions(y, reach).compute_minimum_distance(self.mesh, _fortran(y))
+        return float(np.sqrt(d2))
+
+    def intersects(self, u: np.ndarray) -> bool:
+        return bool(ipctk.has_intersections(self.mesh, _fortran(self.positions(u))))
+
+    # -- energy term interface -----------------------------------------------------------------
+    def set_factor(self, a: float) -> None:
+        """Contact does not depend on the load factor."""
+
+    def energy(self, u: np.ndarray) -> float:
+        y = self.positions(u)
+        return self.t * float(self.barrier(self.collisions(y), self.mesh, _fortran(y)))
+
+    def gradient(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        y = self.positions(u)
+        g = self.barrier.gradient(self.collisions(y), self.mesh, _fortran(y))
+        return self.dofs, self.t * np.asarray(g).ravel()
+
+    def hessian(self, u: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """One dense block on the DOFs that take part in a collision (none if no contact)."""
+        y = self.positions(u)
+        c = self.collisions(y)
+        if len(c) == 0:
+            return []
+        method = ipctk.PSDProjectionMethod.CLAMP if self.project else ipctk.PSDProjectionMethod.NONE
+        H = self.barrier.hessian(c, self.mesh, _fortran(y), method).tocsr()
+        active = np.flatnonzero(np.diff(H.indptr))
+        block = H[active][:, active].toarray()
+        return [(self.dofs[active], self.t * block)]
+
+    def pattern(self) -> list[np.ndarray]:
+        """Node blocks the Hessian may fill: every boundary node with every other."""
+        return [self.nodes]
+
+    def max_step(self, u0: np.ndarray, p: np.ndarray) -> float:
+        """alpha in [0, 1] such that x0 + s p, s in [0, alpha], keeps clear of contact.
+
+        1 if the whole step is collision-free, else `approach` times ipctk's
+        collision-free step size (the time of first contact, conservatively).
+        """
+        y0 = self.positions(u0)
+        y1 = y0 + p[self.dofs].reshape(-1, self.bs)
+        toi = float(ipctk.compute_collision_free_stepsize(self.mesh, _fortran(y0), _fortran(y1)))
+        return toi if toi >= 1.0 else self.approach * toi
+
+    def admissible(self, u: np.ndarray) -> bool:
+        return not self.intersects(u)
+
+
+# -- measuring interpenetration (for states reached without contact) -------------------------
+def crossing_edges(y: np.ndarray, edges: np.ndarray) -> int:
+    """Number of pairs of non-adjacent boundary edges that cross, vectorised over pairs."""
+    a, b = y[edges[:, 0]], y[edges[:, 1]]
+    i, j = np.triu_indices(len(edges), k=1)
+    share = (edges[i][:, :, None] == edges[j][:, None, :]).any(axis=(1, 2))
+    i, j = i[~share], j[~share]
+
+    def orient(p, q, r):
+        return np.sign((q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0]))
+    cross = ((orient(a[i], b[i], a[j]) * orient(a[i], b[i], b[j]) < 0)
+             & (orient(a[j], b[j], a[i]) * orient(a[j], b[j], b[i]) < 0))
+    return int(np.count_nonzero(cross))
+
+
+def winding_numbers(points: np.ndarray, y: np.ndarray, edges: np.ndarray, chunk: int = 2048) -> np.ndarray:
+    """Winding number of the oriented boundary edges around each point (sum of signed angles)."""
+    out = np.empty(len(points), dtype=int)
+    for s in range(0, len(points), chunk):          # chunks of points bound the memory
+        q = points[s:s + chunk, None]
+        a, b = y[edges[:, 0]][None] - q, y[edges[:, 1]][None] - q
+        ang = np.arctan2(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0], np.einsum("pek,pek->pe", a, b))
+        out[s:s + chunk] = np.rint(ang.sum(axis=1) / (2 * np.pi))
+    return out
+
+
+def oriented_edges(X: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Edges reoriented so that every boundary loop runs with the body on its left.
+
+    An edge is flipped when the point a little to its left lies outside the
+    rest body (winding number 0 with the edges as given, loops closed).
+    """
+    mid = 0.5 * (X[edges[:, 0]] + X[edges[:, 1]])
+    t = X[edges[:, 1]] - X[edges[:, 0]]
+    left = mid + 1e-3 * np.column_stack([-t[:, 1], t[:, 0]])
+    inside = _inside_rest(left, X, edges)
+    return np.where(inside[:, None], edges, edges[:, ::-1])
+
+
+def _inside_rest(points, X, edges) -> np.ndarray:
+    """Even-odd rule on the unoriented rest boundary: inside the body or not."""
+    a, b = X[edges[:, 0]], X[edges[:, 1]]
+    py = points[:, 1][:, None]
+    straddle = (a[None, :, 1] > py) != (b[None, :, 1] > py)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xc = a[None, :, 0] + (py - a[None, :, 1]) * (b[None, :, 0] - a[None, :, 0]) / (b[None, :, 1] - a[None, :, 1])
+    hits = straddle & (xc > points[:, 0][:, None])
+    return (hits.sum(axis=1) % 2) == 1
+
+
+def overlap_area(y: np.ndarray, edges_ccw: np.ndarray, box: np.ndarray, n: int = 200) -> float:
+    """Area covered twice by the deformed body inside box [[x0, y0], [x1, y1]], mm^2.
+
+    The winding number of the deformed boundary (loops oriented with the body
+    on the left) counts how many layers of the body cover a point; where it is
+    2 or more the body has passed through itself. Sampled on an n x n grid.
+    """
+    (x0, y0), (x1, y1) = box
+    gx, gy = np.meshgrid(np.linspace(x0, x1, n), np.linspace(y0, y1, n))
+    pts = np.column_stack([gx.ravel(), gy.ravel()])
+    w = winding_numbers(pts, y, edges_ccw)
+    cell = (x1 - x0) * (y1 - y0) / (n - 1) ** 2
+    return float(np.count_nonzero(w >= 2) * cell)

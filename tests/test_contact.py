@@ -1,0 +1,200 @@
+"""Self-contact: boundary polygon, FD checks of the IPC barrier's derivatives, step bound, knuckles."""
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+from dolfinx import fem
+from dolfinx import mesh as dmesh
+from mpi4py import MPI
+
+from _designs import strip, variant
+from skelfem.contact import SelfContact, boundary_polygon, crossing_edges, oriented_edges, overlap_area
+from skelfem.design import DesignError, parse_design
+from skelfem.geometry import mesh_design
+from skelfem.scene import Scene
+
+STUDY = Path(__file__).resolve().parents[1] / "studies" / "knuckle_contact.py"
+SLOT = [[2.0, 2.6], [8.0, 2.6], [8.0, 3.4], [2.0, 3.4]]      # a 0.8 mm slot in a 10 x 6 block
+
+
+def _slot_design(degree=1, self_contact=True, dhat=0.3, size=1.0):
+    return {
+        "format": 1, "name": "slot", "dim": 2, "thickness": 4.0, "mesh": {"size": size, "degree": degree},
+        "materials": {"soft": {"E": 1.0, "nu": 0.3}},
+        "body": {"outline": [[0, 0], [10, 0], [10, 6], [0, 6]], "holes": [SLOT], "material": "soft"},
+        "pins": [{"name": "base", "region": [[-1, -1], [11, 1e-6]], "kind": "fixed"}],
+        "contact": {"self": self_contact, "dhat": dhat},
+    }
+
+
+def _scene(d):
+    design = parse_design(d)
+    return Scene(design, mesh_design(design))
+
+
+def _squeeze(V, closing=0.75, noise=0.0, seed=0):
+    """u_y = -closing (y - 3) above y = 2 (zero at the pinned base): the slot faces come 0.8 (1 - closing) apart."""
+    X = V.tabulate_dof_coordinates()[:, :2]
+    u = np.zeros((len(X), 2))
+    u[:, 1] = -closing * (X[:, 1] - 3.0) * np.clip(X[:, 1] / 2.0, 0.0, 1.0)
+    u[:, 0] = 0.02 * np.sin(X[:, 1])
+    u += noise * np.random.default_rng(seed).normal(size=u.shape)
+    return u.ravel()
+
+
+@pytest.mark.parametrize("degree", [1, 2])
+def test_boundary_polygon_is_closed_loops_through_all_boundary_nodes(degree):
+    sc = _scene(_slot_design(degree, self_contact=False))
+    nodes, edges = boundary_polygon(sc.V)
+    X = sc.V.tabulate_dof_coordinates()[nodes, :2]
+    assert np.all(np.bincount(edges.ravel(), minlength=len(nodes)) == 2)     # every node on two edges
+    length = np.linalg.norm(X[edges[:, 1]] - X[edges[:, 0]], axis=1).sum()
+    assert length == pytest.approx(2 * (10 + 6) + 2 * (6 + 0.8))              # outline + slot
+    on_outline = (np.isclose(X[:, 0], 0) | np.isclose(X[:, 0], 10) | np.isclose(X[:, 1], 0) | np.isclose(X[:, 1], 6))
+    on_slot = ((np.isclose(X[:, 1], 2.6) | np.isclose(X[:, 1], 3.4)) & (X[:, 0] > 2 - 1e-9) & (X[:, 0] < 8 + 1e-9)
+               | (np.isclose(X[:, 0], 2) | np.isclose(X[:, 0], 8)) & (X[:, 1] > 2.6 - 1e-9) & (X[:, 1] < 3.4 + 1e-9))
+    assert np.all(on_outline | on_slot)
+    all_boundary = fem.locate_dofs_topological(sc.V, 1, dmesh.exterior_facet_indices(sc.mesh.topology))
+    assert set(nodes) == set(all_boundary)                                    # P2: midpoints included
+
+
+@pytest.mark.parametrize("degree", [1, 2])
+def test_barrier_gradient_and_hessian_match_central_differences(degree):
+    sc = _scene(_slot_design(degree, self_contact=False))
+    term = SelfContact(sc.V, dhat=0.3, stiffness=1.0, thickness=4.0, project=False)
+    u = _squeeze(sc.V, noise=0.01)
+    assert 0.0 < term.min_distance(u) < 0.3 and len(term.collisions(term.positions(u))) >= 6
+    dofs, g = term.gradient(u)
+    (hdofs, H), = term.hessian(u)
+    h = 1e-7
+    active = np.flatnonzero(g)
+    assert set(dofs[active]) <= set(hdofs)
+
+    def e_dir(k):
+        e = np.zeros_like(u)
+        e[k] = h
+        return e
+    g_fd = np.array([(term.energy(u + e_dir(k)) - term.energy(u - e_dir(k))) / (2 * h) for k in dofs[active]])
+    assert np.linalg.norm(g_fd - g[active]) <= 1e-6 * np.linalg.norm(g)
+    full = np.zeros((len(u), len(u)))
+    full[np.ix_(hdofs, hdofs)] = H
+    for k in hdofs[:: max(1, len(hdofs) // 12)]:                      # a dozen Hessian columns
+        col = np.zeros_like(u)
+        col[dofs] = (term.gradient(u + e_dir(k))[1] - term.gradient(u - e_dir(k))[1]) / (2 * h)
+        assert np.linalg.norm(col - full[:, k]) <= 1e-5 * np.linalg.norm(full[:, k]) + 1e-9 * np.abs(H).max()
+    # Newton's Hessian: ipctk's per-collision projection is positive semi-definite
+    term.project = True
+    (_, Hp), = term.hessian(u)
+    assert np.linalg.eigvalsh(Hp).min() >= -1e-9 * np.abs(Hp).max()
+    assert np.linalg.eigvalsh(H).min() < -1e-6 * np.abs(H).max()         # the exact one is not
+
+
+def test_scene_with_contact_has_consistent_energy_gradient_and_jacobian():
+    """Taylor remainders of Pi and grad Pi with the barrier active (exact Hessian), pins respected."""
+    sc = _scene(_slot_design(1))
+    sc.contact.project = False
+    x = sc.u.vector.copy()
+    x.array[:] = _squeeze(sc.V, noise=0.005)
+    sc.apply_bcs(x)
+    assert sc.admissible(x) and sc.contact.energy(x.array) > 0
+    b, A = x.duplicate(), sc.create_matrix()
+    sc.gradient(x, b)
+    sc.jacobian(x, A)
+    g = b.array.copy()
+    rng = np.random.default_rng(1)
+    d = x.duplicate()
+    d.array[:] = rng.normal(size=d.array.shape) * 1e-2
+    d.array[sc.fixed] = 0.0
+    Ad = d.duplicate()
+    A.mult(d, Ad)
+    e0 = sc.energy(x)
+    r1, r2 = [], []
+    for h in [1e-1, 5e-2, 2.5e-2, 1.25e-2]:
+        xh = x.copy()
+        xh.axpy(h, d)
+        bh = x.duplicate()
+        sc.gradient(xh, bh)
+        r1.append(abs(sc.energy(xh) - e0 - h * (g @ d.array)))
+        r2.append(np.linalg.norm((bh.array - g - h * Ad.array)[~sc.fixed]))
+    for r in (r1, r2):
+        rates = np.log2(np.array(r[:-1]) / np.array(r[1:]))
+        assert np.all(rates > 1.8), (r, rates)
+
+
+def test_pattern_holds_the_boundary_block_and_contact_costs_nothing_when_off():
+    on, off = _scene(_slot_design(1)), _scene(_slot_design(1, self_contact=False))
+    assert off.contact is None and not any(isinstance(t, SelfContact) for t in off.terms)
+    assert not off.bounds_steps and off.max_step(np.zeros(off.n_local), np.ones(off.n_local)) == 1.0
+    A_on, A_off = on.create_matrix(), off.create_matrix()
+    nb = len(on.contact.nodes)
+    assert A_on.getInfo()["nz_used"] >= nb * nb * 4                # dense boundary x boundary block
+    assert A_off.getInfo()["nz_used"] < 0.5 * A_on.getInfo()["nz_used"]
+    # a Jacobian with contacts that change fits the fixed pattern (new entries would raise)
+    x = on.u.vector.copy()
+    for closing in (0.2, 0.75, 0.85):
+        x.array[:] = _squeeze(on.V, closing)
+        on.apply_bcs(x)
+        on.jacobian(x, A_on)
+
+
+def test_step_bound_stops_the_faces_before_they_cross():
+    sc = _scene(_slot_design(1))
+    u0 = _squeeze(sc.V, closing=0.5)
+    p = _squeeze(sc.V, closing=1.4) - u0              # the full step takes the faces through each other
+    assert crossing_edges(sc.contact.positions(u0 + p), sc.contact.edges) > 0
+    alpha = sc.max_step(u0, p)
+    assert 0.0 < alpha < 1.0
+    # the faces meet at closing 0.5 + 0.9 s = 1; the step stops `approach` of the way there
+    toi = alpha / sc.contact.approach
+    assert toi == pytest.approx(0.5 / 0.9, abs=0.01) and toi <= 0.5 / 0.9
+    for s in np.linspace(0.0, alpha, 6):
+        assert not sc.contact.intersects(u0 + s * p)
+    assert sc.contact.min_distance(u0 + alpha * p) == pytest.approx(0.8 * (1 - 0.5 - 0.9 * alpha), rel=0.05)
+
+
+def test_designs_contact_cannot_honour_are_refused():
+    with pytest.raises(DesignError, match="contact.dhat"):
+        _scene(_slot_design(1, dhat=0.9))                    # the slot is 0.8 mm wide at rest
+    with pytest.raises(DesignError, match="line_search"):
+        _scene(variant(_slot_design(1), **{"solver.line_search": "residual"}))
+
+
+def test_overlap_measures_count_a_body_passing_through_itself():
+    sc = _scene(_slot_design(1, self_contact=False))
+    term = SelfContact(sc.V, dhat=0.3, stiffness=1.0)
+    ccw = oriented_edges(term.X, term.edges)
+    box = np.array([[0.0, 0.0], [10.0, 6.0]])
+    assert overlap_area(term.X, ccw, box) == 0.0
+    y = term.X.copy()
+    top = np.isclose(y[:, 1], 3.4) & (y[:, 0] > 2 - 1e-9) & (y[:, 0] < 8 + 1e-9)
+    y[top, 1] -= 1.2                        # the slot's whole upper face 0.4 mm past the lower one
+    assert overlap_area(y, ccw, box, n=400) == pytest.approx(6.0 * 0.4, rel=0.05)
+    assert crossing_edges(y, term.edges) == 0     # a hole turned inside out crosses no edge: area sees it
+    y = term.X.copy()
+    inner = top & (y[:, 0] > 2.5) & (y[:, 0] < 7.5)
+    y[inner, 1] -= 1.2                      # only the face's interior: its end edges cut the lower face
+    assert crossing_edges(y, term.edges) >= 2
+    assert 0.4 * 4.0 < overlap_area(y, ccw, box, n=400) < 0.4 * 6.0
+
+
+def _study():
+    spec = importlib.util.spec_from_file_location("knuckle_contact", STUDY)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_knuckles_close_without_interpenetrating_only_with_self_contact(tmp_path):
+    res = _study().run(size=2.0, contraction=16.0, out=tmp_path)
+    on, off = res["on"], res["off"]
+    assert on["converged"] and off["converged"]
+    # contact on: every accepted iterate is intersection-free, the faces come within dhat (they touch)
+    assert on["min_distance"] > 0.0 and on["crossing_edges"] == 0 and not on["intersects"]
+    assert on["overlap_area"] == 0.0 and 0.0 < on["final_distance"] < 0.3
+    assert all(d > 0 for _, d in on["history"])
+    # contact off: the same contraction pushes the notch faces through each other
+    assert off["crossing_edges"] > 0 and off["intersects"] and off["overlap_area"] > 0.5
+    for name in ("knuckles.png", "knuckle_distance.png", "knuckle_contact.csv"):
+        assert (tmp_path / name).stat().st_size > 1_000
+    assert not list(tmp_path.glob(".*"))
