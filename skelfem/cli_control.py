@@ -102,6 +102,10 @@ def _peek(args):
 
 def _setup(args):
     """Design, scene and SoftIK from the arguments; InputError for bad input."""
+    from mpi4py import MPI
+    if MPI.COMM_WORLD.size > 1:
+        raise cli.InputError(f"{args.design}: {args.command} runs on one MPI process "
+                             f"(got {MPI.COMM_WORLD.size}); use `skelfem sweep` to spread runs over ranks")
     from .control import SoftIK
     from .solver import NewtonSolver
 

@@ -15,8 +15,11 @@ from dolfinx import geometry
 _BASIX_CELL = {"triangle": basix.CellType.triangle, "tetrahedron": basix.CellType.tetrahedron}
 
 
-def locate_cells(mesh, points: np.ndarray) -> np.ndarray:
-    """Cell index (local) containing each point, -1 where none does."""
+def locate_cells(mesh, points: np.ndarray, below: int | None = None) -> np.ndarray:
+    """Cell index (local) containing each point, -1 where none does.
+
+    With `below`, only cells with index < below count (e.g. the owned ones).
+    """
     points = np.asarray(points, dtype=float).reshape(-1, mesh.geometry.dim)
     if len(points) == 0:
         return np.zeros(0, dtype=np.int32)
@@ -28,6 +31,8 @@ def locate_cells(mesh, points: np.ndarray) -> np.ndarray:
     cells = np.full(len(points), -1, dtype=np.int32)
     for i in range(len(points)):  # one entry per point (not per DOF or cell)
         links = colliding.links(i)
+        if below is not None:
+            links = links[links < below]
         if len(links):
             cells[i] = links[0]
     return cells
@@ -134,9 +139,8 @@ def owner_ranks(mesh, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     from mpi4py import MPI
     comm = mesh.comm
-    cells = locate_cells(mesh, points)
     n_owned = mesh.topology.index_map(mesh.topology.dim).size_local
-    cells[cells >= n_owned] = -1                                  # ghost cells belong to others
+    cells = locate_cells(mesh, points, below=n_owned)            # ghost cells belong to others
     owner = np.where(cells >= 0, comm.rank, comm.size).astype(np.int32)
     if comm.size > 1:
         comm.Allreduce(MPI.IN_PLACE, owner, op=MPI.MIN)

@@ -28,6 +28,7 @@ The solver only sees ``energy``, ``residual``, ``jacobian``, ``admissible``,
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 import ufl
 from dolfinx import cpp as _cpp
 from dolfinx import fem
@@ -40,7 +41,7 @@ from .design import DesignError
 from .geometry import BODY, bone_tag_name
 from .grounds import build_grounds, ground_energy, ground_forces
 from .materials import cell_values_min, elastic_energy, material_fields, min_jacobian_expression
-from .points import interpolation_matrix, locate_cells
+from .points import global_interpolation
 
 
 class Pin:
@@ -75,6 +76,7 @@ class CableTerm:
 
     def __init__(self, cable: Cable, bs: int):
         self.cable, self.name, self.factor = cable, cable.name, 0.0
+        self.gather = cable.gather           # dofs below are global numbers (= local in serial)
         self.nodes = np.unique(cable.dofs // bs).astype(np.int32)
 
     def set_factor(self, a: float) -> None:
@@ -100,22 +102,22 @@ class CableTerm:
 
 
 class LoadTerm:
-    """Point loads: -a f . (S u), linear in u (no Hessian)."""
+    """Point loads: -a f . (S u), linear in u (no Hessian); S acts on the DOFs of `gather`."""
 
     name = "loads"
     bounds_steps = False
 
-    def __init__(self, S, f: np.ndarray):
-        self.S, self.f, self.factor = S, f, 0.0
+    def __init__(self, S, gather, f: np.ndarray):
+        self.S, self.gather, self.f, self.factor = S, gather, f, 0.0
 
     def set_factor(self, a: float) -> None:
         self.factor = float(a)
 
     def energy(self, u):
-        return -self.factor * float(self.f @ (self.S @ u))
+        return -self.factor * float(self.f @ (self.S @ self.gather(u)))
 
     def gradient(self, u):
-        return np.arange(self.S.shape[1]), -self.factor * (self.S.T @ self.f)
+        return self.gather.dofs, -self.factor * (self.S.T @ self.f)
 
     def hessian(self, u):
         return []
@@ -189,12 +191,12 @@ class Scene:
 
         # point terms: cables, loads, markers
         self.cables = [self._build_cable(c) for c in design.cables]
-        self.load_S, self.load_f = self._points_operator(
+        self.load_S, self.load_gather = self._points_operator(
             {l.name: l.at for l in design.loads}, "loads", "at")
-        if design.loads:
-            self.load_f = np.concatenate([np.asarray(l.force, float) for l in design.loads])
+        self.load_f = np.concatenate([np.asarray(l.force, float) for l in design.loads]) \
+            if design.loads else np.zeros(0)
         self.marker_names = list(design.markers)
-        self.marker_S, _ = self._points_operator(design.markers, "markers", "")
+        self._marker_S, self.marker_gather = self._points_operator(design.markers, "markers", "")
         self.marker_X = np.array([design.markers[n] for n in self.marker_names], float).reshape(-1, self.dim)
         self.global_dofs = self._global_dofs()
         self.rigid_groups = self._bone_dofs()
@@ -203,7 +205,7 @@ class Scene:
         self.contact = self._build_contact() if design.contact.self_contact else None
         self.terms = [CableTerm(c, self.bs) for c in self.cables]
         if len(self.load_f):
-            self.terms.append(LoadTerm(self.load_S, self.load_f))
+            self.terms.append(LoadTerm(self.load_S, self.load_gather, self.load_f))
         if self.contact is not None:
             self.terms.append(self.contact)
 
@@ -269,27 +271,49 @@ class Scene:
             raise DesignError(f"{self.design.source}: cables.{spec.name}.path: {exc}") from None
 
     def _points_operator(self, points: dict, section: str, key: str):
+        """(S, gather): u at the material points is S @ gather(u), on every rank."""
         names = list(points)
         X = np.array([points[n] for n in names], float).reshape(-1, self.dim)
-        cells = locate_cells(self.mesh, X)
-        for name, c in zip(names, cells):
-            if c < 0:
+        S, gather, owner = global_interpolation(self.V, X)
+        for name, o in zip(names, owner):
+            if o == self.comm.size:
                 where = f"{section}.{name}" + (f".{key}" if key else "")
                 raise DesignError(f"{self.design.source}: {where}: point lies outside the mesh")
-        return interpolation_matrix(self.V, X, cells), np.zeros(len(names) * self.dim)
+        return S, gather
+
+    @property
+    def marker_S(self):
+        """Marker interpolation on local DOFs, u(X_m) = (S u)_m (one process only)."""
+        if self.comm.size > 1:
+            raise RuntimeError("marker_S acts on one process's DOFs; use marker_positions under MPI")
+        g = self.marker_gather
+        S = self._marker_S.tocoo()
+        return sp.csr_matrix((S.data, (S.row, g.local[S.col])), shape=(S.shape[0], self.n_local))
 
     def _bone_dofs(self) -> list[np.ndarray]:
-        """Unrolled DOFs (n_nodes, bs) of each bone that has no pinned DOF."""
+        """Owned unrolled DOFs (n_nodes, bs) of each bone that has no pinned DOF.
+
+        The list is the same on every rank (a rank may hold no node of a bone).
+        """
+        from mpi4py import MPI
         groups = []
         tdim = self.mesh.topology.dim
+        n_owned = self.V.dofmap.index_map.size_local
         for b in self.design.bones:
             cells = self.tm.cell_tags.find(self.tm.tags[bone_tag_name(b.name)])
             nodes = fem.locate_dofs_topological(self.V, tdim, cells)
+            nodes = nodes[nodes < n_owned]
             dofs = nodes[:, None] * self.bs + np.arange(self.bs)
-            if len(nodes) >= 3 and not self.fixed[dofs].any():
+            count = self.comm.allreduce(len(nodes), op=MPI.SUM)
+            pinned = self.comm.allreduce(bool(self.fixed[dofs].any()), op=MPI.LOR)
+            if count >= 3 and not pinned:
                 groups.append(dofs)
         self._dof_X = self.V.tabulate_dof_coordinates()[:, :self.dim]
         return groups
+
+    def _sum(self, a):
+        """Sum over ranks (a no-op in serial)."""
+        return a if self.comm.size == 1 else self.comm.allreduce(a)
 
     def rigid_correction(self, u0: np.ndarray, p: np.ndarray, a: float) -> np.ndarray:
         """Second-order correction that makes each bone follow an exact rotation.
@@ -297,22 +321,24 @@ class Scene:
         On a bone's nodes (current positions y, centroid c) the step a p is
         split into a rigid part a (t + omega x (y - c)) (least squares) and the
         rest; the correction (R(a omega) - I - a [omega]x)(y - c) turns the
-        linearised rotation into the exact one. Zero outside bones.
+        linearised rotation into the exact one. Zero outside bones. u0 and p
+        are owned DOF arrays; sums run over all ranks.
         """
         corr = np.zeros_like(p)
         for dofs in self.rigid_groups:   # one vectorised block per bone
             y = self._dof_X[dofs[:, 0] // self.bs] + u0[dofs]
-            r = y - y.mean(axis=0)
-            q = p[dofs] - p[dofs].mean(axis=0)
+            n = self._sum(len(y))
+            r = y - self._sum(y.sum(axis=0)) / n
+            q = p[dofs] - self._sum(p[dofs].sum(axis=0)) / n
             if self.dim == 2:
-                w = float(np.sum(r[:, 0] * q[:, 1] - r[:, 1] * q[:, 0]) / np.sum(r * r))
+                w = float(self._sum(np.sum(r[:, 0] * q[:, 1] - r[:, 1] * q[:, 0])) / self._sum(np.sum(r * r)))
                 th = a * w
                 c, s_ = np.cos(th), np.sin(th)
                 rot = np.column_stack([c * r[:, 0] - s_ * r[:, 1], s_ * r[:, 0] + c * r[:, 1]])
                 lin = r + th * np.column_stack([-r[:, 1], r[:, 0]])
             else:
-                M = np.einsum("ni,nj->ij", r, r)
-                w = np.linalg.solve(np.trace(M) * np.eye(3) - M, np.sum(np.cross(r, q), axis=0))
+                M = self._sum(np.einsum("ni,nj->ij", r, r))
+                w = np.linalg.solve(np.trace(M) * np.eye(3) - M, self._sum(np.cross(r, q).sum(axis=0)))
                 th = a * w
                 angle = np.linalg.norm(th)
                 if angle < 1e-14:
@@ -399,7 +425,11 @@ class Scene:
         g = np.zeros(self.n_local)
         for term in self.terms:
             dofs, values = term.gradient(u)
-            g[dofs] += values
+            gather = getattr(term, "gather", None)
+            if gather is None:
+                g[dofs] += values                 # local DOFs
+            else:
+                gather.scatter_add(values, g)     # global DOFs: add the owned ones
         return g
 
     def gradient(self, x: PETSc.Vec, b: PETSc.Vec) -> None:
@@ -428,12 +458,21 @@ class Scene:
         the symbolic factorisation is reused across Newton iterations.
         """
         pattern = fem.create_sparsity_pattern(self.jacobian_form)
+        parallel = self.comm.size > 1
         for term in self.terms:
+            if parallel and getattr(term, "gather", None) is not None:
+                continue                          # global blocks: filled below
             for nodes in term.pattern():
                 nodes = np.asarray(nodes, dtype=np.int32)
                 pattern.insert(nodes, nodes)
         pattern.assemble()
         A = _cpp.la.petsc.create_matrix(self.comm, pattern)
+        if parallel:
+            self._fill_pattern_parallel(A)
+            A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+            return A
+        # serial: fill the pattern directly (under MPI the pattern's column map
+        # has ghosts the matrix's local numbering lacks, hence the other path)
         graph = pattern.graph
         n_owned = pattern.index_map(0).size_local
         offsets = graph.offsets[:n_owned + 1]
@@ -444,6 +483,38 @@ class Scene:
         A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
         return A
 
+    def _fill_pattern_parallel(self, A: PETSc.Mat) -> None:
+        """Create every entry the Jacobian will ever touch, as zeros (MPI).
+
+        One assembly of the UFL Hessian inserts exactly the element entries of
+        later assemblies; a cable couples DOFs owned by several ranks, which
+        DOLFINx's pattern cannot name, so its block (own rows x all its DOFs)
+        is reserved here once. PETSc drops preallocated slots left empty at
+        the first final assembly, so all of this precedes it.
+        """
+        _cpp.fem.petsc.assemble_matrix(A, self.jacobian_form, _pack_constants(self.jacobian_form),
+                                       _pack_coefficients(self.jacobian_form), self.bcs)
+        A.assemblyBegin(PETSc.Mat.AssemblyType.FLUSH)
+        A.assemblyEnd(PETSc.Mat.AssemblyType.FLUSH)
+        A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
+        for term in self.terms:
+            gather = getattr(term, "gather", None)
+            if gather is not None and term.pattern():
+                rows, cols = gather.owned_dofs.astype(PETSc.IntType), gather.dofs.astype(PETSc.IntType)
+                A.setValues(rows, cols, np.zeros((len(rows), len(cols))), addv=PETSc.InsertMode.ADD_VALUES)
+        A.assemblyBegin(PETSc.Mat.AssemblyType.FLUSH)
+        A.assemblyEnd(PETSc.Mat.AssemblyType.FLUSH)
+        _cpp.fem.petsc.insert_diagonal(A, self.V._cpp_object, self.bcs, 1.0)
+        A.assemble()
+        A.zeroEntries()
+
+    def _term_fixed(self, term) -> np.ndarray:
+        """Pinned flags of a global-DOF term's DOFs (gathered once)."""
+        cache = self.__dict__.setdefault("_fixed_cache", {})
+        if id(term) not in cache:
+            cache[id(term)] = term.gather(self.fixed.astype(float)) > 0.5
+        return cache[id(term)]
+
     def jacobian(self, x: PETSc.Vec, A: PETSc.Mat) -> None:
         """hess Pi with Dirichlet rows and columns replaced by the identity."""
         u = self._sync(x)
@@ -453,11 +524,18 @@ class Scene:
         A.assemblyBegin(PETSc.Mat.AssemblyType.FLUSH)
         A.assemblyEnd(PETSc.Mat.AssemblyType.FLUSH)
         for term in self.terms:
+            gather = getattr(term, "gather", None)
             for dofs, H in term.hessian(u):
-                free = ~self.fixed[dofs]
-                H = H * free[:, None] * free[None, :]
-                rows = self.global_dofs[dofs]
-                A.setValues(rows, rows, H, addv=PETSc.InsertMode.ADD_VALUES)
+                if gather is None:                # local DOFs
+                    free = ~self.fixed[dofs]
+                    rows = cols = self.global_dofs[dofs]
+                    H = H * free[:, None] * free[None, :]
+                else:                             # global DOFs: this rank sets its own rows
+                    free = ~self._term_fixed(term)
+                    cols = dofs.astype(PETSc.IntType)
+                    rows = cols[gather.pos]
+                    H = H[gather.pos] * free[gather.pos, None] * free[None, :]
+                A.setValues(rows, cols, H, addv=PETSc.InsertMode.ADD_VALUES)
         A.assemblyBegin(PETSc.Mat.AssemblyType.FLUSH)
         A.assemblyEnd(PETSc.Mat.AssemblyType.FLUSH)
         _cpp.fem.petsc.insert_diagonal(A, self.V._cpp_object, self.bcs, 1.0)
@@ -465,8 +543,9 @@ class Scene:
 
     # -- read-outs ---------------------------------------------------------------------------
     def marker_positions(self, u: np.ndarray | None = None) -> np.ndarray:
+        """Current marker positions (every rank gets all of them; collective under MPI)."""
         u = self.u.x.array if u is None else u
-        return self.marker_X + (self.marker_S @ u).reshape(-1, self.dim)
+        return self.marker_X + (self._marker_S @ self.marker_gather(u)).reshape(-1, self.dim)
 
     def reactions(self) -> dict:
         """Force each pin exerts on the body, N (sum over the pin's DOFs)."""

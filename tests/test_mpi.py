@@ -1,0 +1,79 @@
+"""Domain decomposition: `mpirun -n 2` and serial runs agree, for every ingredient that couples ranks."""
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from _designs import strip
+from test_cli import _toml
+
+ROOT = Path(__file__).resolve().parents[1]
+SKELFEM = str(Path(sys.executable).parent / "skelfem")
+ENV = {**os.environ, "OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
+       "OMPI_MCA_rmaps_base_oversubscribe": "1", "OPENBLAS_NUM_THREADS": "1"}
+
+pytestmark = pytest.mark.skipif(shutil.which("mpirun") is None, reason="needs mpirun")
+
+
+def _simulate(design, out, ranks, *sets):
+    cmd = [SKELFEM, "simulate", str(design), "--out", str(out), "-q", *sum((["--set", s] for s in sets), [])]
+    if ranks > 1:
+        cmd = ["mpirun", "-n", str(ranks)] + cmd
+    res = subprocess.run(cmd, env=ENV, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stdout + res.stderr
+    return json.loads((out / "result.json").read_text())
+
+
+def _close(a, b, rel=1e-6, scale=0.0):
+    """|a - b| <= rel * max(|a|, scale): forces that vanish are compared on a force scale."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return np.linalg.norm(a - b) <= rel * max(np.linalg.norm(a), scale, 1e-12)
+
+
+def _agree(serial, parallel):
+    assert parallel["converged"] and parallel["dofs"] == serial["dofs"]
+    for name, m in serial["markers"].items():
+        assert _close(m["displacement"], parallel["markers"][name]["displacement"]), name
+    for name, c in serial["cables"].items():
+        assert _close([c["tension"]], [parallel["cables"][name]["tension"]]), name
+    force = max(c["tension"] for c in serial["cables"].values())
+    for name, p in serial["pins"].items():
+        assert _close(p["reaction"], parallel["pins"][name]["reaction"], 1e-6, force), name
+    for name, g in serial["grounds"].items():
+        assert _close(g["force"], parallel["grounds"][name]["force"], 1e-6, force), name
+
+
+def test_arm3d_two_ranks_match_serial(tmp_path):
+    serial = _simulate(ROOT / "geometry" / "arm3d.toml", tmp_path / "s", 1, "mesh.size=9")
+    parallel = _simulate(ROOT / "geometry" / "arm3d.toml", tmp_path / "p", 2, "mesh.size=9")
+    _agree(serial, parallel)
+    import meshio
+    m = meshio.read(tmp_path / "p" / "solution.xdmf")        # gathered to rank 0
+    assert m.point_data["displacement"].shape[1] == 3
+    assert {"tetra", "line"} <= {c.type for c in m.cells}
+    assert (tmp_path / "p" / "deformed.png").stat().st_size > 20_000
+
+
+def test_every_ingredient_agrees_across_ranks(tmp_path):
+    """Bones, tendon, pretensioned ligament, spring pin, moved pin, point load and a ground, P2."""
+    d = strip(length=40.0, size=2.0, degree=2, contraction=0.4)
+    d["bones"] = [{"name": "b", "outline": [[3, 10], [7, 10], [7, 25], [3, 25]], "material": "hard"}]
+    d["cables"].append({"name": "lig", "kind": "ligament", "path": [[2, 5], [4, 20], [2, 35]],
+                        "stiffness": 2.0, "pretension": 1.0})
+    d["pins"][0]["move"] = [0.2, 0.0]
+    d["pins"].append({"name": "side", "region": [[-1, 30], [0.5, 40]], "kind": "spring", "stiffness": 5.0})
+    d["loads"] = [{"name": "push", "at": [5, 38], "force": [0.3, -0.02]}]
+    d["grounds"] = [{"name": "wall", "point": [10.1, 0], "normal": [-1, 0], "stiffness": 10.0}]
+    d["markers"]["mid"] = [5, 20]
+    d["solver"] = {"steps": 2}
+    path = tmp_path / "all.toml"
+    path.write_text(_toml(d))
+    serial = _simulate(path, tmp_path / "s", 1)
+    assert np.linalg.norm(serial["grounds"]["wall"]["force"]) > 0      # the ground is engaged
+    _agree(serial, _simulate(path, tmp_path / "p", 2))
