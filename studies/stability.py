@@ -1,0 +1,259 @@
+"""Solver stability: success, iterations and time over bone/silicone stiffness ratio x contraction x strategy.
+
+    python studies/stability.py [--out studies/output/stability] [--figures studies/figures] [--quick]
+
+The design is geometry/finger.toml (silicone E = 0.1 MPa, three bones, five
+cables) at mesh size ``size``; the bones' Young's modulus is set to
+ratio x E_silicone, the flexor's contraction to u. Strategies
+(``[solver].line_search``):
+
+* ``none``: Newton with full steps,
+* ``residual``: PETSc's backtracking on |grad Pi|,
+* ``energy``: Armijo backtracking on Pi with the det F > 0 guard (the default),
+* ``trust_region``: PETSc's newtontr.
+
+Each runs in two load-stepping modes:
+
+* ``steps = 1``: one Newton solve at the full load, no step cutting
+  (``max_cuts = 0``): the strategy alone;
+* ``steps = 4``: four load steps with the solver's adaptive cutting (a failed
+  step is retried with half the increment, up to 8 times): what users get.
+
+A case succeeds when the solver reports convergence; a converged state is
+also checked to be the same equilibrium as the energy strategy's (tip within
+``agree_mm``) and to have det F > 0 (the solver guarantees the latter).
+The study picks the strategy with the most successes, ties broken by total
+time. run(**params) returns the numbers; main(argv) writes cases.csv,
+summary.json and stability.png.
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import csv
+import time
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "studies" / "output" / "stability"
+FINGER = ROOT / "geometry" / "finger.toml"
+
+STRATEGIES = ("none", "residual", "energy", "trust_region")
+RATIOS = (1.0, 10.0, 1e2, 1e3, 1e4, 1e5, 1e6)
+CONTRACTIONS = (4.0, 8.0, 16.0)
+STEPPING = (1, 4)
+DEMO_CONTRACTION = 8.0
+
+
+def finger_dict(ratio: float, contraction: float, strategy: str, steps: int, size: float) -> dict:
+    """finger.toml with E_bone = ratio * E_silicone, the flexor at `contraction`, the given solver."""
+    with open(FINGER, "rb") as f:
+        d = copy.deepcopy(tomllib.load(f))
+    d.setdefault("name", "finger")
+    silicone = d["body"]["material"]
+    for bone in d.get("bones", []):
+        d["materials"][bone["material"]]["E"] = ratio * d["materials"][silicone]["E"]
+    next(c for c in d["cables"] if c["name"] == "flexor")["contraction"] = contraction
+    d["mesh"]["size"] = size
+    d["solver"] = {**d.get("solver", {}), "line_search": strategy, "steps": steps}
+    return d
+
+
+def solve_case(ratio: float, contraction: float, strategy: str, steps: int, size: float) -> dict:
+    """One solve; steps = 1 means no load stepping and no step cutting."""
+    from skelfem.design import parse_design
+    from skelfem.geometry import mesh_design
+    from skelfem.scene import Scene
+    from skelfem.solver import NewtonSolver
+
+    design = parse_design(finger_dict(ratio, contraction, strategy, steps, size), "finger.toml")
+    scene = Scene(design, mesh_design(design))
+    solver = NewtonSolver(scene, design.solver)
+    if steps == 1:
+        solver.max_cuts = 0
+    t0 = time.perf_counter()
+    try:
+        report = solver.solve(steps)
+        converged, status = bool(report.converged), report.status
+        its, load_steps, min_j = report.newton_iterations, report.load_steps, report.min_jacobian
+    except Exception as exc:          # a PETSc error inside a strategy is a failure of that strategy
+        converged, status, its, load_steps, min_j = False, f"error: {type(exc).__name__}", 0, 0, float("nan")
+    row = {"ratio": ratio, "contraction": contraction, "strategy": strategy, "steps": steps,
+           "converged": converged, "status": status, "newton_iterations": its, "load_steps": load_steps,
+           "time": time.perf_counter() - t0, "min_jacobian": min_j,
+           "dofs": int(scene.V.dofmap.index_map.size_global * scene.bs)}
+    if converged:                     # a failed solve is never reported as an equilibrium
+        tip = scene.marker_positions()[0]
+        row.update(tip_x=float(tip[0]), tip_y=float(tip[1]))
+    return row
+
+
+def check_agreement(rows: list[dict], agree_mm: float) -> None:
+    """Mark converged cases whose tip differs from the energy strategy's (same ratio, contraction)."""
+    ref = {(r["ratio"], r["contraction"]): (r["tip_x"], r["tip_y"]) for r in rows
+           if r["strategy"] == "energy" and r["converged"]}
+    for r in rows:
+        key = (r["ratio"], r["contraction"])
+        if r["converged"] and key in ref:
+            r["tip_deviation"] = float(np.hypot(r["tip_x"] - ref[key][0], r["tip_y"] - ref[key][1]))
+            r["same_equilibrium"] = bool(r["tip_deviation"] <= agree_mm)
+        else:
+            r["tip_deviation"], r["same_equilibrium"] = float("nan"), None
+
+
+def summarise(rows: list[dict], ratios, contractions) -> dict:
+    """Successes per strategy and stepping, the picked strategy, and the default's coverage."""
+    per = {}
+    for s in STRATEGIES:
+        mine = [r for r in rows if r["strategy"] == s]
+        if not mine:
+            continue
+        ok = [r for r in mine if r["converged"]]
+        per[s] = {"successes": len(ok), "cases": len(mine),
+                  "by_steps": {str(n): sum(r["converged"] for r in mine if r["steps"] == n)
+                               for n in sorted({r["steps"] for r in mine})},
+                  "total_time": float(sum(r["time"] for r in mine)),
+                  "median_iterations": float(np.median([r["newton_iterations"] for r in ok])) if ok else None,
+                  "other_equilibrium": sum(1 for r in ok if r.get("same_equilibrium") is False),
+                  "failures": sorted({r["status"] for r in mine if not r["converged"]})}
+    picked = min(per, key=lambda s: (-per[s]["successes"], per[s]["total_time"])) if per else None
+    demo = [r for r in rows if r["strategy"] == "energy" and r["contraction"] == DEMO_CONTRACTION]
+    coverage = {str(n): bool(all(r["converged"] for r in demo if r["steps"] == n)
+                             and {r["ratio"] for r in demo if r["steps"] == n} == set(ratios))
+                for n in sorted({r["steps"] for r in demo})}
+    return {"strategies": per, "picked": picked, "default": "energy", "picked_is_default": picked == "energy",
+            "energy_converges_over_all_ratios_at_demo_contraction": coverage,
+            "ratios": list(ratios), "contractions": list(contractions)}
+
+
+def run(ratios=RATIOS, contractions=CONTRACTIONS, strategies=STRATEGIES, stepping=STEPPING, size: float = 3.0,
+        agree_mm: float = 0.05, out: Path | None = None, progress=print) -> dict:
+    """Solve the whole grid; returns {"cases": [...], "summary": {...}}."""
+    solve_case(1e3, 1.0, "energy", 1, size)     # warm-up: FFCx cache, imports
+    rows = []
+    for strategy in strategies:
+        for steps in stepping:
+            for ratio in ratios:
+                for u in contractions:
+                    r = solve_case(ratio, u, strategy, steps, size)
+                    rows.append(r)
+                    if progress:
+                        progress(f"{strategy:12s} steps={steps} ratio={ratio:<7.0e} u={u:<4g} "
+                                 f"{'ok  ' if r['converged'] else 'FAIL'} {r['status']:20s} "
+                                 f"{r['newton_iterations']:4d} its {r['load_steps']:3d} steps {r['time']:6.2f} s")
+    check_agreement(rows, agree_mm)
+    result = {"cases": rows, "summary": summarise(rows, ratios, contractions), "size": size}
+    if out is not None:
+        write_outputs(Path(out), result)
+    return result
+
+
+CSV_FIELDS = ("strategy", "steps", "ratio", "contraction", "converged", "status", "newton_iterations",
+              "load_steps", "time", "min_jacobian", "tip_x", "tip_y", "tip_deviation", "same_equilibrium", "dofs")
+
+
+def write_outputs(out: Path, result: dict) -> None:
+    from skelfem.output import atomic_write, write_json
+
+    out.mkdir(parents=True, exist_ok=True)
+
+    def write_csv(tmp):
+        with open(tmp, "w", newline="") as f:
+            w = csv.DictWriter(f, CSV_FIELDS, extrasaction="ignore")
+            w.writeheader()
+            for r in result["cases"]:
+                w.writerow({k: r.get(k, "") for k in CSV_FIELDS})
+    atomic_write(out / "cases.csv", write_csv)
+    write_json(out / "summary.json", {"size": result["size"], **result["summary"]})
+    plot(out / "stability.png", result)
+
+
+SHORT = {"line_search_failed": "LS", "max_iterations": "MAX", "diverged": "DIV", "inverted_elements": "INV",
+         "trust_region_collapsed": "TR", "linear_solve_failed": "LIN"}
+
+
+def plot(path: Path, result: dict) -> None:
+    """A heatmap per strategy (columns) and stepping mode (rows): Newton iterations, failures marked."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm
+
+    from skelfem.output import atomic_write
+
+    rows = result["cases"]
+    strategies = [s for s in STRATEGIES if any(r["strategy"] == s for r in rows)]
+    stepping = sorted({r["steps"] for r in rows})
+    ratios = sorted({r["ratio"] for r in rows})
+    us = sorted({r["contraction"] for r in rows})
+    its_max = max([r["newton_iterations"] for r in rows if r["converged"]] + [2])
+    fig, axes = plt.subplots(len(stepping), len(strategies), squeeze=False, dpi=110,
+                             figsize=(2.7 * len(strategies) + 1.2, 0.42 * len(ratios) * len(stepping) + 1.6))
+    im = None
+    for i, n in enumerate(stepping):
+        for j, s in enumerate(strategies):
+            ax = axes[i][j]
+            grid = np.full((len(ratios), len(us)), np.nan)
+            for r in rows:
+                if r["strategy"] == s and r["steps"] == n and r["converged"]:
+                    grid[ratios.index(r["ratio"]), us.index(r["contraction"])] = max(r["newton_iterations"], 1)
+            im = ax.imshow(grid, origin="lower", aspect="auto", cmap="viridis_r",
+                           norm=LogNorm(vmin=1, vmax=its_max))
+            for r in rows:
+                if r["strategy"] == s and r["steps"] == n:
+                    y, x = ratios.index(r["ratio"]), us.index(r["contraction"])
+                    if r["converged"]:
+                        ax.text(x, y, str(r["newton_iterations"]), ha="center", va="center", fontsize=7,
+                                color="w" if r["newton_iterations"] > its_max ** 0.5 else "k")
+                    else:
+                        ax.add_patch(plt.Rectangle((x - 0.5, y - 0.5), 1, 1, color="#c0392b"))
+                        ax.text(x, y, SHORT.get(r["status"].split(" ")[0], r["status"][:4]), ha="center", va="center",
+                                fontsize=7, color="w", fontweight="bold")
+            ax.set_xticks(range(len(us)), [f"{u:g}" for u in us])
+            ax.set_yticks(range(len(ratios)), [f"1e{int(round(np.log10(q)))}" for q in ratios])
+            ok = sum(1 for r in rows if r["strategy"] == s and r["steps"] == n and r["converged"])
+            total = sum(1 for r in rows if r["strategy"] == s and r["steps"] == n)
+            ax.set_title(f"{s}, steps={n}: {ok}/{total}", fontsize=9)
+            if i == len(stepping) - 1:
+                ax.set_xlabel("contraction u [mm]")
+            if j == 0:
+                ax.set_ylabel("E_bone / E_silicone")
+    fig.suptitle(f"finger.toml (h = {result['size']:g} mm): Newton iterations to converge; red = failure "
+                 "(LS line search, MAX iterations, DIV diverged, INV inverted, TR trust region)", fontsize=9)
+    fig.tight_layout(rect=(0, 0, 0.92, 0.95))
+    cax = fig.add_axes((0.93, 0.15, 0.015, 0.7))
+    fig.colorbar(im, cax=cax, label="Newton iterations")
+    atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, default=OUT, help="output folder")
+    ap.add_argument("--figures", type=Path, default=None, help="also copy stability.png here (README)")
+    ap.add_argument("--size", type=float, default=3.0, help="mesh size, mm")
+    ap.add_argument("--quick", action="store_true", help="three ratios, one contraction, h = 5 (seconds)")
+    a = ap.parse_args(argv)
+    if a.quick:
+        res = run(ratios=(1.0, 1e3, 1e6), contractions=(DEMO_CONTRACTION,), size=5.0, out=a.out)
+    else:
+        res = run(size=a.size, out=a.out)
+    s = res["summary"]
+    for name, p in s["strategies"].items():
+        print(f"{name:12s} {p['successes']:3d}/{p['cases']} converged (by steps {p['by_steps']}), "
+              f"median {p['median_iterations']} its, {p['total_time']:.1f} s; failures: {', '.join(p['failures']) or '-'}")
+    print(f"picked: {s['picked']} (default: {s['default']}); energy converges over all ratios at "
+          f"u = {DEMO_CONTRACTION:g} mm: {s['energy_converges_over_all_ratios_at_demo_contraction']}")
+    if a.figures is not None:
+        from skelfem.output import atomic_write
+        png = (a.out / "stability.png").read_bytes()
+        atomic_write(a.figures / "stability.png", lambda tmp: Path(tmp).write_bytes(png))
+    print(f"outputs in {a.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

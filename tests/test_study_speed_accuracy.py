@@ -1,0 +1,89 @@
+"""studies/speed_accuracy.py on coarse strips: P2 beats P1, P1 locks at nu = 0.499, Richardson, outputs."""
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+STUDY = Path(__file__).resolve().parents[1] / "studies" / "speed_accuracy.py"
+
+
+def _load():
+    spec = importlib.util.spec_from_file_location("speed_accuracy", STUDY)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def study():
+    return _load()
+
+
+@pytest.fixture(scope="module")
+def tiny(study, tmp_path_factory):
+    out = tmp_path_factory.mktemp("speed_accuracy")
+    grid = {1: (4.0, 2.0), 2: (4.0, 2.0, 1.0)}
+    return study.run(("strip", "strip_nu0.499"), {"strip": grid, "strip_nu0.499": grid}, out, progress=None), out
+
+
+def _case(res, problem, degree, size):
+    return next(r for r in res["cases"] if (r["problem"], r["degree"], r["size"]) == (problem, degree, size))
+
+
+def test_p2_is_more_accurate_than_p1_at_equal_size(tiny):
+    res, _ = tiny
+    for problem in ("strip", "strip_nu0.499"):
+        for h in (4.0, 2.0):
+            p1, p2 = _case(res, problem, 1, h), _case(res, problem, 2, h)
+            assert p1["converged"] and p2["converged"]
+            assert p2["error"] < p1["error"] / 10, (problem, h, p1["error"], p2["error"])
+
+
+def test_p1_triangles_lock_for_nearly_incompressible_silicone(tiny):
+    res, _ = tiny
+    p1 = _case(res, "strip_nu0.499", 1, 2.0)
+    tip = res["summary"]["strip_nu0.499"]["reference"]["displacement"]
+    assert p1["error"] > 0.3 * tip                 # P1 bends far too little
+    assert p1["kappa_ratio"] < 0.5                 # against beam theory too
+    assert _case(res, "strip", 1, 2.0)["kappa_ratio"] > 0.8
+
+
+def test_reference_agrees_with_beam_theory_and_has_an_error_estimate(tiny):
+    res, _ = tiny
+    for problem in ("strip", "strip_nu0.499"):
+        s = res["summary"][problem]
+        ref = _case(res, problem, 2, s["reference"]["size"])
+        assert ref["kappa_ratio"] == pytest.approx(1.0, abs=0.02)
+        assert 0 < s["reference_error"]["error"] < 1e-3
+        front = s["pareto"]
+        assert front and front[0]["time"] == min(r["time"] for r in res["cases"]
+                                                 if r["problem"] == problem and np.isfinite(r["error"]))
+        assert all(a["error"] > b["error"] for a, b in zip(front, front[1:]))
+
+
+def test_outputs_written(tiny):
+    _, out = tiny
+    for name in ("cases.csv", "summary.json"):
+        assert (out / name).stat().st_size > 200
+    assert (out / "speed_accuracy.png").stat().st_size > 5_000
+    assert not list(out.glob(".*"))
+
+
+def test_richardson_recovers_order_and_error(study):
+    h = np.array([4.0, 2.0, 1.0])
+    x_star = np.array([3.0, -1.0])
+    pts = [x_star + 0.2 * hh ** 2 * np.array([1.0, 0.5]) for hh in h]
+    r = study.richardson(h, pts)
+    assert r["order"] == pytest.approx(2.0, abs=1e-6)
+    assert r["error"] == pytest.approx(np.linalg.norm(pts[-1] - x_star), rel=1e-6)
+    assert np.allclose(r["extrapolated"], x_star)
+    scatter = study.richardson(h, [x_star, x_star + 0.1, x_star])          # no asymptotic range
+    assert scatter["order"] is None and scatter["error"] == pytest.approx(np.hypot(0.1, 0.1))
+
+
+def test_fit_power(study):
+    h = np.array([4.0, 2.0, 1.0])
+    fit = study.fit_power(h, 0.3 * h ** 1.5)
+    assert fit["C"] == pytest.approx(0.3) and fit["r"] == pytest.approx(1.5)
+    assert study.fit_power([1.0], [1.0]) is None
