@@ -70,13 +70,16 @@ def length_gradient(cable, u: np.ndarray) -> np.ndarray:
     return cable.B.T @ t.ravel()
 
 
-def _lu_ksp(A: PETSc.Mat, comm) -> PETSc.KSP:
+def _direct_ksp(A: PETSc.Mat, comm) -> PETSc.KSP:
+    """A direct solver with the same factorisation as the Newton solver's (MUMPS)."""
+    from .solver import default_petsc_options
+    options = default_petsc_options()
     ksp = PETSc.KSP().create(comm)
     ksp.setOperators(A)
-    ksp.setType("preonly")
+    ksp.setType(options["ksp_type"])
     pc = ksp.getPC()
-    pc.setType("lu")
-    pc.setFactorSolverType("mumps")
+    pc.setType(options["pc_type"])
+    pc.setFactorSolverType(options["pc_factor_mat_solver_type"])
     return ksp
 
 
@@ -96,7 +99,7 @@ class Linearization:
         self.tendons = tendon_indices(scene)
         self._own = solver is None
         self.H = scene.create_matrix() if self._own else solver.A
-        self.ksp = _lu_ksp(self.H, scene.comm) if self._own else solver.ksp
+        self.ksp = _direct_ksp(self.H, scene.comm) if self._own else solver.ksp
         self.kinked = self._assemble_H()
         self.ksp.setOperators(self.H)
         self.ksp.setUp()                       # the one numeric factorisation
