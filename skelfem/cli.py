@@ -65,6 +65,9 @@ def _parser() -> argparse.ArgumentParser:
     s = sub.add_parser("simulate", help="static equilibrium of a design")
     common_arguments(s)
     s.add_argument("--no-picture", action="store_true", help="skip deformed.png")
+    s.add_argument("--tol", type=float, default=None, metavar="ABS_MM",
+                   help="choose mesh size and degree so that the estimated marker error stays below "
+                        "ABS_MM mm at the least cost (replaces [mesh] size and degree)")
     s.set_defaults(handler=simulate)
     import importlib
     for name in COMMAND_MODULES:
@@ -113,9 +116,13 @@ def simulate(args) -> int:
     from .run import solve, write_results
 
     t0 = time.perf_counter()
+    extra = {}
+    if args.tol is not None:
+        extra["accuracy"] = choose_discretisation(args)
     design, scene, timings = prepare(args)
     report, _ = solve(design, scene, timings)
-    result = write_results(design, scene, report, args.out, timings, t0, picture=not args.no_picture)
+    result = write_results(design, scene, report, args.out, timings, t0, picture=not args.no_picture,
+                           extra=extra)
     if not report.converged:
         error(f"{design.name}: solve failed ({report.status}) after {report.load_steps} load step(s); "
               f"try more [solver].steps or a finer mesh; details in {args.out / 'result.json'}")
@@ -125,10 +132,55 @@ def simulate(args) -> int:
     return EXIT_OK
 
 
+def choose_discretisation(args) -> dict:
+    """--tol: a cheap P2 solve measures the motion, skelfem.accuracy picks (degree, size).
+
+    Appends the choice to args.overrides and returns what result.json reports.
+    """
+    from mpi4py import MPI
+    import numpy as np
+
+    from . import accuracy
+    from .design import DesignError, load_design
+    from .geometry import MeshingError
+    from .run import build_scene, solve
+
+    if not args.tol > 0:
+        raise InputError(f"--tol: must be > 0, got {args.tol:g}")
+    probe = [f"mesh.degree={accuracy.PRESOLVE['degree']}", f"mesh.size={accuracy.PRESOLVE['size']}"]
+    try:
+        design = load_design(args.design, list(args.overrides) + probe)
+        if not design.markers:
+            raise InputError(f"{args.design}: --tol needs at least one marker (its error is what --tol bounds)")
+        scene, timings = build_scene(design, MPI.COMM_WORLD)
+    except (DesignError, MeshingError) as exc:
+        raise InputError(str(exc)) from None
+    log.info("--tol %g mm: estimating the motion with P2, h = %g mm", args.tol, accuracy.PRESOLVE["size"])
+    report, _ = solve(design, scene, timings)
+    if not report.converged:
+        raise InputError(f"{args.design}: --tol: the coarse estimate solve failed ({report.status}); "
+                         "set [mesh] by hand")
+    motion = float(np.linalg.norm(scene.marker_positions() - scene.marker_X, axis=1).max())
+    used = {design.body.material, *(b.material for b in design.bones)}
+    nu_max = max(design.materials[m].nu for m in used)
+    choice = accuracy.choose(args.tol, motion, nu_max)
+    args.overrides = list(args.overrides) + [f"mesh.degree={choice.degree}", f"mesh.size={choice.size}"]
+    note = "" if choice.met else f" (cannot promise {args.tol:g} mm: finest size {accuracy.H_MIN} mm)"
+    log.info("--tol %g mm: P%d, h = %g mm, estimated marker error %.3g mm (motion %.3g mm)%s",
+             args.tol, choice.degree, choice.size, choice.estimate, motion, note)
+    return {"tol": args.tol, "degree": choice.degree, "size": choice.size,
+            "estimated_error": choice.estimate, "met": choice.met, "motion_estimate": motion,
+            "estimate_time": round(report.time, 4)}
+
+
 def _summary(result: dict, out: Path) -> None:
     hist = result["residual_history"][-1] if result["residual_history"] else []
     print(f"{result['design']}: converged in {result['newton_iterations']} Newton iterations "
           f"over {result['load_steps']} load step(s); min det F = {result['min_jacobian']:.3f}")
+    if "accuracy" in result:
+        a = result["accuracy"]
+        print(f"  --tol {a['tol']:g} mm: P{a['degree']}, h = {a['size']:g} mm, "
+              f"estimated marker error {a['estimated_error']:.3g} mm" + ("" if a["met"] else " (NOT met)"))
     if hist:
         print("  last step |R|: " + " ".join(f"{r:.1e}" for r in hist[-5:]))
     for name, m in (result["markers"] or {}).items():
