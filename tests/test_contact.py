@@ -1,6 +1,4 @@
 """Self-contact: boundary polygon, FD checks of the IPC barrier's derivatives, step bound, knuckles."""
-import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,8 +11,8 @@ from skelfem.contact import SelfContact, boundary_polygon, crossing_edges, orien
 from skelfem.design import DesignError, parse_design
 from skelfem.geometry import mesh_design
 from skelfem.scene import Scene
+from _studies import load_study
 
-STUDY = Path(__file__).resolve().parents[1] / "studies" / "knuckle_contact.py"
 SLOT = [[2.0, 2.6], [8.0, 2.6], [8.0, 3.4], [2.0, 3.4]]      # a 0.8 mm slot in a 10 x 6 block
 
 
@@ -179,10 +177,7 @@ def test_overlap_measures_count_a_body_passing_through_itself():
 
 
 def _study():
-    spec = importlib.util.spec_from_file_location("knuckle_contact", STUDY)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_study("knuckle_contact")
 
 
 def test_knuckles_close_without_interpenetrating_only_with_self_contact(tmp_path):

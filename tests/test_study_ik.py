@@ -1,19 +1,14 @@
 """studies/ik_trajectories.py at a coarse size: it runs, tracks both lines, writes its files."""
 import csv
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
+from _studies import load_study
 
-STUDY = Path(__file__).resolve().parents[1] / "studies" / "ik_trajectories.py"
 
 
 def _load():
-    spec = importlib.util.spec_from_file_location("ik_trajectories", STUDY)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_study("ik_trajectories")
 
 
 def test_ik_trajectories_tiny(tmp_path):

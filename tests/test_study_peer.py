@@ -1,20 +1,15 @@
 """studies/peer_comparison.py: skelfem and scikit-fem solve the same tendon strip to the same answer."""
-import importlib.util
 import json
-from pathlib import Path
 
 import pytest
+from _studies import load_study
 
 pytest.importorskip("skfem")
 
-STUDY = Path(__file__).resolve().parents[1] / "studies" / "peer_comparison.py"
 
 
 def _load():
-    spec = importlib.util.spec_from_file_location("peer_comparison", STUDY)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_study("peer_comparison")
 
 
 @pytest.mark.parametrize("degree", [1, 2])

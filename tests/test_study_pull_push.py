@@ -1,18 +1,13 @@
 """studies/pull_test.py and studies/push_test.py at a coarse size: they run, order the skeletons, write files."""
-import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
+from _studies import load_study
 
-STUDIES = Path(__file__).resolve().parents[1] / "studies"
 
 
 def _load(name):
-    spec = importlib.util.spec_from_file_location(name, STUDIES / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_study(name)
 
 
 def test_pull_test_tiny_orders_the_skeletons(tmp_path):

@@ -1,15 +1,10 @@
 """studies/readme_figures.py at a coarse size: it runs, orders the skeletons, writes its PNGs."""
-import importlib.util
-from pathlib import Path
+from _studies import load_study
 
-STUDY = Path(__file__).resolve().parents[1] / "studies" / "readme_figures.py"
 
 
 def _load():
-    spec = importlib.util.spec_from_file_location("readme_figures", STUDY)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_study("readme_figures")
 
 
 def test_readme_figures_tiny(tmp_path):

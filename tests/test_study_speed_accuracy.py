@@ -1,18 +1,13 @@
 """studies/speed_accuracy.py on coarse strips: P2 beats P1, P1 locks at nu = 0.499, Richardson, outputs."""
-import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
+from _studies import load_study
 
-STUDY = Path(__file__).resolve().parents[1] / "studies" / "speed_accuracy.py"
 
 
 def _load():
-    spec = importlib.util.spec_from_file_location("speed_accuracy", STUDY)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_study("speed_accuracy")
 
 
 @pytest.fixture(scope="module")

@@ -1,18 +1,13 @@
 """studies/stability.py on a hard case: the energy line search converges where plain Newton fails."""
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
+from _studies import load_study
 
-STUDY = Path(__file__).resolve().parents[1] / "studies" / "stability.py"
 
 
 def _load():
-    spec = importlib.util.spec_from_file_location("stability", STUDY)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_study("stability")
 
 
 def test_energy_converges_where_plain_newton_fails(tmp_path):
