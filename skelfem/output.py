@@ -41,6 +41,19 @@ def write_json(path: Path, data: dict) -> None:
     atomic_write(path, write)
 
 
+def write_csv(path: Path, fields, rows) -> None:
+    """Rows (dicts) as CSV with the given columns (missing values empty), atomically."""
+    import csv
+
+    def write(tmp):
+        with open(tmp, "w", newline="") as f:
+            w = csv.DictWriter(f, list(fields), extrasaction="ignore")
+            w.writeheader()
+            for r in rows:
+                w.writerow({k: r.get(k, "") for k in fields})
+    atomic_write(path, write)
+
+
 def _floats(a) -> list:
     return [float(v) for v in np.asarray(a, dtype=float).ravel()]
 

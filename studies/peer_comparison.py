@@ -32,7 +32,6 @@ Times exclude meshing (shared) and, for skelfem, the FFCx JIT (warm cache).
 from __future__ import annotations
 
 import argparse
-import csv
 import importlib.util
 import math
 import time
@@ -344,17 +343,10 @@ CSV_FIELDS = ("code", "size", "degree", "dofs", "converged", "status", "newton_i
 
 
 def write_outputs(out: Path, result: dict) -> None:
-    from skelfem.output import atomic_write, write_json
+    from skelfem.output import write_csv, write_json
 
     out.mkdir(parents=True, exist_ok=True)
-
-    def write_csv(tmp):
-        with open(tmp, "w", newline="") as f:
-            w = csv.DictWriter(f, CSV_FIELDS, extrasaction="ignore")
-            w.writeheader()
-            for r in result["rows"]:
-                w.writerow({k: r.get(k, "") for k in CSV_FIELDS})
-    atomic_write(out / "cases.csv", write_csv)
+    write_csv(out / "cases.csv", CSV_FIELDS, result["rows"])
     write_json(out / "summary.json", result["summary"])
     plot(out / "peer_comparison.png", result)
 

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import copy
-import csv
 import time
 import tomllib
 from pathlib import Path
@@ -156,17 +155,10 @@ CSV_FIELDS = ("strategy", "steps", "ratio", "contraction", "converged", "status"
 
 
 def write_outputs(out: Path, result: dict) -> None:
-    from skelfem.output import atomic_write, write_json
+    from skelfem.output import write_csv, write_json
 
     out.mkdir(parents=True, exist_ok=True)
-
-    def write_csv(tmp):
-        with open(tmp, "w", newline="") as f:
-            w = csv.DictWriter(f, CSV_FIELDS, extrasaction="ignore")
-            w.writeheader()
-            for r in result["cases"]:
-                w.writerow({k: r.get(k, "") for k in CSV_FIELDS})
-    atomic_write(out / "cases.csv", write_csv)
+    write_csv(out / "cases.csv", CSV_FIELDS, result["cases"])
     write_json(out / "summary.json", {"size": result["size"], **result["summary"]})
     plot(out / "stability.png", result)
 
