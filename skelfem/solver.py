@@ -39,6 +39,10 @@ _REASONS = {
     PETSc.SNES.ConvergedReason.DIVERGED_LINEAR_SOLVE: "linear_solve_failed",
     PETSc.SNES.ConvergedReason.DIVERGED_DTOL: "diverged",
     PETSc.SNES.ConvergedReason.DIVERGED_TR_DELTA: "trust_region_collapsed",
+    PETSc.SNES.ConvergedReason.DIVERGED_INNER: "inner_solve_failed",
+    PETSc.SNES.ConvergedReason.DIVERGED_LOCAL_MIN: "local_minimum_of_residual",
+    PETSc.SNES.ConvergedReason.DIVERGED_FUNCTION_DOMAIN: "inverted_elements",
+    PETSc.SNES.ConvergedReason.DIVERGED_JACOBIAN_DOMAIN: "inverted_elements",
 }
 
 
