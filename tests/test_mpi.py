@@ -77,3 +77,14 @@ def test_every_ingredient_agrees_across_ranks(tmp_path):
     serial = _simulate(path, tmp_path / "s", 1)
     assert np.linalg.norm(serial["grounds"]["wall"]["force"]) > 0      # the ground is engaged
     _agree(serial, _simulate(path, tmp_path / "p", 2))
+
+
+def test_pull_study_under_mpirun_matches_serial(tmp_path):
+    """A study runs unchanged on a partitioned mesh (markers, loads, pins across ranks)."""
+    study = [sys.executable, str(ROOT / "studies" / "pull_test.py"), "--size", "3", "--loads", "2", "6"]
+    for name, prefix in (("serial", []), ("mpi", ["mpirun", "-n", "2"])):
+        res = subprocess.run(prefix + study + ["--out", str(tmp_path / name)], env=ENV,
+                             capture_output=True, text=True, timeout=600)
+        assert res.returncode == 0, res.stdout + res.stderr
+    rows = [(tmp_path / n / "pull_test.csv").read_text().splitlines() for n in ("serial", "mpi")]
+    assert len(rows[0]) == 7 and rows[0] == rows[1]
