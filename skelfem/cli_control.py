@@ -257,6 +257,10 @@ def track_summary(design, ik, results, timings: dict) -> dict:
 # -- pictures -------------------------------------------------------------------------------------------
 def plot_ik(path: Path, scene, res, title: str = "") -> None:
     """The deformed pose with the target (cross) and the achieved marker (circle)."""
+    if scene.dim == 3:
+        from .output import plot_deformed_3d
+        plot_deformed_3d(path, scene, title, points=[(res.target, "red")])
+        return
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -323,7 +327,13 @@ def draw_track(ax, scene, results, poses: list, title: str = "") -> None:
 
 
 def plot_track(path: Path, scene, results, poses: list, title: str = "") -> None:
-    """track.png: draw_track on its own figure."""
+    """track.png: draw_track on its own figure (3D: the last pose with target and achieved paths)."""
+    if scene.dim == 3:
+        from .output import plot_deformed_3d
+        targets = np.array([r.target for r in results])
+        achieved = np.array([r.position for r in results])
+        plot_deformed_3d(path, scene, title, paths=[(targets, "red"), (achieved, "#1a7f37")])
+        return
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

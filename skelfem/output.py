@@ -271,10 +271,13 @@ def plot_deformed(path: Path, scene, title: str = "", ax=None, show_rest: bool =
         plt.close(fig)
 
 
-def plot_deformed_3d(path: Path, scene, title: str = "", window_size=(900, 900)) -> None:
+def plot_deformed_3d(path: Path, scene, title: str = "", window_size=(900, 900),
+                     points=(), paths=()) -> None:
     """Off-screen PNG of a 3D result: translucent body, opaque bones, cables, markers.
 
-    Rendered with pyvista/VTK through EGL, so it needs no display.
+    `points` are extra (xyz, colour) dots (e.g. IK targets), `paths` extra
+    ((n, 3) array, colour) polylines (e.g. a target path). Rendered with
+    pyvista/VTK through EGL, so it needs no display.
     """
     os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
     import pyvista as pv
@@ -307,6 +310,11 @@ def plot_deformed_3d(path: Path, scene, title: str = "", window_size=(900, 900))
         pos = np.array(list(snap.markers.values()))
         p.add_point_labels(pos, list(snap.markers), point_size=12, font_size=14, point_color="#222222",
                            shape=None, always_visible=True)
+    for xyz, colour in points:
+        p.add_mesh(pv.PolyData(np.atleast_2d(np.asarray(xyz, float))), color=colour, point_size=16,
+                   render_points_as_spheres=True)
+    for pts, colour in paths:
+        p.add_mesh(pv.lines_from_points(np.asarray(pts, float)), color=colour, line_width=4)
     if title:
         p.add_text(title, font_size=11, color="black")
     p.add_axes(color="black")

@@ -54,3 +54,13 @@ def test_3d_outputs_open_in_meshio_with_fields_and_cables(tmp_path):
     assert (tmp_path / "deformed.png").stat().st_size > 20_000
     # the biceps (front) pulls the forearm up: the wrist rises
     assert res["markers"]["wrist"]["displacement"][2] > 5.0
+
+
+def test_soft_ik_works_unchanged_in_3d(tmp_path):
+    out = tmp_path / "ik"
+    code = main(["ik", str(GEOMETRY / "arm3d.toml"), "--marker", "hand", "--target", "50", "90", "-120",
+                 "--set", "mesh.size=9", "--out", str(out), "-q"])
+    assert code == 0
+    res = json.loads((out / "ik.json").read_text())
+    assert res["reached"] and res["error"] < res["tol"] and res["forward_solves"] <= 15
+    assert (out / "ik.png").stat().st_size > 20_000
