@@ -16,6 +16,13 @@ FORMAT = 1
 
 
 # -- small helpers ---------------------------------------------------------------------------
+def say(*args, **kwargs) -> None:
+    """print, on MPI rank 0 only (progress lines of studies and scripts)."""
+    from mpi4py import MPI
+    if MPI.COMM_WORLD.rank == 0:
+        print(*args, **kwargs)
+
+
 def atomic_write(path: Path, write) -> None:
     """Call write(tmp_path) and rename the result onto path."""
     path = Path(path)

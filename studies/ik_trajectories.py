@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from skelfem.output import say
 
 ROOT = Path(__file__).resolve().parents[1]
 DESIGN = ROOT / "geometry" / "finger4.toml"
@@ -211,21 +212,21 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     a = p.parse_args(argv)
     res = run(a.size, a.targets, a.random, a.u_max, a.seed, a.out)
-    print(f"finger4 at mesh size {a.size} mm ({res['dofs']} DOFs), tol {res['tol']:.3g} mm")
+    say(f"finger4 at mesh size {a.size} mm ({res['dofs']} DOFs), tol {res['tol']:.3g} mm")
     for name in LINES:
         n = res[name]
-        print(f"  {name:10s}: {n['reached']}/{n['targets']} reached, from {n['reachable_from']} to "
+        say(f"  {name:10s}: {n['reached']}/{n['targets']} reached, from {n['reachable_from']} to "
               f"{n['reachable_to']}; max error of reached {n['max_error_reached']:.3g} mm; forward solves "
               f"median {n['forward_solves']['median']:g}, max {n['forward_solves']['max']}; "
               f"{n['seconds_per_target']:.2f} s per target (median)")
     r = res["random"]
     if r["targets"]:
-        print(f"  random    : {r['reached']}/{r['targets']} reached; forward solves min/median/max "
+        say(f"  random    : {r['reached']}/{r['targets']} reached; forward solves min/median/max "
               f"{r['forward_solves']['min']}/{r['forward_solves']['median']:g}/{r['forward_solves']['max']}; "
               f"error median {r['error']['median']:.3g}, max {r['error']['max']:.3g} mm; "
               f"{r['seconds_per_target']['median']:.2f} s per target (median), max "
               f"{r['seconds_per_target']['max']:.2f} s")
-    print(f"files in {a.out} ({res['seconds']:.0f} s)")
+    say(f"files in {a.out} ({res['seconds']:.0f} s)")
     return 0
 
 

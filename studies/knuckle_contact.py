@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from skelfem.output import say
 
 ROOT = Path(__file__).resolve().parents[1]
 DESIGN = ROOT / "geometry" / "finger_knuckles.toml"
@@ -144,10 +145,10 @@ def main(argv=None) -> int:
     res = run(a.size, a.contraction, a.out)
     for key in ("on", "off"):
         r = res[key]
-        print(f"self-contact {key:3s}: {r['status']}, {r['newton_iterations']} Newton its, "
+        say(f"self-contact {key:3s}: {r['status']}, {r['newton_iterations']} Newton its, "
               f"min distance over iterates {r['min_distance']:.3g} mm, final {r['final_distance']:.3g} mm, "
               f"{r['crossing_edges']} crossing edge pairs, overlap {r['overlap_area']:.3f} mm^2 ({r['time']:.1f} s)")
-    print(f"wrote {a.out}/knuckle_contact.csv, knuckles.png, knuckle_distance.png in {time.perf_counter() - t0:.1f} s")
+    say(f"wrote {a.out}/knuckle_contact.csv, knuckles.png, knuckle_distance.png in {time.perf_counter() - t0:.1f} s")
     return 0 if all(r["converged"] for r in res.values()) else 2
 
 

@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
+from skelfem.output import say
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "studies" / "output" / "peer_comparison"
@@ -394,11 +395,11 @@ def main(argv=None) -> int:
     ap.add_argument("--degree", type=int, choices=(1, 2), default=2)
     a = ap.parse_args(argv)
     if not have_skfem():
-        print("scikit-fem is not installed: pip install scikit-fem")
+        say("scikit-fem is not installed: pip install scikit-fem")
         return 1
     res = run(a.sizes, a.degree, a.out)
     for c in res["summary"]["cases"]:
-        print(f"h={c['size']:<5g} {c['dofs']:7d} DOFs: tip skelfem ({c['tip_skelfem'][0]:.6f}, {c['tip_skelfem'][1]:.6f}) "
+        say(f"h={c['size']:<5g} {c['dofs']:7d} DOFs: tip skelfem ({c['tip_skelfem'][0]:.6f}, {c['tip_skelfem'][1]:.6f}) "
               f"scikit-fem ({c['tip_scikit_fem'][0]:.6f}, {c['tip_scikit_fem'][1]:.6f}), difference "
               f"{c['tip_difference']:.1e} mm; time {c['time_skelfem']:.2f} s vs {c['time_scikit_fem']:.2f} s "
               f"(scikit-fem / skelfem = {c['speedup']:.1f}; scikit-fem Jacobians {c['scikit_fem_jacobian_time']:.2f} s, "
@@ -407,7 +408,7 @@ def main(argv=None) -> int:
         from skelfem.output import atomic_write
         png = (a.out / "peer_comparison.png").read_bytes()
         atomic_write(a.figures / "peer_comparison.png", lambda tmp: Path(tmp).write_bytes(png))
-    print(f"outputs in {a.out}")
+    say(f"outputs in {a.out}")
     return 0
 
 

@@ -30,6 +30,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from skelfem.output import say
 
 ROOT = Path(__file__).resolve().parents[1]
 CONDITIONS = {   # key: (design, label)
@@ -171,8 +172,8 @@ def main(argv=None) -> int:
     for key, r in res["conditions"].items():
         ok &= r["status"] == "converged"
         disp = "  ".join(f"{F:g} N: {d:.3f}" for F, d in zip(r["loads"], r["tip_displacement"]))
-        print(f"{r['label']:18s} {disp} mm  ({r['status']}, {r['iterations']} Newton its, {r['time']:.1f} s)")
-    print(f"wrote {a.out}/pull_test.csv, pull_test.png, pull_shapes.png in {time.perf_counter() - t0:.1f} s")
+        say(f"{r['label']:18s} {disp} mm  ({r['status']}, {r['iterations']} Newton its, {r['time']:.1f} s)")
+    say(f"wrote {a.out}/pull_test.csv, pull_test.png, pull_shapes.png in {time.perf_counter() - t0:.1f} s")
     return 0 if ok else 2
 
 

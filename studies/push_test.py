@@ -45,6 +45,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from skelfem.output import say
 
 ROOT = Path(__file__).resolve().parents[1]
 CONDITIONS = {   # key: (design, label, pretensioned)
@@ -226,9 +227,9 @@ def main(argv=None) -> int:
     ok = True
     for key, r in res["conditions"].items():
         ok &= r["status"] == "converged"
-        print(f"{r['label']:31s} peak {r['peak_force']:.4f} N at {r['peak_travel']:.2f} mm  "
+        say(f"{r['label']:31s} peak {r['peak_force']:.4f} N at {r['peak_travel']:.2f} mm  "
               f"normalised {r['normalised_peak']:.3f}  ({r['status']}, {r['iterations']} Newton its, {r['time']:.1f} s)")
-    print(f"wrote {a.out}/push_test.csv, push_test.png, push_shapes.png in {time.perf_counter() - t0:.1f} s")
+    say(f"wrote {a.out}/push_test.csv, push_test.png, push_shapes.png in {time.perf_counter() - t0:.1f} s")
     return 0 if ok else 2
 
 

@@ -10,6 +10,7 @@ import argparse
 from pathlib import Path
 
 import numpy as np
+from skelfem.output import say
 
 ROOT = Path(__file__).resolve().parents[1]
 CONDITIONS = {"finger": "bones + ligaments", "finger_bones": "bones only", "finger_soft": "no bones"}
@@ -105,12 +106,12 @@ def main(argv=None) -> int:
     res = run(a.size, a.contraction, a.out, arm=not a.no_arm)
     arm = res.pop("arm3d", None)
     if arm:
-        print(f"arm3d         hand at ({', '.join(f'{v:.2f}' for v in arm['hand'])}) mm, "
+        say(f"arm3d         hand at ({', '.join(f'{v:.2f}' for v in arm['hand'])}) mm, "
               f"{arm['newton_iterations']} Newton iterations")
     for name, r in res.items():
-        print(f"{name:13s} tip ({r['tip'][0]:7.2f}, {r['tip'][1]:7.2f}) mm  tension {r['tension']:.3f} N  "
+        say(f"{name:13s} tip ({r['tip'][0]:7.2f}, {r['tip'][1]:7.2f}) mm  tension {r['tension']:.3f} N  "
               f"{r['newton_iterations']} Newton iterations")
-    print(f"figures in {a.out}")
+    say(f"figures in {a.out}")
     return 0
 
 

@@ -41,6 +41,7 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
+from skelfem.output import say
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "studies" / "output" / "speed_accuracy"
@@ -356,19 +357,19 @@ def main(argv=None) -> int:
     problems = [p for p in a.problems if p in QUICK_SIZES] if a.quick else a.problems
     res = run(problems, QUICK_SIZES if a.quick else None, a.out)
     for problem, s in res["summary"].items():
-        print(f"{problem}: reference P2 h={s['reference']['size']:g}, tip moves {s['reference']['displacement']:.3f} mm, "
+        say(f"{problem}: reference P2 h={s['reference']['size']:g}, tip moves {s['reference']['displacement']:.3f} mm, "
               f"reference error {s['reference_error']['error']:.2g} mm ({s['reference_error']['method']})")
         for p, m in s["models"].items():
             if m["error"]:
-                print(f"  P{p}: error ~ {m['error']['C']:.3g} h^{m['error']['r']:.2f} mm, "
+                say(f"  P{p}: error ~ {m['error']['C']:.3g} h^{m['error']['r']:.2f} mm, "
                       f"time ~ {m['time']['C']:.3g} h^{m['time']['r']:.2f} s")
-        print("  Pareto: " + ", ".join(f"P{q['degree']} h={q['size']:g} ({q['error']:.2g} mm, {q['time']:.2f} s)"
+        say("  Pareto: " + ", ".join(f"P{q['degree']} h={q['size']:g} ({q['error']:.2g} mm, {q['time']:.2f} s)"
                                        for q in s["pareto"]))
     if a.figures is not None:
         from skelfem.output import atomic_write
         png = (a.out / "speed_accuracy.png").read_bytes()
         atomic_write(a.figures / "speed_accuracy.png", lambda tmp: Path(tmp).write_bytes(png))
-    print(f"outputs in {a.out}")
+    say(f"outputs in {a.out}")
     return 0
 
 

@@ -35,6 +35,7 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
+from skelfem.output import say
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "studies" / "output" / "stability"
@@ -235,15 +236,15 @@ def main(argv=None) -> int:
         res = run(size=a.size, out=a.out)
     s = res["summary"]
     for name, p in s["strategies"].items():
-        print(f"{name:12s} {p['successes']:3d}/{p['cases']} converged (by steps {p['by_steps']}), "
+        say(f"{name:12s} {p['successes']:3d}/{p['cases']} converged (by steps {p['by_steps']}), "
               f"median {p['median_iterations']} its, {p['total_time']:.1f} s; failures: {', '.join(p['failures']) or '-'}")
-    print(f"picked: {s['picked']} (default: {s['default']}); energy converges over all ratios at "
+    say(f"picked: {s['picked']} (default: {s['default']}); energy converges over all ratios at "
           f"u = {DEMO_CONTRACTION:g} mm: {s['energy_converges_over_all_ratios_at_demo_contraction']}")
     if a.figures is not None:
         from skelfem.output import atomic_write
         png = (a.out / "stability.png").read_bytes()
         atomic_write(a.figures / "stability.png", lambda tmp: Path(tmp).write_bytes(png))
-    print(f"outputs in {a.out}")
+    say(f"outputs in {a.out}")
     return 0
 
 

@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from skelfem.output import say
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -43,7 +44,7 @@ def run(designs=("finger", "finger_bones"), tols=(2.0, 0.5, 0.2), ref_size: floa
     for design in designs:
         ref, t_ref = _simulate(design, out / design / "reference", "--set", "mesh.degree=2",
                                "--set", f"mesh.size={ref_size}")
-        print(f"{design}: reference P2 h={ref_size}: {t_ref:.1f} s", flush=True)
+        say(f"{design}: reference P2 h={ref_size}: {t_ref:.1f} s", flush=True)
         for tol in tols:
             res, t = _simulate(design, out / design / f"tol_{tol:g}", "--tol", str(tol))
             err = float(np.linalg.norm(_markers(res) - _markers(ref), axis=1).max())
@@ -53,7 +54,7 @@ def run(designs=("finger", "finger_bones"), tols=(2.0, 0.5, 0.2), ref_size: floa
                          "met": err <= tol, "time": t, "reference_time": t_ref, "dofs": res["dofs"],
                          "reference_dofs": ref["dofs"]})
             r = rows[-1]
-            print(f"  tol {tol:g} mm: P{r['degree']} h={r['size']:g} ({r['dofs']} DOFs), estimated "
+            say(f"  tol {tol:g} mm: P{r['degree']} h={r['size']:g} ({r['dofs']} DOFs), estimated "
                   f"{r['estimated_error']:.3g} mm, actual {err:.3g} mm, {t:.1f} s "
                   f"({t / t_ref:.2f} of the reference)", flush=True)
     return rows
@@ -72,7 +73,7 @@ def main(argv=None) -> int:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
-    print(f"{sum(r['met'] for r in rows)}/{len(rows)} tolerances met; table in {a.out / 'tol_check.csv'}")
+    say(f"{sum(r['met'] for r in rows)}/{len(rows)} tolerances met; table in {a.out / 'tol_check.csv'}")
     return 0
 
 
