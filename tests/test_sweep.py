@@ -130,3 +130,8 @@ def test_bad_sweep_file_is_one_error(tmp_path, text, expected):
     path.write_text(text.format(design=ROOT / "geometry" / "finger.toml"))
     with pytest.raises(DesignError, match=expected):
         load_sweep(path)
+
+
+def test_bundled_sweep_file_loads():
+    sweep = load_sweep(ROOT / "studies" / "stiffness_sweep.toml")
+    assert sweep.name == "stiffness" and len(sweep.cases) == 12 and sweep.design.name == "finger.toml"
