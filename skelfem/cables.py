@@ -128,10 +128,9 @@ class Cable:
     B: sp.csr_matrix         # D S restricted to dofs, (n_seg*gdim, m)
     d0: np.ndarray           # rest segment vectors D X, (n_seg, gdim)
     L0: float                # sketch length at rest
+    gather: DofGather        # u (local array) -> u on `dofs`, on every rank
     contraction: float = 0.0
     pretension: float = 0.0
-
-    gather: DofGather | None = None   # u (local array) -> u on `dofs`, on every rank
 
     @classmethod
     def build(cls, V, spec) -> "Cable":
@@ -146,8 +145,8 @@ class Cable:
                     sp.identity(gdim), format="csr")
         d0 = np.diff(X, axis=0)
         return cls(spec.name, spec.kind, float(spec.stiffness), X, gather.dofs,
-                   S, (D @ S).tocsr(), d0, float(np.linalg.norm(d0, axis=1).sum()),
-                   float(spec.contraction), float(spec.pretension), gather)
+                   S, (D @ S).tocsr(), d0, float(np.linalg.norm(d0, axis=1).sum()), gather,
+                   float(spec.contraction), float(spec.pretension))
 
     # -- state ---------------------------------------------------------------
     def rest_length(self, factor: float = 1.0) -> float:
@@ -157,7 +156,7 @@ class Cable:
 
     def values(self, u: np.ndarray) -> np.ndarray:
         """u on the cable's DOFs (`dofs`), from the local array u."""
-        return self.gather(u) if self.gather is not None else u[self.dofs]
+        return self.gather(u)
 
     def segments(self, u: np.ndarray) -> np.ndarray:
         """Current segment vectors d_i, (n_seg, gdim)."""

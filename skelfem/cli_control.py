@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from . import cli
-from .output import FORMAT, atomic_write, write_json
+from .output import FORMAT, atomic_write, write_json, write_text
 
 TARGET_COLOR, ACHIEVED_COLOR = "#d62728", "#2ca02c"
 
@@ -230,7 +230,7 @@ def write_csv(path: Path, header, rows) -> None:
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(header)
     w.writerows([[f"{v:.10g}" if isinstance(v, float) else v for v in row] for row in rows])
-    atomic_write(path, lambda tmp: Path(tmp).write_text(buf.getvalue()))
+    write_text(path, buf.getvalue())
 
 
 def track_summary(design, ik, results, timings: dict) -> dict:

@@ -48,6 +48,11 @@ def write_json(path: Path, data: dict) -> None:
     atomic_write(path, write)
 
 
+def write_text(path: Path, text: str) -> None:
+    """A text file, atomically."""
+    atomic_write(path, lambda tmp: Path(tmp).write_text(text))
+
+
 def write_csv(path: Path, fields, rows) -> None:
     """Rows (dicts) as CSV with the given columns (missing values empty), atomically."""
     import csv

@@ -11,6 +11,7 @@ import basix
 import numpy as np
 import scipy.sparse as sp
 from dolfinx import geometry
+from mpi4py import MPI
 
 _BASIX_CELL = {"triangle": basix.CellType.triangle, "tetrahedron": basix.CellType.tetrahedron}
 
@@ -97,7 +98,6 @@ class DofGather:
     """
 
     def __init__(self, V, dofs: np.ndarray):
-        from mpi4py import MPI
         self.comm = V.mesh.comm
         bs = V.dofmap.index_map_bs
         imap = V.dofmap.index_map
@@ -106,7 +106,6 @@ class DofGather:
         owned = (self.dofs >= lo) & (self.dofs < lo + n)
         self.pos = np.flatnonzero(owned)                       # where in dofs this rank owns
         self.local = (self.dofs[owned] - lo).astype(np.int32)  # their local indices
-        self._sum = MPI.SUM
         self.serial = self.comm.size == 1
 
     def __len__(self) -> int:
@@ -115,10 +114,9 @@ class DofGather:
     def __call__(self, u_local: np.ndarray) -> np.ndarray:
         if self.serial:
             return u_local[self.local]
-        from mpi4py import MPI
         uc = np.zeros(len(self.dofs))
         uc[self.pos] = u_local[self.local]
-        self.comm.Allreduce(MPI.IN_PLACE, uc, op=self._sum)
+        self.comm.Allreduce(MPI.IN_PLACE, uc, op=MPI.SUM)
         return uc
 
     def scatter_add(self, values: np.ndarray, g_local: np.ndarray) -> None:
@@ -137,7 +135,6 @@ def owner_ranks(mesh, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     A point belongs to the lowest rank that owns a cell containing it;
     the owner is comm.size where no rank does.
     """
-    from mpi4py import MPI
     comm = mesh.comm
     n_owned = mesh.topology.index_map(mesh.topology.dim).size_local
     cells = locate_cells(mesh, points, below=n_owned)            # ghost cells belong to others

@@ -41,7 +41,7 @@ from .design import DesignError
 from .geometry import BODY, bone_tag_name
 from .grounds import build_grounds, ground_energy, ground_forces
 from .materials import cell_values_min, elastic_energy, material_fields, min_jacobian_expression
-from .points import global_interpolation
+from .points import global_dof_numbers, global_interpolation
 
 
 class Pin:
@@ -198,7 +198,7 @@ class Scene:
         self.marker_names = list(design.markers)
         self._marker_S, self.marker_gather = self._points_operator(design.markers, "markers", "")
         self.marker_X = np.array([design.markers[n] for n in self.marker_names], float).reshape(-1, self.dim)
-        self.global_dofs = self._global_dofs()
+        self.global_dofs = global_dof_numbers(self.V).astype(PETSc.IntType)   # local -> global, unrolled
         self.rigid_groups = self._bone_dofs()
 
         # hand-written energy terms
@@ -349,11 +349,6 @@ class Scene:
                 lin = r + np.cross(th, r)
             corr[dofs] = rot - lin
         return corr
-
-    def _global_dofs(self) -> np.ndarray:
-        imap = self.V.dofmap.index_map
-        nodes = imap.local_to_global(np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32))
-        return (nodes[:, None] * self.bs + np.arange(self.bs)).ravel().astype(PETSc.IntType)
 
     # -- load factor -----------------------------------------------------------------
     def set_factor(self, a: float) -> None:

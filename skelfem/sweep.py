@@ -26,8 +26,6 @@ and ``summary.png``.
 """
 from __future__ import annotations
 
-import csv
-import io
 import itertools
 import json
 import time
@@ -240,19 +238,10 @@ def _rows(sweep: Sweep, out: Path) -> list[dict]:
 
 def write_summary(sweep: Sweep, out: Path) -> dict:
     """summary.csv (one row per case) and summary.png; returns counts."""
-    from .output import atomic_write
+    from .output import write_csv
 
     rows = _rows(sweep, out)
-    columns = list(dict.fromkeys(k for r in rows for k in r))
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=columns, restval="")
-    writer.writeheader()
-    writer.writerows(rows)
-
-    def write(tmp):
-        with open(tmp, "w") as f:
-            f.write(buf.getvalue())
-    atomic_write(out / "summary.csv", write)
+    write_csv(out / "summary.csv", list(dict.fromkeys(k for r in rows for k in r)), rows)
     _plot_summary(sweep, rows, out / "summary.png")
     failed = [r["case"] for r in rows if not r["converged"]]
     return {"cases": len(rows), "converged": len(rows) - len(failed), "failed": failed}

@@ -104,16 +104,14 @@ def run(size: float = 1.0, loads=DEFAULT_LOADS, snapshot: float | None = None, p
 
 # -- files ---------------------------------------------------------------------------------------
 def write_csv(path: Path, res: dict) -> None:
-    from skelfem.output import atomic_write
+    from skelfem.output import write_text
 
     lines = ["condition,load_N,tip_axial_displacement_mm,tip_dx_mm,tip_dy_mm,status"]
     for key, r in res["conditions"].items():
         for F, dy, tip in zip(r["loads"], r["tip_displacement"], r["tip"]):
             lines.append(f"{key},{F:.6g},{dy:.6g},{tip[0]:.6g},{tip[1]:.6g},{r['status']}")
 
-    def write(tmp):
-        Path(tmp).write_text("\n".join(lines) + "\n")
-    atomic_write(path, write)
+    write_text(path, "\n".join(lines) + "\n")
 
 
 def write_outputs(out: Path, res: dict, scenes: dict) -> None:

@@ -150,7 +150,7 @@ def run(size: float = 1.5, travel: float = 6.0, steps: int = 24, gap: float = 0.
 
 # -- files ---------------------------------------------------------------------------------------
 def write_csv(path: Path, res: dict) -> None:
-    from skelfem.output import atomic_write
+    from skelfem.output import write_text
 
     lines = ["condition,travel_mm,force_N,tip_x_mm,tip_y_mm"]
     for key, r in res["conditions"].items():
@@ -161,9 +161,7 @@ def write_csv(path: Path, res: dict) -> None:
     for key, r in res["conditions"].items():
         lines.append(f"{key},{r['peak_force']:.6g},{r['peak_travel']:.6g},{r['normalised_peak']:.6g},{r['status']}")
 
-    def write(tmp):
-        Path(tmp).write_text("\n".join(lines) + "\n")
-    atomic_write(path, write)
+    write_text(path, "\n".join(lines) + "\n")
 
 
 def write_outputs(out: Path, res: dict, scenes: dict) -> None:

@@ -25,17 +25,17 @@ def test_tighter_tolerance_never_coarsens_and_locking_forces_p2():
 
 def test_tol_run_meets_its_tolerance_against_a_finer_reference(tmp_path, capsys):
     design = str(GEOMETRY / "finger_bones.toml")       # tendon anchored in a bone: a converging answer
-    assert main(["simulate", design, "--out", str(tmp_path / "tol"), "--no-picture", "--tol", "1.0"]) == 0
+    assert main(["simulate", design, "--out", str(tmp_path / "tol"), "--no-picture", "--tol", "0.3"]) == 0
     res = json.loads((tmp_path / "tol" / "result.json").read_text())
     a = res["accuracy"]
-    assert a["met"] and a["estimated_error"] <= 0.5 and a["motion_estimate"] > 10.0
-    assert res["degree"] == a["degree"]
-    assert "--tol 1 mm: P" in capsys.readouterr().out
+    assert a["met"] and a["estimated_error"] <= 0.3 / accuracy.SAFETY * (1 + 1e-9) and a["motion_estimate"] > 10.0
+    assert res["degree"] == a["degree"] and a["size"] < accuracy.H_MAX      # the tolerance, not a clamp, decided
+    assert "--tol 0.3 mm: P" in capsys.readouterr().out
     assert main(["simulate", design, "--out", str(tmp_path / "ref"), "-q", "--no-picture",
-                 "--set", "mesh.degree=2", "--set", "mesh.size=1.5"]) == 0
+                 "--set", "mesh.degree=2", "--set", "mesh.size=1.0"]) == 0
     ref = json.loads((tmp_path / "ref" / "result.json").read_text())
     err = np.linalg.norm(np.subtract(res["markers"]["tip"]["position"], ref["markers"]["tip"]["position"]))
-    assert err < 1.0
+    assert err < 0.3
 
 
 def test_tol_needs_a_marker_and_a_positive_value(tmp_path, capsys):

@@ -25,7 +25,7 @@ def _simulate(design, out, ranks, *sets):
     cmd = [SKELFEM, "simulate", str(design), "--out", str(out), "-q", *sum((["--set", s] for s in sets), [])]
     if ranks > 1:
         cmd = ["mpirun", "-n", str(ranks)] + cmd
-    res = subprocess.run(cmd, env=ENV, capture_output=True, text=True, timeout=600)
+    res = subprocess.run(cmd, env=ENV, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stdout + res.stderr
     return json.loads((out / "result.json").read_text())
 
@@ -84,7 +84,7 @@ def test_pull_study_under_mpirun_matches_serial(tmp_path):
     study = [sys.executable, str(ROOT / "studies" / "pull_test.py"), "--size", "3", "--loads", "2", "6"]
     for name, prefix in (("serial", []), ("mpi", ["mpirun", "-n", "2"])):
         res = subprocess.run(prefix + study + ["--out", str(tmp_path / name)], env=ENV,
-                             capture_output=True, text=True, timeout=600)
+                             capture_output=True, text=True, timeout=300)
         assert res.returncode == 0, res.stdout + res.stderr
     rows = [(tmp_path / n / "pull_test.csv").read_text().splitlines() for n in ("serial", "mpi")]
     assert len(rows[0]) == 7 and rows[0] == rows[1]
