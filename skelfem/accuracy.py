@@ -6,7 +6,7 @@ cost. The models were fitted by ``studies/speed_accuracy.py`` on finger.toml
 (tip motion U_ref = 46.3 mm) against a Richardson-checked P2 reference:
 
     error   e_p(h) = C_p (U / U_ref) h^r_p      C_1 = 0.50, r_1 = 0.99;  C_2 = 0.086, r_2 = 1.47
-    cost    t_p(h) ~ T_p h^-q_p                  T_1 = 1.5,  q_1 = 1.64;  T_2 = 6.7,   q_2 = 1.95
+    cost    t_p(h) ~ T_p h^-q_p                  T_1 = 0.685, q_1 = 1.78;  T_2 = 3.16, q_2 = 2.14
 
 U, the design's largest marker motion, comes from a cheap P2 solve at h = 4
 (the error models scale with the motion). Each degree gets the coarsest h in
@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 U_REF = 46.3                                    # mm, tip motion of the calibration run
 ERROR = {1: (0.50, 0.99), 2: (0.086, 1.47)}     # C_p [mm / mm^r], r_p
-COST = {1: (1.5, 1.64), 2: (6.7, 1.95)}         # T_p [s mm^q], q_p
+COST = {1: (0.685, 1.78), 2: (3.16, 2.14)}      # T_p [s mm^q], q_p
 SAFETY = 2.0
 H_MIN, H_MAX = 0.35, 4.0
 PRESOLVE = {"degree": 2, "size": 4.0}
