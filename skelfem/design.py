@@ -20,7 +20,7 @@ from . import polygons
 
 FORMAT = 1
 LINE_SEARCHES = ("energy", "residual", "none", "trust_region")
-SECTIONS_BY_NAME = ("bones", "cables", "pins", "loads", "grounds")
+SECTIONS_BY_NAME = ("bones", "cables", "pins", "loads", "grounds", "tractions")
 PRIMITIVES = ("box", "cylinder", "sphere", "extrude")
 
 
@@ -34,6 +34,7 @@ class Material:
     name: str
     E: float          # Young's modulus, MPa
     nu: float         # Poisson's ratio
+    density: float | None = None   # kg/m^3 (gravity, dynamics); None: not given
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,6 +86,13 @@ class LoadSpec:
 
 
 @dataclass(frozen=True, eq=False)
+class TractionSpec:
+    name: str
+    region: np.ndarray    # (2, dim): [min, max]; the boundary inside it is loaded
+    traction: np.ndarray  # MPa: a dead load per area of reference boundary
+
+
+@dataclass(frozen=True, eq=False)
 class GroundSpec:
     name: str
     point: np.ndarray
@@ -124,6 +132,8 @@ class Design:
     contact: ContactSpec = field(default_factory=ContactSpec)
     markers: dict = field(default_factory=dict)
     solver: SolverSpec = field(default_factory=SolverSpec)
+    gravity: np.ndarray | None = None    # m/s^2 as written; None: no gravity
+    tractions: tuple = ()
     format: int = FORMAT
     raw: dict = field(default_factory=dict)   # the TOML data after overrides
 
@@ -334,8 +344,11 @@ def _materials(top: _Table) -> dict:
         nu = t.take("nu", "number")
         if not -1.0 < nu < 0.5:
             t.fail("nu", f"must lie in (-1, 0.5), got {nu:g}")
+        density = t.take("density", "number", None)
+        if density is not None:
+            _positive(t, "density", density)
         t.done()
-        out[name] = Material(name, E, nu)
+        out[name] = Material(name, E, nu, density)
     return out
 
 
@@ -474,9 +487,7 @@ def _pins(top: _Table, dim: int) -> tuple:
     pins = []
     for t in _named_entries(top, "pins", required=True):
         name = t.where.split(".", 1)[1]
-        region = t.take("region", "points", dim=dim)
-        if region.shape != (2, dim) or np.any(region[1] < region[0]):
-            t.fail("region", "must be [min, max] corners of a box with min <= max")
+        region = _box(t, dim)
         kind = t.take("kind", "str", "fixed")
         if kind not in ("fixed", "spring"):
             t.fail("kind", f"must be \"fixed\" or \"spring\", got {kind!r}")
@@ -499,6 +510,35 @@ def _loads(top: _Table, dim: int, region) -> tuple:
         t.done()
         loads.append(LoadSpec(t.where.split(".", 1)[1], at, force))
     return tuple(loads)
+
+
+def _box(t: _Table, dim: int) -> np.ndarray:
+    region = t.take("region", "points", dim=dim)
+    if region.shape != (2, dim) or np.any(region[1] < region[0]):
+        t.fail("region", "must be [min, max] corners of a box with min <= max")
+    return region
+
+
+def _tractions(top: _Table, dim: int) -> tuple:
+    out = []
+    for t in _named_entries(top, "tractions"):
+        region = _box(t, dim)
+        traction = t.take("traction", "vector", dim=dim)
+        t.done()
+        out.append(TractionSpec(t.where.split(".", 1)[1], region, traction))
+    return tuple(out)
+
+
+def _gravity(top: _Table, dim: int, materials: dict, used: list) -> np.ndarray | None:
+    t = _Table(top.take("gravity", "table", {}), "gravity", top.source)
+    if not t.data:
+        return None
+    g = t.take("acceleration", "vector", dim=dim)
+    t.done()
+    for name in used:
+        if materials[name].density is None:
+            raise DesignError(f"{top.source}: materials.{name}.density: missing (required with [gravity])")
+    return g
 
 
 def _grounds(top: _Table, dim: int) -> tuple:
@@ -578,10 +618,11 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     mt.done()
     materials = _materials(top)
     body, region, tol = _body(top, dim, materials)
+    bones = _bones(top, dim, materials, region, tol)
     design = Design(
         source=str(source), name=name, dim=dim, thickness=thickness, mesh=mesh,
         materials=materials, body=body,
-        bones=_bones(top, dim, materials, region, tol),
+        bones=bones,
         cables=_cables(top, dim, region, tol),
         pins=_pins(top, dim),
         loads=_loads(top, dim, region),
@@ -589,6 +630,8 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
         contact=_contact(top),
         markers=_markers(top, dim, region),
         solver=_solver(top),
+        gravity=_gravity(top, dim, materials, [body.material] + [b.material for b in bones]),
+        tractions=_tractions(top, dim),
         raw=data,
     )
     top.done()
