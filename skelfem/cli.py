@@ -86,21 +86,21 @@ def error(message: str) -> None:
 
 
 def prepare(args):
-    """Load, validate and mesh args.design; returns (design, scene, timings) or raises InputError."""
+    """Load, validate and mesh args.design; returns (design, session) or raises InputError."""
     from mpi4py import MPI
 
     from .design import DesignError, load_design
     from .geometry import MeshingError
-    from .run import build_scene
+    from .run import open_session
 
     try:
         design = load_design(args.design, args.overrides)
         args.out = output_folder(args, design)
         log.info("%s: meshing (size %g mm, P%d)", design.name, design.mesh.size, design.mesh.degree)
-        scene, timings = build_scene(design, MPI.COMM_WORLD)
+        session = open_session(design, MPI.COMM_WORLD)
     except (DesignError, MeshingError) as exc:
         raise InputError(str(exc)) from None
-    return design, scene, timings
+    return design, session
 
 
 def output_folder(args, design) -> Path:
@@ -113,18 +113,18 @@ def output_folder(args, design) -> Path:
 def simulate(args) -> int:
     from mpi4py import MPI
 
-    from .run import solve, write_results
+    from .run import write_results
 
     t0 = time.perf_counter()
     extra = {}
     if args.tol is not None:
         extra["accuracy"] = choose_discretisation(args)
-    design, scene, timings = prepare(args)
-    report, _ = solve(design, scene, timings)
-    result = write_results(design, scene, report, args.out, timings, t0, picture=not args.no_picture,
-                           extra=extra)
-    if not report.converged:
-        error(f"{design.name}: solve failed ({report.status}) after {report.load_steps} load step(s); "
+    design, session = prepare(args)
+    with session:
+        solved = session.solve()
+        result = write_results(session, solved, args.out, t0, picture=not args.no_picture, extra=extra)
+    if not solved.converged:
+        error(f"{design.name}: solve failed ({solved.status}) after {solved.load_steps} load step(s); "
               f"try more [solver].steps or a finer mesh; details in {args.out / 'result.json'}")
         return EXIT_SOLVE
     if not args.quiet and MPI.COMM_WORLD.rank == 0:
@@ -143,7 +143,7 @@ def choose_discretisation(args) -> dict:
     from . import accuracy
     from .design import DesignError, load_design
     from .geometry import MeshingError
-    from .run import build_scene, solve
+    from .run import open_session
 
     if not args.tol > 0:
         raise InputError(f"--tol: must be > 0, got {args.tol:g}")
@@ -152,15 +152,16 @@ def choose_discretisation(args) -> dict:
         design = load_design(args.design, list(args.overrides) + probe)
         if not design.markers:
             raise InputError(f"{args.design}: --tol needs at least one marker (its error is what --tol bounds)")
-        scene, timings = build_scene(design, MPI.COMM_WORLD)
+        session = open_session(design, MPI.COMM_WORLD)
     except (DesignError, MeshingError) as exc:
         raise InputError(str(exc)) from None
     log.info("--tol %g mm: estimating the motion with P2, h = %g mm", args.tol, accuracy.PRESOLVE["size"])
-    report, _ = solve(design, scene, timings)
+    with session:
+        report = session.solve()
     if not report.converged:
         raise InputError(f"{args.design}: --tol: the coarse estimate solve failed ({report.status}); "
                          "set [mesh] by hand")
-    motion = float(np.linalg.norm(scene.marker_positions() - scene.marker_X, axis=1).max())
+    motion = max(float(np.linalg.norm(m["displacement"])) for m in report.markers.values())
     used = {design.body.material, *(b.material for b in design.bones)}
     nu_max = max(design.materials[m].nu for m in used)
     choice = accuracy.choose(args.tol, motion, nu_max)
@@ -170,7 +171,7 @@ def choose_discretisation(args) -> dict:
              args.tol, choice.degree, choice.size, choice.estimate, motion, note)
     return {"tol": args.tol, "degree": choice.degree, "size": choice.size,
             "estimated_error": choice.estimate, "met": choice.met, "motion_estimate": motion,
-            "estimate_time": round(report.time, 4)}
+            "estimate_time": round(report.timings["solve"], 4)}
 
 
 def _summary(result: dict, out: Path) -> None:

@@ -107,14 +107,11 @@ def _setup(args):
         raise cli.InputError(f"{args.design}: {args.command} runs on one MPI process "
                              f"(got {MPI.COMM_WORLD.size}); use `skelfem sweep` to spread runs over ranks")
     from .control import SoftIK
-    from .solver import NewtonSolver
 
-    design, scene, timings = cli.prepare(args)
-    t0 = time.perf_counter()
-    solver = NewtonSolver(scene, design.solver)
-    ik = SoftIK(scene, solver, args.marker, upper=_bounds(args.max_contraction), reg=args.reg, tol=args.tol,
+    design, session = cli.prepare(args)
+    scene, timings = session.model, dict(session.timings)
+    ik = SoftIK(session, args.marker, upper=_bounds(args.max_contraction), reg=args.reg, tol=args.tol,
                 max_solves=args.max_solves)
-    timings["compile"] += time.perf_counter() - t0
     if not args.verbose:                        # one line per target, not per Newton solve
         cli.log.setLevel(logging.WARNING)
     return design, scene, ik, timings
@@ -193,10 +190,10 @@ def _named(names, values) -> dict:
     return {n: float(v) for n, v in zip(names, values)}
 
 
-def tensions(scene) -> dict:
-    """Cable tensions k max(0, l - L) at the scene's state, N."""
-    u = scene.u.x.array
-    return {c.name: float(c.tension(u, L)) for c, L in zip(scene.cables, scene.rest_lengths())}
+def tensions(model) -> dict:
+    """Cable tensions k max(0, l - L) at the model's state, N."""
+    u = model.u.x.array
+    return {t.name: float(t.cable.tension(u, t.rest_length)) for t in model.terms_in("cables")}
 
 
 def ik_dict(design, ik, res, timings: dict) -> dict:
@@ -210,7 +207,7 @@ def ik_dict(design, ik, res, timings: dict) -> dict:
         "reg": float(ik.reg), "finger_length": float(ik.length),
         "forward_solves": int(res.forward_solves), "failed_solves": int(res.failed_solves),
         "iterations": int(res.iterations), "errors": [float(e) for e in res.errors],
-        "tensions": tensions(ik.scene), "time": round(float(res.time), 4),
+        "tensions": tensions(ik.model), "time": round(float(res.time), 4),
         "timings": {k: round(float(v), 4) for k, v in timings.items()},
     }
 

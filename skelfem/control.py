@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from petsc4py import PETSc
 
-from .sensitivity import KINK, Linearization, contractions, set_contractions, stretch, tendon_indices
+from .sensitivity import KINK, Linearization, contractions, set_contractions, stretch, tendons
 from .solver import SolveError
 
 log = logging.getLogger("skelfem")
@@ -67,12 +67,12 @@ class IKResult:
     errors: list = field(default_factory=list)   # |y - y'| at the start and after each accepted step
 
 
-def finger_length(scene) -> float:
+def finger_length(model) -> float:
     """Extent of the body along its longest axis, mm."""
     from mpi4py import MPI
-    x = scene.mesh.geometry.x[:, :scene.dim]
-    lo = scene.comm.allreduce(x.min(axis=0), op=MPI.MIN)
-    hi = scene.comm.allreduce(x.max(axis=0), op=MPI.MAX)
+    x = model.mesh.geometry.x[:, :model.dim]
+    lo = model.comm.allreduce(x.min(axis=0), op=MPI.MIN)
+    hi = model.comm.allreduce(x.max(axis=0), op=MPI.MAX)
     return float(np.max(hi - lo))
 
 
@@ -88,37 +88,38 @@ def _no_cuts(solver):
 
 
 class SoftIK:
-    """Soft IK for one marker of a scene, keeping the last accepted equilibrium.
+    """Soft IK for one marker of a Session's design, keeping the last accepted equilibrium.
 
-    The scene must hold a converged equilibrium at load factor 1 for the
-    tendons' current contractions (see `settle`).
+    The session must hold a converged equilibrium for the tendons' current
+    contractions (see `settle`).
     """
 
-    def __init__(self, scene, solver, marker: str, upper=None, reg: float = 0.0,
+    def __init__(self, session, marker: str, upper=None, reg: float = 0.0,
                  tol: float | None = None, max_solves: int = 40, max_step: float | None = None,
                  damping: float = 1e-3):
         """upper: {tendon: u_max} (others unbounded); reg: rho, mm^2 per mm^2; tol: mm
         (default 1e-3 x finger length); max_step: cap on |D|_inf, mm (default
         0.05 x finger length); damping: initial mu relative to max diag(J^T J).
         """
-        if marker not in scene.marker_names:
-            have = ", ".join(scene.marker_names) or "none"
-            raise KeyError(f"marker '{marker}' not in design (have: {have})")
-        self.scene, self.solver = scene, solver
-        self.marker, self.index = marker, scene.marker_names.index(marker)
-        self.names = [scene.cables[i].name for i in tendon_indices(scene)]
+        model = self.model = session.model
+        self.session, self.solver = session, session.solver
+        names = model.term("markers").names if model.terms_in("markers") else []
+        if marker not in names:
+            raise KeyError(f"marker '{marker}' not in design (have: {', '.join(names) or 'none'})")
+        self.marker, self.index = marker, names.index(marker)
+        self.names = [t.name for t in tendons(model)]
         self.lower = np.zeros(len(self.names))
         self.upper = self._upper_bounds(upper or {})
         self.reg = float(reg)
-        self.length = finger_length(scene)
+        self.length = finger_length(model)
         self.tol = TOL_FRACTION * self.length if tol is None else float(tol)
         self.max_solves = int(max_solves)
         self.max_step = STEP_FRACTION * self.length if max_step is None else float(max_step)
         self.damping = float(damping)          # initial mu relative to max diag(J^T J)
-        self.u = np.clip(contractions(scene), self.lower, self.upper)
+        self.u = np.clip(contractions(model), self.lower, self.upper)
         self.one_sided = np.zeros(len(self.names), dtype=bool)   # tendons at the kink (see jacobian)
-        self._L0 = np.array([scene.cables[i].L0 for i in tendon_indices(scene)])
-        self._x = scene.u.vector.copy()        # the last accepted equilibrium x*(u)
+        self._L0 = np.array([t.cable.L0 for t in tendons(model)])
+        self._x = model.u.vector.copy()        # the last accepted equilibrium x*(u)
         self.forward_solves = 0                # over the object's life
         self.failed_solves = 0
         self.newton_iterations = 0
@@ -136,23 +137,23 @@ class SoftIK:
     # -- equilibria -------------------------------------------------------------------------
     def settle(self, steps: int = 1):
         """Solve the equilibrium for the current u from the current state (load ramp allowed)."""
-        set_contractions(self.scene, self.u)
+        set_contractions(self.model, self.u)
         report = self.solver.solve(steps)
         if not report.converged:
             self.restore()
             raise SolveError(f"equilibrium for u = {self.u} failed ({report.status})")
-        self.scene.u.vector.copy(self._x)
+        self.session.solved = True
+        self.model.u.vector.copy(self._x)
         return report
 
     def trial(self, u: np.ndarray) -> bool:
         """Newton at load factor 1 for contractions u, warm-started from x*(self.u).
 
-        True: the scene holds x*(u), to be accepted or restored. False: the
+        True: the model holds x*(u), to be accepted or restored. False: the
         solve failed and the accepted equilibrium is back in place.
         """
-        scene = self.scene
-        self._x.copy(scene.u.vector)
-        set_contractions(scene, u)
+        self._x.copy(self.model.u.vector)
+        set_contractions(self.model, u)
         self.forward_solves += 1
         with _no_cuts(self.solver):
             report = self.solver.solve(1)
@@ -165,19 +166,19 @@ class SoftIK:
     def accept(self, u: np.ndarray) -> None:
         """Make the trial state x*(u) the accepted one."""
         self.u = np.array(u, dtype=float)
-        self.scene.u.vector.copy(self._x)
+        self.model.u.vector.copy(self._x)
 
     def restore(self) -> None:
         """Put back the last accepted equilibrium and its contractions."""
-        scene = self.scene
-        set_contractions(scene, self.u)
-        scene.set_factor(1.0)
-        self._x.copy(scene.u.vector)
-        scene.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        model = self.model
+        set_contractions(model, self.u)
+        model.set_factor(1.0)
+        self._x.copy(model.u.vector)
+        model.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
 
     def position(self) -> np.ndarray:
-        """The marker's position y at the scene's current state."""
-        return self.scene.marker_positions()[self.index].copy()
+        """The marker's position y at the model's current state."""
+        return self.model.term("markers").positions(self.model.u.x.array)[self.index].copy()
 
     def jacobian(self) -> np.ndarray:
         """J = dy/du at the current equilibrium, (gdim, m).
@@ -185,18 +186,17 @@ class SoftIK:
         Tendons exactly at their rest length get the taut-branch column, valid
         for D_c >= 0 only; step() keeps them there (self.one_sided).
         """
-        lin = Linearization(self.scene, self.solver)
+        lin = Linearization(self.model, self.solver)
         try:
-            self.one_sided = np.isin(tendon_indices(self.scene), lin.kinked)
+            self.one_sided = np.isin(np.arange(len(self.names)), lin.kinked)
             return lin.marker_jacobian(self.index)
         finally:
             lin.destroy()
 
     def slack(self) -> np.ndarray:
         """sigma_c = max(0, L - l) per tendon at the current state, mm: contraction with no effect."""
-        scene, u = self.scene, self.scene.u.x.array
-        return np.array([max(0.0, -stretch(scene.cables[i], u, scene.cables[i].rest_length(1.0)))
-                         for i in tendon_indices(scene)])
+        u = self.model.u.x.array
+        return np.array([max(0.0, -stretch(t, u)) for t in tendons(self.model)])
 
     def take_up_slack(self) -> bool:
         """u_c += sigma_c for slack tendons that may (upper bound): x*(u) stays the equilibrium.
@@ -209,7 +209,7 @@ class SoftIK:
         if not take.any():
             return False
         self.u = self.u + np.where(take, sigma, 0.0)
-        set_contractions(self.scene, self.u)
+        set_contractions(self.model, self.u)
         log.debug("  IK: took up slack %s mm", np.round(np.where(take, sigma, 0.0), 4))
         return True
 

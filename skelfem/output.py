@@ -94,13 +94,22 @@ def cell_regions(scene) -> np.ndarray:
     return tags
 
 
-def cable_states(scene) -> list[dict]:
-    u = scene.u.x.array
+def cable_states(model) -> list[dict]:
+    u = model.u.x.array
     out = []
-    for c, L in zip(scene.cables, scene.rest_lengths()):
+    for term in model.terms_in("cables"):
+        c, L = term.cable, term.rest_length
         out.append({"name": c.name, "kind": c.kind, "rest": c.X, "deformed": c.positions(u),
                     "length": c.length(u), "rest_length": L, "tension": c.tension(u, L)})
     return out
+
+
+def marker_positions(model) -> dict:
+    """{name: current position} of the design's markers (collective under MPI)."""
+    terms = model.terms_in("markers")
+    if not terms:
+        return {}
+    return dict(zip(terms[0].names, terms[0].positions(model.u.x.array)))
 
 
 def snapshot(scene):
@@ -118,7 +127,7 @@ def snapshot(scene):
     n_cells = scene.mesh.topology.index_map(scene.mesh.topology.dim).size_local
     cells, regions = cells[:n_cells], cell_regions(scene)
     cables = cable_states(scene)
-    markers = dict(zip(scene.marker_names, scene.marker_positions())) if scene.marker_names else {}
+    markers = marker_positions(scene)
     if comm.size > 1:
         orig = np.asarray(scene.mesh.geometry.input_global_indices, dtype=np.int64)
         parts = comm.gather((orig, x, u, orig[cells], regions), root=0)
@@ -132,42 +141,6 @@ def snapshot(scene):
         regions = np.concatenate([p[4] for p in parts])
     return SimpleNamespace(x=x, u=u, cells=cells, regions=regions, cables=cables, markers=markers,
                            body_tag=scene.tm.tags["body"], design=scene.design)
-
-
-def result_dict(design, scene, report, timings: dict) -> dict:
-    """result.json as the design-format contract defines it."""
-    converged = bool(report.converged)
-    res = {
-        "format": FORMAT,
-        "design": design.name,
-        "converged": converged,
-        "status": report.status,
-        "newton_iterations": int(report.newton_iterations),
-        "load_steps": int(report.load_steps),
-        "energy": float(report.energy) if converged else None,
-        "dofs": int(scene.V.dofmap.index_map.size_global * scene.bs),
-        "cells": int(scene.mesh.topology.index_map(scene.mesh.topology.dim).size_global),
-        "degree": int(design.mesh.degree),
-        "min_jacobian": float(report.min_jacobian),
-    }
-    if converged:
-        positions = scene.marker_positions()
-        res["markers"] = {
-            name: {"reference": _floats(X), "position": _floats(x), "displacement": _floats(x - X)}
-            for name, X, x in zip(scene.marker_names, scene.marker_X, positions)}
-        res["cables"] = {
-            c["name"]: {"kind": c["kind"],
-                        "contraction": float(next(s.contraction for s in design.cables if s.name == c["name"])),
-                        "rest_length": float(c["rest_length"]), "length": float(c["length"]),
-                        "tension": float(c["tension"])}
-            for c in cable_states(scene)}
-        res["pins"] = {name: {"reaction": _floats(r)} for name, r in scene.reactions().items()}
-        res["grounds"] = {g.name: {"force": _floats(f)} for g, f in zip(design.grounds, scene.ground_forces())}
-    else:
-        res.update(markers=None, cables=None, pins=None, grounds=None)
-    res["residual_history"] = [[float(r) for r in step] for step in report.residual_history]
-    res["timings"] = {k: round(float(v), 4) for k, v in timings.items()}
-    return res
 
 
 # -- files ------------------------------------------------------------------------------------------

@@ -16,32 +16,10 @@ log = logging.getLogger("skelfem")
 STALE = ("solution.xdmf", "solution.h5", "deformed.png")
 
 
-def build_scene(design, comm):
-    """Mesh the design on comm and bind it to a Scene; returns (scene, timings)."""
-    from .geometry import mesh_design
-    from .scene import Scene
-
-    t0 = time.perf_counter()
-    tm = mesh_design(design, comm)
-    t1 = time.perf_counter()
-    scene = Scene(design, tm)
-    return scene, {"mesh": t1 - t0, "compile": time.perf_counter() - t1}
-
-
-def solve(design, scene, timings: dict):
-    """Newton with load stepping as [solver] asks; returns (report, solver)."""
-    from .solver import NewtonSolver
-
-    t0 = time.perf_counter()
-    solver = NewtonSolver(scene, design.solver)
-    timings["compile"] += time.perf_counter() - t0
-    log.info("%s: %d DOFs, %d cells; solving in %d load step(s)", design.name,
-             scene.V.dofmap.index_map.size_global * scene.bs,
-             scene.mesh.topology.index_map(scene.mesh.topology.dim).size_global, design.solver.steps)
-    t1 = time.perf_counter()
-    report = solver.solve(design.solver.steps)
-    timings["solve"] = time.perf_counter() - t1
-    return report, solver
+def open_session(design, comm):
+    """Mesh the design on comm and compile its model: a Session ready to solve."""
+    from .session import Session
+    return Session(design, comm=comm)
 
 
 def picture_title(design) -> str:
@@ -50,33 +28,33 @@ def picture_title(design) -> str:
     return f"{design.name}: " + (", ".join(pulled) if pulled else "no contraction")
 
 
-def write_results(design, scene, report, out: Path, timings: dict, t0: float,
-                  picture: bool = True, extra: dict | None = None) -> dict:
+def write_results(session, result, out: Path, t0: float, picture: bool = True,
+                  extra: dict | None = None) -> dict:
     """result.json always; solution.xdmf and deformed.png only for an equilibrium."""
-    from .output import plot_deformed, plot_deformed_3d, result_dict, write_json, write_xdmf
+    from .output import plot_deformed, plot_deformed_3d, write_json, write_xdmf
 
-    comm = scene.comm
-    timings["total"] = time.perf_counter() - t0
-    result = result_dict(design, scene, report, timings)
-    result.update(extra or {})
+    design, model = session.design, session.model
+    comm = model.comm
+    data = result.to_dict()
+    data.update(extra or {})
     if comm.rank == 0:
         out.mkdir(parents=True, exist_ok=True)
         for stale in STALE:
             (out / stale).unlink(missing_ok=True)   # never leave an old equilibrium beside a new result
-    if report.converged:                         # collective: every rank takes part, rank 0 writes
-        write_xdmf(out / "solution.xdmf", scene)
+    if result.converged:                         # collective: every rank takes part, rank 0 writes
+        write_xdmf(out / "solution.xdmf", model)
         if picture:
             plot = plot_deformed if design.dim == 2 else plot_deformed_3d
-            plot(out / "deformed.png", scene, picture_title(design))
-    result["timings"]["total"] = round(time.perf_counter() - t0, 4)
+            plot(out / "deformed.png", model, picture_title(design))
+    data["timings"]["total"] = round(time.perf_counter() - t0, 4)
     if comm.rank == 0:
-        write_json(out / "result.json", result)
-    return result
+        write_json(out / "result.json", data)
+    return data
 
 
 def simulate_design(design, out: Path, comm, picture: bool = True, extra: dict | None = None) -> dict:
     """Mesh, solve and write one design on comm; returns the result dict."""
     t0 = time.perf_counter()
-    scene, timings = build_scene(design, comm)
-    report, _ = solve(design, scene, timings)
-    return write_results(design, scene, report, Path(out), timings, t0, picture, extra)
+    with open_session(design, comm) as session:
+        result = session.solve()
+        return write_results(session, result, Path(out), t0, picture, extra)

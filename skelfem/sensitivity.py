@@ -24,11 +24,13 @@ Differentiating R(x*(u), u) = 0 with H = dR/dx = hess Pi at x*:
               (H is symmetric).
 
 SNES's last Jacobian belongs to the iterate before its final step, so H is
-assembled afresh at x* into the Newton solver's matrix (fixed nonzero
-pattern: MUMPS refactorises numerically, reusing its analysis) and factorised
-once; that factorisation serves every right-hand side, forward and adjoint.
-Dirichlet rows of H are identity rows and every right-hand side is zero there,
-so the pinned components of dx*/du and lambda vanish.
+assembled afresh at x* into the Newton solver's matrix K (fixed pattern:
+MUMPS refactorises numerically, reusing its analysis), its rank-one parts
+(taut cables, and tendons at the kink) go to the same Woodbury solver Newton
+uses (skelfem.linear), and that one factorisation serves every right-hand
+side, forward and adjoint. Dirichlet rows of H are identity rows and every
+right-hand side is zero there, so the pinned components of dx*/du and lambda
+vanish. Everything here works on any number of MPI ranks.
 """
 from __future__ import annotations
 
@@ -38,72 +40,65 @@ from petsc4py import PETSc
 KINK = 1e-12      # |s| <= KINK * L0 counts as a tendon exactly at its rest length
 
 
-def tendon_indices(scene) -> list[int]:
-    """Positions in scene.cables of the tendons (the controls u), in design order."""
-    return [i for i, c in enumerate(scene.cables) if c.kind == "tendon"]
+def tendons(model) -> list:
+    """The tendon terms (the controls u), in design order."""
+    return [t for t in model.terms_in("cables") if t.kind == "tendon"]
 
 
-def contractions(scene) -> np.ndarray:
+def contractions(model) -> np.ndarray:
     """The tendon contractions u, mm."""
-    return np.array([scene.cables[i].contraction for i in tendon_indices(scene)], dtype=float)
+    return np.array([t.cable.contraction for t in tendons(model)], dtype=float)
 
 
-def set_contractions(scene, u) -> None:
-    """Write u onto the scene's tendons (rest lengths L = L0 - u at load factor 1)."""
+def set_contractions(model, u) -> None:
+    """Write u onto the model's tendons (rest lengths L = L0 - u at load factor 1)."""
     u = np.asarray(u, dtype=float)
-    idx = tendon_indices(scene)
-    if u.shape != (len(idx),):
-        raise ValueError(f"expected {len(idx)} contractions, got shape {u.shape}")
-    for i, value in zip(idx, u):
-        scene.cables[i].contraction = float(value)
+    ts = tendons(model)
+    if u.shape != (len(ts),):
+        raise ValueError(f"expected {len(ts)} contractions, got shape {u.shape}")
+    for t, value in zip(ts, u):
+        model.set_parameter(f"cables.{t.name}.contraction", float(value))
 
 
-def stretch(cable, u: np.ndarray, L: float) -> float:
-    """s = l - L (positive: taut)."""
-    return cable.length(u) - L
+def stretch(term, u: np.ndarray) -> float:
+    """s = l - L of a cable term (positive: taut)."""
+    return term.cable.length(u) - term.rest_length
 
 
-def length_gradient(cable, u: np.ndarray) -> np.ndarray:
-    """g = grad l = B^T t on the cable's DOFs (t_i = d_i / |d_i|)."""
-    d = cable.segments(u)
-    t = d / np.linalg.norm(d, axis=1)[:, None]
-    return cable.B.T @ t.ravel()
-
-
-def _direct_ksp(A: PETSc.Mat, comm) -> PETSc.KSP:
-    """A direct solver with the same factorisation as the Newton solver's (MUMPS)."""
-    from .solver import default_petsc_options
-    options = default_petsc_options()
-    ksp = PETSc.KSP().create(comm)
-    ksp.setOperators(A)
-    ksp.setType(options["ksp_type"])
-    pc = ksp.getPC()
-    pc.setType(options["pc_type"])
-    pc.setFactorSolverType(options["pc_factor_mat_solver_type"])
-    return ksp
+def _global_vector(model, term, values: np.ndarray) -> PETSc.Vec:
+    """A vector holding `values` (on the term's global DOFs) in its owned entries, ghosts updated."""
+    v = model.u.vector.duplicate()
+    v.set(0.0)
+    v.array_w[term.gather.local] = values[term.gather.pos]
+    v.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+    return v
 
 
 class Linearization:
-    """H and dR/du at the current converged equilibrium x* (scene.u), H factorised once.
+    """H and dR/du at the current converged equilibrium x* (model.u), H factorised once.
 
-    Pass the NewtonSolver that produced x* to reuse its matrix and its MUMPS
-    analysis; without one a matrix and an LU solver of the same kind are made.
-    The object describes one x*: build a new one after the next solve.
+    Uses the NewtonSolver that produced x*: its matrix, its MUMPS analysis
+    and its Woodbury solver. The object describes one x*: build a new one
+    after the next solve.
     """
 
-    def __init__(self, scene, solver=None):
-        if abs(scene.factor - 1.0) > 1e-14:
+    def __init__(self, model, solver):
+        if abs(model.factor - 1.0) > 1e-14:
             raise ValueError("sensitivities need the contractions fully applied "
-                             f"(load factor {scene.factor:g}, not 1)")
-        self.scene = scene
-        self.tendons = tendon_indices(scene)
-        self._own = solver is None
-        self.H = scene.create_matrix() if self._own else solver.A
-        self.ksp = _direct_ksp(self.H, scene.comm) if self._own else solver.ksp
-        self.kinked = self._assemble_H()
-        self.ksp.setOperators(self.H)
-        self.ksp.setUp()                       # the one numeric factorisation
-        self.dR_du = [self._dR_du(i) for i in self.tendons]
+                             f"(load factor {model.factor:g}, not 1)")
+        self.model, self.solver = model, solver
+        self.tendons = tendons(model)
+        u = model.u.x.array
+        self.kinked = [i for i, t in enumerate(self.tendons) if abs(stretch(t, u)) <= KINK * t.cable.L0]
+        self._g = [self._masked_g(t) for t in self.tendons]
+        model.jacobian(model.u.vector, solver.A)
+        parts = model.low_rank()
+        self._extra = [_global_vector(model, self.tendons[i], self._g[i])   # cable.low_rank dropped k g g^T
+                       for i in self.kinked if stretch(self.tendons[i], u) <= 0.0]
+        parts = parts + [(self.tendons[i].cable.k, v) for i, v in zip(
+            [i for i in self.kinked if stretch(self.tendons[i], u) <= 0.0], self._extra)]
+        solver.lin.update(parts)               # the one numeric factorisation
+        self.dR_du = [self._dR_du(i) for i in range(len(self.tendons))]
 
     @property
     def m(self) -> int:
@@ -111,52 +106,21 @@ class Linearization:
         return len(self.tendons)
 
     # -- H and dR/du ------------------------------------------------------------------------
-    def _stretch(self, i: int) -> float:
-        """s = l - L of cable i at x*."""
-        c = self.scene.cables[i]
-        return stretch(c, self.scene.u.x.array, c.rest_length(self.scene.factor))
-
-    def _at_kink(self, i: int) -> bool:
-        return abs(self._stretch(i)) <= KINK * self.scene.cables[i].L0
-
-    def _masked_g(self, i: int) -> np.ndarray:
-        """g = grad l of cable i on its DOFs, zero on Dirichlet DOFs."""
-        scene = self.scene
-        c = scene.cables[i]
-        return length_gradient(c, scene.u.x.array) * ~scene.fixed[c.dofs]
-
-    def _assemble_H(self) -> list[int]:
-        """hess Pi at x*, plus k g g^T for tendons at the kink; returns those tendons."""
-        scene = self.scene
-        scene.jacobian(scene.u.vector, self.H)
-        kinked = [i for i in self.tendons if self._at_kink(i)]
-        for i in (i for i in kinked if self._stretch(i) <= 0.0):   # cable.hessian had dropped k g g^T
-            c = scene.cables[i]
-            g = self._masked_g(i)
-            rows = scene.global_dofs[c.dofs]
-            self.H.setValues(rows, rows, c.k * np.outer(g, g), addv=PETSc.InsertMode.ADD_VALUES)
-        self.H.assemble()
-        return kinked
+    def _masked_g(self, term) -> np.ndarray:
+        """g = grad l of a cable on its DOFs, zero on Dirichlet DOFs."""
+        return term.cable.length_gradient(self.model.u.x.array) * self.model._free(term, term.cable.dofs)
 
     def _dR_du(self, i: int) -> PETSc.Vec:
-        """dR/du_c = k g_c on the free DOFs of a taut tendon, else zero."""
-        scene = self.scene
-        b = scene.u.vector.duplicate()
-        b.set(0.0)
-        if self._stretch(i) > 0.0 or i in self.kinked:
-            c = scene.cables[i]
-            with b.localForm() as local:
-                local.array_w[c.dofs] += c.k * self._masked_g(i)
-        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        return b
+        """dR/du_c = k g_c on the free DOFs of a taut (or kinked) tendon, else zero."""
+        t = self.tendons[i]
+        taut = stretch(t, self.model.u.x.array) > 0.0 or i in self.kinked
+        return _global_vector(self.model, t, t.cable.k * self._g[i] if taut else 0.0 * self._g[i])
 
     # -- solves ------------------------------------------------------------------------------
     def solve(self, rhs: PETSc.Vec) -> PETSc.Vec:
         """H^-1 rhs with the stored factorisation (rhs must be zero on Dirichlet rows)."""
         x = rhs.duplicate()
-        self.ksp.solve(rhs, x)
-        if self.ksp.getConvergedReason() < 0:
-            raise RuntimeError(f"linear solve failed ({self.ksp.getConvergedReason()})")
+        self.solver.lin.solve(rhs, x)
         x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         return x
 
@@ -188,33 +152,30 @@ class Linearization:
 
     def marker_jacobian(self, index: int, mode: str = "adjoint") -> np.ndarray:
         """dy/du of marker `index`, shape (gdim, m): gdim adjoint or m forward solves."""
-        scene = self.scene
-        d = scene.dim
-        S = scene.marker_S[index * d:(index + 1) * d]
+        markers = self.model.term("markers")
+        d = self.model.dim
+        S = markers.S[index * d:(index + 1) * d]
         if mode == "forward":
             dxs = self.state_sensitivities()
-            J = np.column_stack([S @ _local(dx) for dx in dxs]) if dxs else np.zeros((d, 0))
+            J = np.column_stack([S @ markers.gather(_local(dx)) for dx in dxs]) if dxs else np.zeros((d, 0))
             for v in dxs:
                 v.destroy()
             return J
         if mode != "adjoint":
             raise ValueError(f"unknown mode {mode!r}")
-        rows = [self.adjoint(_vector(scene, S[j].toarray().ravel())) for j in range(d)]
+        rows = [self.adjoint(_global_vector(self.model, markers, S[j].toarray().ravel())) for j in range(d)]
         return np.array(rows).reshape(d, self.m)
 
     def _dirichlet_free(self, v: PETSc.Vec) -> PETSc.Vec:
         """Copy of v with the Dirichlet rows zeroed."""
         w = v.copy()
         with w.localForm() as local:
-            local.array_w[self.scene.fixed] = 0.0
+            local.array_w[self.model.fixed] = 0.0
         return w
 
     def destroy(self) -> None:
-        for b in self.dR_du:
+        for b in self.dR_du + self._extra:
             b.destroy()
-        if self._own:
-            self.ksp.destroy()
-            self.H.destroy()
 
 
 def _local(v: PETSc.Vec) -> np.ndarray:
@@ -223,20 +184,11 @@ def _local(v: PETSc.Vec) -> np.ndarray:
         return local.array_r.copy()
 
 
-def _vector(scene, local_values: np.ndarray) -> PETSc.Vec:
-    """A ghosted vector assembled from contributions on local (owned + ghost) DOFs."""
-    v = scene.u.vector.duplicate()
-    v.set(0.0)
-    with v.localForm() as local:
-        local.array_w[:] = local_values
-    v.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-    return v
-
-
 # -- the tracking objective O = |y - y'|^2 -------------------------------------------------------
-def marker_objective(scene, index: int, target) -> tuple[float, PETSc.Vec]:
+def marker_objective(model, index: int, target) -> tuple[float, PETSc.Vec]:
     """O = |y - y'|^2 for marker `index` at the current state, and dO/dx = 2 S^T (y - y')."""
-    d = scene.dim
-    S = scene.marker_S[index * d:(index + 1) * d]
-    r = scene.marker_positions()[index] - np.asarray(target, dtype=float)
-    return float(r @ r), _vector(scene, 2.0 * (S.T @ r))
+    markers = model.term("markers")
+    d = model.dim
+    S = markers.S[index * d:(index + 1) * d]
+    r = markers.positions(model.u.x.array)[index] - np.asarray(target, dtype=float)
+    return float(r @ r), _global_vector(model, markers, 2.0 * (S.T @ r))

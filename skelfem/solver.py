@@ -1,10 +1,12 @@
 """Static equilibrium: PETSc SNES Newton on grad Pi = 0, with load stepping.
 
-Newton's direction p solves H p = -grad Pi (MUMPS LDL^T, the matrix pattern
-fixed so the symbolic factorisation is reused). The default line search
-("energy") runs in SNES's pre-check: it starts from the scene's admissible
-step alpha_max = scene.max_step(x, p) <= 1 (e.g. the collision-free step of
-self-contact) and backtracks until the trial state is admissible (det F > 0
+Newton's direction p solves H p = -grad Pi with H = K + sum c g g^T: the
+sparse matrix K factorised (MUMPS LDL^T, the matrix pattern fixed so the
+symbolic factorisation is reused) and the rank-one parts of taut cables
+added by the Woodbury formula (skelfem.linear), through a PETSc python PC.
+The default line search ("energy") runs in SNES's pre-check: it starts from
+the model's admissible step alpha_max = model.max_step(x, p) <= 1 (e.g. the
+collision-free step of self-contact) and backtracks until the trial state is admissible (det F > 0
 in every element, no term objects) and satisfies the Armijo condition
 
     Pi(x + alpha p) <= Pi(x) + c alpha grad Pi . p,
@@ -27,6 +29,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from .design import LINE_SEARCHES as STRATEGIES
+from .linear import LowRankSolver, default_petsc_options  # noqa: F401 (re-exported)
 
 log = logging.getLogger("skelfem")
 
@@ -57,56 +60,51 @@ class SolveReport:
     newton_iterations: int = 0
     load_steps: int = 0
     residual_history: list = field(default_factory=list)   # one list of |R| per load step
+    attempts: list = field(default_factory=list)           # every Newton run: factor, iterations, status
     energy: float = float("nan")
     min_jacobian: float = float("nan")
     time: float = 0.0
 
 
-def default_petsc_options() -> dict:
-    """A fresh dict of PETSc options for the Newton linear solves.
-
-    Every Jacobian here is symmetric (UFL Hessian, cable and contact blocks,
-    Dirichlet rows and columns replaced symmetrically), so MUMPS's LDL^T
-    (PETSc "cholesky", indefinite-safe) replaces LU: about 20 % less per
-    factorisation with the same iterates.
-    """
-    return {"ksp_type": "preonly", "pc_type": "cholesky",
-            "pc_factor_mat_solver_type": "mumps"}
-
-
 class NewtonSolver:
-    """SNES Newton for one Scene; reusable across solves (warm starts)."""
+    """SNES Newton for one Model; reusable across solves (warm starts)."""
 
-    def __init__(self, scene, spec=None, petsc_options: dict | None = None, prefix: str = "skelfem_"):
-        self.scene = scene
-        self.strategy = getattr(spec, "line_search", "energy") if spec else "energy"
+    def __init__(self, model, spec=None, petsc_options: dict | None = None, prefix: str = "skelfem_"):
+        self.model = model
+        spec = spec if spec is not None else model.design.solver
+        self.strategy = spec.line_search
         if self.strategy not in STRATEGIES:
             raise ValueError(f"unknown line search {self.strategy!r}")
-        if self.strategy != "energy" and scene.bounds_steps:
-            raise ValueError(f"line search {self.strategy!r} cannot limit steps to the scene's "
+        if self.strategy != "energy" and model.bounds_steps:
+            raise ValueError(f"line search {self.strategy!r} cannot limit steps to the model's "
                              "admissible ones; use 'energy'")
-        self.max_iterations = getattr(spec, "max_iterations", 50) if spec else 50
-        self.rtol = getattr(spec, "rtol", 1e-9) if spec else 1e-9
-        self.atol = getattr(spec, "atol", 1e-10) if spec else 1e-10
+        self.max_iterations, self.rtol, self.atol = spec.max_iterations, spec.rtol, spec.atol
         self.xtol = 1e-11             # relative size of a full Newton step that ends the solve
         self.max_cuts = 8
         self._newton_step = np.inf    # |p| of the last undamped Newton step
         self.etol = 1e-15             # Newton decrement -grad Pi . p relative to |Pi| that ends the solve
         self._decrement_converged = False
-        self.A = scene.create_matrix()
-        self.b = scene.u.vector.duplicate()
-        self.x = scene.u.vector.copy()      # SNES iterate; scene.u is scratch for evaluations
+        self.A = model.create_matrix()
+        self.lin = LowRankSolver(self.A, model.comm, petsc_options, prefix + "k_")
+        self.b = model.u.vector.duplicate()
+        self.x = model.u.vector.copy()      # SNES iterate; model.u is scratch for evaluations
         self._history: list[float] = []
         self._failure: str | None = None
         self._f0 = 0.0
-        self.snes = self._create_snes(prefix, {**default_petsc_options(), **(petsc_options or {})})
+        self.snes = self._create_snes(prefix)
 
     # -- SNES set-up -------------------------------------------------------------------
-    def _create_snes(self, prefix: str, options: dict) -> PETSc.SNES:
-        snes = PETSc.SNES().create(self.scene.comm)
+    def jacobian(self, x: PETSc.Vec) -> None:
+        """Assemble K at x and factorise it with the rank-one parts (what every Newton solve uses)."""
+        self.model.jacobian(x, self.A)
+        self.lin.update(self.model.low_rank())
+
+    def _create_snes(self, prefix: str) -> PETSc.SNES:
+        snes = PETSc.SNES().create(self.model.comm)
         snes.setOptionsPrefix(prefix)
-        snes.setFunction(lambda s, x, b: self.scene.residual(x, b), self.b)
-        snes.setJacobian(lambda s, x, A, P: self.scene.jacobian(x, A), self.A)
+        snes.setFunction(lambda s, x, b: self.model.residual(x, b), self.b)
+        snes.setJacobian(lambda s, x, A, P: self.jacobian(x), self.A)
+        options = {}
         if self.strategy == "trust_region":
             snes.setType("newtontr")
         else:
@@ -121,16 +119,18 @@ class NewtonSolver:
         snes.setTolerances(rtol=0.0, atol=0.0, stol=0.0, max_it=self.max_iterations)
         snes.setConvergenceTest(self._converged)
         snes.setFromOptions()
-        snes.getKSP().setFromOptions()
-        snes.getKSP().getPC().setFromOptions()
         for key in options:
             del opts[f"{prefix}{key}"]
+        ksp = snes.getKSP()
+        ksp.setType("preonly")
+        self.lin.as_pc(ksp.getPC())
         return snes
 
-    @property
-    def ksp(self) -> PETSc.KSP:
-        """The linear solver, holding the factorised Jacobian of the last iteration."""
-        return self.snes.getKSP()
+    def destroy(self) -> None:
+        self.snes.destroy()
+        self.lin.destroy()
+        for v in (self.A, self.b, self.x):
+            v.destroy()
 
     def _converged(self, snes, it, norms):
         """|R| <= max(atol, rtol |R_0|), or a full Newton step below xtol * size."""
@@ -146,7 +146,7 @@ class NewtonSolver:
         if self._decrement_converged:
             return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_RELATIVE
         step = self._newton_step if self.strategy == "energy" else ynorm
-        if it > 0 and step <= self.xtol * max(xnorm, self.scene.size):
+        if it > 0 and step <= self.xtol * max(xnorm, self.model.size):
             return PETSc.SNES.ConvergedReason.CONVERGED_SNORM_RELATIVE
         if self._failure is not None:
             return PETSc.SNES.ConvergedReason.DIVERGED_LINE_SEARCH
@@ -156,52 +156,51 @@ class NewtonSolver:
 
     def _energy_line_search(self, x, y):
         """SNES pre-check: scale the step -y so that x - y is admissible and lowers Pi."""
-        scene = self.scene
+        model = self.model
         p = -y.array_r.copy()                       # Newton direction (SNES steps x - y)
         r = self.b.array_r.copy()                   # grad Pi at x, set by SNES
         x0 = x.array_r.copy()
-        slope = float(scene.comm.allreduce(r @ p))
-        e0 = scene.energy(x)
-        self._newton_step = float(np.sqrt(scene.comm.allreduce(p @ p)))
+        slope = float(model.comm.allreduce(r @ p))
+        e0 = model.energy(x)
+        self._newton_step = float(np.sqrt(model.comm.allreduce(p @ p)))
         if 0.0 <= -slope <= self.etol * max(abs(e0), 1e-300):
             # Newton decrement at round-off level: x is the minimiser to machine precision
             self._decrement_converged = True
             return self._take(x, y, p, self._max_step(x0, p)) or True
         if slope > 0.0:                             # not a descent direction: turn around
             p, slope = -p, -slope
-        f0 = float(np.sqrt(scene.comm.allreduce(r @ r)))
+        f0 = float(np.sqrt(model.comm.allreduce(r @ r)))
         alpha, accepted = self._backtrack(x, x0, p, e0, slope, f0, self._max_step(x0, p))
-        scene._sync(x)
+        model.sync(x)
         if not accepted:
             self._failure = "line_search_failed"
             y.set(0.0)
         else:
-            y.array_w[:] = -(alpha * p + scene.rigid_correction(x0, p, alpha))
+            y.array_w[:] = -(alpha * p + model.step_correction(x0, p, alpha))
         log.debug("  line search: alpha %.3g, decrement %.3e, energy %.9e", alpha if accepted else 0.0,
                   -slope, e0)
         return True
 
     def _max_step(self, x0: np.ndarray, p: np.ndarray) -> float:
-        """The scene's admissible step along p, agreed over ranks."""
-        from mpi4py import MPI
-        return float(self.scene.comm.allreduce(self.scene.max_step(x0, p), op=MPI.MIN))
+        """The model's admissible step along p, agreed over ranks."""
+        return self.model.max_step(x0, p)
 
     def _backtrack(self, x, x0, p, e0, slope, f0, alpha0=1.0, c1=1e-4):
         """Armijo backtracking with quadratic interpolation on phi(a) = Pi(x + a p), a <= alpha0.
 
         A trial state that is not admissible has phi = +inf. Within round-off
         of e0 a step is accepted if it lowers |grad Pi|. Bones move along the
-        exact rotation whose linearisation is p (see Scene.rigid_correction),
+        exact rotation whose linearisation is p (see Elasticity.step_correction),
         so a stiff bone's rotation does not turn into stretch.
         """
-        scene = self.scene
+        model = self.model
         trial = x.duplicate()
 
         def phi(a):
-            trial.array_w[:] = x0 + a * p + scene.rigid_correction(x0, p, a)
-            return scene.energy(trial) if scene.admissible(trial) else np.inf
+            trial.array_w[:] = x0 + a * p + model.step_correction(x0, p, a)
+            return model.energy(trial) if model.admissible(trial) else np.inf
 
-        noise = max(scene.energy_noise, 1e-12 * abs(e0))
+        noise = max(model.energy_noise, 1e-12 * abs(e0))
         if alpha0 <= 0.0:
             trial.destroy()
             return 0.0, False
@@ -212,9 +211,9 @@ class NewtonSolver:
                     return alpha, True
                 if np.isfinite(e) and abs(e - e0) <= noise:
                     trial.array_w[:] = x0 + alpha * p
-                    scene.residual(trial, self.b)
+                    model.residual(trial, self.b)
                     better = self.b.norm() < f0
-                    scene.residual(x, self.b)
+                    model.residual(x, self.b)
                     if better:
                         return alpha, True
                 if np.isfinite(e):
@@ -232,9 +231,9 @@ class NewtonSolver:
         """Set the SNES step to alpha p if x + alpha p is admissible (and alpha > 0), else to zero."""
         trial = x.copy()
         trial.array_w[:] += alpha * p
-        ok = alpha > 0.0 and self.scene.admissible(trial)
+        ok = alpha > 0.0 and self.model.admissible(trial)
         trial.destroy()
-        self.scene._sync(x)
+        self.model.sync(x)
         if ok:
             y.array_w[:] = -alpha * p
         else:
@@ -246,16 +245,16 @@ class NewtonSolver:
         """Newton from the current state at the current load factor."""
         self._history, self._failure, self._newton_step = [], None, np.inf
         self._decrement_converged = False
-        self.scene.u.vector.copy(self.x)
-        self.scene.apply_bcs(self.x)
-        if not self.scene.admissible(self.x):
+        self.model.u.vector.copy(self.x)
+        self.model.apply_bcs(self.x)
+        if not self.model.admissible(self.x):
             return False, "inverted_elements", 0
         self.snes.solve(None, self.x)
-        self.scene._sync(self.x)
+        self.model.sync(self.x)
         reason = self.snes.getConvergedReason()
         its = self.snes.getIterationNumber()
         if reason > 0:
-            if not self.scene.admissible(self.x):
+            if not self.model.admissible(self.x):
                 return False, "inverted_elements", its
             return True, "converged", its
         log.debug("SNES reason %s", reason)
@@ -265,38 +264,39 @@ class NewtonSolver:
         """Secant predictor: extrapolate the last increment to the new load factor."""
         if prev is None or a <= a_prev:
             return
-        scene = self.scene
-        u = scene.u.vector
+        model = self.model
+        u = model.u.vector
         guess = u.copy()
         guess.axpy((target - a) / (a - a_prev), u - prev)
-        scene.set_factor(target)
+        model.set_factor(target)
         current = u.copy()
-        scene.apply_bcs(current)
-        scene.apply_bcs(guess)
+        model.apply_bcs(current)
+        model.apply_bcs(guess)
         reachable = self._max_step(u.array_r, guess.array_r - u.array_r) >= 1.0
-        if reachable and scene.admissible(guess) and (not scene.admissible(current)
-                                                      or scene.energy(guess) < scene.energy(current)):
+        if reachable and model.admissible(guess) and (not model.admissible(current)
+                                                      or model.energy(guess) < model.energy(current)):
             guess.copy(u)
         for v in (guess, current):
             v.destroy()
-        scene.set_factor(a)
-        scene._sync(u)
+        model.set_factor(a)
+        model.sync(u)
 
     def solve(self, steps: int = 1, start: float = 0.0, end: float = 1.0) -> SolveReport:
         """Ramp the load factor from start to end in `steps` steps (cut in half on failure)."""
         t0 = time.perf_counter()
-        scene = self.scene
+        model = self.model
         report = SolveReport(False, "not_started")
         a, da, cuts = start, (end - start) / max(int(steps), 1), 0
         da0 = da
-        saved = scene.u.vector.copy()
+        saved = model.u.vector.copy()
         prev, a_prev = None, a
         while a < end - 1e-12:
             target = min(a + da, end)
             self._predict(prev, a_prev, a, target)
-            scene.set_factor(target)
+            model.set_factor(target)
             ok, status, its = self._newton()
             report.newton_iterations += its
+            report.attempts.append({"factor": float(target), "iterations": int(its), "status": status})
             if ok:
                 report.load_steps += 1
                 report.residual_history.append(self._history)
@@ -304,17 +304,18 @@ class NewtonSolver:
                          report.load_steps, target, its,
                          self._history[0] if self._history else 0.0,
                          self._history[-1] if self._history else 0.0)
+                model.end_step()
                 prev = prev or saved.duplicate()
                 saved.copy(prev)
                 a_prev, a = a, target
                 if its <= 8:
                     da = min(2.0 * da, da0)
-                scene.u.vector.copy(saved)
+                model.u.vector.copy(saved)
                 continue
             log.info("load step to factor %.4g failed (%s)", target, status)
-            saved.copy(scene.u.vector)
-            scene.set_factor(a)
-            scene._sync(scene.u.vector)
+            saved.copy(model.u.vector)
+            model.set_factor(a)
+            model.sync(model.u.vector)
             cuts += 1
             if cuts > self.max_cuts:
                 report.status = status
@@ -326,7 +327,39 @@ class NewtonSolver:
         for v in (saved, prev):
             if v is not None:
                 v.destroy()
-        report.energy = scene.energy(scene.u.vector)
-        report.min_jacobian = scene.min_jacobian(scene.u.vector)
+        return self._finish(report, t0)
+
+    def _finish(self, report: SolveReport, t0: float) -> SolveReport:
+        model = self.model
+        report.energy = model.energy(model.u.vector)
+        report.min_jacobian = model.min_jacobian(model.u.vector)
         report.time = time.perf_counter() - t0
         return report
+
+    def resolve(self, steps: int = 1) -> SolveReport:
+        """Warm re-solve: Newton at full load from the current state (the last equilibrium).
+
+        If that fails, the state is restored and the load is ramped from the
+        rest state in `steps` steps, as a cold solve would; the report counts
+        the iterations of both.
+        """
+        t0 = time.perf_counter()
+        model = self.model
+        saved = model.u.vector.copy()
+        model.set_factor(1.0)
+        ok, status, its = self._newton()
+        report = SolveReport(ok, status, its, int(ok), [self._history] if ok else [],
+                             [{"factor": 1.0, "iterations": int(its), "status": status, "warm": True}])
+        if ok:
+            model.end_step()
+            saved.destroy()
+            return self._finish(report, t0)
+        log.info("warm re-solve failed (%s); ramping from rest", status)
+        model.u.vector.set(0.0)
+        model.sync(model.u.vector)
+        cold = self.solve(steps)
+        saved.destroy()
+        cold.newton_iterations += its
+        cold.attempts = report.attempts + cold.attempts
+        cold.time = time.perf_counter() - t0
+        return cold

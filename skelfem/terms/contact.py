@@ -41,6 +41,8 @@ import ipctk
 import numpy as np
 from dolfinx import mesh as dmesh
 
+from .base import Context, Term
+
 
 def boundary_polygon(V) -> tuple[np.ndarray, np.ndarray]:
     """Boundary nodes of V (local node indices, sorted) and edges (pairs of positions in nodes).
@@ -75,10 +77,10 @@ def _fortran(a) -> np.ndarray:
     return np.asfortranarray(a, dtype=float)
 
 
-class SelfContact:
-    """The IPC barrier term over the body's boundary; an energy term of the Scene."""
+class SelfContact(Term):
+    """The IPC barrier term over the body's boundary."""
 
-    name = "self-contact"
+    section, name = "contact", "self"
     bounds_steps = True
 
     def __init__(self, V, dhat: float, stiffness: float, thickness: float = 1.0, project: bool = True):
@@ -143,9 +145,12 @@ class SelfContact:
         block = H[active][:, active].toarray()
         return [(self.dofs[active], self.t * block)]
 
-    def pattern(self) -> list[np.ndarray]:
+    def pattern(self) -> list:
         """Node blocks the Hessian may fill: every boundary node with every other."""
-        return [self.nodes]
+        return [(self.nodes, self.nodes)]
+
+    def readout(self, model) -> dict:
+        return {self.name: {"min_distance": self.min_distance(model.u.x.array)}}
 
     def max_step(self, u0: np.ndarray, p: np.ndarray) -> float:
         """alpha in [0, 1] such that x0 + s p, s in [0, alpha], keeps clear of contact.
@@ -160,6 +165,29 @@ class SelfContact:
 
     def admissible(self, u: np.ndarray) -> bool:
         return not self.intersects(u)
+
+
+def build(ctx: Context) -> list[Term]:
+    """The self-contact term if the design asks for it; refuses designs it cannot honour."""
+    from ..design import DesignError
+    d = ctx.design
+    if not d.contact.self_contact:
+        return []
+    where = f"{d.source}: contact.self"
+    if d.dim != 2:
+        raise DesignError(f"{where}: self-contact is implemented for dim = 2 only")
+    if ctx.comm.size > 1:
+        raise DesignError(f"{where}: self-contact runs on one MPI process (got {ctx.comm.size})")
+    if d.solver.line_search != "energy":
+        raise DesignError(f"{where}: self-contact needs solver.line_search = \"energy\" "
+                          f"(got {d.solver.line_search!r}): only it limits steps to collision-free ones")
+    contact = SelfContact(ctx.V, d.contact.dhat, d.materials[d.body.material].E, float(d.thickness))
+    d0 = contact.min_distance(np.zeros(len(ctx.u.x.array)))
+    if d0 <= d.contact.dhat:
+        raise DesignError(f"{d.source}: contact.dhat: {d.contact.dhat:g} mm is not below the "
+                          f"smallest rest distance between boundary parts ({d0:.3g} mm); "
+                          "lower dhat or coarsen the mesh")
+    return [contact]
 
 
 # -- measuring interpenetration (for states reached without contact) -------------------------

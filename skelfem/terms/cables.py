@@ -20,7 +20,12 @@ derivatives, with t_i = d_i/|d_i| and s = max(l - L, 0):
     hess U = k [l > L] (g g^T + s B^T W B),   W = blockdiag((I - t_i t_i^T)/|d_i|)
 
 Dropping the curvature term k s B^T W B costs Newton its quadratic
-convergence, so it stays.
+convergence, so it stays. It is sparse: segment i couples only the DOFs of
+the cells holding its two via points (one cell, as the sketch is cut at
+every facet). The rank-one part k g g^T couples every DOF along the cable;
+it never enters the Newton matrix (``low_rank``: the linear solver adds it
+with the Sherman-Morrison-Woodbury formula), so a taut cable costs the
+matrix a few entries per segment and the solve one extra back-substitution.
 """
 from __future__ import annotations
 
@@ -29,7 +34,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from .points import DofGather, global_interpolation
+from ..points import DofGather, global_interpolation
+from .base import Context, Term
 
 _EPS = 1e-10
 
@@ -189,15 +195,102 @@ class Cable:
         s = max(0.0, norm.sum() - L)
         return self.k * s * g
 
-    def hessian(self, u: np.ndarray, L: float) -> np.ndarray:
-        """Dense Hessian on self.dofs: k [s > 0] (g g^T + s B^T W B)."""
+    def curvature(self, u: np.ndarray, L: float) -> sp.csr_matrix:
+        """Sparse part of the Hessian on self.dofs: k [s > 0] s B^T W B."""
         d, norm, t, g = self._t_and_g(u)
         s = norm.sum() - L
         m = len(self.dofs)
         if s <= 0.0:
-            return np.zeros((m, m))
+            return sp.csr_matrix((m, m))
         gdim = d.shape[1]
         blocks = (np.eye(gdim)[None] - t[:, :, None] * t[:, None, :]) / norm[:, None, None]
-        W = _block_diagonal(blocks)
-        BtWB = (self.B.T @ (W @ self.B)).toarray()
-        return self.k * (np.outer(g, g) + s * BtWB)
+        return (self.k * s) * (self.B.T @ (_block_diagonal(blocks) @ self.B)).tocsr()
+
+    def length_gradient(self, u: np.ndarray) -> np.ndarray:
+        """g = grad l = B^T t on self.dofs."""
+        return self._t_and_g(u)[3]
+
+    def hessian(self, u: np.ndarray, L: float) -> np.ndarray:
+        """Dense Hessian on self.dofs, k [s > 0] (g g^T + s B^T W B) (for tests)."""
+        g = self.length_gradient(u)
+        taut = self.length(u) > L
+        return self.curvature(u, L).toarray() + (self.k * np.outer(g, g) if taut else 0.0)
+
+    def segment_nodes(self, bs: int) -> list[np.ndarray]:
+        """Global node numbers each segment's curvature block couples (one array per segment)."""
+        B = self.B.tocsr()
+        gdim = self.d0.shape[1]
+        out = []
+        rows = B.indptr
+        for i in range(len(self.d0)):          # setup only: one entry per segment
+            cols = B.indices[rows[i * gdim]:rows[(i + 1) * gdim]]
+            out.append(np.unique(self.dofs[cols] // bs))
+        return out
+
+
+class CableTerm(Term):
+    """One cable as an energy term; its rest length follows the load factor.
+
+    Parameters: ``cables.NAME.contraction`` (tendons) or ``.pretension``
+    (ligaments), and ``.stiffness``. Read-out: kind, contraction, rest
+    length, length and tension.
+    """
+
+    section = "cables"
+
+    def __init__(self, ctx: Context, spec):
+        try:
+            self.cable = Cable.build(ctx.V, spec)
+        except ValueError as exc:
+            from ..design import DesignError
+            raise DesignError(f"{ctx.design.source}: cables.{spec.name}.path: {exc}") from None
+        self.name, self.kind, self.bs = spec.name, spec.kind, ctx.bs
+        self.gather = self.cable.gather
+        self.factor = 0.0
+
+    @property
+    def rest_length(self) -> float:
+        return self.cable.rest_length(self.factor)
+
+    def set_factor(self, a: float) -> None:
+        self.factor = float(a)
+
+    def energy(self, u):
+        return self.cable.energy(u, self.rest_length)
+
+    def gradient(self, u):
+        return self.cable.dofs, self.cable.gradient(u, self.rest_length)
+
+    def hessian(self, u):
+        return [(self.cable.dofs, self.cable.curvature(u, self.rest_length))]
+
+    def low_rank(self, u):
+        if self.cable.length(u) <= self.rest_length:
+            return []
+        return [(self.cable.k, self.cable.dofs, self.cable.length_gradient(u))]
+
+    def pattern(self):
+        return [(n, n) for n in self.cable.segment_nodes(self.bs)]
+
+    def parameters(self) -> dict:
+        c = self.cable
+        which = "contraction" if self.kind == "tendon" else "pretension"
+        return {f"cables.{self.name}.{which}": getattr(c, which), f"cables.{self.name}.stiffness": c.k}
+
+    def set_parameter(self, key: str, value) -> None:
+        which = key.rsplit(".", 1)[1]
+        if which not in self.parameters() and key not in self.parameters():
+            raise KeyError(key)
+        if which == "stiffness":
+            self.cable.k = float(value)
+        else:
+            setattr(self.cable, which, float(value))
+
+    def readout(self, model) -> dict:
+        u, c, L = model.u.x.array, self.cable, self.rest_length
+        return {self.name: {"kind": self.kind, "contraction": float(c.contraction), "rest_length": L,
+                            "length": c.length(u), "tension": c.tension(u, L)}}
+
+
+def build(ctx: Context) -> list[Term]:
+    return [CableTerm(ctx, spec) for spec in ctx.design.cables]

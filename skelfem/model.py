@@ -1,0 +1,343 @@
+"""The model: Pi(u; a) = sum of the registered terms, and its derivatives.
+
+Every physical ingredient is a term (:mod:`skelfem.terms`); the model builds
+them from the design, sums their UFL energies into one form compiled once
+(with its residual and Jacobian forms), and adds the hand-written ones on
+their few DOFs. It names no ingredient. The solver sees ``energy``,
+``residual``, ``jacobian`` (the sparse Newton matrix K), ``low_rank`` (the
+rank-one parts c g g^T kept out of K), ``admissible``, ``max_step`` and
+``step_correction``; output reads ``readouts``; control reads and writes
+``parameters``.
+
+Dirichlet DOFs (fixed pins) have identity rows and columns in K and carry no
+term entries, and their entries of every low-rank vector are zero.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+import ufl
+from dolfinx import cpp as _cpp
+from dolfinx import fem
+from dolfinx.fem import petsc as fem_petsc
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from .points import global_dof_numbers
+from .terms import BUILDERS, Context
+from .terms.elasticity import cell_values_min, min_jacobian_expression
+
+
+class Model:
+    """Pi, grad Pi and hess Pi of one design on one mesh."""
+
+    def __init__(self, design, tagged_mesh, builders=None):
+        self.design, self.tm = design, tagged_mesh
+        mesh = self.mesh = tagged_mesh.mesh
+        self.comm = mesh.comm
+        self.dim = mesh.geometry.dim
+        self.thickness = float(design.thickness) if design.dim == 2 else 1.0
+        V = self.V = fem.VectorFunctionSpace(mesh, ("Lagrange", int(design.mesh.degree)))
+        self.u = fem.Function(V, name="displacement")
+        self.bs = V.dofmap.index_map_bs
+        imap = V.dofmap.index_map
+        self.n_local = (imap.size_local + imap.num_ghosts) * self.bs
+        self.n_owned = imap.size_local * self.bs
+        self.num_cells = mesh.topology.index_map(mesh.topology.dim).size_local
+        self.factor = 0.0
+        x = mesh.geometry.x[:, :self.dim]
+        self.size = float(self.comm.allreduce(np.linalg.norm(x.max(axis=0) - x.min(axis=0)) if len(x) else 0.0,
+                                              op=MPI.MAX))   # bounding-box diagonal, mm
+        t = fem.Constant(mesh, PETSc.ScalarType(self.thickness))
+        self.ctx = Context(design, tagged_mesh, V, self.u, t)
+        self.terms = [term for build in (builders or BUILDERS) for term in build(self.ctx)]
+        self.ctx.finalise()
+
+        self.bcs = [bc for term in self.terms for bc, _ in term.dirichlet()]
+        self.fixed = np.zeros(self.n_local, dtype=bool)
+        for term in self.terms:
+            for _, dofs in term.dirichlet():
+                self.fixed[dofs] = True
+        self.ctx.fixed = self.fixed
+        self.global_dofs = global_dof_numbers(V).astype(PETSc.IntType)   # local -> global, unrolled
+
+        parts = [e for e in (term.ufl_energy(self.ctx) for term in self.terms) if e is not None]
+        Pi = sum(parts[1:], parts[0])
+        v, du = ufl.TestFunction(V), ufl.TrialFunction(V)
+        R = ufl.derivative(Pi, self.u, v)
+        self.energy_form = fem.form(Pi)
+        self.residual_form = fem.form(R)
+        self.jacobian_form = fem.form(ufl.derivative(R, self.u, du))
+        self.detF = min_jacobian_expression(self.u)
+        self._vectors: list[PETSc.Vec] = []
+        self._fixed_cache: dict = {}
+
+    # -- terms and parameters -------------------------------------------------------------------
+    def term(self, section: str, name: str | None = None):
+        """The term of a section (and name); KeyError if there is none."""
+        for term in self.terms:
+            if term.section == section and (name is None or term.name == name):
+                return term
+        raise KeyError(f"{section}.{name}" if name else section)
+
+    def terms_in(self, section: str) -> list:
+        return [t for t in self.terms if t.section == section]
+
+    def parameters(self) -> dict:
+        """{--set key: value} of every parameter that changes live (no re-mesh, no recompile)."""
+        return {k: v for term in self.terms for k, v in term.parameters().items()}
+
+    def set_parameter(self, key: str, value) -> None:
+        for term in self.terms:
+            if key in term.parameters():
+                term.set_parameter(key, value)
+                return
+        raise KeyError(key)
+
+    def set_factor(self, a: float) -> None:
+        """Ramp contractions, pretensions, loads and pin moves to a fraction a."""
+        self.factor = float(a)
+        for term in self.terms:
+            term.set_factor(a)
+
+    def end_step(self) -> None:
+        for term in self.terms:
+            term.end_step(self)
+
+    # -- state ----------------------------------------------------------------------------------
+    def sync(self, x: PETSc.Vec) -> np.ndarray:
+        """Make self.u hold x (ghosts updated); returns its local array."""
+        if x is not self.u.vector:
+            x.copy(self.u.vector)
+        self.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        return self.u.x.array
+
+    def apply_bcs(self, x: PETSc.Vec) -> None:
+        """Write the prescribed pin displacements into x."""
+        fem_petsc.set_bc(x, self.bcs)
+        x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+
+    def min_jacobian(self, x: PETSc.Vec | None = None) -> float:
+        """Smallest det F over the mesh (sampled at DG nodes), reduced over ranks."""
+        if x is not None:
+            self.sync(x)
+        return self.comm.allreduce(cell_values_min(self.detF, self.num_cells), op=MPI.MIN)
+
+    def admissible(self, x: PETSc.Vec) -> bool:
+        """det F > 0 everywhere and every term accepts the state (e.g. no self-intersection)."""
+        if not self.min_jacobian(x) > 0.0:
+            return False
+        u = self.u.x.array
+        return self.comm.allreduce(all(term.admissible(u) for term in self.terms), op=MPI.LAND)
+
+    @property
+    def bounds_steps(self) -> bool:
+        """Whether some term limits the step (only the energy line search honours that)."""
+        return any(term.bounds_steps for term in self.terms)
+
+    def max_step(self, x0: np.ndarray, p: np.ndarray) -> float:
+        """Largest alpha in [0, 1] such that every term admits x0 + s p, s <= alpha (agreed over ranks)."""
+        alpha = min([1.0] + [term.max_step(x0, p) for term in self.terms])
+        return float(self.comm.allreduce(alpha, op=MPI.MIN))
+
+    def step_correction(self, x0: np.ndarray, p: np.ndarray, alpha: float) -> np.ndarray | float:
+        """Sum of the terms' corrections to the trial state x0 + alpha p (0 if none)."""
+        out = 0.0
+        for term in self.terms:
+            c = term.step_correction(x0, p, alpha)
+            if c is not None:
+                out = out + c
+        return out
+
+    @property
+    def energy_noise(self) -> float:
+        """Round-off level of Pi: terms of size mu, lam cancel in psi."""
+        return 64 * np.finfo(float).eps * sum(term.energy_scale() for term in self.terms)
+
+    # -- energy and gradient ------------------------------------------------------------------
+    def energy(self, x: PETSc.Vec) -> float:
+        """Total energy Pi(x) in N mm."""
+        u = self.sync(x)
+        e = self.comm.allreduce(fem.assemble_scalar(self.energy_form), op=MPI.SUM)
+        return e + float(sum(term.energy(u) for term in self.terms))
+
+    def term_gradient(self, u: np.ndarray) -> np.ndarray:
+        """Gradient of the hand-written terms, on local DOFs (global-DOF terms add their owned entries)."""
+        g = np.zeros(self.n_local)
+        for term in self.terms:
+            out = term.gradient(u)
+            if out is None:
+                continue
+            dofs, values = out
+            if term.gather is None:
+                np.add.at(g, dofs, values)
+            else:
+                term.gather.scatter_add(values, g)
+        return g
+
+    def gradient(self, x: PETSc.Vec, b: PETSc.Vec) -> None:
+        """Full gradient of Pi, Dirichlet rows included (for reactions)."""
+        u = self.sync(x)
+        with b.localForm() as b_local:
+            b_local.set(0.0)
+        fem_petsc.assemble_vector(b, self.residual_form)
+        with b.localForm() as b_local:
+            b_local.array_w[:] += self.term_gradient(u)
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+
+    def residual(self, x: PETSc.Vec, b: PETSc.Vec) -> None:
+        """grad Pi with Dirichlet rows replaced by x - g (zero when x satisfies the pins)."""
+        self.gradient(x, b)
+        fem_petsc.set_bc(b, self.bcs, x, -1.0)
+
+    def full_gradient(self) -> np.ndarray:
+        """grad Pi at the current state, owned entries, Dirichlet rows included."""
+        b = self.u.vector.duplicate()
+        self.gradient(self.u.vector, b)
+        out = b.array_r.copy()
+        b.destroy()
+        return out
+
+    # -- the Newton matrix ----------------------------------------------------------------------
+    def _term_blocks(self, term):
+        """The term's pattern blocks as (global rows this rank sets, global columns)."""
+        bs = self.bs
+        for rn, cn in term.pattern():
+            rows = (np.asarray(rn, np.int64)[:, None] * bs + np.arange(bs)).ravel()
+            cols = (np.asarray(cn, np.int64)[:, None] * bs + np.arange(bs)).ravel()
+            if term.gather is None:
+                rows, cols = self.global_dofs[rows], self.global_dofs[cols]
+            lo = self.V.dofmap.index_map.local_range[0] * bs
+            rows = rows[(rows >= lo) & (rows < lo + self.n_owned)]
+            yield rows.astype(PETSc.IntType), cols.astype(PETSc.IntType)
+
+    def create_matrix(self) -> PETSc.Mat:
+        """The sparse Newton matrix K: the UFL Hessian's pattern plus every term's (sparse) blocks.
+
+        Every entry the Jacobian will ever touch is created here, as a zero,
+        before the first final assembly (PETSc drops unused preallocated
+        slots then); afterwards the pattern never changes (new entries
+        raise), so MUMPS reuses its analysis across Newton iterations.
+        """
+        pattern = fem.create_sparsity_pattern(self.jacobian_form)
+        if self.comm.size == 1:        # serial: the term blocks go into DOLFINx's pattern
+            for term in self.terms:
+                for rn, cn in term.pattern():
+                    pattern.insert(np.asarray(rn, np.int32), np.asarray(cn, np.int32))
+        pattern.assemble()
+        A = _cpp.la.petsc.create_matrix(self.comm, pattern)
+        if self.comm.size == 1:
+            graph = pattern.graph
+            n_owned = pattern.index_map(0).size_local
+            offsets = graph.offsets[:n_owned + 1]
+            zeros = np.zeros(offsets[-1] * self.bs * self.bs, dtype=PETSc.ScalarType)
+            A.setValuesBlockedLocalCSR(offsets.astype(PETSc.IntType),
+                                       graph.array[:offsets[-1]].astype(PETSc.IntType),
+                                       zeros, addv=PETSc.InsertMode.INSERT_VALUES)
+        else:                          # MPI: element entries by one assembly, term blocks by their owners
+            _assemble_form(A, self.jacobian_form, self.bcs)
+            A.assemblyBegin(PETSc.Mat.AssemblyType.FLUSH)
+            A.assemblyEnd(PETSc.Mat.AssemblyType.FLUSH)
+            A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
+            for term in self.terms:
+                for rows, cols in self._term_blocks(term):
+                    if len(rows):
+                        A.setValues(rows, cols, np.zeros((len(rows), len(cols))),
+                                    addv=PETSc.InsertMode.ADD_VALUES)
+            A.assemblyBegin(PETSc.Mat.AssemblyType.FLUSH)
+            A.assemblyEnd(PETSc.Mat.AssemblyType.FLUSH)
+            _cpp.fem.petsc.insert_diagonal(A, self.V._cpp_object, self.bcs, 1.0)
+        A.assemble()
+        A.zeroEntries()
+        A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+        return A
+
+    def _free(self, term, dofs) -> np.ndarray:
+        """Which of a term's DOFs are not Dirichlet DOFs."""
+        if term.gather is None:
+            return ~self.fixed[dofs]
+        key = id(term)
+        if key not in self._fixed_cache:
+            self._fixed_cache[key] = term.gather(self.fixed.astype(float)) > 0.5
+        return ~self._fixed_cache[key]
+
+    def _owned_rows(self, term, dofs) -> tuple[np.ndarray, np.ndarray]:
+        """(positions in dofs of the rows this rank sets, their global numbers)."""
+        if term.gather is None:
+            pos = np.flatnonzero(np.asarray(dofs) < self.n_owned)
+            return pos, self.global_dofs[np.asarray(dofs)[pos]]
+        return term.gather.pos, np.asarray(dofs, np.int64)[term.gather.pos]
+
+    def jacobian(self, x: PETSc.Vec, A: PETSc.Mat) -> None:
+        """K = hess Pi without the rank-one parts, Dirichlet rows and columns replaced by the identity."""
+        u = self.sync(x)
+        A.zeroEntries()
+        _assemble_form(A, self.jacobian_form, self.bcs)
+        A.assemblyBegin(PETSc.Mat.AssemblyType.FLUSH)
+        A.assemblyEnd(PETSc.Mat.AssemblyType.FLUSH)
+        rows, cols, vals = [], [], []
+        for term in self.terms:
+            for dofs, H in term.hessian(u):
+                H = sp.coo_matrix(H)
+                free = self._free(term, dofs)
+                pos, grow = self._owned_rows(term, dofs)
+                keep = np.zeros(len(dofs), dtype=bool)
+                keep[pos] = True
+                m = keep[H.row] & free[H.row] & free[H.col]
+                gcol = self.global_dofs[np.asarray(dofs)] if term.gather is None else np.asarray(dofs, np.int64)
+                rowmap = np.full(len(dofs), -1, np.int64)
+                rowmap[pos] = grow
+                rows.append(rowmap[H.row[m]])
+                cols.append(gcol[H.col[m]])
+                vals.append(H.data[m])
+        if rows:
+            _add_coo(A, np.concatenate(rows), np.concatenate(cols), np.concatenate(vals))
+        A.assemblyBegin(PETSc.Mat.AssemblyType.FLUSH)
+        A.assemblyEnd(PETSc.Mat.AssemblyType.FLUSH)
+        _cpp.fem.petsc.insert_diagonal(A, self.V._cpp_object, self.bcs, 1.0)
+        A.assemble()
+
+    def low_rank(self, x: PETSc.Vec | None = None) -> list[tuple[float, PETSc.Vec]]:
+        """The rank-one parts c g g^T of hess Pi as (c, g) with g a PETSc vector, zero on Dirichlet DOFs.
+
+        The same list (same length, same order) on every rank.
+        """
+        u = self.u.x.array if x is None else self.sync(x)
+        parts = [(term, c, dofs, g) for term in self.terms for c, dofs, g in term.low_rank(u)]
+        while len(self._vectors) < len(parts):
+            self._vectors.append(self.u.vector.duplicate())
+        out = []
+        for (term, c, dofs, g), vec in zip(parts, self._vectors):
+            g = np.asarray(g, float) * self._free(term, dofs)
+            vec.set(0.0)
+            if term.gather is None:
+                pos = np.flatnonzero(np.asarray(dofs) < self.n_owned)
+                vec.array_w[np.asarray(dofs)[pos]] = g[pos]
+            else:
+                vec.array_w[term.gather.local] = g[term.gather.pos]
+            out.append((float(c), vec))
+        return out
+
+    # -- read-outs -------------------------------------------------------------------------------
+    def readouts(self) -> dict:
+        """{section: {name: {...}}} of every term at the current state (collective)."""
+        out: dict = {}
+        for term in self.terms:
+            values = term.readout(self)
+            if values:
+                out.setdefault(term.section, {}).update(values)
+        return out
+
+
+def _assemble_form(A: PETSc.Mat, form, bcs) -> None:
+    _cpp.fem.petsc.assemble_matrix(A, form, _cpp.fem.pack_constants(form),
+                                   _cpp.fem.pack_coefficients(form), bcs)
+
+
+def _add_coo(A: PETSc.Mat, rows, cols, vals) -> None:
+    """A[rows, cols] += vals (global indices; duplicates summed), one row at a time in C."""
+    urows, inv = np.unique(rows, return_inverse=True)
+    M = sp.csr_matrix((vals, (inv, cols)), shape=(len(urows), int(cols.max()) + 1 if len(cols) else 1))
+    M.sum_duplicates()
+    A.setValuesIJV(M.indptr.astype(PETSc.IntType), M.indices.astype(PETSc.IntType), M.data,
+                   addv=PETSc.InsertMode.ADD_VALUES, rowmap=urows.astype(PETSc.IntType))

@@ -1,0 +1,230 @@
+"""A live simulation: a design kept meshed, compiled and factorised between solves.
+
+    from skelfem import Session
+    with Session("geometry/finger.toml") as s:       # a path, a design dict or a Design
+        r = s.solve()                               # a Result; r.to_dict() is result.json
+        s.set({"cables.flexor.contraction": 9.0})   # live parameters: no re-mesh, no recompile
+        r = s.solve()                               # warm start from the last equilibrium
+        s.edit(new_design_dict)                     # re-mesh; the last solution is the start
+
+``set`` takes the ``--set`` keys. Keys that a term exposes as a parameter
+(contractions, pretensions, stiffnesses, loads, pin moves, E and nu, ground
+points, gravity, tractions...) change in place; any other key (mesh size,
+outlines, cable paths...) re-meshes as ``edit`` does. Either way the new
+design is validated first and a bad key or value raises the same one-line
+DesignError as the CLI, leaving the session as it was.
+
+Every user of the pipeline goes through this class: the CLI, sweeps,
+IK and tracking, bench, studies and tests.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .design import FORMAT, Design, DesignError, load_design, parse_design
+
+log = logging.getLogger("skelfem")
+
+
+def _toml(value) -> str:
+    """A Python value as TOML text (floats at full precision)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        v = float(value)
+        return repr(v) if math.isfinite(v) else ("nan" if v != v else ("inf" if v > 0 else "-inf"))
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_toml(v) for v in (value.tolist() if isinstance(value, np.ndarray) else value)) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k} = {_toml(v)}" for k, v in value.items()) + "}"
+    raise DesignError(f"cannot use {value!r} as a design value")
+
+
+def as_design(design, overrides=()) -> Design:
+    """A validated Design from a path, a dict of the TOML's keys or a Design, with --set overrides."""
+    overrides = list(overrides)
+    if isinstance(design, Design):
+        return parse_design(design.raw, design.source, overrides) if overrides else design
+    if isinstance(design, dict):
+        return parse_design(design, "<design>", overrides)
+    return load_design(design, overrides)
+
+
+def _plain(value):
+    """JSON-ready: arrays to lists, numpy scalars to floats, non-finite floats to None."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [_plain(v) for v in (value.tolist() if isinstance(value, np.ndarray) else value)]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
+    return value
+
+
+class Result:
+    """One solve's outcome; attribute access to the keys of result.json, ``to_dict()`` for all of it."""
+
+    def __init__(self, data: dict, report=None):
+        self._data, self.report = data, report
+
+    def __getattr__(self, key):
+        try:
+            return self.__dict__["_data"][key]
+        except KeyError:
+            raise AttributeError(key) from None
+
+    def to_dict(self) -> dict:
+        import copy
+        return copy.deepcopy(self._data)
+
+    def __repr__(self) -> str:
+        d = self._data
+        return f"Result({d['design']!r}, {d['status']}, {d['newton_iterations']} Newton iterations)"
+
+
+STANDARD_SECTIONS = ("markers", "cables", "pins", "grounds")
+
+
+def result_dict(design, model, report, timings: dict) -> dict:
+    """result.json as the design-format contract defines it, from the terms' read-outs."""
+    converged = bool(report.converged)
+    res = {
+        "format": FORMAT,
+        "design": design.name,
+        "converged": converged,
+        "status": report.status,
+        "newton_iterations": int(report.newton_iterations),
+        "load_steps": int(report.load_steps),
+        "energy": float(report.energy) if converged else None,
+        "dofs": int(model.V.dofmap.index_map.size_global * model.bs),
+        "cells": int(model.mesh.topology.index_map(model.mesh.topology.dim).size_global),
+        "degree": int(design.mesh.degree),
+        "min_jacobian": float(report.min_jacobian),
+    }
+    readouts = model.readouts() if converged else {}
+    for section in STANDARD_SECTIONS:
+        res[section] = readouts.pop(section, {}) if converged else None
+    res.update(readouts)
+    res["attempts"] = report.attempts
+    res["residual_history"] = [[float(r) for r in step] for step in report.residual_history]
+    res["timings"] = {k: round(float(v), 4) for k, v in timings.items()}
+    return _plain(res)
+
+
+class Session:
+    """A design bound to a mesh, a model and a Newton solver, kept alive between solves."""
+
+    def __init__(self, design, overrides=(), comm=None):
+        from mpi4py import MPI
+        self.comm = comm if comm is not None else MPI.COMM_WORLD
+        self.design = as_design(design, overrides)
+        self.model = self.solver = None
+        self.solved = False
+        self.timings: dict = {}
+        self._build()
+
+    # -- building -----------------------------------------------------------------------------
+    def _build(self) -> None:
+        from .geometry import mesh_design
+        from .model import Model
+        from .solver import NewtonSolver
+
+        t0 = time.perf_counter()
+        tm = mesh_design(self.design, self.comm)
+        t1 = time.perf_counter()
+        model = Model(self.design, tm)
+        solver = NewtonSolver(model, self.design.solver)
+        self.close()
+        self.model, self.solver, self.solved = model, solver, False
+        self.timings = {"mesh": t1 - t0, "compile": time.perf_counter() - t1}
+
+    @property
+    def dofs(self) -> int:
+        return int(self.model.V.dofmap.index_map.size_global * self.model.bs)
+
+    # -- changing the design ---------------------------------------------------------------------
+    def set(self, changes: dict) -> None:
+        """Apply ``{--set key: value}``: live parameters in place, anything else by re-meshing."""
+        overrides = [f"{key}={_toml(value)}" for key, value in changes.items()]
+        design = parse_design(self.design.raw, self.design.source, overrides)
+        live = self.model.parameters()
+        if not all(key in live for key in changes):
+            self.edit(design)
+            return
+        for key, value in changes.items():
+            self.model.set_parameter(key, value)
+        self.design = design
+
+    def edit(self, design, overrides=()) -> None:
+        """Replace the design (a path, a dict or a Design) and re-mesh; the last solution is the start."""
+        design = as_design(design, overrides)
+        old_model, old_solved = self.model, self.solved
+        start = None
+        if old_solved and self.comm.size == 1:
+            start = (old_model.V.tabulate_dof_coordinates()[:, :old_model.dim].copy(),
+                     old_model.u.x.array.reshape(-1, old_model.bs).copy(), old_model)
+        self.design = design
+        self._build()
+        if start is not None:
+            self._carry_over(*start)
+            self.solved = True
+
+    def _carry_over(self, X_old: np.ndarray, u_old: np.ndarray, old_model) -> None:
+        """Start from the old displacement: interpolated where the new nodes lie in the old mesh, else nearest."""
+        from scipy.spatial import cKDTree
+
+        from .points import interpolation_matrix, locate_cells
+        model = self.model
+        X = model.V.tabulate_dof_coordinates()[:, :model.dim]
+        cells = locate_cells(old_model.mesh, X)
+        inside = cells >= 0
+        u = np.empty((len(X), model.bs))
+        if inside.any():
+            S = interpolation_matrix(old_model.V, X[inside], cells[inside])
+            u[inside] = (S @ old_model.u.x.array).reshape(-1, model.bs)
+        if (~inside).any():
+            u[~inside] = u_old[cKDTree(X_old).query(X[~inside])[1]]
+        model.u.x.array[:] = u.ravel()
+        model.set_factor(1.0)
+        model.apply_bcs(model.u.vector)
+
+    # -- solving -----------------------------------------------------------------------------------
+    def solve(self, steps: int | None = None) -> Result:
+        """Static equilibrium; warm-started from the last one after the first solve."""
+        t0 = time.perf_counter()
+        steps = steps or self.design.solver.steps
+        log.info("%s: %d DOFs, %d cells", self.design.name, self.dofs,
+                 self.model.mesh.topology.index_map(self.model.mesh.topology.dim).size_global)
+        if not self.solved:                                   # cold: ramp the load from rest
+            self.model.u.x.array[:] = 0.0
+        report = self.solver.resolve(steps) if self.solved else self.solver.solve(steps)
+        self.solved = bool(report.converged)
+        timings = dict(self.timings, solve=time.perf_counter() - t0)
+        timings["total"] = sum(timings.values())
+        self.timings = {"mesh": 0.0, "compile": 0.0}          # paid once per mesh
+        return Result(result_dict(self.design, self.model, report, timings), report)
+
+    # -- clean-up ------------------------------------------------------------------------------------
+    def close(self) -> None:
+        if self.solver is not None:
+            self.solver.destroy()
+            self.solver = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

@@ -1,0 +1,203 @@
+"""The energy-term contract and the context terms build themselves from.
+
+The total energy is a sum of terms, one per physical ingredient,
+
+    Pi(u; a) = sum_terms Pi_term(u; a),
+
+with a in [0, 1] the load factor that ramps contractions, pretensions, loads
+and pin moves. A term contributes to Pi in one or both of two ways:
+
+* a UFL energy (``ufl_energy``) that the model sums with the others and
+  compiles once (elasticity, spring pins, grounds, gravity, tractions), its
+  derivatives derived by ``ufl.derivative``;
+* hand-written energy, gradient and Hessian on a few DOFs (cables, point
+  loads, self-contact). The Hessian is split in a sparse part that goes into
+  the Newton matrix (``hessian``, inside ``pattern``) and rank-one parts
+  c g g^T that stay out of it (``low_rank``), handled by the linear solver
+  with the Sherman-Morrison-Woodbury formula, so no term puts a dense block
+  into the matrix.
+
+DOF arrays of a hand-written term are local indices, or, when the term has a
+``gather`` (a :class:`skelfem.points.DofGather`), global DOF numbers known on
+every rank (terms acting at material points that may lie on any rank).
+
+Besides the energy a term exposes its *parameters* (the ``--set`` keys it owns,
+changed live without re-meshing or recompiling), its *read-outs* (what goes
+into result.json under ``section``), step bounds and admissibility for the
+line search, an optional step correction (exact rigid rotations of bones),
+Dirichlet conditions, and a per-step hook for history-dependent ingredients.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import ufl
+from dolfinx import fem
+from dolfinx import mesh as dmesh
+from petsc4py import PETSc
+
+
+class Term:
+    """Base class of every energy term; the defaults describe a term that does nothing."""
+
+    section: str = ""            # result.json key and design section, e.g. "cables"
+    name: str = ""               # entry name within the section
+    gather = None                # DofGather: DOFs are global numbers; None: local indices
+    bounds_steps: bool = False   # whether max_step can return < 1
+
+    # -- energy ------------------------------------------------------------------------------------
+    def ufl_energy(self, ctx: "Context"):
+        """UFL integral of this term's energy, or None (called once, after all terms are built)."""
+        return None
+
+    def energy(self, u: np.ndarray) -> float:
+        """Hand-written part of the energy at the local DOF array u, N mm."""
+        return 0.0
+
+    def gradient(self, u: np.ndarray):
+        """(dofs, values) of the hand-written gradient, or None."""
+        return None
+
+    def hessian(self, u: np.ndarray) -> list:
+        """[(dofs, dense block)] of the sparse part of the Hessian; every block inside pattern()."""
+        return []
+
+    def low_rank(self, u: np.ndarray) -> list:
+        """[(c, dofs, g)]: rank-one parts c g g^T of the Hessian kept out of the matrix (c > 0)."""
+        return []
+
+    def pattern(self) -> list:
+        """[(row nodes, column nodes)] blocks the sparse Hessian may fill (node = DOF // bs)."""
+        return []
+
+    # -- line search ------------------------------------------------------------------------------
+    def max_step(self, u0: np.ndarray, p: np.ndarray) -> float:
+        """Largest alpha in [0, 1] such that u0 + s p is admissible for s <= alpha."""
+        return 1.0
+
+    def admissible(self, u: np.ndarray) -> bool:
+        return True
+
+    def step_correction(self, u0: np.ndarray, p: np.ndarray, alpha: float):
+        """Correction added to the trial state u0 + alpha p (owned DOFs), or None."""
+        return None
+
+    def energy_scale(self) -> float:
+        """Size of the terms that cancel in the energy (sets the round-off level of Pi)."""
+        return 0.0
+
+    # -- parameters and load ramp ---------------------------------------------------------------
+    def parameters(self) -> dict:
+        """{--set key: value} of the parameters this term changes live."""
+        return {}
+
+    def set_parameter(self, key: str, value) -> None:
+        raise KeyError(key)
+
+    def set_factor(self, a: float) -> None:
+        """Apply the load factor a in [0, 1] to whatever this term ramps."""
+
+    # -- constraints, read-outs, history ------------------------------------------------------------
+    def dirichlet(self) -> list:
+        """[(DirichletBC, unrolled local DOFs)] this term imposes."""
+        return []
+
+    def readout(self, model) -> dict:
+        """{name: {...}} reported in result.json under ``section`` (at a converged state)."""
+        return {}
+
+    def end_step(self, model) -> None:
+        """Called after every accepted load or time step (history: friction, inertia)."""
+
+
+def constant(mesh, value) -> fem.Constant:
+    """A fem.Constant holding a float or a vector."""
+    v = np.asarray(value, dtype=PETSc.ScalarType)
+    return fem.Constant(mesh, v if v.ndim else PETSc.ScalarType(v))
+
+
+def _box_marker(region: np.ndarray, tol: float):
+    lo, hi = np.asarray(region[0], float) - tol, np.asarray(region[1], float) + tol
+
+    def inside(x):
+        d = len(lo)
+        return np.all((x[:d].T >= lo) & (x[:d].T <= hi), axis=1)
+    return inside
+
+
+@dataclass(eq=False)
+class Context:
+    """What terms build from: the design, the mesh and the displacement field.
+
+    Boundary boxes (pins, tractions) are registered with :meth:`boundary`
+    while the terms are built; the model then tags every facet with the set of
+    boxes it lies in (one meshtags object, so every ds integral of the energy
+    shares one subdomain data) and terms integrate over a box with
+    :meth:`ds` inside ``ufl_energy``.
+    """
+
+    design: object
+    tagged: object                   # skelfem.geometry.TaggedMesh
+    V: object
+    u: object                        # fem.Function: the displacement
+    thickness: fem.Constant          # t: slab depth in 2D, 1 in 3D
+    fixed: np.ndarray | None = None  # Dirichlet flags of the local DOFs (set by the model)
+    _boxes: list = field(default_factory=list)
+    _facets: list = field(default_factory=list)
+    _measure: object = None
+    _codes: np.ndarray | None = None
+
+    @property
+    def mesh(self):
+        return self.tagged.mesh
+
+    @property
+    def comm(self):
+        return self.tagged.mesh.comm
+
+    @property
+    def dim(self) -> int:
+        return self.tagged.mesh.geometry.dim
+
+    @property
+    def bs(self) -> int:
+        return self.V.dofmap.index_map_bs
+
+    def boundary(self, region) -> tuple[int, np.ndarray]:
+        """Register a box; returns (its id, the local boundary facets inside it)."""
+        mesh = self.mesh
+        fdim = mesh.topology.dim - 1
+        mesh.topology.create_connectivity(fdim, mesh.topology.dim)
+        x = mesh.geometry.x
+        tol = 1e-8 * float(np.abs(x).max() + 1.0)
+        facets = dmesh.locate_entities_boundary(mesh, fdim, _box_marker(np.asarray(region, float), tol))
+        self._boxes.append(np.asarray(region, float))
+        self._facets.append(facets)
+        return len(self._boxes) - 1, facets
+
+    def finalise(self) -> None:
+        """Tag each facet with the bit set of the boxes containing it (code 1 + sum 2^box)."""
+        mesh = self.mesh
+        fdim = mesh.topology.dim - 1
+        if not self._facets:
+            self._measure = ufl.Measure("ds", domain=mesh)
+            return
+        allf = np.unique(np.concatenate(self._facets)).astype(np.int32)
+        code = np.zeros(len(allf), dtype=np.int64)
+        for i, f in enumerate(self._facets):
+            code[np.searchsorted(allf, f)] += 1 << i
+        self._codes = np.unique(code)
+        tags = dmesh.meshtags(mesh, fdim, allf, code.astype(np.int32))
+        self._measure = ufl.Measure("ds", domain=mesh, subdomain_data=tags)
+
+    def ds(self, box: int, metadata: dict | None = None):
+        """The boundary measure restricted to the facets of box `box`."""
+        codes = self._codes if self._codes is not None else np.zeros(0, dtype=np.int64)
+        ids = tuple(int(c) for c in codes if c >> box & 1)
+        # the ids agree over ranks only if every rank saw the same codes; gather them
+        ids = tuple(sorted(set(int(c) for part in self.comm.allgather(ids) for c in part)))
+        if not ids:
+            return None
+        m = self._measure if metadata is None else self._measure(metadata=metadata)
+        return m(ids)

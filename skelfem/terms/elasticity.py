@@ -1,0 +1,177 @@
+"""Compressible Neo-Hookean solid, one material per tagged region (body, bones).
+
+Strain-energy density (paper eq. 2), with F = I + grad u, J = det F, d the
+space dimension (plane strain in 2D):
+
+    psi(F) = mu/2 (tr F^T F - d) - mu ln J + lam/2 (ln J)^2
+
+The bulk energy is Pi_el = t * int_Omega psi dx, with t the slab thickness in
+2D (t = 1 in 3D). mu and lam are piecewise-constant (DG0) fields, so a single
+compiled form serves every material layout and ``materials.NAME.E`` / ``.nu``
+change live.
+
+Bones are stiff: a Newton step linearises their rotation, which a stiff
+bone resists as stretch. ``step_correction`` turns the linearised rotation of
+each unpinned bone into the exact one (see :meth:`Elasticity.step_correction`).
+"""
+from __future__ import annotations
+
+import numpy as np
+import ufl
+from dolfinx import fem
+from mpi4py import MPI
+
+from ..geometry import BODY, bone_tag_name
+from .base import Context, Term
+
+
+def lame(E: float, nu: float) -> tuple[float, float]:
+    """Lamé parameters (mu, lam) from Young's modulus E and Poisson's ratio nu."""
+    mu = E / (2.0 * (1.0 + nu))
+    lam = E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
+    return mu, lam
+
+
+def deformation_gradient(u):
+    d = u.ufl_shape[0]
+    return ufl.Identity(d) + ufl.grad(u)
+
+
+def psi(F, mu, lam):
+    """Neo-Hookean strain-energy density psi(F)."""
+    d = F.ufl_shape[0]
+    J = ufl.det(F)
+    return mu / 2 * (ufl.tr(F.T * F) - d) - mu * ufl.ln(J) + lam / 2 * ufl.ln(J) ** 2
+
+
+def region_cells(ctx: Context, design) -> dict:
+    """{material name: local cells} over the body and the bones."""
+    tm = ctx.tagged
+    out: dict = {}
+    regions = [(BODY, design.body.material)] + [(bone_tag_name(b.name), b.material) for b in design.bones]
+    for tag_name, material in regions:
+        cells = tm.cell_tags.find(tm.tags[tag_name])
+        out[material] = np.concatenate([out.get(material, np.zeros(0, np.int32)), cells])
+    return out
+
+
+def min_jacobian_expression(u):
+    """det F sampled at the nodes of a DG space rich enough for P1/P2 fields."""
+    mesh = u.function_space.mesh
+    degree = u.function_space.ufl_element().degree()
+    k = mesh.topology.dim * (degree - 1)
+    W = fem.FunctionSpace(mesh, ("DG", k))
+    return fem.Expression(ufl.det(deformation_gradient(u)), W.element.interpolation_points())
+
+
+def cell_values_min(expr, num_cells: int) -> float:
+    cells = np.arange(num_cells, dtype=np.int32)
+    return float(expr.eval(cells).min()) if num_cells else np.inf
+
+
+class Elasticity(Term):
+    """Pi_el = t int psi(F(u)) dx with mu, lam per region."""
+
+    section, name = "materials", "elasticity"
+
+    def __init__(self, ctx: Context):
+        self.ctx = ctx
+        design = ctx.design
+        self.materials = {name: [m.E, m.nu] for name, m in design.materials.items()}
+        self.cells = region_cells(ctx, design)
+        Q = fem.FunctionSpace(ctx.mesh, ("DG", 0))
+        self.mu, self.lam = fem.Function(Q, name="mu"), fem.Function(Q, name="lam")
+        self._update_fields()
+        self._scale_form = fem.form(ctx.thickness * (self.mu + self.lam) * ufl.dx)
+        self._groups = None
+
+    def _update_fields(self) -> None:
+        for name, cells in self.cells.items():
+            mu, lam = lame(*self.materials[name])
+            self.mu.x.array[cells] = mu
+            self.lam.x.array[cells] = lam
+
+    def ufl_energy(self, ctx: Context):
+        return ctx.thickness * psi(deformation_gradient(ctx.u), self.mu, self.lam) * ufl.dx
+
+    def energy_scale(self) -> float:
+        return self.ctx.comm.allreduce(fem.assemble_scalar(self._scale_form), op=MPI.SUM)
+
+    # -- parameters: materials.NAME.E and .nu of the materials in use ---------------------------
+    def parameters(self) -> dict:
+        return {f"materials.{n}.{k}": v for n in self.cells
+                for k, v in zip(("E", "nu"), self.materials[n])}
+
+    def set_parameter(self, key: str, value) -> None:
+        _, name, which = key.split(".")
+        if name not in self.cells or which not in ("E", "nu"):
+            raise KeyError(key)
+        self.materials[name][("E", "nu").index(which)] = float(value)
+        self._update_fields()
+
+    # -- exact rotations of stiff bones ------------------------------------------------------------
+    def _bone_groups(self) -> list:
+        """Owned unrolled DOFs (n_nodes, bs) of each bone with no pinned DOF (same list on every rank)."""
+        ctx, design = self.ctx, self.ctx.design
+        tm, V, bs = ctx.tagged, ctx.V, ctx.bs
+        tdim = ctx.mesh.topology.dim
+        n_owned = V.dofmap.index_map.size_local
+        groups = []
+        for b in design.bones:
+            cells = tm.cell_tags.find(tm.tags[bone_tag_name(b.name)])
+            nodes = fem.locate_dofs_topological(V, tdim, cells)
+            nodes = nodes[nodes < n_owned]
+            dofs = nodes[:, None] * bs + np.arange(bs)
+            count = ctx.comm.allreduce(len(nodes), op=MPI.SUM)
+            pinned = ctx.comm.allreduce(bool(ctx.fixed[dofs].any()), op=MPI.LOR)
+            if count >= 3 and not pinned:
+                groups.append(dofs)
+        self._X = V.tabulate_dof_coordinates()[:, :ctx.dim]
+        return groups
+
+    def _sum(self, a):
+        comm = self.ctx.comm
+        return a if comm.size == 1 else comm.allreduce(a)
+
+    def step_correction(self, u0: np.ndarray, p: np.ndarray, alpha: float):
+        """Second-order correction that makes each bone follow an exact rotation.
+
+        On a bone's nodes (current positions y, centroid c) the step alpha p is
+        split into a rigid part alpha (t + omega x (y - c)) (least squares) and
+        the rest; the correction (R(alpha omega) - I - alpha [omega]x)(y - c)
+        turns the linearised rotation into the exact one. Zero outside bones.
+        """
+        if self._groups is None:
+            self._groups = self._bone_groups()
+        if not self._groups:
+            return None
+        bs, dim = self.ctx.bs, self.ctx.dim
+        corr = np.zeros_like(p)
+        for dofs in self._groups:   # one vectorised block per bone
+            y = self._X[dofs[:, 0] // bs] + u0[dofs]
+            n = self._sum(len(y))
+            r = y - self._sum(y.sum(axis=0)) / n
+            q = p[dofs] - self._sum(p[dofs].sum(axis=0)) / n
+            if dim == 2:
+                w = float(self._sum(np.sum(r[:, 0] * q[:, 1] - r[:, 1] * q[:, 0])) / self._sum(np.sum(r * r)))
+                th = alpha * w
+                c, s_ = np.cos(th), np.sin(th)
+                rot = np.column_stack([c * r[:, 0] - s_ * r[:, 1], s_ * r[:, 0] + c * r[:, 1]])
+                lin = r + th * np.column_stack([-r[:, 1], r[:, 0]])
+            else:
+                M = self._sum(np.einsum("ni,nj->ij", r, r))
+                w = np.linalg.solve(np.trace(M) * np.eye(3) - M, self._sum(np.cross(r, q).sum(axis=0)))
+                th = alpha * w
+                angle = np.linalg.norm(th)
+                if angle < 1e-14:
+                    continue
+                k = th / angle
+                rot = (r * np.cos(angle) + np.cross(k, r) * np.sin(angle)
+                       + np.outer(r @ k, k) * (1 - np.cos(angle)))
+                lin = r + np.cross(th, r)
+            corr[dofs] = rot - lin
+        return corr
+
+
+def build(ctx: Context) -> list[Term]:
+    return [Elasticity(ctx)]
