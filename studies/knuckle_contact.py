@@ -30,25 +30,22 @@ DESIGN = ROOT / "geometry" / "finger_knuckles.toml"
 
 def solve(self_contact: bool, size: float, contraction: float) -> dict:
     """Solve the knuckle finger; min boundary distance at every accepted iterate, overlap at the end."""
-    from skelfem.contact import SelfContact, crossing_edges, oriented_edges, overlap_area
-    from skelfem.design import load_design
-    from skelfem.geometry import mesh_design
-    from skelfem.scene import Scene
-    from skelfem.solver import NewtonSolver
+    from skelfem import Session
+    from skelfem.terms.contact import SelfContact, crossing_edges, oriented_edges, overlap_area
 
     t0 = time.perf_counter()
-    design = load_design(DESIGN, [f"mesh.size={size}", f"cables.flexor.contraction={contraction}",
-                                  f"contact.self={'true' if self_contact else 'false'}"])
-    scene = Scene(design, mesh_design(design))
-    probe = scene.contact or SelfContact(scene.V, design.contact.dhat, 1.0, scene.thickness)
-    solver = NewtonSolver(scene, design.solver)
+    session = Session(DESIGN, [f"mesh.size={size}", f"cables.flexor.contraction={contraction}",
+                               f"contact.self={'true' if self_contact else 'false'}"])
+    model, design = session.model, session.design
+    contact = model.terms_in("contact")
+    probe = contact[0] if contact else SelfContact(model.V, design.contact.dhat, 1.0, model.thickness)
     history = []                 # (load factor, min distance) at each iterate SNES accepted
 
     def monitor(snes, it, fnorm):
-        history.append((scene.factor, probe.min_distance(snes.getSolution().array_r)))
-    solver.snes.setMonitor(monitor)
-    report = solver.solve(design.solver.steps)
-    u = scene.u.x.array
+        history.append((model.factor, probe.min_distance(snes.getSolution().array_r)))
+    session.solver.snes.setMonitor(monitor)
+    report = session.solve().report
+    u = model.u.x.array
     y = probe.positions(u)
     ccw = oriented_edges(probe.X, probe.edges)
     return {"self_contact": self_contact, "converged": report.converged, "status": report.status,
@@ -57,7 +54,7 @@ def solve(self_contact: bool, size: float, contraction: float) -> dict:
             "final_distance": probe.min_distance(u), "crossing_edges": crossing_edges(y, probe.edges),
             "intersects": probe.intersects(u),
             "overlap_area": overlap_area(y, ccw, np.array([y.min(axis=0), y.max(axis=0)]), 400),
-            "tip": scene.marker_positions()[0].tolist(), "scene": scene, "probe": probe,
+            "tip": model.term("markers").positions(u)[0].tolist(), "session": session, "probe": probe,
             "time": time.perf_counter() - t0}
 
 
@@ -67,7 +64,7 @@ def run(size: float = 1.5, contraction: float = 16.0, out: Path | None = None) -
     if out is not None:
         write_outputs(Path(out), res, contraction)
     for r in res.values():
-        r.pop("scene"), r.pop("probe")
+        r.pop("session").close(), r.pop("probe")
     return res
 
 
@@ -76,7 +73,7 @@ def _notch_box(r, pad=3.0) -> np.ndarray:
     probe = r["probe"]
     X = probe.X
     near = (X[:, 0] < 3.01) & (X[:, 1] > 36.0) & (X[:, 1] < 46.0)
-    y = probe.positions(r["scene"].u.x.array)[near]
+    y = probe.positions(r["session"].model.u.x.array)[near]
     c = 0.5 * (y.min(axis=0) + y.max(axis=0))
     half = 0.5 * (y.max(axis=0) - y.min(axis=0)).max() + pad
     return np.array([c - half, c + half])
@@ -102,12 +99,12 @@ def write_outputs(out: Path, res: dict, contraction: float) -> None:
         label = ("self-contact ON: min distance %.3g mm, no crossing" % r["final_distance"] if key == "on" else
                  "self-contact OFF: %d crossing edge pairs, %.2f mm$^2$ overlap"
                  % (r["crossing_edges"], r["overlap_area"]))
-        plot_deformed(None, r["scene"], f"flexor u = {contraction:g} mm\n{label}", ax=axes[0, col])
+        plot_deformed(None, r["session"].model, f"flexor u = {contraction:g} mm\n{label}", ax=axes[0, col])
         if axes[0, col].get_legend():
             axes[0, col].get_legend().remove()
         zoom = axes[1, col]
-        plot_deformed(None, r["scene"], "", ax=zoom, show_rest=False)
-        y = r["probe"].positions(r["scene"].u.x.array)
+        plot_deformed(None, r["session"].model, "", ax=zoom, show_rest=False)
+        y = r["probe"].positions(r["session"].model.u.x.array)
         for a, b in r["probe"].edges:
             zoom.plot(y[[a, b], 0], y[[a, b], 1], color="k", lw=1.0)
         box = _notch_box(r)

@@ -32,3 +32,30 @@ def variant(d, **changes):
             node = node.setdefault(part, {})
         node[last] = value
     return d
+
+
+def toml_text(d: dict) -> str:
+    """TOML text of a design dict (tables, arrays of tables, inline tables); parsed back as a check."""
+    import tomllib
+
+    def value(v):
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, str):
+            return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+        if isinstance(v, (list, tuple)):
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        if isinstance(v, dict):
+            return "{ " + ", ".join(f"{k} = {value(x)}" for k, x in v.items()) + " }"
+        return repr(float(v)) if isinstance(v, float) else str(v)
+    lines, tables = [], []
+    for k, v in d.items():
+        if isinstance(v, dict):
+            tables.append(f"[{k}]\n" + "\n".join(f'"{kk}" = {value(vv)}' for kk, vv in v.items()))
+        elif isinstance(v, list) and v and isinstance(v[0], dict):
+            tables += [f"[[{k}]]\n" + "\n".join(f"{kk} = {value(vv)}" for kk, vv in item.items()) for item in v]
+        else:
+            lines.append(f"{k} = {value(v)}")
+    text = "\n".join(lines) + "\n\n" + "\n\n".join(tables) + "\n"
+    tomllib.loads(text)
+    return text

@@ -1,25 +1,36 @@
-"""Taylor remainders of a Scene's energy and gradient, for consistency tests of Pi, grad Pi, hess Pi."""
+"""Taylor remainders of a Model's energy and gradient, for consistency tests of Pi, grad Pi, hess Pi."""
 import numpy as np
 
 
-def taylor_rates(sc, x, d, hs):
-    """Observed orders of Pi(x + h d) - Pi(x) - h R.d and |R(x + h d) - R(x) - h J d| over hs.
-
-    Both are O(h^2) when the gradient and Jacobian are exact; d must vanish on pinned DOFs.
-    """
-    b, A = x.duplicate(), sc.create_matrix()
-    sc.gradient(x, b)
-    sc.jacobian(x, A)
-    g = b.array.copy()
+def hessian_times(model, x, d, A=None):
+    """hess Pi(x) d = K d + sum c g (g . d): the sparse matrix and the rank-one parts kept out of it."""
+    A = A if A is not None else model.create_matrix()
+    model.jacobian(x, A)
     Ad = d.duplicate()
     A.mult(d, Ad)
-    e0 = sc.energy(x)
+    for c, g in model.low_rank(x):
+        Ad.axpy(c * g.dot(d), g)
+    return Ad
+
+
+def taylor_rates(model, x, d, hs):
+    """Observed orders of Pi(x + h d) - Pi(x) - h R.d and |R(x + h d) - R(x) - h J d| over hs.
+
+    J d is the full Hessian's product (K and the low-rank parts). Both
+    remainders are O(h^2) when the gradient and Hessian are exact; d must
+    vanish on pinned DOFs.
+    """
+    b = x.duplicate()
+    Ad = hessian_times(model, x, d)
+    model.gradient(x, b)
+    g = b.array.copy()
+    e0 = model.energy(x)
     r1, r2 = [], []
     for h in hs:
         xh = x.copy()
         xh.axpy(h, d)
         bh = x.duplicate()
-        sc.gradient(xh, bh)
-        r1.append(abs(sc.energy(xh) - e0 - h * (g @ d.array)))
-        r2.append(np.linalg.norm((bh.array - g - h * Ad.array)[~sc.fixed]))
+        model.gradient(xh, bh)
+        r1.append(abs(model.energy(xh) - e0 - h * (g @ d.array)))
+        r2.append(np.linalg.norm((bh.array - g - h * Ad.array)[~model.fixed]))
     return [np.log2(np.array(r[:-1]) / np.array(r[1:])) for r in (r1, r2)]

@@ -1,14 +1,106 @@
+"""Shared fixtures: design dicts, the finger4 session, mpirun runs, picture checks.
+
+Plain helpers live beside it: ``_designs`` (design dicts and TOML text),
+``_studies`` (loading a study script), ``_taylor`` (Taylor remainders).
+"""
 import gc
 import logging
 import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
 
+import numpy as np
 import pytest
+
+from _designs import strip
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 logging.getLogger().setLevel(logging.WARNING)
+
+ROOT = Path(__file__).resolve().parents[1]
+GEOMETRY = ROOT / "geometry"
+SKELFEM = str(Path(sys.executable).parent / "skelfem")
+MPI_ENV = {**os.environ, "OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
+           "OMPI_MCA_rmaps_base_oversubscribe": "1", "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
+           "MPLBACKEND": "Agg"}
 
 
 @pytest.fixture(autouse=True)
 def _collect():
     yield
     gc.collect()
+
+
+# -- designs ------------------------------------------------------------------------------------------
+@pytest.fixture
+def strip_design() -> dict:
+    """A fresh strip design dict (see _designs.strip): soft strip, pinned base, one tendon, a tip marker."""
+    return strip()
+
+
+@pytest.fixture(scope="module")
+def finger4():
+    """A Session on geometry/finger4.toml at mesh size 3 (one per test module; tests may change its state)."""
+    from skelfem import Session
+    session = Session(GEOMETRY / "finger4.toml", ["mesh.size=3"])
+    yield session
+    session.close()
+
+
+# -- subprocesses under mpirun --------------------------------------------------------------------------
+class Mpirun:
+    """Runs commands serially or under ``mpirun -n N`` with the environment the Makefile sets."""
+
+    env = MPI_ENV
+    skelfem = SKELFEM
+
+    def command(self, args, ranks: int = 1) -> list:
+        args = [str(a) for a in args]
+        return (["mpirun", "-n", str(ranks)] + args) if ranks > 1 else args
+
+    def run(self, args, ranks: int = 1, timeout: float = 300) -> subprocess.CompletedProcess:
+        return subprocess.run(self.command(args, ranks), env=self.env, capture_output=True, text=True,
+                              timeout=timeout)
+
+
+@pytest.fixture(scope="session")
+def mpirun() -> Mpirun:
+    if shutil.which("mpirun") is None:
+        pytest.skip("needs mpirun")
+    return Mpirun()
+
+
+# -- pictures -------------------------------------------------------------------------------------------
+def check_picture(path, min_width: int = 300, min_height: int = 200, min_ink: float = 0.02,
+                  min_colours: int = 4) -> np.ndarray:
+    """Assert that path is a PNG of at least the given size with a drawing on it; returns the image.
+
+    The background is the most common colour; at least a fraction min_ink of
+    the pixels must differ from it, in at least min_colours distinct colours
+    (besides the background), so an empty or one-colour picture fails.
+    """
+    import matplotlib.image as mpimg
+
+    path = Path(path)
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", f"{path} is not a PNG"
+    img = mpimg.imread(str(path))
+    assert img.ndim == 3 and img.shape[2] in (3, 4), img.shape
+    h, w = img.shape[:2]
+    assert w >= min_width and h >= min_height, f"{path.name}: {w} x {h} pixels"
+    rgb = np.round(np.asarray(img[:, :, :3], dtype=float) * 255).astype(np.int64)
+    codes = (rgb[..., 0] << 16) | (rgb[..., 1] << 8) | rgb[..., 2]
+    values, counts = np.unique(codes, return_counts=True)
+    background = values[np.argmax(counts)]
+    ink = 1.0 - counts.max() / codes.size
+    assert ink >= min_ink, f"{path.name}: only {ink:.2%} of the pixels differ from the background"
+    colours = int(np.count_nonzero(counts[values != background] >= 20))    # ignore stray anti-aliasing
+    assert colours >= min_colours, f"{path.name}: {colours} colours besides the background"
+    return img
+
+
+@pytest.fixture(scope="session")
+def picture():
+    """check_picture(path, min_width, min_height, min_ink, min_colours): a real, non-blank PNG."""
+    return check_picture

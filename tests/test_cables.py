@@ -7,7 +7,7 @@ from dolfinx import fem
 from dolfinx import mesh as dmesh
 from mpi4py import MPI
 
-from skelfem.cables import Cable, via_points
+from skelfem.terms.cables import Cable, via_points
 from skelfem.points import interpolation_matrix
 
 
@@ -17,21 +17,21 @@ def _spec(path, kind="tendon", k=20.0):
 
 
 @pytest.fixture(scope="module")
-def strip():
+def rect():
     return dmesh.create_rectangle(MPI.COMM_WORLD, [[0.0, 0.0], [20.0, 100.0]], [4, 20])
 
 
-def test_via_points_sit_on_every_crossed_edge(strip):
+def test_via_points_sit_on_every_crossed_edge(rect):
     path = np.array([[3.0, 0.0], [3.0, 60.0], [9.0, 96.0]])
-    X = via_points(strip, path)
+    X = via_points(rect, path)
     # the sketch's vertices are kept, in order
     for p in path:
         assert np.min(np.linalg.norm(X - p, axis=1)) < 1e-12
     # consecutive via points lie in one common cell: the midpoint's cell contains both
-    x = strip.geometry.x[:, :2]
-    nodes = strip.geometry.dofmap.array.reshape(-1, 3)
+    x = rect.geometry.x[:, :2]
+    nodes = rect.geometry.dofmap.array.reshape(-1, 3)
     from skelfem.points import locate_cells
-    cells = locate_cells(strip, 0.5 * (X[1:] + X[:-1]))
+    cells = locate_cells(rect, 0.5 * (X[1:] + X[:-1]))
     for a, b, c in zip(X[:-1], X[1:], cells):
         v = x[nodes[c]]
         T = np.column_stack([v[1] - v[0], v[2] - v[0]])
@@ -44,9 +44,9 @@ def test_via_points_sit_on_every_crossed_edge(strip):
                       np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
 
 
-def test_interpolation_matrix_reproduces_polynomials(strip):
+def test_interpolation_matrix_reproduces_polynomials(rect):
     for degree in (1, 2):
-        V = fem.VectorFunctionSpace(strip, ("Lagrange", degree))
+        V = fem.VectorFunctionSpace(rect, ("Lagrange", degree))
         u = fem.Function(V)
         f = (lambda x: np.vstack([x[0] ** degree + 0.3 * x[1], x[0] * x[1] ** (degree - 1)]))
         u.interpolate(f)
@@ -56,8 +56,8 @@ def test_interpolation_matrix_reproduces_polynomials(strip):
 
 
 @pytest.mark.parametrize("degree", [1, 2])
-def test_cable_gradient_and_hessian_match_finite_differences(strip, degree):
-    V = fem.VectorFunctionSpace(strip, ("Lagrange", degree))
+def test_cable_gradient_and_hessian_match_finite_differences(rect, degree):
+    V = fem.VectorFunctionSpace(rect, ("Lagrange", degree))
     cable = Cable.build(V, _spec([[3, 0], [3, 50], [8, 96]]))
     rng = np.random.default_rng(0)
     u = rng.normal(size=V.dofmap.index_map.size_local * 2) * 0.3
@@ -83,8 +83,8 @@ def _unit(cable, u):
     return (d / np.linalg.norm(d, axis=1)[:, None]).ravel()
 
 
-def test_slack_cable_stores_nothing(strip):
-    V = fem.VectorFunctionSpace(strip, ("Lagrange", 1))
+def test_slack_cable_stores_nothing(rect):
+    V = fem.VectorFunctionSpace(rect, ("Lagrange", 1))
     cable = Cable.build(V, _spec([[3, 0], [3, 96]], kind="ligament"))
     u = np.zeros(V.dofmap.index_map.size_local * 2)
     L = cable.L0 + 0.5
@@ -97,8 +97,8 @@ def test_slack_cable_stores_nothing(strip):
     assert np.isclose(cable.length(stretch.ravel()), 1.01 * cable.L0)
 
 
-def test_rest_length_follows_contraction_and_pretension(strip):
-    V = fem.VectorFunctionSpace(strip, ("Lagrange", 1))
+def test_rest_length_follows_contraction_and_pretension(rect):
+    V = fem.VectorFunctionSpace(rect, ("Lagrange", 1))
     tendon = Cable.build(V, _spec([[3, 0], [3, 96]]))
     assert np.isclose(tendon.rest_length(1.0), 96.0 - 1.0)
     assert np.isclose(tendon.rest_length(0.5), 96.0 - 0.5)

@@ -6,13 +6,12 @@ from dolfinx import fem
 from dolfinx import mesh as dmesh
 from mpi4py import MPI
 
-from _designs import strip, variant
-from skelfem.contact import SelfContact, boundary_polygon, crossing_edges, oriented_edges, overlap_area
-from skelfem.design import DesignError, parse_design
-from skelfem.geometry import mesh_design
-from skelfem.scene import Scene
+from _designs import variant
 from _studies import load_study
 from _taylor import taylor_rates
+from skelfem import Session
+from skelfem.design import DesignError
+from skelfem.terms.contact import SelfContact, boundary_polygon, crossing_edges, oriented_edges, overlap_area
 
 SLOT = [[2.0, 2.6], [8.0, 2.6], [8.0, 3.4], [2.0, 3.4]]      # a 0.8 mm slot in a 10 x 6 block
 
@@ -27,9 +26,12 @@ def _slot_design(degree=1, self_contact=True, dhat=0.3, size=1.0):
     }
 
 
-def _scene(d):
-    design = parse_design(d)
-    return Scene(design, mesh_design(design))
+def _model(d):
+    return Session(d).model
+
+
+def _contact(model):
+    return model.term("contact")
 
 
 def _squeeze(V, closing=0.75, noise=0.0, seed=0):
@@ -44,7 +46,7 @@ def _squeeze(V, closing=0.75, noise=0.0, seed=0):
 
 @pytest.mark.parametrize("degree", [1, 2])
 def test_boundary_polygon_is_closed_loops_through_all_boundary_nodes(degree):
-    sc = _scene(_slot_design(degree, self_contact=False))
+    sc = _model(_slot_design(degree, self_contact=False))
     nodes, edges = boundary_polygon(sc.V)
     X = sc.V.tabulate_dof_coordinates()[nodes, :2]
     assert np.all(np.bincount(edges.ravel(), minlength=len(nodes)) == 2)     # every node on two edges
@@ -60,7 +62,7 @@ def test_boundary_polygon_is_closed_loops_through_all_boundary_nodes(degree):
 
 @pytest.mark.parametrize("degree", [1, 2])
 def test_barrier_gradient_and_hessian_match_central_differences(degree):
-    sc = _scene(_slot_design(degree, self_contact=False))
+    sc = _model(_slot_design(degree, self_contact=False))
     term = SelfContact(sc.V, dhat=0.3, stiffness=1.0, thickness=4.0, project=False)
     u = _squeeze(sc.V, noise=0.01)
     assert 0.0 < term.min_distance(u) < 0.3 and len(term.collisions(term.positions(u))) >= 6
@@ -89,14 +91,14 @@ def test_barrier_gradient_and_hessian_match_central_differences(degree):
     assert np.linalg.eigvalsh(H).min() < -1e-6 * np.abs(H).max()         # the exact one is not
 
 
-def test_scene_with_contact_has_consistent_energy_gradient_and_jacobian():
+def test_model_with_contact_has_consistent_energy_gradient_and_jacobian():
     """Taylor remainders of Pi and grad Pi with the barrier active (exact Hessian), pins respected."""
-    sc = _scene(_slot_design(1))
-    sc.contact.project = False
+    sc = _model(_slot_design(1))
+    _contact(sc).project = False
     x = sc.u.vector.copy()
     x.array[:] = _squeeze(sc.V, noise=0.005)
     sc.apply_bcs(x)
-    assert sc.admissible(x) and sc.contact.energy(x.array) > 0
+    assert sc.admissible(x) and _contact(sc).energy(x.array) > 0
     rng = np.random.default_rng(1)
     d = x.duplicate()
     d.array[:] = rng.normal(size=d.array.shape) * 1e-2
@@ -106,11 +108,11 @@ def test_scene_with_contact_has_consistent_energy_gradient_and_jacobian():
 
 
 def test_pattern_holds_the_boundary_block_and_contact_costs_nothing_when_off():
-    on, off = _scene(_slot_design(1)), _scene(_slot_design(1, self_contact=False))
-    assert off.contact is None and not any(isinstance(t, SelfContact) for t in off.terms)
+    on, off = _model(_slot_design(1)), _model(_slot_design(1, self_contact=False))
+    assert not off.terms_in("contact") and not any(isinstance(t, SelfContact) for t in off.terms)
     assert not off.bounds_steps and off.max_step(np.zeros(off.n_local), np.ones(off.n_local)) == 1.0
     A_on, A_off = on.create_matrix(), off.create_matrix()
-    nb = len(on.contact.nodes)
+    nb = len(_contact(on).nodes)
     assert A_on.getInfo()["nz_used"] >= nb * nb * 4                # dense boundary x boundary block
     assert A_off.getInfo()["nz_used"] < 0.5 * A_on.getInfo()["nz_used"]
     # a Jacobian with contacts that change fits the fixed pattern (new entries would raise)
@@ -122,29 +124,30 @@ def test_pattern_holds_the_boundary_block_and_contact_costs_nothing_when_off():
 
 
 def test_step_bound_stops_the_faces_before_they_cross():
-    sc = _scene(_slot_design(1))
+    sc = _model(_slot_design(1))
+    contact = _contact(sc)
     u0 = _squeeze(sc.V, closing=0.5)
     p = _squeeze(sc.V, closing=1.4) - u0              # the full step takes the faces through each other
-    assert crossing_edges(sc.contact.positions(u0 + p), sc.contact.edges) > 0
+    assert crossing_edges(contact.positions(u0 + p), contact.edges) > 0
     alpha = sc.max_step(u0, p)
     assert 0.0 < alpha < 1.0
     # the faces meet at closing 0.5 + 0.9 s = 1; the step stops `approach` of the way there
-    toi = alpha / sc.contact.approach
+    toi = alpha / contact.approach
     assert toi == pytest.approx(0.5 / 0.9, abs=0.01) and toi <= 0.5 / 0.9
     for s in np.linspace(0.0, alpha, 6):
-        assert not sc.contact.intersects(u0 + s * p)
-    assert sc.contact.min_distance(u0 + alpha * p) == pytest.approx(0.8 * (1 - 0.5 - 0.9 * alpha), rel=0.05)
+        assert not contact.intersects(u0 + s * p)
+    assert contact.min_distance(u0 + alpha * p) == pytest.approx(0.8 * (1 - 0.5 - 0.9 * alpha), rel=0.05)
 
 
 def test_designs_contact_cannot_honour_are_refused():
     with pytest.raises(DesignError, match="contact.dhat"):
-        _scene(_slot_design(1, dhat=0.9))                    # the slot is 0.8 mm wide at rest
+        _model(_slot_design(1, dhat=0.9))                    # the slot is 0.8 mm wide at rest
     with pytest.raises(DesignError, match="line_search"):
-        _scene(variant(_slot_design(1), **{"solver.line_search": "residual"}))
+        _model(variant(_slot_design(1), **{"solver.line_search": "residual"}))
 
 
 def test_overlap_measures_count_a_body_passing_through_itself():
-    sc = _scene(_slot_design(1, self_contact=False))
+    sc = _model(_slot_design(1, self_contact=False))
     term = SelfContact(sc.V, dhat=0.3, stiffness=1.0)
     ccw = oriented_edges(term.X, term.edges)
     box = np.array([[0.0, 0.0], [10.0, 6.0]])
@@ -165,7 +168,7 @@ def _study():
     return load_study("knuckle_contact")
 
 
-def test_knuckles_close_without_interpenetrating_only_with_self_contact(tmp_path):
+def test_knuckles_close_without_interpenetrating_only_with_self_contact(tmp_path, picture):
     res = _study().run(size=2.0, contraction=16.0, out=tmp_path)
     on, off = res["on"], res["off"]
     assert on["converged"] and off["converged"]
@@ -175,6 +178,10 @@ def test_knuckles_close_without_interpenetrating_only_with_self_contact(tmp_path
     assert all(d > 0 for _, d in on["history"])
     # contact off: the same contraction pushes the notch faces through each other
     assert off["crossing_edges"] > 0 and off["intersects"] and off["overlap_area"] > 0.5
-    for name in ("knuckles.png", "knuckle_distance.png", "knuckle_contact.csv"):
-        assert (tmp_path / name).stat().st_size > 1_000
+    assert (tmp_path / "knuckle_contact.csv").stat().st_size > 1_000
+    rows = (tmp_path / "knuckle_contact.csv").read_text().splitlines()
+    assert rows[0] == "self_contact,iterate,load_factor,min_distance_mm"
+    assert len(rows) == 1 + len(on["history"]) + len(off["history"])
+    picture(tmp_path / "knuckles.png", 1000, 1000)
+    picture(tmp_path / "knuckle_distance.png", 600, 350)
     assert not list(tmp_path.glob(".*"))
