@@ -8,7 +8,7 @@ from mpi4py import MPI
 
 from _designs import variant
 from _studies import load_study
-from _taylor import taylor_rates
+from _taylor import hessian_error, taylor_rates
 from skelfem import Session
 from skelfem.design import DesignError
 from skelfem.terms.contact import SelfContact, boundary_polygon, crossing_edges, oriented_edges, overlap_area
@@ -105,6 +105,7 @@ def test_model_with_contact_has_consistent_energy_gradient_and_jacobian():
     d.array[sc.fixed] = 0.0
     for rates in taylor_rates(sc, x, d, [1e-1, 5e-2, 2.5e-2, 1.25e-2]):
         assert np.all(rates > 1.8), rates
+    assert hessian_error(sc, x, d, h=1e-4) < 1e-7
 
 
 def test_pattern_holds_the_boundary_block_and_contact_costs_nothing_when_off():

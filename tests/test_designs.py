@@ -4,18 +4,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from skelfem import Session
 from skelfem.design import load_design
 from skelfem.geometry import mesh_design
-from skelfem.scene import Scene
-from skelfem.solver import NewtonSolver
 
 GEOMETRY = Path(__file__).resolve().parents[1] / "geometry"
 
 
 def _solve(name, *overrides):
-    design = load_design(GEOMETRY / f"{name}.toml", overrides)
-    scene = Scene(design, mesh_design(design))
-    return scene, NewtonSolver(scene, design.solver).solve(design.solver.steps)
+    session = Session(GEOMETRY / f"{name}.toml", overrides)
+    return session, session.solve()
 
 
 @pytest.mark.parametrize("name", ["finger", "finger_bones", "finger_soft", "finger4"])
@@ -35,17 +33,22 @@ def _orders(history):
 
 
 def test_demo_converges_quadratically_and_curls_toward_the_tendon():
-    scene, report = _solve("finger")
+    session, result = _solve("finger")
+    report = result.report
     assert report.converged and report.min_jacobian > 0
     orders = _orders(report.residual_history[-1])
     assert orders and orders[-1] > 1.8, report.residual_history[-1]
-    tip = scene.marker_positions()[0] - scene.marker_X[0]
+    tip = np.asarray(result.markers["tip"]["displacement"])
     assert tip[0] < -20.0          # the flexor runs at x = 3 < 10: the finger curls to -x
-    u = scene.u.x.array
-    tendon = scene.cables[0]
-    assert tendon.tension(u, scene.rest_lengths()[0]) > 0
-    palmar = [c for c in scene.cables if c.name.endswith("palmar")]
-    dorsal = [c for c in scene.cables if c.name.endswith("dorsal")]
+    model = session.model
+    u = model.u.x.array
+    tendon = model.term("cables", "flexor")
+    assert tendon.cable.tension(u, tendon.rest_length) > 0
+    assert result.cables["flexor"]["tension"] == tendon.cable.tension(u, tendon.rest_length)
+    cables = [t.cable for t in model.terms_in("cables")]
+    palmar = [c for c in cables if c.name.endswith("palmar")]
+    dorsal = [c for c in cables if c.name.endswith("dorsal")]
+    assert palmar and dorsal
     assert all(c.length(u) < c.L0 for c in palmar)       # the curl compresses the palmar side
     assert all(c.length(u) > c.L0 for c in dorsal)       # and stretches the dorsal ligaments
 
@@ -53,6 +56,6 @@ def test_demo_converges_quadratically_and_curls_toward_the_tendon():
 @pytest.mark.parametrize("E_bone", [0.1, 10.0, 1e3, 1e4])
 def test_demo_converges_for_bone_to_silicone_stiffness_ratios(E_bone):
     """E_bone / E_silicone = 1 ... 1e5 on a coarse mesh."""
-    scene, report = _solve("finger", f"materials.pla.E={E_bone}", "mesh.size=3")
-    assert report.converged, report.status
-    assert report.min_jacobian > 0
+    _, result = _solve("finger", f"materials.pla.E={E_bone}", "mesh.size=3")
+    assert result.converged, result.status
+    assert result.min_jacobian > 0

@@ -10,28 +10,23 @@ from dolfinx.fem import petsc as fem_petsc
 from mpi4py import MPI
 
 from _designs import strip
-from skelfem.design import parse_design
-from skelfem.geometry import mesh_design
-from skelfem.grounds import build_grounds, ground_energy, ground_forces
-from skelfem.scene import Scene
-from skelfem.solver import NewtonSolver
-
-
-def _scene(d):
-    design = parse_design(d)
-    return Scene(design, mesh_design(design))
+from skelfem import Session
+from skelfem.geometry import TaggedMesh
+from skelfem.terms import Context
+from skelfem.terms.grounds import Ground
 
 
 def _ground_forms(degree, k=7.0, t=3.0):
-    """Two grounds (floor and a slanted wall) on a 10 x 6 rectangle, forms of Pi_g and derivatives."""
+    """Two ground terms (floor and a slanted wall) on a 10 x 6 rectangle, forms of Pi_g and derivatives."""
     mesh = dmesh.create_rectangle(MPI.COMM_WORLD, [[0.0, 0.0], [10.0, 6.0]], [7, 5])
     V = fem.VectorFunctionSpace(mesh, ("Lagrange", degree))
     u = fem.Function(V)
+    ctx = Context(None, TaggedMesh(mesh, None, {}), V, u, fem.Constant(mesh, t))    # no design: specs below
     n_wall = np.array([-1.0, -0.3]) / np.hypot(1.0, 0.3)
     specs = [SimpleNamespace(name="floor", point=np.array([0.0, 0.2]), normal=np.array([0.0, 1.0]), stiffness=k),
              SimpleNamespace(name="wall", point=np.array([9.7, 3.0]), normal=n_wall, stiffness=2 * k)]
-    grounds = build_grounds(specs, u, t)
-    E = ground_energy(grounds)
+    grounds = [Ground(ctx, spec) for spec in specs]
+    E = sum((g.ufl_energy(ctx) for g in grounds[1:]), grounds[0].ufl_energy(ctx))
     v, du = ufl.TestFunction(V), ufl.TrialFunction(V)
     forms = (fem.form(E), fem.form(ufl.derivative(E, u, v)), fem.form(ufl.derivative(ufl.derivative(E, u, v), u, du)))
     return u, grounds, forms
@@ -86,7 +81,7 @@ def test_reported_force_is_the_net_push_of_the_penalty():
     u, grounds, (E, R, J) = _ground_forms(1)
     rng = np.random.default_rng(2)
     u.x.array[:] = 0.25 * rng.normal(size=u.x.array.shape)
-    forces = ground_forces(grounds, MPI.COMM_WORLD)
+    forces = [g.force() for g in grounds]
     total = sum(forces)
     r = fem.assemble_vector(R).array.reshape(-1, 2).sum(axis=0)   # d Pi_g / d(rigid translation)
     assert np.allclose(total, r, rtol=1e-12, atol=1e-12)
@@ -101,24 +96,25 @@ def _pressed_strip(k, travel=0.2, degree=1):
     d["cables"] = []
     d["pins"][0]["move"] = [0.0, travel]
     d["grounds"] = [{"name": "top", "point": [0.0, 20.0], "normal": [0.0, -1.0], "stiffness": k}]
-    sc = _scene(d)
-    report = NewtonSolver(sc, sc.design.solver).solve(2)
-    assert report.converged, report.status
-    return sc
+    session = Session(d)
+    result = session.solve(2)
+    assert result.converged, result.status
+    return session, result
 
 
 @pytest.mark.parametrize("degree", [1, 2])
 def test_ground_force_balances_the_pin_reaction(degree):
-    sc = _pressed_strip(10.0, degree=degree)
-    F = sc.ground_forces()[0]
-    R = sc.reactions()["base"]
+    session, result = _pressed_strip(10.0, degree=degree)
+    F = np.asarray(result.grounds["top"]["force"])
+    R = np.asarray(result.pins["base"]["reaction"])
     assert F[1] > 0.05                           # the strip pushes the plane up (+y, into it)
     assert np.allclose(R, F, atol=1e-8 * abs(F[1]) + 1e-12)   # pin pushes the body as hard as the plane does
+    assert np.allclose(session.model.term("grounds", "top").force(), F, rtol=1e-14)   # the read-out is the term's
 
 
 def test_ground_force_converges_as_the_penalty_stiffness_grows():
     ks = [1.0, 10.0, 100.0, 1000.0, 10000.0]
-    forces = [_pressed_strip(k).ground_forces()[0][1] for k in ks]
+    forces = [_pressed_strip(k)[1].grounds["top"]["force"][1] for k in ks]
     print("\nground force vs penalty stiffness k [N/mm^3]:")
     for k, f in zip(ks, forces):
         print(f"  k = {k:8.0f}   F = {f:.8f} N")
