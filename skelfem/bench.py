@@ -1,23 +1,24 @@
 """What a Newton iteration costs, against its floor, over mesh sizes.
 
-For each mesh size h the design is meshed and solved as ``simulate`` would,
-and in the same process, on the same matrix, we measure
+For each mesh size h the design is meshed and solved as ``simulate`` would
+(through a Session), and in the same process we measure
 
-    t_A    Jacobian assembly: ``scene.jacobian(x, A)`` at the equilibrium
-    t_F    numeric refactorisation + one solve (same nonzero pattern, so
-           MUMPS reuses its symbolic analysis): KSP setOperators/setUp/solve
+    floor  the physical floor of one Newton iteration: assembly of the
+           finite-element Hessian alone, on its own pattern, plus its
+           numeric refactorisation and one solve (MUMPS reuses its symbolic
+           analysis): ``floor_time``
+    K      the same on the Newton matrix K (FE Hessian plus the cables'
+           sparse curvature and contact blocks) plus the Woodbury solves
+           of the taut cables' rank-one parts: what Newton really pays
     t_it   one Newton iteration: the time between successive SNES monitor
            calls of one load step (Jacobian, linear solve, line search,
            residual, convergence test)
 
-and report  ratio = median(t_it) / (t_A + t_F).  An iteration needs at least
+and report  ratio = median(t_it) / floor_time. An iteration needs at least
 one assembly and one refactorisation, so the ratio is >= ~1; everything
-above 1 is line search, residuals, det F checks and Python glue, broken down
-per iteration in ``breakdown`` by timing the scene calls the solver makes.
-
-Beside the scene's matrix, t_A and t_F are also measured on the pattern of
-the UFL Hessian alone (``fe_pattern``): the difference is the cost of the
-cables' dense blocks k g g^T in the matrix.
+above 1 is the cables' extra solves, line search, residuals, det F checks
+and Python glue, broken down per iteration in ``breakdown`` by timing the
+model calls the solver makes.
 
 Every timing is the median of ``repeats`` measurements taken in one run;
 compare ratios, not absolute times, between runs on a shared machine.
@@ -36,8 +37,8 @@ log = logging.getLogger("skelfem.bench")   # progress, one line per size
 
 FORMAT = 1
 DOF_FLOOR = 20_000          # the floor is checked on meshes with at least this many DOFs
-RATIO_FLOOR = 1.5           # median t_it <= 1.5 (t_A + t_F)
-PROBED = ("jacobian", "residual", "energy", "admissible", "max_step", "rigid_correction")
+RATIO_FLOOR = 1.3           # median t_it <= 1.3 x the FE floor (t_A + t_F of the FE Hessian alone)
+PROBED = ("jacobian", "low_rank", "residual", "energy", "admissible", "max_step", "step_correction")
 # PETSc log events inside the linear solve (LU or Cholesky), read at every SNES monitor call
 EVENTS = {"factorization": ("MatLUFactorNum", "MatCholFctrNum"), "triangular_solves": ("MatSolve",)}
 
@@ -56,7 +57,7 @@ class Probe:
 
     ``iterations`` holds one list of (monitor time, PETSc event times) per
     SNES solve; ``calls`` holds (name, start, duration) for every wrapped
-    scene method. Iteration k is the span between monitor calls k and k+1:
+    model method. Iteration k is the span between monitor calls k and k+1:
     Jacobian, linear solve, line search, residual.
     """
 
@@ -107,7 +108,7 @@ class Probe:
     def breakdown(self) -> dict:
         """Mean seconds per Newton iteration in each part; 'other' is the rest (SNES, Python glue).
 
-        Probed scene calls belong to the iteration in which they start;
+        Probed model calls belong to the iteration in which they start;
         factorisation and triangular solves come from PETSc's event log.
         """
         spans = self._spans()
@@ -206,14 +207,30 @@ class LinearTimer:
         self.y.destroy()
 
 
-def scene_timer(scene, solver) -> LinearTimer:
-    """t_A and t_F on the solver's own matrix and KSP (state: scene.u)."""
-    x = scene.u.vector
-    return LinearTimer(lambda: scene.jacobian(x, solver.A), solver.A, solver.ksp)
+class NewtonTimer(LinearTimer):
+    """t_A and t_F on the solver's own matrix K: assembly + low-rank parts; factorisation + Woodbury solve."""
+
+    def __init__(self, model, solver):
+        x = model.u.vector
+
+        def assemble():
+            model.jacobian(x, solver.A)
+            self.parts = model.low_rank(x)
+        super().__init__(assemble, solver.A, None)
+        self.solver = solver
+
+    def _factor_solve(self) -> None:
+        self.solver.lin.update(self.parts)
+        self.solver.lin.solve(self.b, self.y)
+
+    def result(self) -> dict:
+        out = super().result()
+        out["low_rank_parts"] = len(self.parts)
+        return out
 
 
 def fe_pattern_timer(scene, options: dict) -> LinearTimer:
-    """t_A and t_F of the UFL Hessian alone on its own (sparser) pattern: no cable blocks."""
+    """t_A and t_F of the UFL Hessian alone on its own pattern: the floor of a Newton iteration."""
     from dolfinx.fem import petsc as fem_petsc
 
     A = fem_petsc.create_matrix(scene.jacobian_form)
@@ -225,151 +242,6 @@ def fe_pattern_timer(scene, options: dict) -> LinearTimer:
     timer = LinearTimer(assemble, A, _new_ksp(scene.comm, options))
     timer.first_factorization()
     return timer
-
-
-# -- the recommended fix, prototyped: cables' rank-one terms out of the matrix --------------------
-class LowRankCables:
-    """H = K + U C U^T with the cables' dense parts k g g^T kept out of the matrix.
-
-    K = hess Pi_el + sum_c k_c s_c B_c^T W_c B_c is sparse (a cable only adds
-    couplings between the cells of neighbouring via points) and SPD; the
-    columns of U are the active cables' g_c = B_c^T t_c, C = diag(k_c). By
-    Woodbury,
-
-        H^{-1} r = y - Z (C^{-1} + U^T Z)^{-1} U^T y,   y = K^{-1} r,  Z = K^{-1} U,
-
-    one factorisation of K and 1 + (active cables) triangular solves. Serial
-    prototype for the bench only; needs scene.cables with B, dofs and k.
-    """
-
-    def __init__(self, scene, options: dict):
-        from dolfinx import cpp as _cpp
-        from dolfinx import fem
-        self.scene = scene
-        bs = scene.bs
-        pattern = fem.create_sparsity_pattern(scene.jacobian_form)
-        for c in scene.cables:
-            B = c.B.tocsr()
-            for i in range(0, B.shape[0], bs):        # one block per cable segment (not per DOF)
-                cols = B.indices[B.indptr[i]:B.indptr[i + bs]]
-                nodes = np.unique(c.dofs[cols] // bs).astype(np.int32)
-                pattern.insert(nodes, nodes)
-        pattern.assemble()
-        self.K = _cpp.la.petsc.create_matrix(scene.comm, pattern)
-        self.ksp = _new_ksp(scene.comm, options)
-        self.n = self.K.getSize()[0]
-        self.U, self.k = [], []
-
-    def assemble(self) -> None:
-        """K at scene.u, and the columns of U."""
-        import scipy.sparse as sp
-        from dolfinx import cpp as _cpp
-        from petsc4py import PETSc
-        sc, K = self.scene, self.K
-        u = sc.u.x.array
-        K.zeroEntries()
-        form = sc.jacobian_form
-        _cpp.fem.petsc.assemble_matrix(K, form, _cpp.fem.pack_constants(form),
-                                       _cpp.fem.pack_coefficients(form), sc.bcs)
-        K.assemblyBegin(PETSc.Mat.AssemblyType.FLUSH)
-        K.assemblyEnd(PETSc.Mat.AssemblyType.FLUSH)
-        self.U, self.k = [], []
-        for c, L in zip(sc.cables, sc.rest_lengths()):
-            d = c.segments(u)
-            norm = np.linalg.norm(d, axis=1)
-            t = d / norm[:, None]
-            s = norm.sum() - L
-            if s <= 0.0:
-                continue
-            free = ~sc.fixed[c.dofs]
-            blocks = (np.eye(d.shape[1])[None] - t[:, :, None] * t[:, None, :]) / norm[:, None, None]
-            from .cables import _block_diagonal
-            Hs = (c.k * s * (c.B.T @ (_block_diagonal(blocks) @ c.B))).tocoo()
-            keep = free[Hs.row] & free[Hs.col]
-            rows, cols = sc.global_dofs[c.dofs[Hs.row[keep]]], sc.global_dofs[c.dofs[Hs.col[keep]]]
-            M = sp.csr_matrix((Hs.data[keep], (rows, cols)), shape=(self.n, self.n))
-            K.setValuesCSR(M.indptr.astype(PETSc.IntType), M.indices.astype(PETSc.IntType), M.data,
-                           addv=PETSc.InsertMode.ADD_VALUES)
-            g = np.zeros(self.n)
-            g[sc.global_dofs[c.dofs]] = (c.B.T @ t.ravel()) * free
-            self.U.append(g)
-            self.k.append(c.k)
-        K.assemblyBegin(PETSc.Mat.AssemblyType.FLUSH)
-        K.assemblyEnd(PETSc.Mat.AssemblyType.FLUSH)
-        _cpp.fem.petsc.insert_diagonal(K, sc.V._cpp_object, sc.bcs, 1.0)
-        K.assemble()
-
-    def factor(self) -> None:
-        self.ksp.setOperators(self.K)
-        self.ksp.setUp()
-
-    def solve(self, r, out) -> None:
-        """out = H^{-1} r by Woodbury on the factorised K."""
-        y = r.duplicate()
-        self.ksp.solve(r, y)
-        if self.U:
-            Z = np.empty((self.n, len(self.U)))
-            col, z = r.duplicate(), r.duplicate()
-            for j, g in enumerate(self.U):
-                col.array_w[:] = g
-                self.ksp.solve(col, z)
-                Z[:, j] = z.array_r
-            U = np.column_stack(self.U)
-            small = np.diag(1.0 / np.asarray(self.k)) + U.T @ Z
-            y.array_w[:] -= Z @ np.linalg.solve(small, U.T @ y.array_r)
-            col.destroy()
-            z.destroy()
-        y.copy(out)
-        y.destroy()
-
-    def destroy(self) -> None:
-        self.ksp.destroy()
-        self.K.destroy()
-
-
-def low_rank_prototype(scene, solver, options: dict, repeats: int) -> dict:
-    """Time the Woodbury Newton solve at u* (perturbed by 1%) and check its direction.
-
-    Returns t_A(K), t_F(K), the 1 + n_active solves, their sum per iteration,
-    and |p_lowrank - p_full| / |p_full| against the solver's own matrix.
-    """
-    if scene.comm.size > 1 or not getattr(scene, "cables", None):
-        return {"available": False}
-    try:
-        proto = LowRankCables(scene, options)
-    except AttributeError as exc:          # scene internals changed: the prototype does not apply
-        return {"available": False, "reason": str(exc)}
-    u_star = scene.u.vector.copy()
-    x = u_star.copy()
-    x.scale(1.01)
-    scene.apply_bcs(x)
-    r, p_full, p_lr = x.duplicate(), x.duplicate(), x.duplicate()
-    scene.residual(x, r)
-    scene.jacobian(x, solver.A)
-    solver.ksp.setOperators(solver.A)
-    solver.ksp.solve(r, p_full)
-    t_a, t_f, t_s = [], [], []
-    for _ in range(repeats + 1):
-        t0 = time.perf_counter()
-        proto.assemble()
-        t1 = time.perf_counter()
-        proto.factor()
-        t2 = time.perf_counter()
-        proto.solve(r, p_lr)
-        t3 = time.perf_counter()
-        t_a.append(t1 - t0)
-        t_f.append(t2 - t1)
-        t_s.append(t3 - t2)
-    p_lr.axpy(-1.0, p_full)
-    res = {"available": True, "nnz": int(proto.K.getInfo()["nz_used"]), "active_cables": len(proto.U),
-           "assembly_time": _median(t_a[1:]), "refactorization_time": _median(t_f[1:]),
-           "solves_time": _median(t_s[1:]), "direction_difference": float(p_lr.norm() / p_full.norm())}
-    res["floor_time"] = res["assembly_time"] + res["refactorization_time"] + res["solves_time"]
-    scene._sync(u_star)
-    for v in (u_star, x, r, p_full, p_lr):
-        v.destroy()
-    proto.destroy()
-    return res
 
 
 def residual_floor(scene, samples: int = 3) -> float:
@@ -418,14 +290,13 @@ def newton_order(scene, solver, scales=(0.03, 0.01, 0.003, 0.001)) -> dict:
             scene.apply_bcs(x)
             scene.residual(x, r)
             r0.append(float(r.norm()))
-            scene.jacobian(x, solver.A)
-            solver.ksp.setOperators(solver.A)
-            solver.ksp.solve(r, p)
+            solver.jacobian(x)
+            solver.lin.solve(r, p)
             x.axpy(-1.0, p)
             scene.residual(x, r)
             r1.append(float(r.norm()))
     finally:
-        scene._sync(u_star)
+        scene.sync(u_star)
         for v in (x, r, p, u_star):
             v.destroy()
     ok = [(a, b) for a, b in zip(r0, r1) if a > 0 and b > 0]
@@ -478,7 +349,7 @@ def measure(scene, solver, steps: int, repeats: int, options: dict) -> dict:
             errors = probe.state_errors()
             _uninstrument(scene, solver)
             if timer is None:
-                timer, fe_timer = scene_timer(scene, solver), fe_pattern_timer(scene, options)
+                timer, fe_timer = NewtonTimer(scene, solver), fe_pattern_timer(scene, options)
             timer.sample(3)
             fe_timer.sample(3)
             if not report.converged or k == repeats - 1:
@@ -499,10 +370,10 @@ def measure(scene, solver, steps: int, repeats: int, options: dict) -> dict:
         "breakdown": breakdown,
         "residual_history": [list(map(float, h)) for h in report.residual_history],
         "state_errors": errors[-4:],
-        **timer.result(),
-        "fe_pattern": fe_timer.result(),
+        "newton_matrix": timer.result(),
+        **fe_timer.result(),
     }
-    row["fe_pattern"]["first_factorization_time"] = fe_timer.first
+    row["first_factorization_time"] = fe_timer.first
     fe_timer.ksp.destroy()
     fe_timer.A.destroy()
     for t in (timer, fe_timer):
@@ -511,29 +382,30 @@ def measure(scene, solver, steps: int, repeats: int, options: dict) -> dict:
 
 
 def bench_size(path, size: float, degree: int | None = None, overrides=(), repeats: int = 3,
-               petsc_options: dict | None = None, steps: int | None = None, low_rank: bool = True) -> dict:
+               petsc_options: dict | None = None, steps: int | None = None) -> dict:
     """Every measurement for one mesh size; returns one row of the table."""
-    from mpi4py import MPI
-
-    from .design import load_design
-    from .geometry import mesh_design
-    from .scene import Scene
-    from .solver import NewtonSolver, default_petsc_options
+    from .linear import default_petsc_options
+    from .session import Session
 
     sets = [*overrides, f"mesh.size={size}"] + ([f"mesh.degree={degree}"] if degree else [])
-    design = load_design(path, sets)
     t0 = time.perf_counter()
-    scene = Scene(design, mesh_design(design, MPI.COMM_WORLD))
+    session = Session(path, sets)
     t_scene = time.perf_counter() - t0
+    design, scene = session.design, session.model
+    if petsc_options:
+        from .solver import NewtonSolver
+        session.solver.destroy()
+        session.solver = NewtonSolver(scene, design.solver, petsc_options=petsc_options)
+    solver = session.solver
     options = {**default_petsc_options(), **(petsc_options or {})}
-    solver = NewtonSolver(scene, design.solver, petsc_options=petsc_options)
     n_steps = int(steps or design.solver.steps)
-    row = {"size": float(size), "degree": int(design.mesh.degree),
-           "dofs": int(scene.V.dofmap.index_map.size_global * scene.bs),
+    row = {"size": float(size), "degree": int(design.mesh.degree), "dofs": session.dofs,
            "cells": int(scene.mesh.topology.index_map(scene.mesh.topology.dim).size_global),
-           "steps": n_steps, "mesh_and_scene_time": t_scene}
+           "steps": n_steps, "mesh_and_model_time": t_scene}
     row.update(measure(scene, solver, n_steps, repeats, options))
     row["floor_time"] = row["assembly_time"] + row["refactorization_time"]
+    nm = row["newton_matrix"]
+    nm["floor_time"] = nm["assembly_time"] + nm["refactorization_time"]
     row["ratio"] = row["iteration_time_median"] / row["floor_time"]
     row["ratio_mean"] = row["iteration_time_mean"] / row["floor_time"]
     last = row["residual_history"][-1] if row["residual_history"] else []
@@ -542,11 +414,8 @@ def bench_size(path, size: float, degree: int | None = None, overrides=(), repea
     row["convergence_orders"] = convergence_orders(row["state_errors"], noise=1e-14 * scene.size)
     if row["converged"]:
         row["newton_order"] = newton_order(scene, solver)
-    if low_rank:
-        row["low_rank_prototype"] = low_rank_prototype(scene, solver, options, repeats)
     row = _reduce(scene.comm, row)
-    solver.snes.destroy()
-    solver.A.destroy()
+    session.close()
     return row
 
 
@@ -599,20 +468,18 @@ def floor_check(rows) -> dict:
 COLUMNS = (("h", "size", "{:g}"), ("DOFs", "dofs", "{:d}"), ("assembly ms", "assembly_time", "ms"),
            ("refact+solve ms", "refactorization_time", "ms"), ("iteration ms", "iteration_time_median", "ms"),
            ("mean it ms", "iteration_time_mean", "ms"), ("its/solve", "newton_iterations", "{:d}"),
-           ("ratio", "ratio", "{:.2f}"), ("FE-only A+F ms", None, "fe"), ("low-rank A+F+S ms", None, "lr"))
+           ("ratio", "ratio", "{:.2f}"), ("K A+F+S ms", None, "newton"), ("nnz FE", "nnz", "{:d}"),
+           ("nnz K", None, "nnz_k"))
 
 
 def _cell(row, key, fmt) -> str:
     if fmt == "ms":
         return f"{1e3 * row[key]:.1f}"
-    if fmt == "fe":
-        fe = row["fe_pattern"]
-        return f"{1e3 * fe['assembly_time']:.1f}+{1e3 * fe['refactorization_time']:.1f}"
-    if fmt == "lr":
-        lr = row.get("low_rank_prototype", {})
-        if not lr.get("available"):
-            return "-"
-        return "+".join(f"{1e3 * lr[k]:.1f}" for k in ("assembly_time", "refactorization_time", "solves_time"))
+    if fmt == "newton":
+        k = row["newton_matrix"]
+        return f"{1e3 * k['assembly_time']:.1f}+{1e3 * k['refactorization_time']:.1f}"
+    if fmt == "nnz_k":
+        return f"{row['newton_matrix']['nnz']:d}"
     return fmt.format(row[key])
 
 
@@ -640,17 +507,10 @@ def format_table(result: dict) -> str:
         if b:
             parts = ", ".join(f"{k} {1e3 * v:.1f}" for k, v in b.items() if k != "calls_per_iteration")
             lines.append(f"h = {r['size']:g}: per iteration (ms): {parts}")
-    lr = result["rows"][-1].get("low_rank_prototype", {}) if result["rows"] else {}
-    if lr.get("available"):
-        r = result["rows"][-1]
-        lines.append(f"h = {r['size']:g}: cables' k g g^T out of the matrix (Woodbury, {lr['active_cables']} active): "
-                     f"nnz {r['nnz']} -> {lr['nnz']}, floor {1e3 * r['floor_time']:.0f} -> "
-                     f"{1e3 * lr['floor_time']:.0f} ms per iteration, same direction to "
-                     f"{lr['direction_difference']:.0e}")
     f = result["floor"]
     if f["checked"]:
         verdict = "OK" if f["ratio_ok"] else "MISSED"
-        lines.append(f"floor at {f['dofs']} DOFs: iteration / (assembly + refactorization) = "
+        lines.append(f"floor at {f['dofs']} DOFs: iteration / (FE assembly + refactorization) = "
                      f"{f['ratio']:.2f} (limit {f['limit']}) {verdict}; "
                      f"Newton order {f['newton_order']:.2f}: {'quadratic' if f['quadratic'] else 'NOT quadratic'}")
     else:
