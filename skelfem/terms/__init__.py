@@ -4,7 +4,7 @@
 the model calls each on the design and sums what they return. Adding an
 ingredient is one new module and one line here.
 """
-from . import cables, contact, elasticity, grounds, loads, markers, pins
+from . import cables, contact, elasticity, gravity, grounds, loads, markers, pins, tractions
 from .base import Context, Term
 
 BUILDERS = [
@@ -15,6 +15,8 @@ BUILDERS = [
     grounds.build,
     contact.build,
     markers.build,
+    gravity.build,
+    tractions.build,
 ]
 
 __all__ = ["BUILDERS", "Context", "Term"]

@@ -1,0 +1,265 @@
+"""Conformance of every registered energy term, and the two newest ingredients against references.
+
+Each term of a design that exercises it is checked on its own: its gradient
+and its Hessian (sparse part + rank-one parts) against central differences
+of its energy, and the matrix pattern covering its Hessian. UFL terms are
+checked through their compiled energy, gradient and Hessian forms.
+"""
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import ufl
+from dolfinx import fem
+from mpi4py import MPI
+
+from skelfem import Session
+from skelfem.model import Model
+from skelfem.terms import BUILDERS
+
+from _designs import strip
+
+FIXED_SEED = 7
+
+
+def _designs():
+    """One small design per ingredient (each term of BUILDERS appears in at least one)."""
+    base = strip(length=30.0, width=8.0, size=2.0, contraction=2.0, k=2.0)
+    base["materials"]["soft"]["density"] = 1100.0
+    base["materials"]["hard"]["density"] = 1200.0
+    full = dict(base)
+    full.update({
+        "bones": [{"name": "b1", "outline": [[2, 8], [6, 8], [6, 20], [2, 20]], "material": "hard"}],
+        "loads": [{"name": "tip", "at": [4.0, 29.0], "force": [0.3, -0.2]}],
+        "grounds": [{"name": "wall", "point": [-1.0, 0.0], "normal": [1.0, 0.0], "stiffness": 5.0}],
+        "gravity": {"acceleration": [3.0, -9.81]},
+        "tractions": [{"name": "pad", "region": [[-1, 29.9], [9, 31]], "traction": [0.01, -0.02]}],
+    })
+    spring = dict(base, pins=[{"name": "base", "region": [[-1, -1], [9, 1e-6]], "kind": "spring",
+                               "stiffness": 3.0, "move": [0.2, 0.1]}])
+    contact = dict(base, contact={"self": True, "dhat": 0.3},
+                   body={"outline": [[0, 0], [8, 0], [8, 30], [0, 30], [0, 16], [5, 15.5], [0, 15]],
+                         "material": "soft"})
+    contact["cables"] = [dict(base["cables"][0], path=[[7, 0], [7, 30]])]
+    return {"full": full, "spring": spring, "contact": contact}
+
+
+def _model(design):
+    s = Session(design)
+    return s
+
+
+def _perturbed_state(model, scale):
+    rng = np.random.default_rng(FIXED_SEED)
+    u = scale * rng.standard_normal(model.n_local)
+    u[model.fixed] = 0.0
+    model.u.x.array[:] = u
+    model.u.vector.ghostUpdate()
+    return u
+
+
+def _term_energy(model, term, u, form):
+    model.u.x.array[:] = u
+    return term.energy(u) + (fem.assemble_scalar(form) if form is not None else 0.0)
+
+
+def _term_derivatives(model, term):
+    """Compiled UFL energy/gradient/Hessian forms of one term (None if it has no UFL part)."""
+    e = term.ufl_energy(model.ctx)
+    if e is None:
+        return None, None, None
+    v, du = ufl.TestFunction(model.V), ufl.TrialFunction(model.V)
+    g = ufl.derivative(e, model.u, v)
+    return fem.form(e), fem.form(g), fem.form(ufl.derivative(g, model.u, du))
+
+
+def _dense_hessian(model, term, u, hform):
+    n = model.n_local
+    H = np.zeros((n, n))
+    for dofs, block in term.hessian(u):
+        block = block.toarray() if hasattr(block, "toarray") else np.asarray(block)
+        H[np.ix_(dofs, dofs)] += block
+    for c, dofs, g in term.low_rank(u):
+        H[np.ix_(dofs, dofs)] += c * np.outer(g, g)
+    if hform is not None:
+        model.u.x.array[:] = u
+        A = fem.petsc.assemble_matrix(hform)
+        A.assemble()
+        H += A.convert("dense").getDenseArray()
+    return H
+
+
+def _gradient(model, term, u, gform):
+    g = np.zeros(model.n_local)
+    out = term.gradient(u)
+    if out is not None:
+        np.add.at(g, out[0], out[1])
+    if gform is not None:
+        model.u.x.array[:] = u
+        g += fem.petsc.assemble_vector(gform).array
+    return g
+
+
+CASES = [(name, i) for name, d in [("full", None), ("spring", None), ("contact", None)] for i in range(12)]
+
+
+@pytest.mark.parametrize("name", ["full", "spring", "contact"])
+def test_every_term_gradient_and_hessian_match_central_differences(name):
+    import dolfinx.fem.petsc  # noqa: F401
+    design = _designs()[name]
+    s = _model(design)
+    model = s.model
+    model.set_factor(0.7)
+    seen = set()
+    u0 = _perturbed_state(model, 0.02 if name != "contact" else 1e-3)
+    if name == "contact":                             # close the notch so that contacts are active
+        y = model.V.tabulate_dof_coordinates()[:, 1]
+        uy = -0.45 * np.clip(y - 15.0, 0.0, 2.0)
+        u0.reshape(-1, 2)[:, 1] += uy
+        model.u.x.array[:] = u0
+        contact = model.term("contact")
+        assert contact.min_distance(u0) < 0.3 and not contact.intersects(u0)
+    rng = np.random.default_rng(1)
+    for term in model.terms:
+        seen.add(type(term).__name__)
+        if hasattr(term, "project"):
+            term.project = False                      # the exact barrier Hessian (Newton uses its PSD projection)
+        eform, gform, hform = _term_derivatives(model, term)
+        if eform is None and term.gradient(u0) is None:
+            continue                                  # a read-out only term (markers)
+        g = _gradient(model, term, u0, gform)
+        H = _dense_hessian(model, term, u0, hform)
+        free = ~model.fixed
+        for _ in range(2):
+            p = rng.standard_normal(model.n_local) * free
+            h = 1e-6 * max(np.abs(u0).max(), 1.0)
+            ep = _term_energy(model, term, u0 + h * p, eform)
+            em = _term_energy(model, term, u0 - h * p, eform)
+            fd = (ep - em) / (2 * h)
+            assert fd == pytest.approx(g @ p, rel=1e-5, abs=1e-9 * max(1.0, abs(fd))), type(term).__name__
+            gp = _gradient(model, term, u0 + h * p, gform)
+            gm = _gradient(model, term, u0 - h * p, gform)
+            Hp = (gp - gm) / (2 * h)
+            err = np.linalg.norm((Hp - H @ p)[free])
+            assert err <= 1e-5 * max(np.linalg.norm(Hp[free]), 1e-12), (type(term).__name__, err)
+        # the Newton matrix's pattern covers the term's sparse Hessian
+        A = s.solver.A
+        for dofs, block in term.hessian(u0):
+            block = block.toarray() if hasattr(block, "toarray") else np.asarray(block)
+            rows, cols = np.nonzero(block)
+            keep = free[dofs[rows]] & free[dofs[cols]]
+            for r, c in zip(dofs[rows[keep]], dofs[cols[keep]]):
+                A.getValue(int(r), int(c))           # raises if the entry is not in the pattern
+    s.close()
+    if name == "full":
+        assert {"Elasticity", "Pin", "CableTerm", "PointLoad", "Ground", "Markers", "Gravity", "Traction"} <= seen
+    if name == "contact":
+        assert "SelfContact" in seen
+
+
+def test_every_builder_is_exercised():
+    names = {b.__module__.rsplit(".", 1)[1] for b in BUILDERS}
+    assert names == {"elasticity", "pins", "cables", "loads", "grounds", "contact", "markers", "gravity",
+                     "tractions"}
+
+
+def test_woodbury_direction_equals_the_full_hessian_direction():
+    """Newton's direction with the rank-one parts out of the matrix equals the one with them in it."""
+    import dolfinx.fem.petsc  # noqa: F401
+    from petsc4py import PETSc
+    s = Session(_designs()["full"])
+    model, solver = s.model, s.solver
+    model.set_factor(1.0)
+    u = _perturbed_state(model, 0.05)
+    x = model.u.vector.copy()
+    model.apply_bcs(x)
+    b, p = x.duplicate(), x.duplicate()
+    model.residual(x, b)
+    solver.jacobian(x)
+    assert len(solver.lin.c) >= 1                   # a taut cable takes part
+    solver.lin.solve(b, p)
+    K = solver.A.copy().convert("dense").getDenseArray().copy()
+    for c, g in model.low_rank(x):
+        K += c * np.outer(g.array_r, g.array_r)
+    p_full = np.linalg.solve(K, b.array_r)
+    assert np.linalg.norm(p.array_r - p_full) <= 1e-10 * np.linalg.norm(p_full)
+    # no dense block: the Newton matrix has (almost) the finite-element pattern's size
+    fe = dolfinx.fem.petsc.assemble_matrix(model.jacobian_form, bcs=model.bcs)
+    fe.assemble()
+    assert solver.A.getInfo()["nz_used"] <= 1.05 * fe.getInfo()["nz_used"]
+    s.close()
+
+
+# -- gravity: a cantilever sagging under its own weight ------------------------------------------
+def test_gravity_sag_matches_beam_theory():
+    """Plane-strain cantilever L x h: tip deflection q L^4 / (8 E' I) (Euler-Bernoulli; shear < 0.3 %)."""
+    L, h, t, E, nu, rho, g = 100.0, 5.0, 10.0, 50.0, 0.3, 1000.0, 9.81
+    d = {"format": 1, "name": "sag", "dim": 2, "thickness": t, "mesh": {"size": 1.25, "degree": 2},
+         "materials": {"m": {"E": E, "nu": nu, "density": rho}},
+         "body": {"outline": [[0, 0], [L, 0], [L, h], [0, h]], "material": "m"},
+         "pins": [{"name": "wall", "region": [[-1, -1], [1e-6, h + 1]]}],
+         "gravity": {"acceleration": [0.0, -g]}, "markers": {"tip": [L, h / 2]}}
+    with Session(d) as s:
+        r = s.solve()
+    assert r.converged
+    q = 1e-9 * rho * g * h * t                        # N/mm
+    delta = q * L ** 4 / (8 * E / (1 - nu ** 2) * t * h ** 3 / 12)
+    assert delta / L < 0.02                           # small deflection: beam theory applies
+    sag = -r.markers["tip"]["displacement"][1]
+    assert sag == pytest.approx(delta, rel=0.03)
+    assert r.gravity["weight"] == pytest.approx([0.0, -q * L], rel=1e-9, abs=1e-15)
+    assert r.pins["wall"]["reaction"][1] == pytest.approx(q * L, rel=1e-6)
+
+
+# -- tractions ------------------------------------------------------------------------------------
+def _cook(eps: float, size: float = 1.0):
+    """Cook's membrane (mm): E = 70 MPa, nu = 1/3, plane strain, shear traction eps x 6.25 MPa on the right edge."""
+    return {"format": 1, "name": "cook", "dim": 2, "thickness": 1.0, "mesh": {"size": size, "degree": 2},
+            "materials": {"m": {"E": 70.0, "nu": 1 / 3}},
+            "body": {"outline": [[0, 0], [48, 44], [48, 60], [0, 44]], "material": "m"},
+            "pins": [{"name": "left", "region": [[-1, -1], [1e-6, 45]]}],
+            "tractions": [{"name": "shear", "region": [[48 - 1e-6, 43], [49, 61]],
+                           "traction": [0.0, eps * 6.25]}],
+            "markers": {"C": [48, 60]}}
+
+
+def test_traction_cooks_membrane_matches_published_value():
+    """Small-load limit of the hyperelastic model against the cofea benchmark's 32.27 mm (fine quadratic FEM)."""
+    eps = 1e-4
+    with Session(_cook(eps)) as s:
+        r = s.solve()
+    assert r.converged
+    uy = r.markers["C"]["displacement"][1] / eps
+    assert uy == pytest.approx(32.27, rel=0.01)
+    assert r.tractions["shear"]["force"][1] == pytest.approx(eps * 6.25 * 16.0, rel=1e-9)
+
+
+def test_traction_uniaxial_stretch_is_exact():
+    """nu = 0: a dead traction tau on a clamped strip gives the homogeneous stretch mu (l - 1/l) = tau."""
+    E, tau, L = 2.0, 1.5, 20.0
+    mu = E / 2
+    d = {"format": 1, "name": "bar", "dim": 2, "thickness": 2.0, "mesh": {"size": 2.0, "degree": 1},
+         "materials": {"m": {"E": E, "nu": 0.0}},
+         "body": {"outline": [[0, 0], [L, 0], [L, 4], [0, 4]], "material": "m"},
+         "pins": [{"name": "left", "region": [[-1, -1], [1e-6, 5]]}],
+         "tractions": [{"name": "pull", "region": [[L - 1e-6, -1], [L + 1, 5]], "traction": [tau, 0.0]}],
+         "markers": {"end": [L, 2.0]}, "solver": {"steps": 2}}
+    with Session(d) as s:
+        r = s.solve()
+    stretch = (tau / mu + np.sqrt((tau / mu) ** 2 + 4)) / 2
+    assert r.converged
+    assert r.markers["end"]["displacement"] == pytest.approx([(stretch - 1) * L, 0.0], abs=1e-8 * L)
+
+
+# -- live parameters and the session ----------------------------------------------------------------
+def test_session_set_changes_gravity_and_traction_live():
+    with Session(_cook(1e-4, size=4.0)) as s:
+        r1 = s.solve()
+        s.set({"tractions.shear.traction": [0.0, 2e-4 * 6.25]})
+        mesh = s.model.mesh
+        r2 = s.solve()
+        assert s.model.mesh is mesh                  # no re-mesh
+    assert r2.markers["C"]["displacement"][1] == pytest.approx(2 * r1.markers["C"]["displacement"][1], rel=1e-3)
