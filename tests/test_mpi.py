@@ -1,31 +1,21 @@
 """Domain decomposition: `mpirun -n 2` and serial runs agree, for every ingredient that couples ranks."""
 import json
-import os
-import shutil
-import subprocess
 import sys
-import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from _designs import strip
-from test_cli import _toml
+from _designs import strip, toml_text
 
 ROOT = Path(__file__).resolve().parents[1]
-SKELFEM = str(Path(sys.executable).parent / "skelfem")
-ENV = {**os.environ, "OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
-       "OMPI_MCA_rmaps_base_oversubscribe": "1", "OPENBLAS_NUM_THREADS": "1"}
 
-pytestmark = pytest.mark.skipif(shutil.which("mpirun") is None, reason="needs mpirun")
+pytestmark = [pytest.mark.mpi, pytest.mark.slow]
 
 
-def _simulate(design, out, ranks, *sets):
-    cmd = [SKELFEM, "simulate", str(design), "--out", str(out), "-q", *sum((["--set", s] for s in sets), [])]
-    if ranks > 1:
-        cmd = ["mpirun", "-n", str(ranks)] + cmd
-    res = subprocess.run(cmd, env=ENV, capture_output=True, text=True, timeout=300)
+def _simulate(mpirun, design, out, ranks, *sets):
+    args = [mpirun.skelfem, "simulate", design, "--out", out, "-q", *sum((["--set", s] for s in sets), [])]
+    res = mpirun.run(args, ranks)
     assert res.returncode == 0, res.stdout + res.stderr
     return json.loads((out / "result.json").read_text())
 
@@ -38,6 +28,7 @@ def _close(a, b, rel=1e-6, scale=0.0):
 
 def _agree(serial, parallel):
     assert parallel["converged"] and parallel["dofs"] == serial["dofs"]
+    assert parallel["newton_iterations"] == serial["newton_iterations"]
     for name, m in serial["markers"].items():
         assert _close(m["displacement"], parallel["markers"][name]["displacement"]), name
     for name, c in serial["cables"].items():
@@ -49,18 +40,18 @@ def _agree(serial, parallel):
         assert _close(g["force"], parallel["grounds"][name]["force"], 1e-6, force), name
 
 
-def test_arm3d_two_ranks_match_serial(tmp_path):
-    serial = _simulate(ROOT / "geometry" / "arm3d.toml", tmp_path / "s", 1, "mesh.size=9")
-    parallel = _simulate(ROOT / "geometry" / "arm3d.toml", tmp_path / "p", 2, "mesh.size=9")
+def test_arm3d_two_ranks_match_serial(tmp_path, mpirun, picture):
+    serial = _simulate(mpirun, ROOT / "geometry" / "arm3d.toml", tmp_path / "s", 1, "mesh.size=9")
+    parallel = _simulate(mpirun, ROOT / "geometry" / "arm3d.toml", tmp_path / "p", 2, "mesh.size=9")
     _agree(serial, parallel)
     import meshio
     m = meshio.read(tmp_path / "p" / "solution.xdmf")        # gathered to rank 0
     assert m.point_data["displacement"].shape[1] == 3
     assert {"tetra", "line"} <= {c.type for c in m.cells}
-    assert (tmp_path / "p" / "deformed.png").stat().st_size > 20_000
+    picture(tmp_path / "p" / "deformed.png", 600, 600, min_ink=0.05)
 
 
-def test_every_ingredient_agrees_across_ranks(tmp_path):
+def test_every_ingredient_agrees_across_ranks(tmp_path, mpirun):
     """Bones, tendon, pretensioned ligament, spring pin, moved pin, point load and a ground, P2."""
     d = strip(length=40.0, size=2.0, degree=2, contraction=0.4)
     d["bones"] = [{"name": "b", "outline": [[3, 10], [7, 10], [7, 25], [3, 25]], "material": "hard"}]
@@ -73,18 +64,18 @@ def test_every_ingredient_agrees_across_ranks(tmp_path):
     d["markers"]["mid"] = [5, 20]
     d["solver"] = {"steps": 2}
     path = tmp_path / "all.toml"
-    path.write_text(_toml(d))
-    serial = _simulate(path, tmp_path / "s", 1)
+    path.write_text(toml_text(d))
+    serial = _simulate(mpirun, path, tmp_path / "s", 1)
     assert np.linalg.norm(serial["grounds"]["wall"]["force"]) > 0      # the ground is engaged
-    _agree(serial, _simulate(path, tmp_path / "p", 2))
+    assert all(c["tension"] > 0 for c in serial["cables"].values())    # both cables taut: low-rank parts
+    _agree(serial, _simulate(mpirun, path, tmp_path / "p", 2))
 
 
-def test_pull_study_under_mpirun_matches_serial(tmp_path):
+def test_pull_study_under_mpirun_matches_serial(tmp_path, mpirun):
     """A study runs unchanged on a partitioned mesh (markers, loads, pins across ranks)."""
-    study = [sys.executable, str(ROOT / "studies" / "pull_test.py"), "--size", "3", "--loads", "2", "6"]
-    for name, prefix in (("serial", []), ("mpi", ["mpirun", "-n", "2"])):
-        res = subprocess.run(prefix + study + ["--out", str(tmp_path / name)], env=ENV,
-                             capture_output=True, text=True, timeout=300)
+    study = [sys.executable, ROOT / "studies" / "pull_test.py", "--size", "3", "--loads", "2", "6"]
+    for name, ranks in (("serial", 1), ("mpi", 2)):
+        res = mpirun.run(study + ["--out", tmp_path / name], ranks)
         assert res.returncode == 0, res.stdout + res.stderr
     rows = [(tmp_path / n / "pull_test.csv").read_text().splitlines() for n in ("serial", "mpi")]
     assert len(rows[0]) == 7 and rows[0] == rows[1]
