@@ -82,6 +82,7 @@ class NewtonSolver:
         self.xtol = 1e-11             # relative size of a full Newton step that ends the solve
         self.max_cuts = 8
         self._newton_step = np.inf    # |p| of the last undamped Newton step
+        self.reference_residual = 0.0  # largest first |R| of a solve from rest (the problem's force scale)
         self.etol = 1e-15             # Newton decrement -grad Pi . p relative to |Pi| that ends the solve
         self._decrement_converged = False
         self.A = model.create_matrix()
@@ -137,7 +138,9 @@ class NewtonSolver:
         xnorm, ynorm, fnorm = norms
         self._history.append(float(fnorm))
         if it == 0:
-            self._f0 = fnorm
+            # the force scale: |R| at the start of a solve from rest; a warm start, whose first
+            # residual is small, is held to the same absolute accuracy, not to rtol of its own |R_0|
+            self._f0 = max(fnorm, self.reference_residual)
         log.debug("  newton %2d  |R| = %.3e  |dx| = %.3e", it, fnorm, ynorm)
         if not np.isfinite(fnorm):
             return PETSc.SNES.ConvergedReason.DIVERGED_FNORM_NAN
@@ -295,6 +298,8 @@ class NewtonSolver:
             self._predict(prev, a_prev, a, target)
             model.set_factor(target)
             ok, status, its = self._newton()
+            if self._history:
+                self.reference_residual = max(self.reference_residual, self._history[0])
             report.newton_iterations += its
             report.attempts.append({"factor": float(target), "iterations": int(its), "status": status})
             if ok:

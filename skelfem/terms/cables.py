@@ -195,16 +195,42 @@ class Cable:
         s = max(0.0, norm.sum() - L)
         return self.k * s * g
 
-    def curvature(self, u: np.ndarray, L: float) -> sp.csr_matrix:
-        """Sparse part of the Hessian on self.dofs: k [s > 0] s B^T W B."""
+    def _segment_blocks(self):
+        """Per segment i: the cable DOFs J_i its row block B_i touches and B_i densely, zero-padded.
+
+        Built once; the curvature part is then sum_i B_i^T W_i B_i evaluated
+        for all segments at once (one einsum), no sparse products per call.
+        """
+        if getattr(self, "_blocks", None) is None:
+            B = self.B.tocsr()
+            nseg, gdim = self.d0.shape
+            cols = [np.unique(B.indices[B.indptr[i * gdim]:B.indptr[(i + 1) * gdim]]) for i in range(nseg)]
+            width = max((len(c) for c in cols), default=0)
+            J = np.zeros((nseg, width), dtype=np.int64)
+            Bd = np.zeros((nseg, gdim, width))
+            valid = np.zeros((nseg, width), dtype=bool)
+            for i, c in enumerate(cols):              # setup only: one entry per segment
+                J[i, :len(c)] = c
+                valid[i, :len(c)] = True
+                Bd[i, :, :len(c)] = B[i * gdim:(i + 1) * gdim][:, c].toarray()
+            pair = valid[:, :, None] & valid[:, None, :]
+            self._blocks = (J, Bd, pair)
+        return self._blocks
+
+    def curvature(self, u: np.ndarray, L: float) -> sp.coo_matrix:
+        """Sparse part of the Hessian on self.dofs: k [s > 0] s B^T W B (COO, duplicates summed later)."""
         d, norm, t, g = self._t_and_g(u)
         s = norm.sum() - L
         m = len(self.dofs)
         if s <= 0.0:
-            return sp.csr_matrix((m, m))
+            return sp.coo_matrix((m, m))
+        J, Bd, pair = self._segment_blocks()
         gdim = d.shape[1]
-        blocks = (np.eye(gdim)[None] - t[:, :, None] * t[:, None, :]) / norm[:, None, None]
-        return (self.k * s) * (self.B.T @ (_block_diagonal(blocks) @ self.B)).tocsr()
+        W = (np.eye(gdim)[None] - t[:, :, None] * t[:, None, :]) / norm[:, None, None]
+        blocks = (self.k * s) * np.einsum("sai,sab,sbj->sij", Bd, W, Bd)
+        rows = np.broadcast_to(J[:, :, None], blocks.shape)[pair]
+        cols = np.broadcast_to(J[:, None, :], blocks.shape)[pair]
+        return sp.coo_matrix((blocks[pair], (rows, cols)), shape=(m, m))
 
     def length_gradient(self, u: np.ndarray) -> np.ndarray:
         """g = grad l = B^T t on self.dofs."""
@@ -218,14 +244,8 @@ class Cable:
 
     def segment_nodes(self, bs: int) -> list[np.ndarray]:
         """Global node numbers each segment's curvature block couples (one array per segment)."""
-        B = self.B.tocsr()
-        gdim = self.d0.shape[1]
-        out = []
-        rows = B.indptr
-        for i in range(len(self.d0)):          # setup only: one entry per segment
-            cols = B.indices[rows[i * gdim]:rows[(i + 1) * gdim]]
-            out.append(np.unique(self.dofs[cols] // bs))
-        return out
+        J, _, pair = self._segment_blocks()
+        return [np.unique(self.dofs[j[v]] // bs) for j, v in zip(J, pair[:, :, 0] | pair[:, 0, :])]
 
 
 class CableTerm(Term):
