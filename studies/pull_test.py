@@ -42,10 +42,9 @@ DEFAULT_LOADS = (1.0, 2.0, 4.0, 6.0, 8.0, 10.0)
 
 
 def build(name: str, size: float, total: float, points: int, at_y: float):
-    """Scene of geometry/<name>.toml with the tip cable's pull `total` N spread over `points` points."""
+    """Session of geometry/<name>.toml with the tip cable's pull `total` N spread over `points` points."""
+    from skelfem import Session
     from skelfem.design import load_design, parse_design
-    from skelfem.geometry import mesh_design
-    from skelfem.scene import Scene
 
     path = ROOT / "geometry" / f"{name}.toml"
     raw = load_design(path, [f"mesh.size={size}"]).raw
@@ -53,15 +52,13 @@ def build(name: str, size: float, total: float, points: int, at_y: float):
     xs = np.linspace(4.0, 16.0, points)
     raw["loads"] = [{"name": f"pull{i}", "at": [float(x), float(at_y)], "force": [0.0, total / points]}
                     for i, x in enumerate(xs)]
-    design = parse_design(raw, str(path))
-    return Scene(design, mesh_design(design))
+    return Session(parse_design(raw, str(path)))
 
 
-def pull(scene, loads, total: float, steps_per_load: int, snapshot: float | None) -> dict:
+def pull(session, loads, total: float, steps_per_load: int, snapshot: float | None) -> dict:
     """Walk the load factor through loads / total; axial tip displacement per load."""
-    from skelfem.solver import NewtonSolver
-
-    solver = NewtonSolver(scene, scene.design.solver)
+    model, solver = session.model, session.solver
+    markers = model.term("markers")
     tip_dy, tips, status, its, a, shape = [], [], "converged", 0, 0.0, None
     for F in loads:
         report = solver.solve(steps_per_load, a, F / total)
@@ -70,11 +67,11 @@ def pull(scene, loads, total: float, steps_per_load: int, snapshot: float | None
             status = f"load {F:g} N: {report.status}"
             break
         a = F / total
-        d = scene.marker_positions()[0] - scene.marker_X[0]
+        d = markers.positions(model.u.x.array)[0] - markers.X[0]
         tip_dy.append(float(d[1]))
         tips.append(d.tolist())
         if snapshot is not None and np.isclose(F, snapshot):
-            shape = scene.u.x.array.copy()
+            shape = model.u.x.array.copy()
     return {"loads": list(loads[:len(tip_dy)]), "tip_displacement": tip_dy, "tip": tips,
             "status": status, "iterations": its, "shape": shape}
 
@@ -85,20 +82,21 @@ def run(size: float = 1.0, loads=DEFAULT_LOADS, snapshot: float | None = None, p
     loads = tuple(float(F) for F in loads)
     total = max(loads)
     snapshot = total if snapshot is None else float(snapshot)
-    results, scenes = {}, {}
+    results, sessions = {}, {}
     for key in conditions:
         name, label = CONDITIONS[key]
         t0 = time.perf_counter()
-        scene = build(name, size, total, points, at_y)
-        r = pull(scene, loads, total, steps_per_load, snapshot)
+        session = build(name, size, total, points, at_y)
+        r = pull(session, loads, total, steps_per_load, snapshot)
         r.update(label=label, design=name, time=time.perf_counter() - t0)
-        results[key], scenes[key] = r, scene
+        results[key], sessions[key] = r, session
     res = {"params": dict(size=size, loads=list(loads), snapshot=snapshot, points=points, at_y=at_y),
            "conditions": results}
     if out is not None:
-        write_outputs(Path(out), res, scenes)
-    for r in results.values():
+        write_outputs(Path(out), res, {key: s.model for key, s in sessions.items()})
+    for key, r in results.items():
         r.pop("shape")
+        sessions[key].close()
     return res
 
 
@@ -114,7 +112,7 @@ def write_csv(path: Path, res: dict) -> None:
     write_text(path, "\n".join(lines) + "\n")
 
 
-def write_outputs(out: Path, res: dict, scenes: dict) -> None:
+def write_outputs(out: Path, res: dict, models: dict) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -140,15 +138,15 @@ def write_outputs(out: Path, res: dict, scenes: dict) -> None:
     atomic_write(out / "pull_test.png", lambda tmp: fig.savefig(tmp, format="png"))
     plt.close(fig)
 
-    fig, axes = plt.subplots(1, len(scenes), figsize=(3.8 * len(scenes), 5.4), dpi=110, sharey=True)
-    for ax, (key, scene) in zip(np.atleast_1d(axes), scenes.items()):
+    fig, axes = plt.subplots(1, len(models), figsize=(3.8 * len(models), 5.4), dpi=110, sharey=True)
+    for ax, (key, model) in zip(np.atleast_1d(axes), models.items()):
         r = conds[key]
         if r["shape"] is None:
             ax.set_title(f"{r['label']}\n({r['status']})", fontsize=9)
             continue
-        scene.u.x.array[:] = r["shape"]
+        model.u.x.array[:] = r["shape"]
         dy = r["tip_displacement"][r["loads"].index(snap)]
-        plot_deformed(None, scene, f"{r['label']}\n{snap:g} N: tip +{dy:.2f} mm", ax=ax)
+        plot_deformed(None, model, f"{r['label']}\n{snap:g} N: tip +{dy:.2f} mm", ax=ax)
         if ax.get_legend():
             ax.get_legend().remove()
     fig.suptitle(f"Pull test: the three fingers at {snap:g} N", fontsize=11)

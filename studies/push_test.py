@@ -40,7 +40,6 @@ photographs them).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import time
 from pathlib import Path
 
@@ -57,10 +56,9 @@ CONDITIONS = {   # key: (design, label, pretensioned)
 
 
 def build(name: str, size: float, gap: float, stiffness: float, pretension: float, tilt_deg: float):
-    """Scene of geometry/<name>.toml with the sensor above the tip, flexor slack, base not yet moving."""
+    """Session of geometry/<name>.toml with the sensor above the tip, flexor slack, base not yet moving."""
+    from skelfem import Session
     from skelfem.design import load_design, parse_design
-    from skelfem.geometry import mesh_design
-    from skelfem.scene import Scene
 
     path = ROOT / "geometry" / f"{name}.toml"
     raw = load_design(path, [f"mesh.size={size}"]).raw
@@ -70,46 +68,46 @@ def build(name: str, size: float, gap: float, stiffness: float, pretension: floa
     t = np.radians(tilt_deg)     # a slight tilt picks the buckling side (see the module docstring)
     raw["grounds"] = [{"name": "fsr", "point": [10.0, top + gap], "normal": [float(np.sin(t)), -float(np.cos(t))],
                        "stiffness": float(stiffness)}]
-    design = parse_design(raw, str(path))
-    return Scene(design, mesh_design(design))
+    return Session(parse_design(raw, str(path)))
 
 
-def bake_pretension(scene) -> None:
+def bake_pretension(model) -> None:
     """Make the ligaments' pretension part of their rest length (the fabricated state)."""
-    for c in scene.cables:
+    for term in model.terms_in("cables"):
+        c = term.cable
         if c.kind == "ligament":
             c.L0, c.pretension = c.rest_length(1.0), 0.0
 
 
-def drive_base(scene, travel: float) -> None:
+def drive_base(model, travel: float) -> None:
     """Let the load factor a move the base pin by a * travel along +y."""
-    for pin in scene.pins:
-        if pin.name == "base":
-            pin.spec = dataclasses.replace(pin.spec, move=np.array([0.0, float(travel)]))
+    model.set_parameter("pins.base.move", [0.0, float(travel)])
 
 
-def place_sensor(scene, gap: float) -> None:
+def place_sensor(model, gap: float) -> None:
     """Put the sensor plane `gap` beyond the boundary point nearest to it (along its normal)."""
+    from mpi4py import MPI
+
     from skelfem.output import vertex_displacements
 
-    x, u, _ = vertex_displacements(scene)
-    g = scene.grounds[0]
+    x, u, _ = vertex_displacements(model)
+    g = model.term("grounds", "fsr")
     nearest = np.min((x + u - g.point) @ g.normal)     # signed distance of the closest node, mm
-    g.move_to(g.point + (nearest - gap) * g.normal)
+    nearest = model.comm.allreduce(nearest, op=MPI.MIN)    # every rank sees only its nodes
+    model.set_parameter("grounds.fsr.point", g.point + (nearest - gap) * g.normal)
 
 
-def push(scene, travel: float, steps: int, gap: float) -> dict:
+def push(session, travel: float, steps: int, gap: float) -> dict:
     """Pretension (if any), then drive the base in `steps` steps; force and tip per step."""
-    from skelfem.solver import NewtonSolver
-
-    solver = NewtonSolver(scene, scene.design.solver)
-    first = solver.solve(2)                    # phase 1: ligaments pretensioned, base at rest
+    model, solver = session.model, session.solver
+    first = session.solve(2).report            # phase 1: ligaments pretensioned, base at rest
     if not first.converged:
         return {"travel": [], "force": [], "tip": [], "status": f"pretension: {first.status}", "iterations": 0}
-    bake_pretension(scene)
-    place_sensor(scene, gap)
-    drive_base(scene, travel)
-    scene.set_factor(0.0)
+    bake_pretension(model)
+    place_sensor(model, gap)
+    drive_base(model, travel)
+    model.set_factor(0.0)
+    sensor, markers = model.term("grounds", "fsr"), model.term("markers")
     forces, tips, travels, its, status = [], [], [], first.newton_iterations, "converged"
     for k in range(1, steps + 1):
         report = solver.solve(1, (k - 1) / steps, k / steps)
@@ -117,9 +115,8 @@ def push(scene, travel: float, steps: int, gap: float) -> dict:
         if not report.converged:                # never report a failed state as an equilibrium
             status = f"travel {k * travel / steps:g} mm: {report.status}"
             break
-        normal = scene.grounds[0].normal
-        forces.append(float(-scene.ground_forces()[0] @ normal))   # the sensor's reading, N
-        tips.append(scene.marker_positions()[0].tolist())
+        forces.append(float(-sensor.force() @ sensor.normal))   # the sensor's reading, N
+        tips.append(markers.positions(model.u.x.array)[0].tolist())
         travels.append(k * travel / steps)
     return {"travel": travels, "force": forces, "tip": tips, "status": status, "iterations": its}
 
@@ -127,24 +124,26 @@ def push(scene, travel: float, steps: int, gap: float) -> dict:
 def run(size: float = 1.5, travel: float = 6.0, steps: int = 24, gap: float = 0.5, stiffness: float = 10.0,
         pretension: float = 1.0, tilt_deg: float = -1.0, conditions=tuple(CONDITIONS), out: Path | None = None) -> dict:
     """Push every condition; peaks normalised by "neither". Writes CSV/PNG into out if given."""
-    results, shapes = {}, {}
+    results, sessions = {}, {}
     for key in conditions:
         name, label, pretensioned = CONDITIONS[key]
         t0 = time.perf_counter()
-        scene = build(name, size, gap, stiffness, pretension if pretensioned else 0.0, tilt_deg)
-        r = push(scene, travel, steps, gap)
+        session = build(name, size, gap, stiffness, pretension if pretensioned else 0.0, tilt_deg)
+        r = push(session, travel, steps, gap)
         r.update(label=label, design=name, time=time.perf_counter() - t0)
         r["peak_force"] = max(r["force"]) if r["force"] else float("nan")
         r["peak_travel"] = r["travel"][int(np.argmax(r["force"]))] if r["force"] else float("nan")
         results[key] = r
-        shapes[key] = scene
+        sessions[key] = session
     base = results.get("neither", {}).get("peak_force", float("nan"))
     for r in results.values():
         r["normalised_peak"] = r["peak_force"] / base
     res = {"params": dict(size=size, travel=travel, steps=steps, gap=gap, stiffness=stiffness,
                           pretension=pretension, tilt_deg=tilt_deg), "conditions": results}
     if out is not None:
-        write_outputs(Path(out), res, shapes)
+        write_outputs(Path(out), res, {key: s.model for key, s in sessions.items()})
+    for s in sessions.values():
+        s.close()
     return res
 
 
@@ -164,7 +163,7 @@ def write_csv(path: Path, res: dict) -> None:
     write_text(path, "\n".join(lines) + "\n")
 
 
-def write_outputs(out: Path, res: dict, scenes: dict) -> None:
+def write_outputs(out: Path, res: dict, models: dict) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -199,10 +198,10 @@ def write_outputs(out: Path, res: dict, scenes: dict) -> None:
     atomic_write(out / "push_test.png", lambda tmp: fig.savefig(tmp, format="png"))
     plt.close(fig)
 
-    fig, axes = plt.subplots(1, len(scenes), figsize=(3.4 * len(scenes), 5.2), dpi=110, sharey=True)
-    for ax, (key, scene) in zip(np.atleast_1d(axes), scenes.items()):
+    fig, axes = plt.subplots(1, len(models), figsize=(3.4 * len(models), 5.2), dpi=110, sharey=True)
+    for ax, (key, model) in zip(np.atleast_1d(axes), models.items()):
         r = conds[key]
-        plot_deformed(None, scene, f"{r['label']}\ntravel {r['travel'][-1] if r['travel'] else 0:g} mm, "
+        plot_deformed(None, model, f"{r['label']}\ntravel {r['travel'][-1] if r['travel'] else 0:g} mm, "
                       f"F = {r['force'][-1] if r['force'] else float('nan'):.3f} N", ax=ax)
         if ax.get_legend():
             ax.get_legend().remove()
