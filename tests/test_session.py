@@ -1,0 +1,122 @@
+"""The live Session: the same answers as the CLI, live parameters, edits, errors, serial = MPI."""
+import json
+import sys
+
+import numpy as np
+import pytest
+
+from skelfem import Session
+from skelfem.design import DesignError
+
+from conftest import GEOMETRY
+
+FINGER = GEOMETRY / "finger.toml"
+
+
+def _close(a, b, rel=1e-8):
+    """Nested dicts / lists of numbers equal to a relative tolerance (scaled by the largest entry)."""
+    if isinstance(a, dict):
+        assert set(a) == set(b)
+        for k in a:
+            _close(a[k], b[k], rel)
+    elif isinstance(a, (list, tuple)):
+        a, b = np.asarray(a, float), np.asarray(b, float)
+        assert np.allclose(a, b, rtol=rel, atol=rel * max(1.0, np.abs(b).max(initial=0.0)))
+    elif isinstance(a, float):
+        assert a == pytest.approx(b, rel=rel, abs=rel)
+    else:
+        assert a == b
+
+
+READOUTS = ("energy", "markers", "cables", "pins", "grounds", "min_jacobian", "dofs", "cells")
+
+
+def test_session_equals_simulate_with_set(tmp_path, mpirun):
+    sets = ["cables.flexor.contraction=6.5", "materials.pla.E=800", "mesh.size=2.5"]
+    args = [mpirun.skelfem, "simulate", FINGER, "--out", tmp_path, "--no-picture", "-q"]
+    for s in sets:
+        args += ["--set", s]
+    p = mpirun.run(args)
+    assert p.returncode == 0, p.stderr
+    cli = json.loads((tmp_path / "result.json").read_text())
+    with Session(FINGER, sets) as s:
+        r = s.solve().to_dict()
+    for key in READOUTS:
+        _close(r[key], cli[key])
+
+
+def test_set_is_live_warm_and_equals_a_fresh_solve():
+    with Session(FINGER, ["mesh.size=3"]) as s:
+        s.solve()
+        mesh, A = s.model.mesh, s.solver.A
+        s.set({"cables.flexor.contraction": 7.0, "materials.pla.E": 2000.0})
+        r = s.solve()
+        assert s.model.mesh is mesh and s.solver.A is A          # no re-mesh, no new matrix
+        assert r.converged and r.attempts[0].get("warm")
+        assert r.cables["flexor"]["contraction"] == 7.0
+    with Session(FINGER, ["mesh.size=3", "cables.flexor.contraction=7", "materials.pla.E=2000"]) as fresh:
+        ref = fresh.solve()
+    _close(r.markers, ref.markers, rel=1e-6)
+
+
+def test_set_of_a_geometric_key_remeshes():
+    with Session(FINGER, ["mesh.size=4"]) as s:
+        s.solve()
+        dofs = s.dofs
+        s.set({"mesh.size": 3.0})
+        r = s.solve()
+        assert s.dofs > dofs and r.converged
+
+
+def test_edit_carries_the_solution_over():
+    with Session(FINGER, ["mesh.size=3"]) as s:
+        cold = s.solve()
+        d = s.design.raw
+        d["bones"][0]["outline"][0][0] += 0.5
+        s.edit(d)
+        r = s.solve()
+    assert r.converged and r.newton_iterations < cold.newton_iterations
+
+
+@pytest.mark.parametrize("changes, key", [
+    ({"cables.nope.contraction": 1.0}, "cables"),
+    ({"materials.pla.E": -5.0}, "materials.pla.E"),
+    ({"cables.flexor.contraction": "x"}, "cables.flexor.contraction"),
+    ({"mesh.degree": 7}, "mesh.degree"),
+])
+def test_bad_set_raises_one_line_and_keeps_the_session(changes, key):
+    with Session(FINGER, ["mesh.size=4"]) as s:
+        r0 = s.solve()
+        with pytest.raises(DesignError) as exc:
+            s.set(changes)
+        assert key in str(exc.value) and "\n" not in str(exc.value)
+        r1 = s.solve()
+    _close(r1.markers, r0.markers, rel=1e-7)
+
+
+MPI_DESIGN = """
+import json, sys
+sys.path.insert(0, "tests")
+from test_terms import _designs
+from skelfem import Session
+from mpi4py import MPI
+with Session(_designs()["full"]) as s:
+    r = s.solve().to_dict()
+if MPI.COMM_WORLD.rank == 0:
+    json.dump(r, open(sys.argv[1], "w"))
+"""
+
+
+@pytest.mark.mpi
+def test_every_term_serial_equals_mpirun_2(tmp_path, mpirun):
+    """A design with every MPI-capable term (all but self-contact): read-outs agree over 1 and 2 ranks."""
+    script = tmp_path / "run.py"
+    script.write_text(MPI_DESIGN)
+    out = {}
+    for n in (1, 2):
+        p = mpirun.run([sys.executable, script, tmp_path / f"r{n}.json"], ranks=n, timeout=240)
+        assert p.returncode == 0, p.stderr[-2000:]
+        out[n] = json.loads((tmp_path / f"r{n}.json").read_text())
+    assert out[1]["converged"] and out[2]["converged"]
+    for key in READOUTS + ("gravity", "tractions"):
+        _close(out[2][key], out[1][key], rel=1e-7)
