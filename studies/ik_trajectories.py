@@ -36,29 +36,33 @@ LINES = {"horizontal": ((-25.0, 88.0), (35.0, 88.0)),
 
 
 def build(size: float):
-    """Scene, Newton solver and Soft IK for the finger's tip at mesh size `size`."""
+    """Session and Soft IK for the finger's tip at mesh size `size`."""
+    from skelfem import Session
     from skelfem.control import SoftIK
-    from skelfem.design import load_design
-    from skelfem.geometry import mesh_design
-    from skelfem.scene import Scene
-    from skelfem.solver import NewtonSolver
 
-    design = load_design(DESIGN, [f"mesh.size={size}"])
-    scene = Scene(design, mesh_design(design))
-    solver = NewtonSolver(scene, design.solver)
-    return design, scene, SoftIK(scene, solver, "tip")
+    session = Session(DESIGN, [f"mesh.size={size}"])
+    return session, SoftIK(session, "tip")
 
 
 def rest(ik) -> None:
     """Back to the unactuated finger (x = 0 is its equilibrium)."""
-    ik.scene.u.x.array[:] = 0.0
+    ik.model.u.x.array[:] = 0.0
     ik.u = np.zeros_like(ik.u)
     ik.settle(1)
 
 
+def line_targets(ends: np.ndarray, steps: int) -> np.ndarray:
+    """`steps` targets evenly spaced from ends[0] to ends[1], both included."""
+    return ends[0] + np.linspace(0.0, 1.0, steps)[:, None] * (ends[1] - ends[0])
+
+
+def pose_indices(n: int, count: int = 4) -> list[int]:
+    """A few evenly spread targets whose poses the picture shows."""
+    return sorted(set(np.linspace(0, n - 1, min(n, count)).round().astype(int).tolist()))
+
+
 def track_line(ik, ends, targets: int):
     """Soft IK along one line from rest; returns (results, poses shown in the picture)."""
-    from skelfem.cli_control import line_targets, pose_indices
     from skelfem.control import track
 
     rest(ik)
@@ -67,23 +71,23 @@ def track_line(ik, ends, targets: int):
 
     def keep(i, res):
         if i in show:
-            poses.append(ik.scene.u.x.array.copy())
+            poses.append(ik.model.u.x.array.copy())
     return track(ik, points, keep), poses
 
 
-def random_targets(ik, design, count: int, u_max: float, seed: int):
+def random_targets(ik, count: int, u_max: float, seed: int):
     """Targets of random contractions, then Soft IK for each from rest."""
     from skelfem.sensitivity import set_contractions
     rng = np.random.default_rng(seed)
     rows = []
     for _ in range(count):
         u_true = rng.uniform(0.0, u_max, len(ik.u))
-        ik.scene.u.x.array[:] = 0.0
-        set_contractions(ik.scene, u_true)
-        report = ik.solver.solve(design.solver.steps)
+        ik.model.u.x.array[:] = 0.0
+        set_contractions(ik.model, u_true)
+        report = ik.solver.solve(ik.session.design.solver.steps)
         if not report.converged:
             continue                                   # not an admissible pose: draw again next time
-        target = ik.scene.marker_positions()[ik.index].copy()
+        target = ik.position()
         rest(ik)
         rows.append((u_true, ik.solve(target)))
     return rows
@@ -123,35 +127,84 @@ def run(size: float = 2.0, targets: int = 13, random: int = 20, u_max: float = 1
         out: Path | None = None) -> dict:
     """Track both lines and solve the random targets; write the files into out if given."""
     t0 = time.perf_counter()
-    design, scene, ik = build(size)
+    session, ik = build(size)
     lines = {name: track_line(ik, ends, targets) for name, ends in LINES.items()}
-    rows = random_targets(ik, design, random, u_max, seed) if random else []
-    numbers = {"size": size, "dofs": int(scene.V.dofmap.index_map.size_global * scene.bs),
-               "finger_length": ik.length, "tol": ik.tol,
+    rows = random_targets(ik, random, u_max, seed) if random else []
+    numbers = {"size": size, "dofs": session.dofs, "finger_length": ik.length, "tol": ik.tol,
                **{name: _line_numbers(ik, res) for name, (res, _) in lines.items()},
                "random": _random_numbers(ik, rows)}
     if out is not None:
-        _write(Path(out), design, ik, lines, rows, numbers)
+        _write(Path(out), ik, lines, rows, numbers)
+    session.close()
     numbers["seconds"] = time.perf_counter() - t0
     return numbers
 
 
 # -- files ------------------------------------------------------------------------------------------
-def _write(out: Path, design, ik, lines: dict, rows, numbers: dict) -> None:
-    from skelfem.cli_control import track_rows, write_csv
-    from skelfem.output import write_json
+def _result_row(r, names, prefix: str = "") -> dict:
+    """One IK result as CSV fields: target, achieved position, error, contractions, solves, time."""
+    axes = "xyz"[:len(r.target)]
+    return {**{f"target_{a}": float(v) for a, v in zip(axes, r.target)},
+            **{a: float(v) for a, v in zip(axes, r.position)},
+            "error": float(r.error), "reached": int(r.reached),
+            **{f"{prefix}{n}": float(u) for n, u in zip(names, r.contractions)},
+            "forward_solves": int(r.forward_solves), "seconds": round(float(r.time), 4)}
+
+
+def _write(out: Path, ik, lines: dict, rows, numbers: dict) -> None:
+    from skelfem.output import write_csv, write_json
 
     out.mkdir(parents=True, exist_ok=True)
+    axes = "xyz"[:ik.model.dim]
+    position = [f"target_{a}" for a in axes] + list(axes) + ["error", "reached"]
+    tail = ["forward_solves", "seconds"]
     for name, (results, _) in lines.items():
-        write_csv(out / f"{name}.csv", *track_rows(ik.names, results, ik.scene.dim))
-    header = (["target"] + [f"u_true_{n}" for n in ik.names] + ["target_x", "target_y", "x", "y", "error",
-              "reached"] + [f"u_{n}" for n in ik.names] + ["forward_solves", "seconds"])
-    table = [[i, *u, *r.target, *r.position, r.error, int(r.reached), *r.contractions, r.forward_solves,
-              round(r.time, 4)] for i, (u, r) in enumerate(rows)]
-    write_csv(out / "random.csv", header, table)
+        table = [{"step": i, **_result_row(r, ik.names)} for i, r in enumerate(results)]
+        write_csv(out / f"{name}.csv", ["step"] + position + ik.names + tail, table)
+    table = [{"target": i, **{f"u_true_{n}": float(v) for n, v in zip(ik.names, u)},
+              **_result_row(r, ik.names, "u_")} for i, (u, r) in enumerate(rows)]
+    write_csv(out / "random.csv", ["target"] + [f"u_true_{n}" for n in ik.names] + position
+              + [f"u_{n}" for n in ik.names] + tail, table)
     write_json(out / "summary.json", numbers)
     _plot_paths(out / "paths.png", ik, lines, numbers)
     _plot_contractions(out / "contractions.png", ik, lines)
+
+
+# -- pictures ---------------------------------------------------------------------------------------
+TARGET_COLOR, ACHIEVED_COLOR = "#d62728", "#2ca02c"
+
+
+def _draw_track(ax, model, results, poses: list, title: str) -> None:
+    """A few faded deformed poses, then the target and achieved paths (model.u is restored)."""
+    from matplotlib.legend import Legend
+
+    from skelfem.output import plot_deformed
+
+    keep = model.u.x.array.copy()
+    lims = []
+    for i, pose in enumerate(poses):
+        model.u.x.array[:] = pose
+        before = set(ax.get_children())
+        plot_deformed(None, model, ax=ax, show_rest=(i == 0))
+        for artist in set(ax.get_children()) - before:
+            if hasattr(artist, "set_alpha") and not isinstance(artist, Legend):
+                artist.set_alpha(0.3 if i < len(poses) - 1 else 0.6)
+        lims.append((*ax.get_xlim(), *ax.get_ylim()))
+    model.u.x.array[:] = keep
+    if ax.get_legend() is not None:
+        ax.get_legend().remove()                # the cables' legend: too long for several poses
+    target = np.array([r.target for r in results])
+    achieved = np.array([r.position for r in results])
+    h1, = ax.plot(target[:, 0], target[:, 1], "x--", color=TARGET_COLOR, ms=5, lw=1, zorder=6, label="target")
+    h2, = ax.plot(achieved[:, 0], achieved[:, 1], "o-", color=ACHIEVED_COLOR, ms=3, lw=1.2, zorder=7,
+                  mfc="none", label="achieved")
+    pts = np.vstack([target, achieved])[:, :2]
+    lims = np.array(lims) if lims else np.array([[np.inf, -np.inf, np.inf, -np.inf]])
+    lo, hi = pts.min(axis=0) - 3.0, pts.max(axis=0) + 3.0
+    ax.set_xlim(min(lims[:, 0].min(), lo[0]), max(lims[:, 1].max(), hi[0]))
+    ax.set_ylim(min(lims[:, 2].min(), lo[1]), max(lims[:, 3].max(), hi[1]))
+    ax.legend(handles=[h1, h2], loc="upper right", fontsize=8)
+    ax.set_title(title, fontsize=10)
 
 
 def _plot_paths(path: Path, ik, lines: dict, numbers: dict) -> None:
@@ -159,17 +212,14 @@ def _plot_paths(path: Path, ik, lines: dict, numbers: dict) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from skelfem.cli_control import draw_track
     from skelfem.output import atomic_write
 
-    keep = ik.scene.u.x.array.copy()
     fig, axes = plt.subplots(1, len(lines), figsize=(6 * len(lines), 7.5), dpi=110)
     for ax, (name, (results, poses)) in zip(np.atleast_1d(axes), lines.items()):
         n = numbers[name]
-        draw_track(ax, ik.scene, results, poses,
-                   f"{name} line: {n['reached']}/{n['targets']} targets within {ik.tol:.2g} mm\n"
-                   f"max error of reached {n['max_error_reached']:.2g} mm")
-    ik.scene.u.x.array[:] = keep
+        _draw_track(ax, ik.model, results, poses,
+                    f"{name} line: {n['reached']}/{n['targets']} targets within {ik.tol:.2g} mm\n"
+                    f"max error of reached {n['max_error_reached']:.2g} mm")
     fig.suptitle("finger4: Soft IK along target lines (after the paper's Fig. 11)", fontsize=11)
     fig.tight_layout()
     atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))

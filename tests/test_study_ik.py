@@ -6,12 +6,11 @@ import numpy as np
 from _studies import load_study
 
 
-
 def _load():
     return load_study("ik_trajectories")
 
 
-def test_ik_trajectories_tiny(tmp_path):
+def test_ik_trajectories_tiny(tmp_path, picture):
     study = _load()
     res = study.run(size=4.0, targets=3, random=1, out=tmp_path)
     assert res["finger_length"] == 100.0 and res["tol"] == 0.1
@@ -27,8 +26,13 @@ def test_ik_trajectories_tiny(tmp_path):
     errors = [float(r["error"]) for r in rows]
     assert h["max_error"] > 0 and abs(max(errors) - h["max_error"]) < 1e-9
     assert json.loads((tmp_path / "summary.json").read_text())["horizontal"]["reached"] == h["reached"]
-    for name in ("paths.png", "contractions.png"):
-        assert (tmp_path / name).stat().st_size > 10_000
-    assert (tmp_path / "random.csv").exists() and (tmp_path / "vertical.csv").exists()
+    picture(tmp_path / "paths.png", 1200, 750)
+    picture(tmp_path / "contractions.png", 1200, 380)
+    with open(tmp_path / "random.csv") as f:
+        random_rows = list(csv.DictReader(f))
+    assert len(random_rows) == 1 and int(random_rows[0]["reached"]) == 1
+    assert float(random_rows[0]["error"]) < res["tol"]
+    with open(tmp_path / "vertical.csv") as f:
+        assert np.allclose([float(r["target_x"]) for r in csv.DictReader(f)], 10.0)
     assert not list(tmp_path.glob(".*"))
 
