@@ -17,32 +17,28 @@ CONDITIONS = {"finger": "bones + ligaments", "finger_bones": "bones only", "fing
 
 
 def solve(name: str, overrides=()):
-    """Load geometry/<name>.toml, mesh, solve; returns (scene, report)."""
-    from skelfem.design import load_design
-    from skelfem.geometry import mesh_design
-    from skelfem.scene import Scene
-    from skelfem.solver import NewtonSolver
+    """Session of geometry/<name>.toml, solved; returns (session, result)."""
+    from skelfem import Session
 
-    design = load_design(ROOT / "geometry" / f"{name}.toml", overrides)
-    scene = Scene(design, mesh_design(design))
-    return scene, NewtonSolver(scene, design.solver).solve(design.solver.steps)
+    session = Session(ROOT / "geometry" / f"{name}.toml", overrides)
+    return session, session.solve()
 
 
 def run(size: float = 2.0, contraction: float = 8.0, out: Path | None = None, arm: bool = False) -> dict:
     """Solve the three finger conditions (and arm3d.toml if arm); if out is given, write the figures there."""
     overrides = [f"mesh.size={size}", f"cables.flexor.contraction={contraction}"]
-    results, scenes = {}, {}
+    results, models = {}, {}
     for name in CONDITIONS:
-        scene, report = solve(name, overrides)
-        if not report.converged:
-            raise RuntimeError(f"{name}: {report.status}")
-        tip = scene.marker_positions()[0]
-        results[name] = {"tip": tip.tolist(), "newton_iterations": report.newton_iterations,
-                         "residual_history": report.residual_history,
-                         "tension": scene.cables[0].tension(scene.u.x.array, scene.rest_lengths()[0])}
-        scenes[name] = scene
+        session, result = solve(name, overrides)
+        session.close()
+        if not result.converged:
+            raise RuntimeError(f"{name}: {result.status}")
+        results[name] = {"tip": result.markers["tip"]["position"], "newton_iterations": result.newton_iterations,
+                         "residual_history": result.residual_history,
+                         "tension": result.cables["flexor"]["tension"]}
+        models[name] = session.model
     if out is not None:
-        _figures(Path(out), scenes, results, contraction)
+        _figures(Path(out), models, results, contraction)
     if arm:
         results["arm3d"] = _arm(out)
     return results
@@ -52,15 +48,16 @@ def _arm(out: Path | None) -> dict:
     from skelfem.output import plot_deformed_3d
     from skelfem.run import picture_title
 
-    scene, report = solve("arm3d")
-    if not report.converged:
-        raise RuntimeError(f"arm3d: {report.status}")
+    session, result = solve("arm3d")
+    session.close()
+    if not result.converged:
+        raise RuntimeError(f"arm3d: {result.status}")
     if out is not None:
-        plot_deformed_3d(Path(out) / "arm3d.png", scene, picture_title(scene.design))
-    return {"hand": scene.marker_positions()[1].tolist(), "newton_iterations": report.newton_iterations}
+        plot_deformed_3d(Path(out) / "arm3d.png", session.model, picture_title(session.design))
+    return {"hand": result.markers["hand"]["position"], "newton_iterations": result.newton_iterations}
 
 
-def _figures(out: Path, scenes: dict, results: dict, contraction: float) -> None:
+def _figures(out: Path, models: dict, results: dict, contraction: float) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -68,11 +65,11 @@ def _figures(out: Path, scenes: dict, results: dict, contraction: float) -> None
     from skelfem.output import atomic_write, plot_deformed
 
     out.mkdir(parents=True, exist_ok=True)
-    plot_deformed(out / "finger.png", scenes["finger"], f"finger.toml: flexor contracted {contraction:g} mm")
+    plot_deformed(out / "finger.png", models["finger"], f"finger.toml: flexor contracted {contraction:g} mm")
 
     fig, axes = plt.subplots(1, 3, figsize=(12, 5.2), dpi=110, sharey=True)
     for ax, (name, label) in zip(axes, CONDITIONS.items()):
-        plot_deformed(None, scenes[name], f"{label}\ntip at ({results[name]['tip'][0]:.1f}, "
+        plot_deformed(None, models[name], f"{label}\ntip at ({results[name]['tip'][0]:.1f}, "
                       f"{results[name]['tip'][1]:.1f}) mm, T = {results[name]['tension']:.2f} N", ax=ax)
         ax.legend().remove() if ax.get_legend() else None
     fig.suptitle(f"Same tendon contraction ({contraction:g} mm), three skeletons", fontsize=11)

@@ -24,7 +24,7 @@ Problems (2D, plane strain):
 Error of a case: |x_marker - x_ref| (mm), x_ref from the finest P2 mesh; the
 reference's own error is estimated by Richardson extrapolation from the
 three finest P2 meshes (observed order p from their differences). Wall time
-is meshing + scene set-up + Newton solve, after an untimed warm-up that fills
+is meshing + model set-up + Newton solve, after an untimed warm-up that fills
 the FFCx cache. On a shared machine compare times within one run only.
 
 run(**params) returns the numbers; main(argv) writes cases.csv, summary.json
@@ -110,45 +110,43 @@ def circle_curvature(points: np.ndarray) -> float:
     return 1.0 / math.sqrt(max(a * a / 4 + b * b / 4 - c, 1e-300))
 
 
-def strip_beam_check(scene, nu: float) -> dict:
+def strip_beam_check(model, nu: float) -> dict:
     """Mid-span curvature of the deformed axis (circle fit, y in [30, 70]) against kappa = T d / (E' I)."""
     from skelfem.points import interpolation_matrix
     ys = np.linspace(30.0, 70.0, 41)
     X = np.column_stack([np.full_like(ys, W / 2), ys])
-    x = X + (interpolation_matrix(scene.V, X) @ scene.u.x.array).reshape(-1, 2)
-    T = scene.cables[0].tension(scene.u.x.array, scene.rest_lengths()[0])
+    x = X + (interpolation_matrix(model.V, X) @ model.u.x.array).reshape(-1, 2)
+    tendon = model.terms_in("cables")[0]
+    T = tendon.cable.tension(model.u.x.array, tendon.rest_length)
     kappa_beam = T * D_OFF / (E_STRIP / (1 - nu ** 2) * THICK * W ** 3 / 12)
     return {"tension": T, "kappa": circle_curvature(x), "kappa_beam": kappa_beam}
 
 
 def solve_case(problem: str, degree: int, size: float) -> dict:
     """Mesh, set up and solve one case; returns its numbers and wall times."""
+    from skelfem import Session
     from skelfem.design import parse_design
-    from skelfem.geometry import mesh_design
-    from skelfem.scene import Scene
-    from skelfem.solver import NewtonSolver
 
     design = parse_design(PROBLEMS[problem](size, degree), f"{problem}.toml")
     t0 = time.perf_counter()
-    tm = mesh_design(design)
-    t1 = time.perf_counter()
-    scene = Scene(design, tm)
-    solver = NewtonSolver(scene, design.solver)
+    session = Session(design)                 # mesh, then model and Newton solver ("compile")
+    setup = dict(session.timings)
     t2 = time.perf_counter()
-    report = solver.solve(design.solver.steps)
+    result = session.solve()
     t3 = time.perf_counter()
-    row = {"problem": problem, "degree": degree, "size": size,
-           "dofs": int(scene.V.dofmap.index_map.size_global * scene.bs),
-           "converged": bool(report.converged), "status": report.status,
-           "newton_iterations": report.newton_iterations,
-           "time_mesh": t1 - t0, "time_setup": t2 - t1, "time_solve": t3 - t2, "time": t3 - t0}
-    if report.converged:        # a failed solve is never reported as an equilibrium
-        x = scene.marker_positions()[0]
-        row.update(x=float(x[0]), y=float(x[1]),
-                   displacement=float(np.linalg.norm(x - scene.marker_X[0])),
-                   tension=float(scene.cables[0].tension(scene.u.x.array, scene.rest_lengths()[0])))
+    session.close()
+    row = {"problem": problem, "degree": degree, "size": size, "dofs": session.dofs,
+           "converged": bool(result.converged), "status": result.status,
+           "newton_iterations": result.newton_iterations,
+           "time_mesh": setup["mesh"], "time_setup": setup["compile"], "time_solve": t3 - t2,
+           "time": t3 - t0}
+    if result.converged:        # a failed solve is never reported as an equilibrium
+        tip = result.markers["tip"]
+        cable = next(iter(result.cables.values()))
+        row.update(x=float(tip["position"][0]), y=float(tip["position"][1]),
+                   displacement=float(np.linalg.norm(tip["displacement"])), tension=float(cable["tension"]))
         if problem in NU:
-            beam = strip_beam_check(scene, NU[problem])
+            beam = strip_beam_check(session.model, NU[problem])
             row.update(kappa=beam["kappa"], kappa_beam=beam["kappa_beam"],
                        kappa_ratio=beam["kappa"] / beam["kappa_beam"])
     return row

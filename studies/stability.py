@@ -64,30 +64,26 @@ def finger_dict(ratio: float, contraction: float, strategy: str, steps: int, siz
 
 def solve_case(ratio: float, contraction: float, strategy: str, steps: int, size: float) -> dict:
     """One solve; steps = 1 means no load stepping and no step cutting."""
+    from skelfem import Session
     from skelfem.design import parse_design
-    from skelfem.geometry import mesh_design
-    from skelfem.scene import Scene
-    from skelfem.solver import NewtonSolver
 
-    design = parse_design(finger_dict(ratio, contraction, strategy, steps, size), "finger.toml")
-    scene = Scene(design, mesh_design(design))
-    solver = NewtonSolver(scene, design.solver)
+    session = Session(parse_design(finger_dict(ratio, contraction, strategy, steps, size), "finger.toml"))
     if steps == 1:
-        solver.max_cuts = 0
+        session.solver.max_cuts = 0
     t0 = time.perf_counter()
     try:
-        report = solver.solve(steps)
-        converged, status = bool(report.converged), report.status
-        its, load_steps, min_j = report.newton_iterations, report.load_steps, report.min_jacobian
+        result = session.solve(steps)
+        converged, status = bool(result.converged), result.status
+        its, load_steps, min_j = result.newton_iterations, result.load_steps, result.min_jacobian
     except Exception as exc:          # a PETSc error inside a strategy is a failure of that strategy
         converged, status, its, load_steps, min_j = False, f"error: {type(exc).__name__}", 0, 0, float("nan")
     row = {"ratio": ratio, "contraction": contraction, "strategy": strategy, "steps": steps,
            "converged": converged, "status": status, "newton_iterations": its, "load_steps": load_steps,
-           "time": time.perf_counter() - t0, "min_jacobian": min_j,
-           "dofs": int(scene.V.dofmap.index_map.size_global * scene.bs)}
+           "time": time.perf_counter() - t0, "min_jacobian": min_j, "dofs": session.dofs}
     if converged:                     # a failed solve is never reported as an equilibrium
-        tip = scene.marker_positions()[0]
+        tip = result.markers["tip"]["position"]
         row.update(tip_x=float(tip[0]), tip_y=float(tip[1]))
+    session.close()
     return row
 
 

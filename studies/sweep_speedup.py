@@ -12,13 +12,14 @@ run(**params) returns the numbers; main(argv) prints them and writes speedup.jso
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shutil
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+from skelfem.output import say, write_json
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
@@ -87,11 +88,11 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path, default=ROOT / "studies" / "output" / "sweep_speedup")
     a = p.parse_args(argv)
     r = run(a.cases, a.ranks, a.size, a.out)
-    print(f"{r['cases']} cases of finger.toml (mesh size {r['mesh_size']} mm): serial {r['serial_s']:.1f} s, "
-          f"{r['ranks']} ranks {r['parallel_s']:.1f} s, ratio {r['ratio']:.2f}; {r['ranks']} independent serial "
-          f"processes on the same cases at once {r['independent_s']:.1f} s, ratio {r['machine_ratio']:.2f} "
-          "(what this machine allows)")
-    (a.out / "speedup.json").write_text(json.dumps(r, indent=2) + "\n")
+    say(f"{r['cases']} cases of finger.toml (mesh size {r['mesh_size']} mm): serial {r['serial_s']:.1f} s, "
+        f"{r['ranks']} ranks {r['parallel_s']:.1f} s, ratio {r['ratio']:.2f}; {r['ranks']} independent serial "
+        f"processes on the same cases at once {r['independent_s']:.1f} s, ratio {r['machine_ratio']:.2f} "
+        "(what this machine allows)")
+    write_json(a.out / "speedup.json", r)
     return 0
 
 

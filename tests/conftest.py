@@ -73,13 +73,16 @@ def mpirun() -> Mpirun:
 
 
 # -- pictures -------------------------------------------------------------------------------------------
-def check_picture(path, min_width: int = 300, min_height: int = 200, min_ink: float = 0.02,
-                  min_colours: int = 4) -> np.ndarray:
+def check_picture(path, min_width: int = 300, min_height: int = 200, min_ink: float = 0.05,
+                  min_colour: float = 0.002) -> np.ndarray:
     """Assert that path is a PNG of at least the given size with a drawing on it; returns the image.
 
-    The background is the most common colour; at least a fraction min_ink of
-    the pixels must differ from it, in at least min_colours distinct colours
-    (besides the background), so an empty or one-colour picture fails.
+    The background is the most common colour. At least a fraction min_ink of
+    the pixels must differ from it (empty matplotlib axes with ticks and
+    labels reach about 0.02; the pictures here 0.1 to 0.3), and at least a
+    fraction min_colour must be coloured, not grey (max - min of R, G, B
+    above 40 of 255): every picture here draws in colour (bodies, cables,
+    curves), so a frame with grey text only fails.
     """
     import matplotlib.image as mpimg
 
@@ -88,19 +91,18 @@ def check_picture(path, min_width: int = 300, min_height: int = 200, min_ink: fl
     img = mpimg.imread(str(path))
     assert img.ndim == 3 and img.shape[2] in (3, 4), img.shape
     h, w = img.shape[:2]
-    assert w >= min_width and h >= min_height, f"{path.name}: {w} x {h} pixels"
+    assert w >= min_width and h >= min_height, f"{path.name}: {w} x {h} pixels, expected >= {min_width} x {min_height}"
     rgb = np.round(np.asarray(img[:, :, :3], dtype=float) * 255).astype(np.int64)
     codes = (rgb[..., 0] << 16) | (rgb[..., 1] << 8) | rgb[..., 2]
-    values, counts = np.unique(codes, return_counts=True)
-    background = values[np.argmax(counts)]
+    counts = np.unique(codes, return_counts=True)[1]
     ink = 1.0 - counts.max() / codes.size
     assert ink >= min_ink, f"{path.name}: only {ink:.2%} of the pixels differ from the background"
-    colours = int(np.count_nonzero(counts[values != background] >= 20))    # ignore stray anti-aliasing
-    assert colours >= min_colours, f"{path.name}: {colours} colours besides the background"
+    colour = float(np.mean(rgb.max(axis=2) - rgb.min(axis=2) > 40))
+    assert colour >= min_colour, f"{path.name}: only {colour:.2%} of the pixels are coloured"
     return img
 
 
 @pytest.fixture(scope="session")
 def picture():
-    """check_picture(path, min_width, min_height, min_ink, min_colours): a real, non-blank PNG."""
+    """check_picture(path, min_width, min_height, min_ink, min_colour): a real, non-blank PNG."""
     return check_picture

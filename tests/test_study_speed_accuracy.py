@@ -5,7 +5,6 @@ import pytest
 from _studies import load_study
 
 
-
 def _load():
     return load_study("speed_accuracy")
 
@@ -57,11 +56,11 @@ def test_reference_agrees_with_beam_theory_and_has_an_error_estimate(tiny):
         assert all(a["error"] > b["error"] for a, b in zip(front, front[1:]))
 
 
-def test_outputs_written(tiny):
+def test_outputs_written(tiny, picture):
     _, out = tiny
     for name in ("cases.csv", "summary.json"):
         assert (out / name).stat().st_size > 200
-    assert (out / "speed_accuracy.png").stat().st_size > 5_000
+    picture(out / "speed_accuracy.png", 1000, 450)
     assert not list(out.glob(".*"))
 
 
