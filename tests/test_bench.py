@@ -1,4 +1,4 @@
-"""skelfem bench: the table, bench.json's fields, positive times, quadratic Newton, bad input."""
+"""skelfem bench: the table, bench.json's fields, iteration times against the floor, quadratic Newton, bad input."""
 import json
 from pathlib import Path
 
@@ -32,15 +32,25 @@ def test_bench_writes_json_with_positive_times(bench_run):
                     "solve_time", "floor_time"):
             assert np.isfinite(r[key]) and r[key] > 0, key
         assert r["newton_iterations"] > 0
+        # the floor is FE-Hessian assembly + refactorisation; an iteration is measured against it
+        assert r["floor_time"] == pytest.approx(r["assembly_time"] + r["refactorization_time"])
         assert r["ratio"] == pytest.approx(r["iteration_time_median"] / r["floor_time"])
-        # an iteration contains an assembly and a factorisation: it cannot be far below their sum
-        assert r["ratio"] > 0.3
-        assert r["nnz"] > r["fe_pattern"]["nnz"] > 0       # the cables add entries to the pattern
-        assert r["breakdown"]["factorization"] > 0 and r["breakdown"]["jacobian"] > 0
-        assert r["breakdown"]["calls_per_iteration"]["jacobian"] == pytest.approx(1.0)
-        lr = r["low_rank_prototype"]
-        assert lr["available"] and lr["nnz"] < r["nnz"]
-        assert lr["direction_difference"] < 1e-6           # Woodbury gives the same Newton direction
+        # an iteration contains at least an assembly of K (>= the FE Hessian) and a refactorisation: it cannot
+        # be far below their sum; on these tiny meshes line search, residuals and Python glue cost a few
+        # floors more, but not dozens (that would be a floor measured wrongly, or a solver gone astray)
+        assert 0.7 < r["ratio"] < 25.0, r["ratio"]
+        assert r["solve_time"] >= r["newton_iterations"] * r["iteration_time_median"] * 0.5
+        k = r["newton_matrix"]                               # K: FE Hessian + the cables' curvature blocks
+        # no dense cable blocks in K any more: each cable segment lies in one cell (or two neighbours), so its
+        # curvature block adds few entries, if any, to the FE Hessian's pattern (before: 3x the FE entries)
+        assert r["nnz"] > 0 and r["nnz"] <= k["nnz"] <= 1.05 * r["nnz"]
+        assert k["floor_time"] == pytest.approx(k["assembly_time"] + k["refactorization_time"])
+        assert k["floor_time"] > 0 and k["low_rank_parts"] >= 1    # taut cables go through Woodbury
+        b = r["breakdown"]
+        assert b["factorization"] > 0 and b["jacobian"] > 0
+        assert b["calls_per_iteration"]["jacobian"] == pytest.approx(1.0)
+        # (that the Woodbury solve gives the same Newton direction as the full Hessian is
+        #  tests/test_terms.py::test_woodbury_direction_equals_the_full_hessian_direction)
     assert not result["floor"]["checked"]                  # too small for the 20k-DOF floor
 
 
