@@ -19,6 +19,9 @@ import numpy as np
 from . import polygons
 
 FORMAT = 1
+MAX_COORDINATE = 1e7      # mm: geometry beyond +-10 km is a typo, and overflows the predicates
+MAX_STEPS = 10_000        # load steps and Newton iterations: a cap against runaway runs
+MAX_NAME = 100            # bytes in a design, entry or marker name
 LINE_SEARCHES = ("energy", "residual", "none", "trust_region")
 SECTIONS_BY_NAME = ("bones", "cables", "pins", "loads", "grounds", "tractions")
 PRIMITIVES = ("box", "cylinder", "sphere", "extrude")
@@ -136,6 +139,8 @@ class Design:
     tractions: tuple = ()
     format: int = FORMAT
     raw: dict = field(default_factory=dict)   # the TOML data after overrides
+    measure: float = 0.0      # body area (2D, mm^2) or volume (3D, mm^3), bones included
+    vertices: int = 0         # polygon vertices of all outlines (2D) / primitives (3D)
 
     @property
     def tendons(self) -> tuple:
@@ -185,35 +190,57 @@ def _is_number(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
+def _show(value, width: int = 60) -> str:
+    """repr of a value for a one-line message, shortened."""
+    try:
+        text = repr(value)
+    except Exception:           # e.g. an integer too long to print
+        text = f"<{type(value).__name__}>"
+    return text if len(text) <= width else text[:width - 3] + "..."
+
+
+def _finite(value) -> bool:
+    try:
+        return math.isfinite(value)
+    except OverflowError:       # an integer beyond float range
+        return False
+
+
 def _convert(value, kind: str, dim, fail):
     if kind == "number":
-        if not _is_number(value) or not math.isfinite(value):
-            fail(f"must be a number, got {value!r}")
+        if not _is_number(value):
+            fail(f"must be a number, got {_show(value)}")
+        if not _finite(value):
+            fail(f"must be a finite number, got {_show(value)}")
         return float(value)
     if kind == "int":
         if not isinstance(value, int) or isinstance(value, bool):
-            fail(f"must be an integer, got {value!r}")
+            fail(f"must be an integer, got {_show(value)}")
         return int(value)
     if kind == "str":
         if not isinstance(value, str):
-            fail(f"must be a string, got {value!r}")
+            fail(f"must be a string, got {_show(value)}")
         return value
     if kind == "bool":
         if not isinstance(value, bool):
-            fail(f"must be true or false, got {value!r}")
+            fail(f"must be true or false, got {_show(value)}")
         return value
     if kind in ("vector", "points"):
         shape = (dim,) if kind == "vector" else (None, dim)
-        try:
-            a = np.asarray(value, dtype=float)
-            ok = all(_is_number(x) for x in np.ravel(np.asarray(value, dtype=object)))
-        except (ValueError, TypeError):
-            ok = False
+        ok = isinstance(value, list) and (kind == "vector" or all(isinstance(v, list) for v in value))
+        if ok:
+            flat = value if kind == "vector" else [x for v in value for x in v]
+            ok = all(_is_number(x) for x in flat)
+        if ok:
+            if not all(_finite(x) for x in flat):
+                fail("must be finite")
+            try:
+                a = np.asarray(value, dtype=float)
+            except (ValueError, TypeError, OverflowError):
+                ok = False
         if not ok or a.ndim != len(shape) or a.shape[-1] != dim:
             what = f"{dim} numbers" if kind == "vector" else f"a list of points with {dim} coordinates each"
             fail(f"must be {what}")
-        if not np.all(np.isfinite(a)):
-            fail("must be finite")
         return a
     if kind == "table":
         if not isinstance(value, dict):
@@ -236,11 +263,27 @@ def _positive(t: _Table, name: str, value: float, strict: bool = True) -> float:
     return value
 
 
+def _bounded(t: _Table, name: str, a: np.ndarray) -> np.ndarray:
+    """Geometry must stay within +-MAX_COORDINATE mm."""
+    if a.size and np.abs(a).max() > MAX_COORDINATE:
+        t.fail(name, f"coordinates must lie within +-{MAX_COORDINATE:g} mm (got {np.abs(a).max():g})")
+    return a
+
+
+def _plain_name(t: _Table, name: str, value: str, what: str) -> str:
+    """A name that also names folders or columns: no separators, control characters or hidden names."""
+    from .outdir import check_name
+    problem = check_name(value, what, MAX_NAME)
+    if problem:
+        t.fail(name, f"{problem}; got {_show(value)}")
+    return value
+
+
 # -- overrides ------------------------------------------------------------------------------------------
 def _parse_value(text: str):
     try:
         return tomllib.loads("v = " + text)["v"]
-    except tomllib.TOMLDecodeError:
+    except (tomllib.TOMLDecodeError, RecursionError, KeyError):
         return text.strip()
 
 
@@ -282,6 +325,7 @@ def apply_override(data: dict, assignment: str, source: str) -> None:
 def _polygon(t: _Table, name: str, pts: np.ndarray, tol: float) -> np.ndarray:
     if len(pts) < 3:
         t.fail(name, "a polygon needs at least 3 points")
+    _bounded(t, name, pts)
     if np.any(np.linalg.norm(pts - np.roll(pts, -1, axis=0), axis=1) <= tol):
         t.fail(name, "repeated consecutive points (degenerate polygon)")
     if np.ptp(pts, axis=0).min() <= tol:
@@ -298,15 +342,63 @@ class _Region2D:
 
     def __init__(self, outline, holes, tol):
         self.outline, self.holes, self.tol = outline, holes, tol
+        self.loops = [outline, *holes]
 
     def contains(self, points: np.ndarray) -> np.ndarray:
-        ok = polygons.contains(self.outline, points, self.tol)
-        for h in self.holes:
-            ok &= ~polygons.strictly_inside(h, points, self.tol)
-        return ok
+        # holes lie strictly inside the outline and apart: the even-odd rule over all loops
+        return polygons.region_contains(self.loops, np.atleast_2d(points), self.tol)
 
     def contains_path(self, path: np.ndarray) -> bool:
-        return bool(np.all(self.contains(polygons.sample_polyline(path, [self.outline, *self.holes]))))
+        return bool(np.all(self.contains(polygons.polyline_samples(path, self.loops, self.tol))))
+
+
+def _layout_2d(body_t: "_Table", region: _Region2D, bone_tables: list, bone_outlines: list) -> None:
+    """Holes strictly inside the outline and apart; bones strictly inside the body, apart.
+
+    All boundaries are intersected at once (polygons.meeting_loops); loops
+    that do not meet are nested or apart, which one vertex decides.
+    """
+    outline, holes, tol = region.outline, region.holes, region.tol
+    loops = [outline, *holes, *bone_outlines]
+    nh = len(holes)
+    meets = polygons.meeting_loops(loops, tol)
+    firsts = np.array([loop[0] for loop in loops])
+    in_outline = polygons.parity(firsts, [outline])
+
+    boxes = np.array([np.r_[loop.min(axis=0) - tol, loop.max(axis=0) + tol] for loop in loops])
+    nested = set()                                  # (i, j): loop i's first vertex lies inside loop j
+    candidates: dict = {}
+    for I, J in polygons.candidate_pairs(boxes[1:]):
+        for i, j in zip((I + 1).tolist(), (J + 1).tolist()):
+            candidates.setdefault(j, []).append(i)
+            candidates.setdefault(i, []).append(j)
+    for j, inner in candidates.items():
+        inner = sorted(set(inner))
+        hit = polygons.parity(firsts[inner], [loops[j]])
+        nested.update((i, j) for i, h in zip(inner, hit) if h)
+
+    def overlapping(i, j):
+        a, b = min(i, j), max(i, j)
+        return (a, b) in meets or (i, j) in nested or (j, i) in nested
+
+    for k in range(nh):
+        i = 1 + k
+        if (0, i) in meets or not in_outline[i]:
+            body_t.fail(f"holes[{k}]", "a hole must lie strictly inside the outline")
+        for m in range(k):
+            if overlapping(i, 1 + m):
+                body_t.fail(f"holes[{k}]", f"overlaps holes[{m}]")
+    for k, t in enumerate(bone_tables):
+        i = 1 + nh + k
+        if (0, i) in meets or not in_outline[i]:
+            t.fail("outline", "a bone must lie strictly inside the body outline")
+        for m in range(nh):
+            if overlapping(i, 1 + m):
+                t.fail("outline", f"overlaps body.holes[{m}]")
+        for m in range(k):
+            if overlapping(i, 1 + nh + m):
+                other = bone_tables[m].where.split(".", 1)[1]
+                t.fail("outline", f"overlaps or touches bone {other!r}")
 
 
 # -- sections -------------------------------------------------------------------------------------------
@@ -326,6 +418,7 @@ def _named_entries(top: _Table, section: str, required: bool = False) -> list[_T
         name = t.take("name", "str")
         if not name or "." in name or "=" in name:
             t.fail("name", "must be a non-empty name without '.' or '='")
+        _plain_name(t, "name", name, "a name")
         if name in seen:
             t.fail("name", f"duplicate name {name!r} in {section}")
         seen.add(name)
@@ -367,26 +460,33 @@ def _solid(t: _Table, i: int, prim, dim: int, tol: float) -> dict:
     (kind, params), = prim.items()
     p = _Table(params, f"{where}.{kind}", t.source)
     if kind == "box":
-        lo, hi = p.take("min", "vector", dim=3), p.take("max", "vector", dim=3)
+        lo, hi = _bounded(p, "min", p.take("min", "vector", dim=3)), _bounded(p, "max", p.take("max", "vector", dim=3))
         if np.any(hi - lo <= tol):
             p.fail("max", "must exceed min in every coordinate")
         out = {"min": lo, "max": hi}
     elif kind == "cylinder":
-        a, b = p.take("from", "vector", dim=3), p.take("to", "vector", dim=3)
+        a, b = _bounded(p, "from", p.take("from", "vector", dim=3)), _bounded(p, "to", p.take("to", "vector", dim=3))
         if np.linalg.norm(b - a) <= tol:
             p.fail("to", "must differ from 'from'")
-        out = {"from": a, "to": b, "radius": _positive(p, "radius", p.take("radius", "number"))}
+        out = {"from": a, "to": b, "radius": _small(p, "radius", p.take("radius", "number"), tol)}
     elif kind == "sphere":
-        out = {"center": p.take("center", "vector", dim=3),
-               "radius": _positive(p, "radius", p.take("radius", "number"))}
+        out = {"center": _bounded(p, "center", p.take("center", "vector", dim=3)),
+               "radius": _small(p, "radius", p.take("radius", "number"), tol)}
     else:
         outline = _polygon(p, "outline", p.take("outline", "points", dim=2), tol)
-        z = p.take("z", "vector", dim=2)
+        z = _bounded(p, "z", p.take("z", "vector", dim=2))
         if z[1] - z[0] <= tol:
             p.fail("z", "must be [z0, z1] with z1 > z0")
         out = {"outline": outline, "z": z}
     p.done()
     return {kind: out}
+
+
+def _small(t: _Table, name: str, r: float, tol: float) -> float:
+    _positive(t, name, r)
+    if r <= tol or r > MAX_COORDINATE:
+        t.fail(name, f"must lie in ({tol:g}, {MAX_COORDINATE:g}] mm, got {r:g}")
+    return r
 
 
 def _solids(t: _Table, dim: int, tol: float) -> tuple:
@@ -400,28 +500,44 @@ def _body(top: _Table, dim: int, materials: dict):
     t = _Table(top.take("body", "table"), "body", top.source)
     material = _material_ref(t, materials)
     if dim == 3:
-        body = Body(material, solids=_solids(t, dim, 1e-12))
+        tol = 1e-9 * max(_extent(top.data), 1.0)
+        body = Body(material, solids=_solids(t, dim, tol))
         t.done()
-        return body, None, 1e-9
+        return body, None, tol, t
     outline = t.take("outline", "points", dim=2)
-    tol = 1e-9 * max(float(np.ptp(outline, axis=0).max()) if len(outline) else 1.0, 1.0)
+    tol = 1e-9 * max(float(np.ptp(outline, axis=0).max()) if len(outline) >= 1 else 1.0, 1.0)
     outline = _polygon(t, "outline", outline, tol)
     holes = []
     for i, h in enumerate(t.take("holes", "list", default=[])):
         hname = f"holes[{i}]"
-        h = _polygon(t, hname, _convert(h, "points", 2, lambda m: t.fail(hname, m)), tol)
-        if not np.all(polygons.strictly_inside(outline, h, tol)) or polygons.boundaries_meet(outline, h, tol):
-            t.fail(hname, "a hole must lie strictly inside the outline")
-        for j, other in enumerate(holes):
-            if polygons.overlap(h, other, tol):
-                t.fail(hname, f"overlaps holes[{j}]")
-        holes.append(h)
+        holes.append(_polygon(t, hname, _convert(h, "points", 2, lambda m: t.fail(hname, m)), tol))
     t.done()
-    return Body(material, outline=outline, holes=tuple(holes)), _Region2D(outline, holes, tol), tol
+    return Body(material, outline=outline, holes=tuple(holes)), _Region2D(outline, holes, tol), tol, t
 
 
-def _bones(top: _Table, dim: int, materials: dict, region, tol) -> tuple:
-    bones, outlines = [], []
+def _extent(data: dict) -> float:
+    """Size of the 3D body's primitives (for tolerances), from the raw table; 1 if unreadable."""
+    try:
+        pts = []
+        for prim in data["body"]["solids"]:
+            (kind, p), = prim.items()
+            if kind == "box":
+                pts += [p["min"], p["max"]]
+            elif kind == "cylinder":
+                pts += [p["from"], p["to"]]
+            elif kind == "sphere":
+                pts += [p["center"]]
+            else:
+                pts += [[x, y, z] for x, y in p["outline"] for z in p["z"]]
+        a = np.asarray(pts, float)
+        ext = float(np.ptp(a, axis=0).max())
+        return ext if math.isfinite(ext) else 1.0
+    except Exception:
+        return 1.0
+
+
+def _bones(top: _Table, dim: int, materials: dict, region, tol, body_t) -> tuple:
+    bones, tables = [], []
     for t in _named_entries(top, "bones"):
         name = t.where.split(".", 1)[1]
         material = _material_ref(t, materials)
@@ -430,18 +546,11 @@ def _bones(top: _Table, dim: int, materials: dict, region, tol) -> tuple:
             t.done()
             continue
         outline = _polygon(t, "outline", t.take("outline", "points", dim=2), tol)
-        inside = np.all(polygons.strictly_inside(region.outline, outline, tol))
-        if not inside or polygons.boundaries_meet(region.outline, outline, tol):
-            t.fail("outline", "a bone must lie strictly inside the body outline")
-        for i, h in enumerate(region.holes):
-            if polygons.overlap(outline, h, tol):
-                t.fail("outline", f"overlaps body.holes[{i}]")
-        for other, o in zip(bones, outlines):
-            if polygons.overlap(outline, o, tol):
-                t.fail("outline", f"overlaps or touches bone {other.name!r}")
         t.done()
         bones.append(Bone(name, material, outline=outline))
-        outlines.append(outline)
+        tables.append(t)
+    if dim == 2:
+        _layout_2d(body_t, region, tables, [b.outline for b in bones])
     return tuple(bones)
 
 
@@ -457,7 +566,7 @@ def _cables(top: _Table, dim: int, region, tol) -> tuple:
         kind = t.take("kind", "str")
         if kind not in ("tendon", "ligament"):
             t.fail("kind", f"must be \"tendon\" or \"ligament\", got {kind!r}")
-        path = t.take("path", "points", dim=dim)
+        path = _bounded(t, "path", t.take("path", "points", dim=dim))
         if len(path) < 2:
             t.fail("path", "a cable path needs at least 2 points")
         seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
@@ -504,7 +613,7 @@ def _pins(top: _Table, dim: int) -> tuple:
 def _loads(top: _Table, dim: int, region) -> tuple:
     loads = []
     for t in _named_entries(top, "loads"):
-        at = t.take("at", "vector", dim=dim)
+        at = _bounded(t, "at", t.take("at", "vector", dim=dim))
         _inside(t, "at", at, region, "the load point")
         force = t.take("force", "vector", dim=dim)
         t.done()
@@ -541,17 +650,47 @@ def _gravity(top: _Table, dim: int, materials: dict, used: list) -> np.ndarray |
     return g
 
 
-def _grounds(top: _Table, dim: int) -> tuple:
+def _grounds(top: _Table, dim: int, body: Body, tol: float) -> tuple:
     grounds = []
     for t in _named_entries(top, "grounds"):
-        point = t.take("point", "vector", dim=dim)
+        point = _bounded(t, "point", t.take("point", "vector", dim=dim))
         normal = t.take("normal", "vector", dim=dim)
-        if np.linalg.norm(normal) == 0:
+        norm = float(np.linalg.norm(normal / np.abs(normal).max())) * np.abs(normal).max() \
+            if np.any(normal) else 0.0
+        if not norm > 0 or not math.isfinite(norm):
             t.fail("normal", "must be a non-zero vector")
+        normal = normal / norm
         k = _positive(t, "stiffness", t.take("stiffness", "number"))
         t.done()
-        grounds.append(GroundSpec(t.where.split(".", 1)[1], point, normal / np.linalg.norm(normal), k))
+        depth = -_lowest(body, dim, point, normal)
+        if depth > max(tol, 1e-9):
+            t.fail("point", f"the plane cuts the body at rest ({depth:.3g} mm of it lies beyond the plane); "
+                            "a ground must start on the normal's side of the body (touching is fine)")
+        grounds.append(GroundSpec(t.where.split(".", 1)[1], point, normal, k))
     return tuple(grounds)
+
+
+def _lowest(body: Body, dim: int, point: np.ndarray, normal: np.ndarray) -> float:
+    """The smallest signed distance (x - point) . normal over the body at rest."""
+    if dim == 2:
+        return float(((body.outline - point) @ normal).min())
+    lows = []
+    for prim in body.solids:
+        (kind, p), = prim.items()
+        if kind == "box":
+            corners = np.array([[x, y, z] for x in (p["min"][0], p["max"][0]) for y in (p["min"][1], p["max"][1])
+                                for z in (p["min"][2], p["max"][2])])
+            lows.append(((corners - point) @ normal).min())
+        elif kind == "sphere":
+            lows.append(float((p["center"] - point) @ normal) - p["radius"])
+        elif kind == "cylinder":
+            axis = (p["to"] - p["from"]) / np.linalg.norm(p["to"] - p["from"])
+            spread = p["radius"] * math.sqrt(max(0.0, 1.0 - float(axis @ normal) ** 2))
+            lows.append(min(float((c - point) @ normal) for c in (p["from"], p["to"])) - spread)
+        else:
+            pts = np.array([[x, y, z] for x, y in p["outline"] for z in p["z"]])
+            lows.append(((pts - point) @ normal).min())
+    return float(min(lows))
 
 
 def _markers(top: _Table, dim: int, region) -> dict:
@@ -560,7 +699,8 @@ def _markers(top: _Table, dim: int, region) -> dict:
     for name in list(t.data):
         if "." in name:
             t.fail(name, "marker names must not contain '.'")
-        X = t.take(name, "vector", dim=dim)
+        _plain_name(t, name, name, "a marker name")
+        X = _bounded(t, name, t.take(name, "vector", dim=dim))
         _inside(t, name, X, region, "the marker")
         out[name] = X
     return out
@@ -577,11 +717,11 @@ def _solver(top: _Table) -> SolverSpec:
     t = _Table(top.take("solver", "table", {}), "solver", top.source)
     d = SolverSpec()
     steps = t.take("steps", "int", d.steps)
-    if steps < 1:
-        t.fail("steps", "must be >= 1")
+    if not 1 <= steps <= MAX_STEPS:
+        t.fail("steps", f"must be >= 1 and <= {MAX_STEPS}" if steps >= 1 else "must be >= 1")
     its = t.take("max_iterations", "int", d.max_iterations)
-    if its < 1:
-        t.fail("max_iterations", "must be >= 1")
+    if not 1 <= its <= MAX_STEPS:
+        t.fail("max_iterations", f"must be >= 1 and <= {MAX_STEPS}" if its >= 1 else "must be >= 1")
     ls = t.take("line_search", "str", d.line_search)
     if ls not in LINE_SEARCHES:
         t.fail("line_search", f"must be one of {', '.join(LINE_SEARCHES)}; got {ls!r}")
@@ -601,7 +741,8 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     fmt = top.take("format", "int")
     if fmt != FORMAT:
         top.fail("format", f"unsupported format {fmt} (this version reads format = {FORMAT})")
-    name = top.take("name", "str", Path(source).stem if source != "<design>" else "design")
+    name = _plain_name(top, "name", top.take("name", "str", Path(source).stem if source != "<design>" else "design"),
+                       "the design name (it names the output folder)")
     dim = top.take("dim", "int", 2)
     if dim not in (2, 3):
         top.fail("dim", f"must be 2 or 3, got {dim}")
@@ -617,43 +758,72 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
         mt.fail("degree", f"must be 1 or 2, got {mesh.degree}")
     mt.done()
     materials = _materials(top)
-    body, region, tol = _body(top, dim, materials)
-    bones = _bones(top, dim, materials, region, tol)
-    design = Design(
-        source=str(source), name=name, dim=dim, thickness=thickness, mesh=mesh,
-        materials=materials, body=body,
-        bones=bones,
-        cables=_cables(top, dim, region, tol),
-        pins=_pins(top, dim),
-        loads=_loads(top, dim, region),
-        grounds=_grounds(top, dim),
-        contact=_contact(top),
-        markers=_markers(top, dim, region),
-        solver=_solver(top),
-        gravity=_gravity(top, dim, materials, [body.material] + [b.material for b in bones]),
-        tractions=_tractions(top, dim),
-        raw=data,
-    )
+    body, region, tol, body_t = _body(top, dim, materials)
+    bones = _bones(top, dim, materials, region, tol, body_t)
+    cables = _cables(top, dim, region, tol)
+    pins = _pins(top, dim)
+    loads = _loads(top, dim, region)
+    grounds = _grounds(top, dim, body, tol)
+    contact = _contact(top)
+    markers = _markers(top, dim, region)
+    solver = _solver(top)
+    gravity = _gravity(top, dim, materials, [body.material] + [b.material for b in bones])
+    tractions = _tractions(top, dim)
     top.done()
-    return design
+    if dim == 2:
+        measure = abs(polygons.signed_area(body.outline)) - sum(abs(polygons.signed_area(h)) for h in body.holes)
+        vertices = len(body.outline) + sum(len(h) for h in body.holes) + sum(len(b.outline) for b in bones)
+    else:
+        from . import solids
+        result = solids.check(body.solids, [(b.name, b.solids) for b in bones], [(c.name, c.path) for c in cables],
+                              markers, [(ld.name, ld.at) for ld in loads], [(p.name, p.region) for p in pins], tol)
+        if result.error is not None:
+            key, message = result.error
+            raise DesignError(f"{source}: {key}: {message}")
+        measure = result.volume
+        vertices = sum(len(next(iter(s.values())).get("outline", ())) + 8 for s in body.solids) \
+            + sum(len(next(iter(s.values())).get("outline", ())) + 8 for b in bones for s in b.solids)
+    return Design(
+        source=str(source), name=name, dim=dim, thickness=thickness, mesh=mesh,
+        materials=materials, body=body, bones=bones, cables=cables, pins=pins, loads=loads,
+        grounds=grounds, contact=contact, markers=markers, solver=solver, gravity=gravity,
+        tractions=tractions, raw=data, measure=float(measure), vertices=int(vertices),
+    )
 
 
-def load_design(path, overrides=()) -> Design:
-    """Read, override and validate a design file; raises DesignError for any problem."""
-    path = Path(path)
+MAX_FILE = 64 * 2 ** 20      # bytes: a design is text, not a data set
+
+
+def read_toml(path, what: str = "design file") -> dict:
+    """Parse a TOML file; DesignError (one line) for anything that is not a readable TOML table."""
     source = str(path)
     try:
         with open(path, "rb") as f:
-            data = tomllib.load(f)
+            raw = f.read(MAX_FILE + 1)
+        if len(raw) > MAX_FILE:
+            raise DesignError(f"{source}: larger than {MAX_FILE // 2 ** 20} MB; not a {what}")
+        return tomllib.loads(raw.decode("utf-8"))
     except FileNotFoundError:
         raise DesignError(f"{source}: no such file") from None
     except IsADirectoryError:
-        raise DesignError(f"{source}: is a folder, not a design file") from None
+        raise DesignError(f"{source}: is a folder, not a {what}") from None
     except PermissionError:
         raise DesignError(f"{source}: permission denied") from None
     except UnicodeDecodeError:
         raise DesignError(f"{source}: not a text (UTF-8) file") from None
     except tomllib.TOMLDecodeError as exc:
         raise DesignError(f"{source}: malformed TOML: {exc}") from None
+    except RecursionError:
+        raise DesignError(f"{source}: malformed TOML: nested too deeply") from None
+    except OSError as exc:
+        raise DesignError(f"{source}: cannot read ({exc.strerror or exc})") from None
+    except ValueError as exc:          # e.g. an embedded NUL in the path
+        raise DesignError(f"{source}: cannot read ({exc})") from None
+
+
+def load_design(path, overrides=()) -> Design:
+    """Read, override and validate a design file; raises DesignError for any problem."""
+    path = Path(path)
+    data = read_toml(path)
     data.setdefault("name", path.stem)
-    return parse_design(data, source, overrides)
+    return parse_design(data, str(path), overrides)

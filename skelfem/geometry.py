@@ -7,6 +7,7 @@ each bone. Only rank 0 talks to Gmsh; gmshio distributes the mesh.
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -68,7 +69,17 @@ def _union(occ, dim: int, tags: list[int]) -> list[int]:
     if len(tags) == 1:
         return tags
     out, _ = occ.fuse([(dim, tags[0])], [(dim, t) for t in tags[1:]])
-    return [t for _, t in out]
+    # Gmsh 4.8's fuse can list a disjoint piece twice (the same volume under
+    # two tags): meshing both would overlap elements. Keep one of each.
+    seen, keep = set(), []
+    for d, t in out:
+        sig = tuple(np.round(occ.getBoundingBox(d, t), 6)) + (round(occ.getMass(d, t), 6),)
+        if sig in seen:
+            occ.remove([(d, t)])
+            continue
+        seen.add(sig)
+        keep.append(t)
+    return keep
 
 
 def _build_model(gmsh, design) -> dict:
@@ -104,11 +115,30 @@ _GMSH_READY = False
 
 
 def _ensure_gmsh(gmsh) -> None:
-    """Initialise Gmsh once per process (gmsh 4.8 cannot tell if it is)."""
+    """Initialise Gmsh once per process (gmsh 4.8 cannot tell if it is).
+
+    Importing gmsh resets SIGINT to the default action; our interrupt
+    handlers are put back afterwards.
+    """
     global _GMSH_READY
     if not _GMSH_READY:
         gmsh.initialize(readConfigFiles=False)
+        gmsh.option.setNumber("General.Terminal", 0)
         _GMSH_READY = True
+    from . import interrupts
+    interrupts.reinstall()
+
+
+@contextmanager
+def gmsh_model(name: str):
+    """A fresh Gmsh model for the duration of the block (this rank only); removed after."""
+    import gmsh
+    _ensure_gmsh(gmsh)
+    gmsh.model.add(name)
+    try:
+        yield gmsh.model
+    finally:
+        gmsh.model.remove()
 
 
 def mesh_design(design, comm=MPI.COMM_WORLD, verbose: bool = False) -> TaggedMesh:

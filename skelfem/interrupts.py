@@ -1,0 +1,77 @@
+"""SIGINT and SIGTERM become an exception, so every run cleans up and says one line.
+
+:func:`install` (called by the CLI) makes both signals raise
+:class:`Interrupted`, a KeyboardInterrupt, wherever Python is; the output
+folder's staging area is removed on the way out and ``skelfem`` prints
+``error: interrupted`` and exits 128 + the signal (130, 143). Importing gmsh
+resets SIGINT to the default (kill at once), so :func:`reinstall` is called
+after every Gmsh import or initialisation. Inside :func:`critical` (the
+rename that publishes a result) a signal is held back until the block ends.
+"""
+from __future__ import annotations
+
+import signal
+import threading
+from contextlib import contextmanager
+
+SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class Interrupted(KeyboardInterrupt):
+    """A SIGINT or SIGTERM arrived; code is the exit status (128 + signal number)."""
+
+    def __init__(self, signum: int):
+        super().__init__(f"interrupted by signal {signum}")
+        self.signum = signum
+        self.code = 128 + signum
+
+
+_installed = False
+_critical = 0
+_pending: int | None = None
+
+
+def _handler(signum, frame):
+    global _pending
+    if _critical:
+        _pending = signum
+        return
+    raise Interrupted(signum)
+
+
+def install() -> None:
+    """Make SIGINT and SIGTERM raise Interrupted (main thread only; a no-op elsewhere)."""
+    global _installed
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for s in SIGNALS:
+        signal.signal(s, _handler)
+    _installed = True
+
+
+def reinstall() -> None:
+    """Put the handlers back if install() was called (after something reset them)."""
+    if _installed and any(signal.getsignal(s) is not _handler for s in SIGNALS):
+        install()
+
+
+def uninstall() -> None:
+    global _installed
+    if _installed and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    _installed = False
+
+
+@contextmanager
+def critical():
+    """Hold SIGINT/SIGTERM back for the duration of the block, then raise if one came."""
+    global _critical, _pending
+    _critical += 1
+    try:
+        yield
+    finally:
+        _critical -= 1
+        if not _critical and _pending is not None:
+            signum, _pending = _pending, None
+            raise Interrupted(signum)
