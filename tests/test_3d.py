@@ -27,6 +27,7 @@ def _run(design, out, *sets):
     return code, json.loads((out / "result.json").read_text())
 
 
+@pytest.mark.slow
 def test_finger3d_bends_like_the_2d_finger(tmp_path):
     """Same outlines and contraction: the tip moves the same way, within the 2D/3D modelling gap."""
     code2, r2 = _run("finger.toml", tmp_path / "2d", "mesh.size=4")

@@ -169,6 +169,7 @@ def _study():
     return load_study("knuckle_contact")
 
 
+@pytest.mark.slow
 def test_knuckles_close_without_interpenetrating_only_with_self_contact(tmp_path, picture):
     res = _study().run(size=2.0, contraction=16.0, out=tmp_path)
     on, off = res["on"], res["off"]

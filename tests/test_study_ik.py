@@ -3,6 +3,7 @@ import csv
 import json
 
 import numpy as np
+import pytest
 from _studies import load_study
 
 
@@ -10,6 +11,7 @@ def _load():
     return load_study("ik_trajectories")
 
 
+@pytest.mark.slow
 def test_ik_trajectories_tiny(tmp_path, picture):
     study = _load()
     res = study.run(size=4.0, targets=3, random=1, out=tmp_path)

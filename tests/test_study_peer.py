@@ -11,6 +11,7 @@ def _load():
     return load_study("peer_comparison")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("degree", [1, 2])
 def test_same_mesh_same_answer(tmp_path, degree, picture):
     study = _load()

@@ -10,6 +10,7 @@ def _load(name):
     return load_study(name)
 
 
+@pytest.mark.slow
 def test_pull_test_tiny_orders_the_skeletons(tmp_path, picture):
     study = _load("pull_test")
     res = study.run(size=3.0, loads=(1.0, 4.0), out=tmp_path)
@@ -27,6 +28,7 @@ def test_pull_test_tiny_orders_the_skeletons(tmp_path, picture):
     assert not list(tmp_path.glob(".*"))
 
 
+@pytest.mark.slow
 def test_push_test_tiny_orders_the_peak_forces(tmp_path, picture):
     study = _load("push_test")
     res = study.run(size=3.0, travel=6.0, steps=8, out=tmp_path)

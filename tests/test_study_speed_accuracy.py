@@ -4,6 +4,8 @@ import numpy as np
 import pytest
 from _studies import load_study
 
+pytestmark = pytest.mark.slow
+
 
 def _load():
     return load_study("speed_accuracy")

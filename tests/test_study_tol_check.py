@@ -1,5 +1,8 @@
 """studies/tol_check.py on one design and one tolerance: the command meets it against a finer reference."""
+import pytest
 from _studies import load_study
+
+pytestmark = pytest.mark.slow
 
 
 def test_tol_check_tiny(tmp_path):
