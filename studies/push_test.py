@@ -9,7 +9,7 @@ sensor (FSR) under the tip. Here the finger stands as in the design files
 (negative: its normal leans toward the palmar side, x < 0); the base pin's
 `move` drives the finger +y by up to `travel` mm in `steps` equal steps (the
 same relative motion as driving it down onto a sensor below). The sensor
-reads the net force on the plane along its normal (skelfem.grounds). Four
+reads the net force on the plane along its normal (skelfem.terms.grounds). Four
 conditions:
 
     bones_ligaments    geometry/finger.toml
