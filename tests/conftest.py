@@ -34,10 +34,13 @@ def _collect():
 
 
 # -- designs ------------------------------------------------------------------------------------------
-@pytest.fixture
-def strip_design() -> dict:
-    """A fresh strip design dict (see _designs.strip): soft strip, pinned base, one tendon, a tip marker."""
-    return strip()
+@pytest.fixture(scope="session")
+def strip_design():
+    """strip(**params) -> a fresh design dict: soft strip, pinned base, one tendon, a tip marker.
+
+    The same function as _designs.strip, which helpers outside test functions import.
+    """
+    return strip
 
 
 @pytest.fixture(scope="module")

@@ -43,8 +43,8 @@ def test_taylor_remainders_of_total_energy_and_gradient(degree):
     assert hessian_error(sc, x, d) < 1e-8         # the rank-one parts are ~1e-4 of J d here
 
 
-def test_no_load_gives_zero_displacement():
-    s = Session(strip(contraction=0.0, size=3.0))
+def test_no_load_gives_zero_displacement(strip_design):
+    s = Session(strip_design(contraction=0.0, size=3.0))
     report = s.solve(1).report
     assert report.converged
     assert report.newton_iterations == 0
@@ -52,10 +52,10 @@ def test_no_load_gives_zero_displacement():
     assert report.min_jacobian == pytest.approx(1.0)
 
 
-def test_tendon_bends_strip_into_beam_theory_arc():
+def test_tendon_bends_strip_into_beam_theory_arc(strip_design):
     """Curvature of the mid-length neutral axis vs kappa = T d / (E' I), plane strain."""
     E, nu, t, w, d_off = 1.0, 0.3, 10.0, 10.0, 3.0
-    s = Session(strip(length=100.0, width=w, size=1.0, degree=2, tendon_offset=d_off,
+    s = Session(strip_design(length=100.0, width=w, size=1.0, degree=2, tendon_offset=d_off,
                       contraction=0.2, k=1.0, E=E, nu=nu, thickness=t))
     result = s.solve(1)
     assert result.converged
@@ -72,8 +72,8 @@ def test_tendon_bends_strip_into_beam_theory_arc():
     assert kappa == pytest.approx(kappa_beam, rel=0.03)
 
 
-def test_failed_solve_reports_status_and_keeps_last_equilibrium():
-    d = variant(strip(size=3.0, contraction=3.0, k=20.0), **{"solver.max_iterations": 1})
+def test_failed_solve_reports_status_and_keeps_last_equilibrium(strip_design):
+    d = variant(strip_design(size=3.0, contraction=3.0, k=20.0), **{"solver.max_iterations": 1})
     s = Session(d)
     s.solver.max_cuts = 1
     result = s.solve(1)
@@ -84,8 +84,8 @@ def test_failed_solve_reports_status_and_keeps_last_equilibrium():
 
 
 @pytest.mark.parametrize("kind", ["fixed", "spring"])
-def test_pin_reactions_balance_the_applied_load(kind):
-    d = strip(size=3.0, contraction=0.0)
+def test_pin_reactions_balance_the_applied_load(kind, strip_design):
+    d = strip_design(size=3.0, contraction=0.0)
     d["pins"][0].update(kind=kind, stiffness=50.0)
     d["loads"] = [{"name": "tip", "at": [5, 59], "force": [0.02, -0.05]}]
     result = Session(d).solve(1)
@@ -95,8 +95,8 @@ def test_pin_reactions_balance_the_applied_load(kind):
 
 
 @pytest.mark.parametrize("kind", ["fixed", "spring"])
-def test_moved_pin_translates_a_free_body_rigidly(kind):
-    d = strip(size=3.0, contraction=0.0)
+def test_moved_pin_translates_a_free_body_rigidly(kind, strip_design):
+    d = strip_design(size=3.0, contraction=0.0)
     d["pins"][0].update(kind=kind, stiffness=50.0, move=[1.5, -0.5])
     s = Session(d)
     result = s.solve(2)

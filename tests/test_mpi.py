@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from _designs import strip, toml_text
+from _designs import toml_text
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -51,9 +51,9 @@ def test_arm3d_two_ranks_match_serial(tmp_path, mpirun, picture):
     picture(tmp_path / "p" / "deformed.png", 600, 600)
 
 
-def test_every_ingredient_agrees_across_ranks(tmp_path, mpirun):
+def test_every_ingredient_agrees_across_ranks(tmp_path, mpirun, strip_design):
     """Bones, tendon, pretensioned ligament, spring pin, moved pin, point load and a ground, P2."""
-    d = strip(length=40.0, size=2.0, degree=2, contraction=0.4)
+    d = strip_design(length=40.0, size=2.0, degree=2, contraction=0.4)
     d["bones"] = [{"name": "b", "outline": [[3, 10], [7, 10], [7, 25], [3, 25]], "material": "hard"}]
     d["cables"].append({"name": "lig", "kind": "ligament", "path": [[2, 5], [4, 20], [2, 35]],
                         "stiffness": 2.0, "pretension": 1.0})
