@@ -1,13 +1,16 @@
 """Command line: ``skelfem simulate DESIGN [--out DIR] [--set KEY=VALUE ...]``.
 
-Exit status: 0 on success, 1 for bad input (one ``error:`` line on stderr),
-2 when the solve does not converge (result.json says why), 3 for an
-internal error.
+Exit status: 0 on success, 1 for bad input (one ``error:`` line on stderr;
+command-line mistakes included), 2 when the solve does not converge
+(result.json says why), 3 for an internal error, 130 / 143 when interrupted
+by SIGINT / SIGTERM. Under MPI every rank ends with the same status and one
+line is printed (see skelfem.mpiguard).
 """
 from __future__ import annotations
 
 import argparse
 import logging
+import re
 import sys
 import time
 from pathlib import Path
@@ -15,6 +18,7 @@ from pathlib import Path
 log = logging.getLogger("skelfem")
 
 EXIT_OK, EXIT_INPUT, EXIT_SOLVE, EXIT_INTERNAL = 0, 1, 2, 3
+MAX_MESSAGE = 2000
 
 
 class _RankZero(logging.Filter):
@@ -47,6 +51,8 @@ def common_arguments(parser: argparse.ArgumentParser, out_help: str = "output fo
     """Arguments every command that runs a design shares."""
     parser.add_argument("design", type=Path, help="design file (TOML)")
     parser.add_argument("--out", type=Path, default=None, help=out_help)
+    parser.add_argument("--force", action="store_true",
+                        help="mesh even if the estimated size exceeds what this machine solves")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help="override one design value, e.g. cables.flexor.contraction=8")
     parser.add_argument("-q", "--quiet", action="store_true", help="print only errors")
@@ -58,9 +64,21 @@ def common_arguments(parser: argparse.ArgumentParser, out_help: str = "output fo
 COMMAND_MODULES = ("skelfem.cli_sweep", "skelfem.cli_bench", "skelfem.cli_control")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one ``error:`` line and exit status 1 (bad input) for a bad command line."""
+
+    def error(self, message):
+        raise InputError(f"{self.prog}: {message} (see {self.prog} --help)")
+
+    def _print_message(self, message, file=None):
+        from .mpiguard import rank_hint
+        if rank_hint() == 0:                  # --help once under mpirun
+            super()._print_message(message, file)
+
+
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="skelfem", description="Simulate and control cable-driven soft robots "
-                                "with embedded skeletons.")
+    p = _Parser(prog="skelfem", description="Simulate and control cable-driven soft robots "
+                "with embedded skeletons.")
     sub = p.add_subparsers(dest="command", required=True)
     s = sub.add_parser("simulate", help="static equilibrium of a design")
     common_arguments(s)
@@ -79,34 +97,77 @@ class InputError(Exception):
     """Bad input found by a command; main prints it as one error line and exits 1."""
 
 
+def one_line(message: str) -> str:
+    """A message as one printable line: control characters escaped, very long ones shortened."""
+    text = re.sub(r"[\x00-\x1f\x7f]", lambda m: repr(m.group())[1:-1], str(message))
+    return text if len(text) <= MAX_MESSAGE else text[:MAX_MESSAGE - 3] + "..."
+
+
+def _print_error(message: str) -> None:
+    try:
+        print(f"error: {one_line(message)}", file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
+
+
 def error(message: str) -> None:
-    from mpi4py import MPI
-    if MPI.COMM_WORLD.rank == 0:
-        print(f"error: {message}", file=sys.stderr)
+    """Print one ``error:`` line (rank 0 only)."""
+    from .mpiguard import rank_hint
+    if rank_hint() == 0:
+        _print_error(message)
 
 
-def prepare(args):
-    """Load, validate and mesh args.design; returns (design, session) or raises InputError."""
-    from mpi4py import MPI
-
+def load(args):
+    """The validated design of args (with --set), within the mesh-size limit unless --force; InputError if not."""
+    from . import resources
     from .design import DesignError, load_design
+    try:
+        design = load_design(args.design, args.overrides)
+        resources.check(design, force=getattr(args, "force", False))
+    except DesignError as exc:
+        raise InputError(str(exc)) from None
+    return design
+
+
+def reserve_output(args, design, kind: str = "simulate") -> Path:
+    """Check and lock the output folder before any work (collective); InputError if unusable."""
+    from mpi4py import MPI
+
+    from .outdir import OutputError, reserve
+    out = args.out or Path("results") / design.name
+    try:
+        reserve(out, MPI.COMM_WORLD, kind)
+    except OutputError as exc:
+        raise InputError(str(exc)) from None
+    return out
+
+
+def prepare(args, kind: str = "simulate"):
+    """Load and validate args.design, reserve the output folder, mesh; returns (design, session)."""
+    from mpi4py import MPI
+
+    from .design import DesignError
     from .geometry import MeshingError
     from .run import open_session
 
+    design = load(args)
+    args.out = reserve_output(args, design, kind)
+    log.info("%s: meshing (size %g mm, P%d)", design.name, design.mesh.size, design.mesh.degree)
     try:
-        design = load_design(args.design, args.overrides)
-        args.out = output_folder(args, design)
-        log.info("%s: meshing (size %g mm, P%d)", design.name, design.mesh.size, design.mesh.degree)
         session = open_session(design, MPI.COMM_WORLD)
     except (DesignError, MeshingError) as exc:
         raise InputError(str(exc)) from None
     return design, session
 
 
-def output_folder(args, design) -> Path:
+def output_folder(args, design, kind: str = "simulate") -> Path:
+    """The output folder of args (default results/<name>), checked but not locked; InputError if unusable."""
+    from .outdir import OutputError, check_path
     out = args.out or Path("results") / design.name
-    if out.exists() and not out.is_dir():
-        raise InputError(f"{out}: output path exists and is not a folder")
+    try:
+        check_path(out, kind)
+    except OutputError as exc:
+        raise InputError(str(exc)) from None
     return out
 
 
@@ -116,6 +177,9 @@ def simulate(args) -> int:
     from .run import write_results
 
     t0 = time.perf_counter()
+    if args.tol is not None and not (0 < args.tol < float("inf")):
+        raise InputError(f"--tol: must be a finite number > 0, got {args.tol:g}")
+    args.out = reserve_output(args, load(args))       # before any work: a bad --out is bad input
     extra = {}
     if args.tol is not None:
         extra["accuracy"] = choose_discretisation(args)
@@ -145,8 +209,8 @@ def choose_discretisation(args) -> dict:
     from .geometry import MeshingError
     from .run import open_session
 
-    if not args.tol > 0:
-        raise InputError(f"--tol: must be > 0, got {args.tol:g}")
+    if not 0 < args.tol < float("inf"):
+        raise InputError(f"--tol: must be a finite number > 0, got {args.tol:g}")
     probe = [f"mesh.degree={accuracy.PRESOLVE['degree']}", f"mesh.size={accuracy.PRESOLVE['size']}"]
     try:
         design = load_design(args.design, list(args.overrides) + probe)
@@ -193,23 +257,71 @@ def _summary(result: dict, out: Path) -> None:
           f"{result['timings']['total']:.1f} s")
 
 
-def main(argv=None) -> int:
-    args = _parser().parse_args(argv)
-    verbosity = 0 if getattr(args, "quiet", False) else (2 if getattr(args, "verbose", False) else 1)
-    setup_logging(verbosity)
+def _stdio() -> None:
+    """Never fail on printing a path that is not valid UTF-8."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.reconfigure(errors="backslashreplace")
+        except (AttributeError, ValueError, OSError):
+            pass
+
+
+def _run(argv) -> tuple[int, str | None, bool]:
+    """(exit status, message to print or None, whether the command ended normally)."""
+    from . import outdir, resources
+    from .design import DesignError
+    from .interrupts import Interrupted
+
+    verbosity = 1
     try:
-        return args.handler(args)
-    except InputError as exc:
-        error(str(exc))
-        return EXIT_INPUT
+        try:
+            args = _parser().parse_args(argv)
+        except SystemExit as exc:             # --help
+            return (exc.code if isinstance(exc.code, int) else EXIT_INPUT), None, True
+        verbosity = 0 if getattr(args, "quiet", False) else (2 if getattr(args, "verbose", False) else 1)
+        setup_logging(verbosity)
+        resources.FORCED = bool(getattr(args, "force", False))
+        return args.handler(args), None, True
+    except (InputError, DesignError, outdir.OutputError) as exc:
+        return EXIT_INPUT, str(exc), False
+    except Interrupted as exc:
+        return exc.code, "interrupted", False
     except KeyboardInterrupt:
-        error("interrupted")
-        return 130
-    except Exception as exc:  # a bug, not bad input: say so in one line unless -v asks for the traceback
+        return 130, "interrupted", False
+    except Exception as exc:  # a bug, not bad input: one line, and the traceback with -v
         if verbosity >= 2:
-            raise
-        error(f"internal error: {type(exc).__name__}: {exc} (run with -v for the traceback)")
-        return EXIT_INTERNAL
+            import traceback
+            traceback.print_exc()
+        hint = "" if verbosity >= 2 else " (run with -v for the traceback)"
+        return EXIT_INTERNAL, f"internal error: {type(exc).__name__}: {exc}{hint}", False
+    finally:
+        outdir.release()                      # every output lock this process still holds
+        resources.FORCED = False
+
+
+def main(argv=None) -> int:
+    """The skelfem command; returns the exit status (see the module doc)."""
+    from . import interrupts, mpiguard
+
+    interrupts.install()
+    _stdio()
+    ctl = None
+    try:
+        if mpiguard.world_size_hint() > 1:
+            from mpi4py import MPI
+            ctl = mpiguard.control(MPI.COMM_WORLD)
+        code, message, in_step = _run(argv)
+        code, message = mpiguard.agree(ctl, code, message, in_step, say=_print_error)
+        if message:
+            error(message)
+        return code
+    except interrupts.Interrupted as exc:     # between the pieces above
+        error("interrupted")
+        return exc.code
+    finally:
+        if ctl is not None:
+            ctl.Free()
+        interrupts.uninstall()
 
 
 if __name__ == "__main__":    # prefer `python -m skelfem`: one copy of this module

@@ -14,14 +14,18 @@ from __future__ import annotations
 
 import argparse
 import csv
+import hashlib
 import io
+import json
 import logging
+import math
+import os
 import time
 from pathlib import Path
 
 import numpy as np
 
-from . import cli
+from . import cli, outdir
 from .output import FORMAT, atomic_write, write_json, write_text
 
 TARGET_COLOR, ACHIEVED_COLOR = "#d62728", "#2ca02c"
@@ -59,40 +63,44 @@ def _control_arguments(p: argparse.ArgumentParser) -> None:
 
 
 # -- input ---------------------------------------------------------------------------------------
+MAX_SOLVES = 10_000        # forward solves per target
+MAX_TARGETS = 100_000      # targets of one track
+
+
 def _bounds(items: list[str]) -> dict:
     """{tendon: u_max} from TENDON=MM strings."""
     out = {}
     for item in items:
         name, sep, value = item.partition("=")
         try:
-            out[name.strip()] = float(value)
+            v = float(value)
         except ValueError:
-            sep = ""
-        if not sep or not out[name.strip()] > 0:
-            raise cli.InputError(f"--max-contraction {item}: expected TENDON=MM with MM > 0")
+            sep, v = "", 0.0
+        if not sep or not name.strip() or not 0 < v < math.inf:
+            raise cli.InputError(f"--max-contraction {item}: expected TENDON=MM with MM a finite number > 0")
+        out[name.strip()] = v
     return out
 
 
 def _check_numbers(args) -> None:
-    if args.reg < 0:
-        raise cli.InputError(f"--reg {args.reg:g}: must be >= 0")
-    if args.tol is not None and not args.tol > 0:
-        raise cli.InputError(f"--tol {args.tol:g}: must be > 0")
-    if args.max_solves < 1:
-        raise cli.InputError(f"--max-solves {args.max_solves}: must be >= 1")
+    if not 0 <= args.reg < math.inf:
+        raise cli.InputError(f"--reg {args.reg:g}: must be a finite number >= 0")
+    if args.tol is not None and not 0 < args.tol < math.inf:
+        raise cli.InputError(f"--tol {args.tol:g}: must be a finite number > 0")
+    if not 1 <= args.max_solves <= MAX_SOLVES:
+        raise cli.InputError(f"--max-solves {args.max_solves}: must be >= 1 and <= {MAX_SOLVES}")
 
 
 def _peek(args):
     """The design as read (cheap, before meshing), to check names and targets early."""
-    from .design import DesignError, load_design
-    try:
-        design = load_design(args.design, args.overrides)
-    except DesignError as exc:
-        raise cli.InputError(str(exc)) from None
+    design = cli.load(args)
     if args.marker not in design.markers:
         have = ", ".join(design.markers) or "none"
         raise cli.InputError(f"{args.design}: marker '{args.marker}' not in design (have: {have})")
     tendons = [c.name for c in design.cables if c.kind == "tendon"]
+    if not tendons:
+        raise cli.InputError(f"{args.design}: cables: {args.command} needs at least one tendon to steer the "
+                             "marker (the design has none)")
     for name in _bounds(args.max_contraction):
         if name not in tendons:
             raise cli.InputError(f"--max-contraction: '{name}' is not a tendon of the design "
@@ -108,7 +116,7 @@ def _setup(args):
                              f"(got {MPI.COMM_WORLD.size}); use `skelfem sweep` to spread runs over ranks")
     from .control import SoftIK
 
-    design, session = cli.prepare(args)
+    design, session = cli.prepare(args, kind=args.command)
     scene, timings = session.model, dict(session.timings)
     ik = SoftIK(session, args.marker, upper=_bounds(args.max_contraction), reg=args.reg, tol=args.tol,
                 max_solves=args.max_solves)
@@ -120,7 +128,12 @@ def _setup(args):
 def _points(values: list[float], dim: int, what: str) -> np.ndarray:
     if len(values) % dim:
         raise cli.InputError(f"{what}: expected a multiple of {dim} coordinates, got {len(values)}")
-    return np.asarray(values, dtype=float).reshape(-1, dim)
+    a = np.asarray(values, dtype=float).reshape(-1, dim)
+    if not np.all(np.isfinite(a)):
+        raise cli.InputError(f"{what}: coordinates must be finite numbers, got {' '.join(f'{v:g}' for v in values)}")
+    if np.abs(a).max(initial=0.0) > 1e7:
+        raise cli.InputError(f"{what}: coordinates must lie within +-1e7 mm")
+    return a
 
 
 def read_targets(path: Path, dim: int) -> np.ndarray:
@@ -129,6 +142,8 @@ def read_targets(path: Path, dim: int) -> np.ndarray:
         text = Path(path).read_text()
     except OSError as exc:
         raise cli.InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    except (UnicodeDecodeError, ValueError):
+        raise cli.InputError(f"{path}: not a text (UTF-8) file") from None
     rows = []
     for n, line in enumerate(text.splitlines(), start=1):
         fields = [f for f in line.replace(",", " ").split() if f]
@@ -139,10 +154,12 @@ def read_targets(path: Path, dim: int) -> np.ndarray:
         except ValueError:
             if not rows and n == _first_content_line(text):
                 continue                          # a header
-            raise cli.InputError(f"{path}: line {n}: expected {dim} numbers, got {line.strip()!r}") from None
-        if len(values) != dim or not np.all(np.isfinite(values)):
-            raise cli.InputError(f"{path}: line {n}: expected {dim} finite numbers, got {line.strip()!r}")
+            raise cli.InputError(f"{path}: line {n}: expected {dim} numbers, got {line.strip()[:60]!r}") from None
+        if len(values) != dim or not np.all(np.isfinite(values)) or max(map(abs, values)) > 1e7:
+            raise cli.InputError(f"{path}: line {n}: expected {dim} finite numbers, got {line.strip()[:60]!r}")
         rows.append(values)
+        if len(rows) > MAX_TARGETS:
+            raise cli.InputError(f"{path}: more than {MAX_TARGETS} targets")
     if not rows:
         raise cli.InputError(f"{path}: no targets")
     return np.array(rows)
@@ -168,8 +185,8 @@ def _track_targets(args, dim: int) -> np.ndarray:
     ends = _points(args.line, dim, "--line")
     if len(ends) != 2:
         raise cli.InputError(f"--line: expected {2 * dim} numbers (start and end), got {len(args.line)}")
-    if args.steps is None or args.steps < 2:
-        raise cli.InputError("--line needs --steps N with N >= 2")
+    if args.steps is None or not 2 <= args.steps <= MAX_TARGETS:
+        raise cli.InputError(f"--line needs --steps N with 2 <= N <= {MAX_TARGETS}")
     return line_targets(ends, args.steps)
 
 
@@ -349,7 +366,6 @@ def pose_indices(n: int, count: int = 4) -> list[int]:
 
 # -- commands ------------------------------------------------------------------------------------------
 def ik_command(args) -> int:
-    from mpi4py import MPI
     t0 = time.perf_counter()
     _check_numbers(args)
     dim = _peek(args).dim
@@ -363,13 +379,12 @@ def ik_command(args) -> int:
     res = ik.solve(target[0])
     timings.update(initial_solve=settle, ik=res.time, total=time.perf_counter() - t0)
     result = ik_dict(design, ik, res, timings)
-    if MPI.COMM_WORLD.rank == 0:
-        write_json(args.out / "ik.json", result)
-        if MPI.COMM_WORLD.size == 1:
-            u_text = ", ".join(f"{u:.2f}" for u in res.contractions)
-            plot_ik(args.out / "ik.png", scene, res,
-                    f"{design.name}: Soft IK, error {res.error:.3g} mm\nu = ({u_text}) mm")
-    if not args.quiet and MPI.COMM_WORLD.rank == 0:
+    u_text = ", ".join(f"{u:.2f}" for u in res.contractions)
+    with outdir.publish(args.out, kind="ik") as stage:         # both files or neither
+        stage.run(write_json, stage.path / "ik.json", result)
+        stage.run(plot_ik, stage.path / "ik.png", scene, res,
+                  f"{design.name}: Soft IK, error {res.error:.3g} mm\nu = ({u_text}) mm")
+    if not args.quiet:
         _print_ik(result, args.out)
     return cli.EXIT_OK
 
@@ -383,39 +398,124 @@ def _print_ik(result: dict, out: Path) -> None:
     print(f"  results in {out}/ (ik.json, ik.png)")
 
 
-def track_command(args) -> int:
-    from mpi4py import MPI
+class TrackProgress:
+    """Targets done so far, kept beside the output folder so an interrupted track resumes.
 
+    ``.<out name>.track-partial/`` holds progress.json (a key over the design
+    as overridden, the marker, bounds, regulariser, tolerances and targets;
+    one entry per finished target) and the few poses the picture shows. A
+    run with the same key continues after the last finished target, from its
+    contractions; any other run starts afresh. The folder is removed once the
+    track's results are published.
+    """
+
+    def __init__(self, out: Path, design, args, targets: np.ndarray):
+        target = Path(os.path.realpath(out))
+        self.folder = target.parent / f".{target.name}.track-partial"
+        key = {"design": design.raw, "marker": args.marker, "bounds": sorted(_bounds(args.max_contraction).items()),
+               "reg": args.reg, "tol": args.tol, "max_solves": args.max_solves,
+               "targets": np.asarray(targets, float).tolist()}
+        self.key = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
+        self.entries, self.poses = [], {}
+        try:
+            data = json.loads((self.folder / "progress.json").read_text())
+            if isinstance(data, dict) and data.get("key") == self.key:
+                self.entries = list(data["results"])
+                for j in data.get("poses", []):
+                    self.poses[int(j)] = np.load(self.folder / f"pose-{int(j)}.npy")
+        except (OSError, ValueError, KeyError, TypeError):
+            self.entries, self.poses = [], {}
+        if not self.entries and self.folder.exists():
+            self.remove()                         # another run's (or a broken) progress
+
+    def results(self):
+        from .control import IKResult
+        out = []
+        for e in self.entries:
+            out.append(IKResult(np.array(e["target"]), np.array(e["position"]), np.array(e["contractions"]),
+                                float(e["error"]), bool(e["reached"]), str(e["status"]), int(e["forward_solves"]),
+                                int(e["failed_solves"]), int(e["iterations"]), float(e["time"]),
+                                [float(x) for x in e["errors"]]))
+        return out
+
+    def add(self, res, pose=None) -> None:
+        j = len(self.entries)
+        self.folder.mkdir(exist_ok=True)
+        if pose is not None:
+            atomic_write(self.folder / f"pose-{j}.npy", lambda tmp: np.save(tmp, pose))
+            self.poses[j] = pose
+        self.entries.append({
+            "target": [float(v) for v in res.target], "position": [float(v) for v in res.position],
+            "contractions": [float(v) for v in res.contractions], "error": float(res.error),
+            "reached": bool(res.reached), "status": res.status, "forward_solves": int(res.forward_solves),
+            "failed_solves": int(res.failed_solves), "iterations": int(res.iterations), "time": float(res.time),
+            "errors": [float(e) for e in res.errors]})
+        write_json(self.folder / "progress.json", {"key": self.key, "results": self.entries,
+                                                   "poses": sorted(self.poses)})
+
+    def remove(self) -> None:
+        import shutil
+        shutil.rmtree(self.folder, ignore_errors=True)
+
+
+def _resume(design, ik, done) -> bool:
+    """Bring the IK to the contractions of the last finished target; False if that pose will not solve."""
+    from .solver import SolveError
+    if not done:
+        return True
+    ik.u = np.clip(np.asarray(done[-1].contractions, float), ik.lower, ik.upper)
+    try:
+        ik.settle(design.solver.steps)
+    except SolveError:
+        return False
+    return True
+
+
+def track_command(args) -> int:
     from .control import track
     t0 = time.perf_counter()
     _check_numbers(args)
     targets = _track_targets(args, _peek(args).dim)
     design, scene, ik, timings = _setup(args)
+    progress = TrackProgress(args.out, design, args, targets)
+    u0 = ik.u.copy()
     settle = _settle(design, ik, args.out)
     if settle is None:
         return cli.EXIT_SOLVE
+    done = progress.results()
+    if done and not _resume(design, ik, done):
+        progress.remove()
+        progress = TrackProgress(args.out, design, args, targets)
+        done = []
+        ik.u = u0
+        settle = _settle(design, ik, args.out)
+        if settle is None:
+            return cli.EXIT_SOLVE
     show = pose_indices(len(targets))
-    poses = []
-    talk = not args.quiet and MPI.COMM_WORLD.rank == 0
+    talk = not args.quiet
+    if talk and done:
+        print(f"  resuming after {len(done)} of {len(targets)} targets done before", flush=True)
 
     def on_target(i, res):
-        if i in show:
-            poses.append(scene.u.x.array.copy())
+        j = len(done) + i
+        progress.add(res, scene.u.x.array.copy() if j in show else None)
         if talk:
-            print(f"  {i + 1:3d}/{len(targets)} target ({', '.join(f'{v:.2f}' for v in res.target)}): "
+            print(f"  {j + 1:3d}/{len(targets)} target ({', '.join(f'{v:.2f}' for v in res.target)}): "
                   f"error {res.error:.3g} mm {'' if res.reached else '(not reached) '}"
                   f"{res.forward_solves} solves {res.time:.2f} s", flush=True)
 
-    results = track(ik, targets, on_target)
+    results = done + track(ik, targets[len(done):], on_target)
+    poses = [progress.poses[j] for j in show if j in progress.poses]
     timings.update(initial_solve=settle, track=sum(r.time for r in results), total=time.perf_counter() - t0)
     header, rows = track_rows(ik.names, results, scene.dim)
     summary = track_summary(design, ik, results, timings)
-    if MPI.COMM_WORLD.rank == 0:
-        write_csv(args.out / "track.csv", header, rows)
-        write_json(args.out / "track.json", summary)
-        if MPI.COMM_WORLD.size == 1:
-            plot_track(args.out / "track.png", scene, results, poses,
-                       f"{design.name}: tracking with Soft IK, max error {summary['error']['max']:.3g} mm")
+    summary["resumed_after"] = len(done)
+    with outdir.publish(args.out, kind="track") as stage:     # the three files together or none
+        stage.run(write_csv, stage.path / "track.csv", header, rows)
+        stage.run(write_json, stage.path / "track.json", summary)
+        stage.run(plot_track, stage.path / "track.png", scene, results, poses,
+                  f"{design.name}: tracking with Soft IK, max error {summary['error']['max']:.3g} mm")
+    progress.remove()
     if talk:
         print(f"{design.name}: {summary['reached']}/{len(results)} targets reached, max error "
               f"{summary['error']['max']:.3g} mm, {summary['forward_solves']['total']} forward solves, "

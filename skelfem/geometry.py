@@ -146,6 +146,8 @@ def mesh_design(design, comm=MPI.COMM_WORLD, verbose: bool = False) -> TaggedMes
     import gmsh
     from dolfinx.io import gmshio
 
+    from . import resources
+    resources.check(design)         # refuse a mesh that would not fit (unless --force), on every rank
     dim = design.dim
     names = [BODY] + [bone_tag_name(b.name) for b in design.bones]
     tags = {name: i + 1 for i, name in enumerate(names)}

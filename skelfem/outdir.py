@@ -58,13 +58,13 @@ def check_name(name: str, what: str = "name", max_len: int = 100) -> str | None:
     """Why name cannot be a folder name of its own (None if it can)."""
     if not isinstance(name, str) or not name:
         return f"{what} must be a non-empty name"
+    bad = [c for c in name if c in "/\\" or ord(c) < 32 or ord(c) == 127]
+    if bad:
+        return f"{what} must not contain {bad[0]!r}"
     if name in (".", ".."):
         return f"{what} {name!r} is not a folder name"
     if name.startswith("."):
         return f"{what} must not start with '.' (hidden names are skelfem's temporaries)"
-    bad = [c for c in name if c in "/\\" or ord(c) < 32 or ord(c) == 127]
-    if bad:
-        return f"{what} must not contain {bad[0]!r} (it names a folder)"
     if len(name.encode("utf-8", "surrogatepass")) > max_len:
         return f"{what} is longer than {max_len} bytes"
     if name != name.strip():
@@ -272,6 +272,29 @@ def reserve(out, comm=None, kind: str = "simulate") -> Path:
     if comm.size > 1:
         target = comm.bcast(target, root=0)
     return target
+
+
+def open_folder(out, comm=None) -> bool:
+    """Lock a folder that collects many results (a sweep's) and create it; clean its stale staging.
+
+    Collective. Returns True if this call took the lock (release(out) when done).
+    """
+    comm = _comm(comm)
+    fresh = not held(out) if comm.rank == 0 else False
+    target = reserve(out, comm, "sweep")
+    error = None
+    if comm.rank == 0:
+        try:
+            target.mkdir(exist_ok=True)
+            _HELD[target].created = []        # keep the folder and its parents from now on
+            for e in os.listdir(target):
+                if re.match(r"^\..+\.(tmp|old)-\d+-[0-9a-f]+$", e) or STALE_FILE.match(e):
+                    _remove(target / e)
+        except OSError as exc:
+            _HELD[target].release()
+            error = f"{out}: cannot create it ({exc.strerror})"
+    _agree(comm, error)
+    return bool(comm.bcast(fresh, root=0)) if comm.size > 1 else fresh
 
 
 def release(out=None) -> None:

@@ -40,11 +40,37 @@ def atomic_write(path: Path, write) -> None:
             os.remove(tmp)
 
 
+def strict_json(value):
+    """value with numpy types made plain and every non-finite float (NaN, +-Infinity) made None.
+
+    JSON has no NaN or Infinity; Python's json module would write them anyway
+    (and most readers then fail), so skelfem writes null instead.
+    """
+    if isinstance(value, dict):
+        return {str(k): strict_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [strict_json(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return [strict_json(v) for v in value.tolist()]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        v = float(value)
+        return v if np.isfinite(v) else None
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
 def write_json(path: Path, data: dict) -> None:
+    """data as strict JSON (non-finite numbers as null), atomically."""
+    text = json.dumps(strict_json(data), indent=2, allow_nan=False) + "\n"
+
     def write(tmp):
         with open(tmp, "w") as f:
-            json.dump(data, f, indent=2)
-            f.write("\n")
+            f.write(text)
     atomic_write(path, write)
 
 

@@ -13,9 +13,6 @@ from pathlib import Path
 
 log = logging.getLogger("skelfem")
 
-STALE = ("solution.xdmf", "solution.h5", "deformed.png")
-
-
 def open_session(design, comm):
     """Mesh the design on comm and compile its model: a Session ready to solve."""
     from .session import Session
@@ -31,24 +28,24 @@ def picture_title(design) -> str:
 def write_results(session, result, out: Path, t0: float, picture: bool = True,
                   extra: dict | None = None) -> dict:
     """result.json always; solution.xdmf and deformed.png only for an equilibrium."""
+    from .outdir import publish
     from .output import plot_deformed, plot_deformed_3d, write_json, write_xdmf
 
     design, model = session.design, session.model
     comm = model.comm
     data = result.to_dict()
     data.update(extra or {})
-    if comm.rank == 0:
-        out.mkdir(parents=True, exist_ok=True)
-        for stale in STALE:
-            (out / stale).unlink(missing_ok=True)   # never leave an old equilibrium beside a new result
-    if result.converged:                         # collective: every rank takes part, rank 0 writes
-        write_xdmf(out / "solution.xdmf", model)
-        if picture:
-            plot = plot_deformed if design.dim == 2 else plot_deformed_3d
-            plot(out / "deformed.png", model, picture_title(design))
-    data["timings"]["total"] = round(time.perf_counter() - t0, 4)
-    if comm.rank == 0:
-        write_json(out / "result.json", data)
+    # staged beside `out` and swapped in whole (skelfem.outdir): the folder holds the old
+    # complete result until the new one is complete, never a mix of the two
+    with publish(out, comm) as stage:
+        if result.converged:                     # collective: every rank takes part, rank 0 writes
+            stage.run(write_xdmf, stage.path / "solution.xdmf", model)
+            if picture:
+                plot = plot_deformed if design.dim == 2 else plot_deformed_3d
+                stage.run(plot, stage.path / "deformed.png", model, picture_title(design))
+        data["timings"]["total"] = round(time.perf_counter() - t0, 4)
+        if comm.rank == 0:
+            stage.run(write_json, stage.path / "result.json", data)
     return data
 
 
