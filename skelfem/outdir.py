@@ -97,7 +97,7 @@ def _foreign(folder: Path, kind: str) -> str | None:
 
 def check_path(out, kind: str = "simulate") -> Path:
     """The real path of output folder out, or OutputError saying why it cannot be one."""
-    shown = str(out)
+    shown = str(out) if len(str(out)) <= 200 else str(out)[:120] + "..." + str(out)[-60:]
     try:
         out = Path(out)
         if not str(out) or "\0" in str(out):
