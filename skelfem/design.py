@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import copy
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -168,7 +169,8 @@ class _Table:
 
     def fail(self, name: str, message: str):
         where = self.key(name) if name else self.where
-        raise DesignError(f"{self.source}: {where}: {message}" if where else f"{self.source}: {message}")
+        text = f"{self.source}: {where}: {message}" if where else f"{self.source}: {message}"
+        raise DesignError(re.sub(r"[\x00-\x1f\x7f]", lambda m: repr(m.group())[1:-1], text))
 
     def has(self, name: str) -> bool:
         return name in self.data
