@@ -17,6 +17,10 @@ from pathlib import Path
 
 log = logging.getLogger("skelfem")
 
+if __name__ == "skelfem.cli":                 # as early as possible: a Ctrl-C during start-up is clean too
+    from . import interrupts as _interrupts
+    _interrupts.install()
+
 EXIT_OK, EXIT_INPUT, EXIT_SOLVE, EXIT_INTERNAL = 0, 1, 2, 3
 MAX_MESSAGE = 2000
 
@@ -266,6 +270,20 @@ def _stdio() -> None:
             pass
 
 
+def _import_gmsh() -> None:
+    """Import gmsh now (it resets SIGINT to the default action on import) and put our handlers back.
+
+    Imported later, deep inside meshing or DOLFINx, it would leave Ctrl-C
+    killing the process without clean-up until the next re-install.
+    """
+    from . import interrupts
+    with interrupts.held():
+        try:
+            import gmsh  # noqa: F401
+        except ImportError:
+            pass
+
+
 def _run(argv) -> tuple[int, str | None, bool]:
     """(exit status, message to print or None, whether the command ended normally)."""
     from . import outdir, resources
@@ -281,6 +299,7 @@ def _run(argv) -> tuple[int, str | None, bool]:
         verbosity = 0 if getattr(args, "quiet", False) else (2 if getattr(args, "verbose", False) else 1)
         setup_logging(verbosity)
         resources.FORCED = bool(getattr(args, "force", False))
+        _import_gmsh()
         return args.handler(args), None, True
     except (InputError, DesignError, outdir.OutputError) as exc:
         return EXIT_INPUT, str(exc), False
@@ -289,6 +308,9 @@ def _run(argv) -> tuple[int, str | None, bool]:
     except KeyboardInterrupt:
         return 130, "interrupted", False
     except Exception as exc:  # a bug, not bad input: one line, and the traceback with -v
+        from .interrupts import received
+        if received() is not None:            # an interrupt that surfaced as another error
+            return 128 + received(), "interrupted", False
         if verbosity >= 2:
             import traceback
             traceback.print_exc()
@@ -321,7 +343,10 @@ def main(argv=None) -> int:
     finally:
         if ctl is not None:
             ctl.Free()
-        interrupts.uninstall()
+        if argv is None:
+            interrupts.ignore()               # the command is over: its status stands through the exit
+        else:
+            interrupts.uninstall()            # called in process (tests): Python's defaults again
 
 
 if __name__ == "__main__":    # prefer `python -m skelfem`: one copy of this module

@@ -122,7 +122,9 @@ def _ensure_gmsh(gmsh) -> None:
     """
     global _GMSH_READY
     if not _GMSH_READY:
-        gmsh.initialize(readConfigFiles=False)
+        from . import interrupts
+        with interrupts.held():
+            gmsh.initialize(readConfigFiles=False)
         gmsh.option.setNumber("General.Terminal", 0)
         _GMSH_READY = True
     from . import interrupts

@@ -31,17 +31,29 @@ _critical = 0
 _pending: int | None = None
 
 
+_received: int | None = None
+
+
 def _handler(signum, frame):
-    global _pending
+    global _pending, _received
+    _received = signum
     if _critical:
         _pending = signum
         return
     raise Interrupted(signum)
 
 
+def received() -> int | None:
+    """The last signal the handlers caught (an Interrupted raised inside a C extension's import, say,
+    can surface as another exception; this tells what really happened)."""
+    return _received
+
+
 def install() -> None:
     """Make SIGINT and SIGTERM raise Interrupted (main thread only; a no-op elsewhere)."""
-    global _installed
+    global _installed, _received
+    if not _installed:
+        _received = None
     if threading.current_thread() is not threading.main_thread():
         return
     for s in SIGNALS:
@@ -53,6 +65,35 @@ def reinstall() -> None:
     """Put the handlers back if install() was called (after something reset them)."""
     if _installed and any(signal.getsignal(s) is not _handler for s in SIGNALS):
         install()
+
+
+def ignore() -> None:
+    """Hold SIGINT and SIGTERM off from now on (a finished command on its way out).
+
+    Blocked, not just ignored: MPI's and PETSc's finalisation at exit put the
+    default actions back, which would kill a process whose work is done.
+    """
+    global _installed
+    if threading.current_thread() is threading.main_thread():
+        signal.pthread_sigmask(signal.SIG_BLOCK, set(SIGNALS))
+        for s in SIGNALS:
+            signal.signal(s, signal.SIG_IGN)
+    _installed = False
+
+
+@contextmanager
+def held():
+    """Block SIGINT/SIGTERM at the OS level for the block (e.g. an import that resets handlers),
+    then put our handlers back and let a signal that came meanwhile through."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, set(SIGNALS))
+    try:
+        yield
+    finally:
+        reinstall()
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def uninstall() -> None:

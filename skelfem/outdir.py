@@ -205,17 +205,18 @@ class Reservation:
                 pass
 
     def release(self, keep_parents: bool = False) -> None:
-        if self.fd is not None:
-            try:
-                os.unlink(self.lock_path)
-            except OSError:
-                pass
-            os.close(self.fd)
-            self.fd = None
-        if not keep_parents:
-            self._remove_created()
-        self.created = []
-        _HELD.pop(self.target, None)
+        with interrupts.critical():
+            if self.fd is not None:
+                try:
+                    os.unlink(self.lock_path)
+                except OSError:
+                    pass
+                os.close(self.fd)
+                self.fd = None
+            if not keep_parents:
+                self._remove_created()
+            self.created = []
+            _HELD.pop(self.target, None)
 
     def _remove_created(self) -> None:
         for d in reversed(self.created):
@@ -264,8 +265,13 @@ def reserve(out, comm=None, kind: str = "simulate") -> Path:
             target = check_path(out, kind)
             if target not in _HELD:
                 r = Reservation(target, kind)
-                r.acquire(str(out))
-                _HELD[target] = r
+                with interrupts.critical():       # registered before the lock exists: release() finds it
+                    _HELD[target] = r
+                    try:
+                        r.acquire(str(out))
+                    except BaseException:
+                        _HELD.pop(target, None)
+                        raise
         except OutputError as exc:
             error = str(exc)
     _agree(comm, error)
@@ -396,21 +402,19 @@ def publish(out, comm=None, kind: str = "simulate"):
     target = reserve(out, comm, kind)
     res = _HELD.get(target) if comm.rank == 0 else None
     path, error = None, None
-    if comm.rank == 0:
-        path = target.parent / f".{target.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}"
-        try:
-            path.mkdir()
-        except OSError as exc:
-            error = f"{out}: cannot create a staging folder beside it ({exc.strerror})"
-    if comm.size > 1:
-        path, error = comm.bcast((path, error), root=0)
-    if error is not None:
-        if res is not None:
-            res.release()
-        raise OutputError(error)
-    stage = Stage(path, comm)
     committed = False
     try:
+        if comm.rank == 0:
+            path = target.parent / f".{target.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}"
+            try:
+                path.mkdir()
+            except OSError as exc:
+                error = f"{out}: cannot create a staging folder beside it ({exc.strerror})"
+        if comm.size > 1:
+            path, error = comm.bcast((path, error), root=0)
+        if error is not None:
+            raise OutputError(error)
+        stage = Stage(path, comm)
         yield stage
         errors = stage.errors
         if comm.size > 1:
@@ -425,7 +429,7 @@ def publish(out, comm=None, kind: str = "simulate"):
         _agree(comm, error)
     finally:
         if comm.rank == 0:
-            if not committed:
+            if not committed and path is not None:
                 _remove(path)
             if res is not None:
                 res.release(keep_parents=committed)
