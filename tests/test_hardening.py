@@ -527,3 +527,51 @@ def test_json_is_strict(tmp_path):
     assert "Infinity" not in text and "NaN" not in text
     assert json.loads(text) == {"a": None, "b": [None, None, 1.5], "c": [0, 1, 2], "d": {"e": 2.0}}
     assert not [p for p in os.listdir(tmp_path) if p.startswith(".")]
+
+
+# -- internal errors and interrupts, injected ---------------------------------------------------------
+def test_internal_error_is_exit_3_with_and_without_v(sandbox, monkeypatch):
+    import skelfem.cli as cli
+
+    def broken(args):
+        raise RuntimeError("boom")
+    monkeypatch.setattr(cli, "simulate", broken)
+    design = sandbox.write("strip.toml", S2)
+    line = sandbox.refused("simulate", design, "-q", code=3, match="internal error: RuntimeError: boom")
+    assert "run with -v" in line
+    before = listing(sandbox.root)
+    code, _, err = sandbox.run("simulate", design, "-v")
+    assert code == 3 and "Traceback" in err and err.strip().splitlines()[-1].startswith("error: internal error")
+    assert listing(sandbox.root) == before
+
+
+@pytest.mark.parametrize("signum, code", [(2, 130), (15, 143)])
+def test_interrupt_while_writing_keeps_the_old_result(sandbox, monkeypatch, signum, code):
+    import skelfem.output as output
+    from skelfem.interrupts import Interrupted
+    design = sandbox.write("strip.toml", S2)
+    out = sandbox.work / "res"
+    sandbox.ok("simulate", design, "-q", "--out", out, out=out)
+    old = (out / "result.json").read_text()
+    real = output.write_json
+
+    def interrupted(path, data):
+        if ".tmp-" in str(path):
+            raise Interrupted(signum)
+        real(path, data)
+    monkeypatch.setattr(output, "write_json", interrupted)
+    before = listing(sandbox.root)
+    got, _, err = sandbox.run("simulate", design, "-q", "--out", out, "--set", "cables.flexor.contraction=2")
+    assert got == code and assert_one_error(err) == "error: interrupted"
+    assert listing(sandbox.root) == before                   # staging and lock gone, old files untouched
+    assert (out / "result.json").read_text() == old
+
+
+def test_error_lines_are_one_line_whatever_the_message(sandbox, monkeypatch):
+    import skelfem.cli as cli
+
+    def multiline(args):
+        raise cli.InputError("first\nsecond\r\x1b[31mred")
+    monkeypatch.setattr(cli, "simulate", multiline)
+    line = sandbox.refused("simulate", sandbox.write("strip.toml", S2), code=1)
+    assert line == "error: first\\nsecond\\r\\x1b[31mred"
