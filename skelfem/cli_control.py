@@ -26,9 +26,10 @@ from pathlib import Path
 import numpy as np
 
 from . import cli, outdir
-from .output import FORMAT, atomic_write, write_json, write_text
+from .control import line_targets, pose_indices
+from .output import (ACHIEVED_COLOR, FORMAT, TARGET_COLOR, atomic_write, draw_track, include_points,
+                     write_json, write_text)
 
-TARGET_COLOR, ACHIEVED_COLOR = "#d62728", "#2ca02c"
 
 
 def add_parsers(subparsers) -> None:
@@ -172,11 +173,6 @@ def _first_content_line(text: str) -> int:
     return 0
 
 
-def line_targets(ends: np.ndarray, steps: int) -> np.ndarray:
-    """`steps` targets evenly spaced from ends[0] to ends[1], both included."""
-    return ends[0] + np.linspace(0.0, 1.0, steps)[:, None] * (ends[1] - ends[0])
-
-
 def _track_targets(args, dim: int) -> np.ndarray:
     if args.csv is not None:
         if args.steps is not None:
@@ -283,7 +279,7 @@ def plot_ik(path: Path, scene, res, title: str = "") -> None:
     fig, ax = plt.subplots(figsize=(6, 7), dpi=120)
     plot_deformed(None, scene, title, ax=ax)
     _mark(ax, res.target, res.position)
-    _include(ax, np.array([res.target]))
+    include_points(ax, np.array([res.target]))
     fig.tight_layout()
     atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
     plt.close(fig)
@@ -292,52 +288,6 @@ def plot_ik(path: Path, scene, res, title: str = "") -> None:
 def _mark(ax, target, achieved):
     ax.plot(*target[:2], "x", color=TARGET_COLOR, ms=10, mew=2.5, zorder=6, label="target")
     ax.plot(*achieved[:2], "o", mfc="none", mec=ACHIEVED_COLOR, ms=11, mew=2, zorder=6, label="achieved")
-
-
-def _include(ax, points: np.ndarray, pad: float = 3.0) -> None:
-    """Widen the axis limits to show points."""
-    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
-    lo, hi = points[:, :2].min(axis=0) - pad, points[:, :2].max(axis=0) + pad
-    ax.set_xlim(min(x0, lo[0]), max(x1, hi[0]))
-    ax.set_ylim(min(y0, lo[1]), max(y1, hi[1]))
-
-
-def plot_poses(ax, scene, poses: list, alpha: float = 0.3) -> None:
-    """Deformed poses (local DOF arrays) drawn faded on one axis; scene.u is restored after."""
-    from matplotlib.legend import Legend
-
-    from .output import plot_deformed
-    keep = scene.u.x.array.copy()
-    lims = []
-    for i, pose in enumerate(poses):
-        scene.u.x.array[:] = pose
-        before = set(ax.get_children())
-        plot_deformed(None, scene, ax=ax, show_rest=(i == 0))
-        for artist in set(ax.get_children()) - before:
-            if hasattr(artist, "set_alpha") and not isinstance(artist, Legend):
-                artist.set_alpha(alpha if i < len(poses) - 1 else min(1.0, 2 * alpha))
-        lims.append((*ax.get_xlim(), *ax.get_ylim()))
-    scene.u.x.array[:] = keep
-    if lims:
-        lims = np.array(lims)
-        ax.set_xlim(lims[:, 0].min(), lims[:, 1].max())
-        ax.set_ylim(lims[:, 2].min(), lims[:, 3].max())
-
-
-def draw_track(ax, scene, results, poses: list, title: str = "") -> None:
-    """Target and achieved paths over a few faded deformed poses, on one axis."""
-    plot_poses(ax, scene, poses)
-    if ax.get_legend() is not None:
-        ax.get_legend().remove()                # the cables' legend: too long for several poses
-    target = np.array([r.target for r in results])
-    achieved = np.array([r.position for r in results])
-    h1, = ax.plot(target[:, 0], target[:, 1], "x--", color=TARGET_COLOR, ms=5, lw=1, zorder=6, label="target")
-    h2, = ax.plot(achieved[:, 0], achieved[:, 1], "o-", color=ACHIEVED_COLOR, ms=3, lw=1.2, zorder=7,
-                  mfc="none", label="achieved")
-    _include(ax, np.vstack([target, achieved]))
-    ax.legend(handles=[h1, h2], loc="upper right", fontsize=8)
-    if title:
-        ax.set_title(title, fontsize=10)
 
 
 def plot_track(path: Path, scene, results, poses: list, title: str = "") -> None:
@@ -357,11 +307,6 @@ def plot_track(path: Path, scene, results, poses: list, title: str = "") -> None
     fig.tight_layout()
     atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
     plt.close(fig)
-
-
-def pose_indices(n: int, count: int = 4) -> list[int]:
-    """A few evenly spread targets whose poses the track picture shows."""
-    return sorted(set(np.linspace(0, n - 1, min(n, count)).round().astype(int).tolist()))
 
 
 # -- commands ------------------------------------------------------------------------------------------

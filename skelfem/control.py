@@ -313,6 +313,16 @@ class SoftIK:
                         len(errors) - 1, time.perf_counter() - t0, errors)
 
 
+def line_targets(ends: np.ndarray, steps: int) -> np.ndarray:
+    """`steps` targets evenly spaced from ends[0] to ends[1], both included."""
+    return ends[0] + np.linspace(0.0, 1.0, steps)[:, None] * (ends[1] - ends[0])
+
+
+def pose_indices(n: int, count: int = 4) -> list[int]:
+    """A few evenly spread targets whose poses a tracking picture shows."""
+    return sorted(set(np.linspace(0, n - 1, min(n, count)).round().astype(int).tolist()))
+
+
 def track(ik: SoftIK, targets, on_target=None) -> list[IKResult]:
     """Soft IK along a sequence of targets, each warm-started from the previous pose."""
     results = []

@@ -339,3 +339,52 @@ def plot_deformed_3d(path: Path, scene, title: str = "", window_size=(900, 900),
     p.reset_camera()
     atomic_write(path, lambda tmp: p.screenshot(tmp))
     p.close()
+
+
+# -- tracking pictures (ik, track, the IK study) ---------------------------------------------------
+TARGET_COLOR, ACHIEVED_COLOR = "#d62728", "#2ca02c"
+
+
+def include_points(ax, points: np.ndarray, pad: float = 3.0) -> None:
+    """Widen the axis limits to show points."""
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    lo, hi = points[:, :2].min(axis=0) - pad, points[:, :2].max(axis=0) + pad
+    ax.set_xlim(min(x0, lo[0]), max(x1, hi[0]))
+    ax.set_ylim(min(y0, lo[1]), max(y1, hi[1]))
+
+
+def plot_poses(ax, model, poses: list, alpha: float = 0.3) -> None:
+    """Deformed poses (local DOF arrays) drawn faded on one axis; model.u is restored after."""
+    from matplotlib.legend import Legend
+
+    keep = model.u.x.array.copy()
+    lims = []
+    for i, pose in enumerate(poses):
+        model.u.x.array[:] = pose
+        before = set(ax.get_children())
+        plot_deformed(None, model, ax=ax, show_rest=(i == 0))
+        for artist in set(ax.get_children()) - before:
+            if hasattr(artist, "set_alpha") and not isinstance(artist, Legend):
+                artist.set_alpha(alpha if i < len(poses) - 1 else min(1.0, 2 * alpha))
+        lims.append((*ax.get_xlim(), *ax.get_ylim()))
+    model.u.x.array[:] = keep
+    if lims:
+        lims = np.array(lims)
+        ax.set_xlim(lims[:, 0].min(), lims[:, 1].max())
+        ax.set_ylim(lims[:, 2].min(), lims[:, 3].max())
+
+
+def draw_track(ax, model, results, poses: list, title: str = "") -> None:
+    """Target and achieved paths over a few faded deformed poses, on one axis."""
+    plot_poses(ax, model, poses)
+    if ax.get_legend() is not None:
+        ax.get_legend().remove()                # the cables' legend: too long for several poses
+    target = np.array([r.target for r in results])
+    achieved = np.array([r.position for r in results])
+    h1, = ax.plot(target[:, 0], target[:, 1], "x--", color=TARGET_COLOR, ms=5, lw=1, zorder=6, label="target")
+    h2, = ax.plot(achieved[:, 0], achieved[:, 1], "o-", color=ACHIEVED_COLOR, ms=3, lw=1.2, zorder=7,
+                  mfc="none", label="achieved")
+    include_points(ax, np.vstack([target, achieved]))
+    ax.legend(handles=[h1, h2], loc="upper right", fontsize=8)
+    if title:
+        ax.set_title(title, fontsize=10)

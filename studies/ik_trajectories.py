@@ -27,7 +27,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-from skelfem.output import say
+from skelfem.control import line_targets, pose_indices
+from skelfem.output import draw_track, say
 
 ROOT = Path(__file__).resolve().parents[1]
 DESIGN = ROOT / "geometry" / "finger4.toml"
@@ -49,16 +50,6 @@ def rest(ik) -> None:
     ik.model.u.x.array[:] = 0.0
     ik.u = np.zeros_like(ik.u)
     ik.settle(1)
-
-
-def line_targets(ends: np.ndarray, steps: int) -> np.ndarray:
-    """`steps` targets evenly spaced from ends[0] to ends[1], both included."""
-    return ends[0] + np.linspace(0.0, 1.0, steps)[:, None] * (ends[1] - ends[0])
-
-
-def pose_indices(n: int, count: int = 4) -> list[int]:
-    """A few evenly spread targets whose poses the picture shows."""
-    return sorted(set(np.linspace(0, n - 1, min(n, count)).round().astype(int).tolist()))
 
 
 def track_line(ik, ends, targets: int):
@@ -171,42 +162,6 @@ def _write(out: Path, ik, lines: dict, rows, numbers: dict) -> None:
 
 
 # -- pictures ---------------------------------------------------------------------------------------
-TARGET_COLOR, ACHIEVED_COLOR = "#d62728", "#2ca02c"
-
-
-def _draw_track(ax, model, results, poses: list, title: str) -> None:
-    """A few faded deformed poses, then the target and achieved paths (model.u is restored)."""
-    from matplotlib.legend import Legend
-
-    from skelfem.output import plot_deformed
-
-    keep = model.u.x.array.copy()
-    lims = []
-    for i, pose in enumerate(poses):
-        model.u.x.array[:] = pose
-        before = set(ax.get_children())
-        plot_deformed(None, model, ax=ax, show_rest=(i == 0))
-        for artist in set(ax.get_children()) - before:
-            if hasattr(artist, "set_alpha") and not isinstance(artist, Legend):
-                artist.set_alpha(0.3 if i < len(poses) - 1 else 0.6)
-        lims.append((*ax.get_xlim(), *ax.get_ylim()))
-    model.u.x.array[:] = keep
-    if ax.get_legend() is not None:
-        ax.get_legend().remove()                # the cables' legend: too long for several poses
-    target = np.array([r.target for r in results])
-    achieved = np.array([r.position for r in results])
-    h1, = ax.plot(target[:, 0], target[:, 1], "x--", color=TARGET_COLOR, ms=5, lw=1, zorder=6, label="target")
-    h2, = ax.plot(achieved[:, 0], achieved[:, 1], "o-", color=ACHIEVED_COLOR, ms=3, lw=1.2, zorder=7,
-                  mfc="none", label="achieved")
-    pts = np.vstack([target, achieved])[:, :2]
-    lims = np.array(lims) if lims else np.array([[np.inf, -np.inf, np.inf, -np.inf]])
-    lo, hi = pts.min(axis=0) - 3.0, pts.max(axis=0) + 3.0
-    ax.set_xlim(min(lims[:, 0].min(), lo[0]), max(lims[:, 1].max(), hi[0]))
-    ax.set_ylim(min(lims[:, 2].min(), lo[1]), max(lims[:, 3].max(), hi[1]))
-    ax.legend(handles=[h1, h2], loc="upper right", fontsize=8)
-    ax.set_title(title, fontsize=10)
-
-
 def _plot_paths(path: Path, ik, lines: dict, numbers: dict) -> None:
     import matplotlib
     matplotlib.use("Agg")
@@ -217,7 +172,7 @@ def _plot_paths(path: Path, ik, lines: dict, numbers: dict) -> None:
     fig, axes = plt.subplots(1, len(lines), figsize=(6 * len(lines), 7.5), dpi=110)
     for ax, (name, (results, poses)) in zip(np.atleast_1d(axes), lines.items()):
         n = numbers[name]
-        _draw_track(ax, ik.model, results, poses,
+        draw_track(ax, ik.model, results, poses,
                     f"{name} line: {n['reached']}/{n['targets']} targets within {ik.tol:.2g} mm\n"
                     f"max error of reached {n['max_error_reached']:.2g} mm")
     fig.suptitle("finger4: Soft IK along target lines (after the paper's Fig. 11)", fontsize=11)

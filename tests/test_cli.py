@@ -1,41 +1,15 @@
 """`skelfem simulate` end to end: files, exit codes, one-line errors."""
 import json
-import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from _designs import strip
+from _designs import toml_text as _toml
 from skelfem.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def _toml(d: dict) -> str:
-    """Minimal TOML writer for the design dicts used in tests."""
-    def value(v):
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, str):
-            return f'"{v}"'
-        if isinstance(v, (list, tuple)):
-            return "[" + ", ".join(value(x) for x in v) + "]"
-        if isinstance(v, dict):
-            return "{ " + ", ".join(f"{k} = {value(x)}" for k, x in v.items()) + " }"
-        return repr(float(v)) if isinstance(v, float) else str(v)
-    lines, tables = [], []
-    for k, v in d.items():
-        if isinstance(v, dict):
-            tables.append(f"[{k}]\n" + "\n".join(f"{kk} = {value(vv)}" for kk, vv in v.items()))
-        elif isinstance(v, list) and v and isinstance(v[0], dict):
-            for item in v:
-                tables.append(f"[[{k}]]\n" + "\n".join(f"{kk} = {value(vv)}" for kk, vv in item.items()))
-        else:
-            lines.append(f"{k} = {value(v)}")
-    text = "\n".join(lines) + "\n\n" + "\n\n".join(tables) + "\n"
-    tomllib.loads(text)
-    return text
 
 
 @pytest.fixture
@@ -80,7 +54,9 @@ def test_set_overrides_change_the_run(strip_file, tmp_path):
 
 def test_bad_design_is_one_error_line_and_no_output(tmp_path, capsys):
     bad = tmp_path / "bad.toml"
-    bad.write_text(_toml(strip()).replace('material = "soft"', 'material = "unobtainium"', 1))
+    d = strip()
+    d["body"]["material"] = "unobtainium"
+    bad.write_text(_toml(d))
     out = tmp_path / "never"
     assert main(["simulate", str(bad), "--out", str(out), "-q"]) == 1
     err = capsys.readouterr().err.strip().splitlines()

@@ -31,6 +31,7 @@ def _close(a, b, rel=1e-8):
 READOUTS = ("energy", "markers", "cables", "pins", "grounds", "min_jacobian", "dofs", "cells")
 
 
+@pytest.mark.mpi
 def test_session_equals_simulate_with_set(tmp_path, mpirun):
     sets = ["cables.flexor.contraction=6.5", "materials.pla.E=800", "mesh.size=2.5"]
     args = [mpirun.skelfem, "simulate", FINGER, "--out", tmp_path, "--no-picture", "-q"]
@@ -108,6 +109,7 @@ if MPI.COMM_WORLD.rank == 0:
 
 
 @pytest.mark.mpi
+@pytest.mark.slow
 def test_every_term_serial_equals_mpirun_2(tmp_path, mpirun):
     """A design with every MPI-capable term (all but self-contact): read-outs agree over 1 and 2 ranks."""
     script = tmp_path / "run.py"

@@ -5,19 +5,13 @@ and its Hessian (sparse part + rank-one parts) against central differences
 of its energy, and the matrix pattern covering its Hessian. UFL terms are
 checked through their compiled energy, gradient and Hessian forms.
 """
-import json
-import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 import ufl
 from dolfinx import fem
-from mpi4py import MPI
 
 from skelfem import Session
-from skelfem.model import Model
 from skelfem.terms import BUILDERS
 
 from _designs import strip
@@ -45,11 +39,6 @@ def _designs():
                          "material": "soft"})
     contact["cables"] = [dict(base["cables"][0], path=[[7, 0], [7, 30]])]
     return {"full": full, "spring": spring, "contact": contact}
-
-
-def _model(design):
-    s = Session(design)
-    return s
 
 
 def _perturbed_state(model, scale):
@@ -103,14 +92,11 @@ def _gradient(model, term, u, gform):
     return g
 
 
-CASES = [(name, i) for name, d in [("full", None), ("spring", None), ("contact", None)] for i in range(12)]
-
-
 @pytest.mark.parametrize("name", ["full", "spring", "contact"])
 def test_every_term_gradient_and_hessian_match_central_differences(name):
     import dolfinx.fem.petsc  # noqa: F401
     design = _designs()[name]
-    s = _model(design)
+    s = Session(design)
     model = s.model
     model.set_factor(0.7)
     seen = set()
