@@ -26,7 +26,6 @@ from pathlib import Path
 import numpy as np
 
 from . import cli, outdir
-from .control import line_targets, pose_indices
 from .output import (ACHIEVED_COLOR, FORMAT, TARGET_COLOR, atomic_write, draw_track, include_points,
                      write_json, write_text)
 
@@ -183,6 +182,7 @@ def _track_targets(args, dim: int) -> np.ndarray:
         raise cli.InputError(f"--line: expected {2 * dim} numbers (start and end), got {len(args.line)}")
     if args.steps is None or not 2 <= args.steps <= MAX_TARGETS:
         raise cli.InputError(f"--line needs --steps N with 2 <= N <= {MAX_TARGETS}")
+    from .control import line_targets
     return line_targets(ends, args.steps)
 
 
@@ -436,6 +436,7 @@ def track_command(args) -> int:
         settle = _settle(design, ik, args.out)
         if settle is None:
             return cli.EXIT_SOLVE
+    from .control import pose_indices
     show = pose_indices(len(targets))
     talk = not args.quiet
     if talk and done:

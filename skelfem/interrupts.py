@@ -62,8 +62,12 @@ def install() -> None:
 
 
 def reinstall() -> None:
-    """Put the handlers back if install() was called (after something reset them)."""
-    if _installed and any(signal.getsignal(s) is not _handler for s in SIGNALS):
+    """Put the handlers back if install() was called (after something reset them).
+
+    Always set again: a C library (gmsh) resets the OS-level action behind
+    Python's back, and signal.getsignal still reports our handler then.
+    """
+    if _installed:
         install()
 
 
