@@ -354,6 +354,9 @@ class Stage:
             self.errors.append(f"cannot write {Path(name).name if name else 'the results'}: "
                                f"{exc.strerror or exc}")
         except Exception as exc:
+            from . import interrupts
+            if interrupts.received() is not None:   # an interrupt inside a lazy import (matplotlib...)
+                raise interrupts.Interrupted(interrupts.received()) from None
             self.errors.append(f"writing failed: {type(exc).__name__}: {exc}")
         return None
 
