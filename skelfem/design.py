@@ -324,10 +324,28 @@ def apply_override(data: dict, assignment: str, source: str) -> None:
 
 
 # -- geometry checks (2D) --------------------------------------------------------------------------------
+_MEMO: dict = {}     # results of pure geometry checks by their inputs: a re-parse after a live change repeats none
+
+
+def _memo(kind: str, arrays, tol: float, check):
+    """check() once per (kind, arrays, tol); a check that raises is not remembered."""
+    key = (kind, tol, *((a.shape, a.tobytes()) for a in arrays))
+    if key not in _MEMO:
+        if len(_MEMO) > 4096:
+            _MEMO.clear()
+        _MEMO[key] = check()
+    return _MEMO[key]
+
+
 def _polygon(t: _Table, name: str, pts: np.ndarray, tol: float) -> np.ndarray:
     if len(pts) < 3:
         t.fail(name, "a polygon needs at least 3 points")
     _bounded(t, name, pts)
+    _memo("polygon", [pts], tol, lambda: _polygon_shape(t, name, pts, tol))
+    return pts
+
+
+def _polygon_shape(t: _Table, name: str, pts: np.ndarray, tol: float) -> bool:
     if np.any(np.linalg.norm(pts - np.roll(pts, -1, axis=0), axis=1) <= tol):
         t.fail(name, "repeated consecutive points (degenerate polygon)")
     if np.ptp(pts, axis=0).min() <= tol:
@@ -336,7 +354,7 @@ def _polygon(t: _Table, name: str, pts: np.ndarray, tol: float) -> np.ndarray:
         t.fail(name, "polygon is not simple (edges cross or touch)")
     if abs(polygons.signed_area(pts)) <= tol * np.ptp(pts, axis=0).max():
         t.fail(name, "polygon has zero area (degenerate)")
-    return pts
+    return True
 
 
 class _Region2D:
@@ -351,10 +369,17 @@ class _Region2D:
         return polygons.region_contains(self.loops, np.atleast_2d(points), self.tol)
 
     def contains_path(self, path: np.ndarray) -> bool:
-        return bool(np.all(self.contains(polygons.polyline_samples(path, self.loops, self.tol))))
+        return _memo("path", [*self.loops, path], self.tol, lambda: bool(
+            np.all(self.contains(polygons.polyline_samples(path, self.loops, self.tol)))))
 
 
 def _layout_2d(body_t: "_Table", region: _Region2D, bone_tables: list, bone_outlines: list) -> None:
+    loops = [region.outline, *region.holes, *bone_outlines]
+    _memo(f"layout{len(region.holes)}", loops, region.tol,
+          lambda: _check_layout_2d(body_t, region, bone_tables, bone_outlines))
+
+
+def _check_layout_2d(body_t: "_Table", region: _Region2D, bone_tables: list, bone_outlines: list) -> bool:
     """Holes strictly inside the outline and apart; bones strictly inside the body, apart.
 
     All boundaries are intersected at once (polygons.meeting_loops); loops
@@ -401,6 +426,7 @@ def _layout_2d(body_t: "_Table", region: _Region2D, bone_tables: list, bone_outl
             if overlapping(i, 1 + nh + m):
                 other = bone_tables[m].where.split(".", 1)[1]
                 t.fail("outline", f"overlaps or touches bone {other!r}")
+    return True
 
 
 # -- sections -------------------------------------------------------------------------------------------

@@ -71,6 +71,9 @@ class Model:
         self.detF = min_jacobian_expression(self.u)
         self._vectors: list[PETSc.Vec] = []
         self._fixed_cache: dict = {}
+        self._block_cache: dict = {}   # (term, block) -> its map into the matrix (see _term_blocks_at)
+        self._csr_cache = None
+        self.changes: dict = {}      # {key: (value at the last solve, value now)} of live parameters
 
     # -- terms and parameters -------------------------------------------------------------------
     def term(self, section: str, name: str | None = None):
@@ -88,11 +91,30 @@ class Model:
         return {k: v for term in self.terms for k, v in term.parameters().items()}
 
     def set_parameter(self, key: str, value) -> None:
+        """Change a live parameter; the change is remembered (``changes``) until the next solve."""
         for term in self.terms:
-            if key in term.parameters():
+            params = term.parameters()
+            if key in params:
                 term.set_parameter(key, value)
+                old = self.changes.get(key, (np.array(params[key], dtype=float), None))[0]
+                self.changes[key] = (old, np.array(term.parameters()[key], dtype=float))
                 return
         raise KeyError(key)
+
+    def parameter_path(self, s: float) -> None:
+        """Set every changed parameter to old + s (new - old): s = 0 the last solved state, 1 the new one."""
+        for key, (old, new) in self.changes.items():
+            value = old + s * (new - old)
+            for term in self.terms:
+                if key in term.parameters():
+                    term.set_parameter(key, float(value) if value.ndim == 0 else value)
+
+    def carry_over(self, x: PETSc.Vec) -> None:
+        """Let every term adjust a start state x interpolated from another mesh (see Term.carry_over)."""
+        u = x.array_w
+        for term in self.terms:
+            term.carry_over(u)
+        x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
 
     def set_factor(self, a: float) -> None:
         """Ramp contractions, pretensions, loads and pin moves to a fraction a."""
@@ -268,30 +290,67 @@ class Model:
             return pos, self.global_dofs[np.asarray(dofs)[pos]]
         return term.gather.pos, np.asarray(dofs, np.int64)[term.gather.pos]
 
+    def _block_map(self, term, dofs, row, col) -> tuple:
+        """Which entries of a term's COO block this rank adds (owned, free rows and columns), and where."""
+        free = self._free(term, dofs)
+        pos, grow = self._owned_rows(term, dofs)
+        keep = np.zeros(len(dofs), dtype=bool)
+        keep[pos] = True
+        sel = np.flatnonzero(keep[row] & free[row] & free[col])
+        gcol = self.global_dofs[np.asarray(dofs)] if term.gather is None else np.asarray(dofs, np.int64)
+        rowmap = np.full(len(dofs), -1, np.int64)
+        rowmap[pos] = grow
+        return sel, rowmap[row[sel]], gcol[col[sel]]
+
+    def _term_blocks_at(self, u: np.ndarray) -> tuple[list, list]:
+        """Every term's sparse Hessian blocks at u: ([(dofs, row, col, sel, rows, cols)], [values]).
+
+        A block whose dofs, row and column arrays are the same objects as last
+        time (a cable's curvature) reuses its map into the matrix.
+        """
+        blocks, values = [], []
+        for term in self.terms:
+            for i, (dofs, H) in enumerate(term.hessian(u)):
+                H = H if sp.isspmatrix_coo(H) else sp.coo_matrix(H)
+                if H.nnz == 0:
+                    continue
+                c = self._block_cache.get((id(term), i))
+                if c is None or c[0] is not dofs or c[1] is not H.row or c[2] is not H.col:
+                    c = (dofs, H.row, H.col, *self._block_map(term, dofs, H.row, H.col))
+                    self._block_cache[(id(term), i)] = c
+                blocks.append(c)
+                values.append(H.data[c[3]])
+        return blocks, values
+
+    def _add_term_blocks(self, A: PETSc.Mat, u: np.ndarray) -> None:
+        """A += the terms' sparse Hessian blocks, duplicates summed; the CSR layout is kept while it holds."""
+        blocks, values = self._term_blocks_at(u)
+        if not blocks:
+            return
+        cache = self._csr_cache
+        if cache is None or len(cache[0]) != len(blocks) or any(a is not c[1] for a, c in zip(cache[0], blocks)):
+            rows = np.concatenate([c[4] for c in blocks])
+            cols = np.concatenate([c[5] for c in blocks])
+            order = np.lexsort((cols, rows))
+            r, k = rows[order], cols[order]
+            new = np.r_[True, (r[1:] != r[:-1]) | (k[1:] != k[:-1])]
+            slot = np.empty(len(order), np.int64)
+            slot[order] = np.cumsum(new) - 1
+            urows, counts = np.unique(r[new], return_counts=True)
+            indptr = np.r_[0, np.cumsum(counts)].astype(PETSc.IntType)
+            cache = ([c[1] for c in blocks], slot, int(new.sum()), urows.astype(PETSc.IntType),
+                     indptr, k[new].astype(PETSc.IntType))
+            self._csr_cache = cache
+        _, slot, n, urows, indptr, indices = cache
+        data = np.bincount(slot, weights=np.concatenate(values), minlength=n)
+        A.setValuesIJV(indptr, indices, data, addv=PETSc.InsertMode.ADD_VALUES, rowmap=urows)
+
     def jacobian(self, x: PETSc.Vec, A: PETSc.Mat) -> None:
         """K = hess Pi without the rank-one parts, Dirichlet rows and columns replaced by the identity."""
         u = self.sync(x)
         A.zeroEntries()
-        _assemble_form(A, self.jacobian_form, self.bcs)
-        A.assemblyBegin(PETSc.Mat.AssemblyType.FLUSH)
-        A.assemblyEnd(PETSc.Mat.AssemblyType.FLUSH)
-        rows, cols, vals = [], [], []
-        for term in self.terms:
-            for dofs, H in term.hessian(u):
-                H = sp.coo_matrix(H)
-                free = self._free(term, dofs)
-                pos, grow = self._owned_rows(term, dofs)
-                keep = np.zeros(len(dofs), dtype=bool)
-                keep[pos] = True
-                m = keep[H.row] & free[H.row] & free[H.col]
-                gcol = self.global_dofs[np.asarray(dofs)] if term.gather is None else np.asarray(dofs, np.int64)
-                rowmap = np.full(len(dofs), -1, np.int64)
-                rowmap[pos] = grow
-                rows.append(rowmap[H.row[m]])
-                cols.append(gcol[H.col[m]])
-                vals.append(H.data[m])
-        if rows:
-            _add_coo(A, np.concatenate(rows), np.concatenate(cols), np.concatenate(vals))
+        _assemble_form(A, self.jacobian_form, self.bcs)      # adds; the terms add too
+        self._add_term_blocks(A, u)
         A.assemblyBegin(PETSc.Mat.AssemblyType.FLUSH)
         A.assemblyEnd(PETSc.Mat.AssemblyType.FLUSH)
         _cpp.fem.petsc.insert_diagonal(A, self.V._cpp_object, self.bcs, 1.0)
@@ -332,12 +391,3 @@ class Model:
 def _assemble_form(A: PETSc.Mat, form, bcs) -> None:
     _cpp.fem.petsc.assemble_matrix(A, form, _cpp.fem.pack_constants(form),
                                    _cpp.fem.pack_coefficients(form), bcs)
-
-
-def _add_coo(A: PETSc.Mat, rows, cols, vals) -> None:
-    """A[rows, cols] += vals (global indices; duplicates summed), one row at a time in C."""
-    urows, inv = np.unique(rows, return_inverse=True)
-    M = sp.csr_matrix((vals, (inv, cols)), shape=(len(urows), int(cols.max()) + 1 if len(cols) else 1))
-    M.sum_duplicates()
-    A.setValuesIJV(M.indptr.astype(PETSc.IntType), M.indices.astype(PETSc.IntType), M.data,
-                   addv=PETSc.InsertMode.ADD_VALUES, rowmap=urows.astype(PETSc.IntType))

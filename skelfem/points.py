@@ -16,6 +16,15 @@ from mpi4py import MPI
 _BASIX_CELL = {"triangle": basix.CellType.triangle, "tetrahedron": basix.CellType.tetrahedron}
 
 
+def _cell_tree(mesh) -> geometry.BoundingBoxTree:
+    """The mesh's bounding box tree of cells, built once per mesh."""
+    tree = getattr(mesh, "_skelfem_cell_tree", None)
+    if tree is None:
+        tree = geometry.BoundingBoxTree(mesh, mesh.topology.dim)
+        mesh._skelfem_cell_tree = tree
+    return tree
+
+
 def locate_cells(mesh, points: np.ndarray, below: int | None = None) -> np.ndarray:
     """Cell index (local) containing each point, -1 where none does.
 
@@ -26,16 +35,14 @@ def locate_cells(mesh, points: np.ndarray, below: int | None = None) -> np.ndarr
         return np.zeros(0, dtype=np.int32)
     p3 = np.zeros((len(points), 3))
     p3[:, :points.shape[1]] = points
-    tree = geometry.BoundingBoxTree(mesh, mesh.topology.dim)
-    candidates = geometry.compute_collisions(tree, p3)
+    candidates = geometry.compute_collisions(_cell_tree(mesh), p3)
     colliding = geometry.compute_colliding_cells(mesh, candidates, p3)
+    links, offsets = colliding.array, colliding.offsets
+    at = np.flatnonzero(links < below) if below is not None else np.arange(len(links))
+    point = np.searchsorted(offsets, at, side="right") - 1      # the point each link belongs to
+    point, first = np.unique(point, return_index=True)          # its first (admissible) cell
     cells = np.full(len(points), -1, dtype=np.int32)
-    for i in range(len(points)):  # one entry per point (not per DOF or cell)
-        links = colliding.links(i)
-        if below is not None:
-            links = links[links < below]
-        if len(links):
-            cells[i] = links[0]
+    cells[point] = links[at[first]]
     return cells
 
 

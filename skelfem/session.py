@@ -199,6 +199,7 @@ class Session:
             u[~inside] = u_old[cKDTree(X_old).query(X[~inside])[1]]
         model.u.x.array[:] = u.ravel()
         model.set_factor(1.0)
+        model.carry_over(model.u.vector)
         model.apply_bcs(model.u.vector)
 
     # -- solving -----------------------------------------------------------------------------------

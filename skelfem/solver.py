@@ -26,6 +26,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from .design import LINE_SEARCHES as STRATEGIES
@@ -92,6 +93,8 @@ class NewtonSolver:
         self._history: list[float] = []
         self._failure: str | None = None
         self._f0 = 0.0
+        self._last_trial = None       # (state, Pi) of the last accepted line-search trial
+        self._factorised = False      # lin holds a factorisation of K near the current state
         self.snes = self._create_snes(prefix)
 
     # -- SNES set-up -------------------------------------------------------------------
@@ -164,7 +167,7 @@ class NewtonSolver:
         r = self.b.array_r.copy()                   # grad Pi at x, set by SNES
         x0 = x.array_r.copy()
         slope = float(model.comm.allreduce(r @ p))
-        e0 = model.energy(x)
+        e0 = self._energy_at(x)
         self._newton_step = float(np.sqrt(model.comm.allreduce(p @ p)))
         if 0.0 <= -slope <= self.etol * max(abs(e0), 1e-300):
             # Newton decrement at round-off level: x is the minimiser to machine precision
@@ -211,6 +214,7 @@ class NewtonSolver:
         try:
             for _ in range(40):
                 if e <= e0 + c1 * alpha * slope:
+                    self._last_trial = (trial.array_r.copy(), e)
                     return alpha, True
                 if np.isfinite(e) and abs(e - e0) <= noise:
                     trial.array_w[:] = x0 + alpha * p
@@ -230,6 +234,16 @@ class NewtonSolver:
         finally:
             trial.destroy()
 
+    def _energy_at(self, x) -> float:
+        """Pi(x), reusing the energy of the last accepted trial state if x is that state (to round-off)."""
+        last, self._last_trial = self._last_trial, None
+        if last is not None and len(last[0]) == len(x.array_r):
+            diff = np.abs(x.array_r - last[0]).max(initial=0.0)
+            scale = max(np.abs(last[0]).max(initial=0.0), self.model.size)
+            if self.model.comm.allreduce(diff <= 1e-13 * scale, op=MPI.LAND):
+                return last[1]
+        return self.model.energy(x)
+
     def _take(self, x, y, p, alpha) -> bool:
         """Set the SNES step to alpha p if x + alpha p is admissible (and alpha > 0), else to zero."""
         trial = x.copy()
@@ -248,6 +262,7 @@ class NewtonSolver:
         """Newton from the current state at the current load factor."""
         self._history, self._failure, self._newton_step = [], None, np.inf
         self._decrement_converged = False
+        self._last_trial = None
         self.model.u.vector.copy(self.x)
         self.model.apply_bcs(self.x)
         if not self.model.admissible(self.x):
@@ -259,6 +274,7 @@ class NewtonSolver:
         if reason > 0:
             if not self.model.admissible(self.x):
                 return False, "inverted_elements", its
+            self._factorised = self._factorised or its > 0
             return True, "converged", its
         log.debug("SNES reason %s", reason)
         return False, self._failure or _REASONS.get(reason, f"diverged ({reason})"), its
@@ -288,6 +304,7 @@ class NewtonSolver:
         """Ramp the load factor from start to end in `steps` steps (cut in half on failure)."""
         t0 = time.perf_counter()
         model = self.model
+        model.changes.clear()
         report = SolveReport(False, "not_started")
         a, da, cuts = start, (end - start) / max(int(steps), 1), 0
         da0 = da
@@ -341,8 +358,60 @@ class NewtonSolver:
         report.time = time.perf_counter() - t0
         return report
 
+    def _tangent_predictor(self) -> float:
+        """Euler predictor from the last equilibrium u_0 to the changed parameters p_1.
+
+        The step is d = -H_0^{-1} (dR/dp) (p_1 - p_0) = du/dp (p_1 - p_0), the
+        first-order change of the equilibrium, with H_0 the Hessian already
+        factorised next to u_0 (one back-substitution: no assembly, no
+        factorisation). dR/dp (p_1 - p_0) is the difference quotient of R(u_0)
+        along the parameter path with the active set of u_0 (a small step
+        keeps taut cables taut): a cable that the new rest length leaves
+        momentarily slack at u_0 still pulls in the prediction, where a
+        Newton step at u_0 would let the body spring past the equilibrium.
+        The energy line search with the new parameters scales it like a
+        Newton step. Returns the step length taken (0 if none).
+        """
+        model = self.model
+        if not self._factorised or all(np.array_equal(o, n) for o, n in model.changes.values()):
+            return 0.0
+        x = model.u.vector.copy()
+        r0, d = x.duplicate(), x.duplicate()
+        eps = 1e-4
+        try:
+            for s, vec in ((0.0, r0), (eps, self.b)):
+                model.parameter_path(s)
+                model.residual(x, vec)
+            self.b.axpy(-1.0, r0)
+            self.b.scale(1.0 / eps)                         # dR/dp (p_1 - p_0) at u_0
+            model.parameter_path(1.0)
+            try:
+                self.lin.solve(self.b, d)
+            except np.linalg.LinAlgError:
+                return 0.0
+            p = -d.array_r.copy()
+            model.apply_bcs(x)                              # pins moved: the bc rows of p follow g
+            model.residual(x, self.b)
+            r = self.b.array_r
+            slope = float(model.comm.allreduce(r @ p))
+            if not np.isfinite(slope) or slope >= 0.0:
+                return 0.0
+            x0 = x.array_r.copy()
+            f0 = float(np.sqrt(model.comm.allreduce(r @ r)))
+            alpha, ok = self._backtrack(x, x0, p, model.energy(x), slope, f0, self._max_step(x0, p))
+            if not ok:
+                return 0.0
+            x.array_w[:] = x0 + alpha * p + model.step_correction(x0, p, alpha)
+            x.copy(model.u.vector)
+            return float(alpha)
+        finally:
+            model.parameter_path(1.0)
+            model.sync(model.u.vector)
+            for v in (x, r0, d):
+                v.destroy()
+
     def resolve(self, steps: int = 1) -> SolveReport:
-        """Warm re-solve: Newton at full load from the current state (the last equilibrium).
+        """Warm re-solve: a tangent predictor, then Newton at full load, from the last equilibrium.
 
         If that fails, the state is restored and the load is ramped from the
         rest state in `steps` steps, as a cold solve would; the report counts
@@ -352,14 +421,18 @@ class NewtonSolver:
         model = self.model
         saved = model.u.vector.copy()
         model.set_factor(1.0)
+        predicted = self._tangent_predictor()
+        model.changes.clear()
         ok, status, its = self._newton()
         report = SolveReport(ok, status, its, int(ok), [self._history] if ok else [],
-                             [{"factor": 1.0, "iterations": int(its), "status": status, "warm": True}])
+                             [{"factor": 1.0, "iterations": int(its), "status": status, "warm": True,
+                               "predictor_step": predicted}])
         if ok:
             model.end_step()
             saved.destroy()
             return self._finish(report, t0)
         log.info("warm re-solve failed (%s); ramping from rest", status)
+        self._factorised = False
         model.u.vector.set(0.0)
         model.sync(model.u.vector)
         cold = self.solve(steps)

@@ -83,6 +83,9 @@ class Term:
         """Correction added to the trial state u0 + alpha p (owned DOFs), or None."""
         return None
 
+    def carry_over(self, u: np.ndarray) -> None:
+        """Adjust, in place, a start state u (owned DOFs) interpolated from another mesh after an edit."""
+
     def energy_scale(self) -> float:
         """Size of the terms that cancel in the energy (sets the round-off level of Pi)."""
         return 0.0

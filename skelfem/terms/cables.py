@@ -41,7 +41,14 @@ _EPS = 1e-10
 
 
 def _mesh_facets(mesh) -> np.ndarray:
-    """Vertex coordinates of every facet, shape (n_facets, tdim, gdim)."""
+    """Vertex coordinates of every facet, shape (n_facets, tdim, gdim) (computed once per mesh)."""
+    facets = getattr(mesh, "_skelfem_facets", None)
+    if facets is None:
+        facets = mesh._skelfem_facets = _facet_vertices(mesh)
+    return facets
+
+
+def _facet_vertices(mesh) -> np.ndarray:
     tdim = mesh.topology.dim
     mesh.topology.create_connectivity(tdim - 1, 0)
     f2v = mesh.topology.connectivity(tdim - 1, 0).array.reshape(-1, tdim)
@@ -138,6 +145,9 @@ class Cable:
     contraction: float = 0.0
     pretension: float = 0.0
 
+    def __post_init__(self):
+        self.BT = self.B.T.tocsr()      # g = B^T t, every gradient evaluation
+
     @classmethod
     def build(cls, V, spec) -> "Cable":
         mesh = V.mesh
@@ -187,7 +197,7 @@ class Cable:
         d = self.segments(u)
         norm = np.linalg.norm(d, axis=1)
         t = d / norm[:, None]
-        return d, norm, t, self.B.T @ t.ravel()
+        return d, norm, t, self.BT @ t.ravel()
 
     def gradient(self, u: np.ndarray, L: float) -> np.ndarray:
         """Gradient on self.dofs: k s g."""
@@ -196,25 +206,34 @@ class Cable:
         return self.k * s * g
 
     def _segment_blocks(self):
-        """Per segment i: the cable DOFs J_i its row block B_i touches and B_i densely, zero-padded.
+        """Per segment i: B_i densely, zero-padded to the cable DOFs J_i it touches, and the COO indices.
 
         Built once; the curvature part is then sum_i B_i^T W_i B_i evaluated
-        for all segments at once (one einsum), no sparse products per call.
+        for all segments at once (batched matrix products), its COO row and
+        column arrays the same objects every call (the model caches their map
+        into the Newton matrix).
         """
         if getattr(self, "_blocks", None) is None:
-            B = self.B.tocsr()
+            C = self.B.tocoo()
             nseg, gdim = self.d0.shape
-            cols = [np.unique(B.indices[B.indptr[i * gdim]:B.indptr[(i + 1) * gdim]]) for i in range(nseg)]
-            width = max((len(c) for c in cols), default=0)
+            m = self.B.shape[1]
+            seg, comp = C.row // gdim, C.row % gdim
+            keys, inv = np.unique(seg.astype(np.int64) * m + C.col, return_inverse=True)
+            useg, ucol = keys // m, keys % m                      # (segment, DOF) pairs, sorted
+            pos = np.arange(len(keys)) - np.searchsorted(useg, useg)   # the DOF's slot in its segment
+            width = int(pos.max()) + 1 if len(pos) else 0
             J = np.zeros((nseg, width), dtype=np.int64)
             Bd = np.zeros((nseg, gdim, width))
             valid = np.zeros((nseg, width), dtype=bool)
-            for i, c in enumerate(cols):              # setup only: one entry per segment
-                J[i, :len(c)] = c
-                valid[i, :len(c)] = True
-                Bd[i, :, :len(c)] = B[i * gdim:(i + 1) * gdim][:, c].toarray()
+            J[useg, pos] = ucol
+            valid[useg, pos] = True
+            np.add.at(Bd, (seg, comp, pos[inv]), C.data)
             pair = valid[:, :, None] & valid[:, None, :]
-            self._blocks = (J, Bd, pair)
+            shape = (nseg, width, width)
+            at = np.flatnonzero(pair.ravel())
+            rows = np.broadcast_to(J[:, :, None], shape).ravel()[at].astype(np.int32)
+            cols_ = np.broadcast_to(J[:, None, :], shape).ravel()[at].astype(np.int32)
+            self._blocks = (J, Bd, np.ascontiguousarray(Bd.transpose(0, 2, 1)), pair, at, rows, cols_)
         return self._blocks
 
     def curvature(self, u: np.ndarray, L: float) -> sp.coo_matrix:
@@ -224,13 +243,11 @@ class Cable:
         m = len(self.dofs)
         if s <= 0.0:
             return sp.coo_matrix((m, m))
-        J, Bd, pair = self._segment_blocks()
+        _, Bd, BdT, _, at, rows, cols = self._segment_blocks()
         gdim = d.shape[1]
         W = (np.eye(gdim)[None] - t[:, :, None] * t[:, None, :]) / norm[:, None, None]
-        blocks = (self.k * s) * np.einsum("sai,sab,sbj->sij", Bd, W, Bd)
-        rows = np.broadcast_to(J[:, :, None], blocks.shape)[pair]
-        cols = np.broadcast_to(J[:, None, :], blocks.shape)[pair]
-        return sp.coo_matrix((blocks[pair], (rows, cols)), shape=(m, m))
+        blocks = np.matmul(BdT, np.matmul(W, Bd))
+        return sp.coo_matrix(((self.k * s) * blocks.ravel()[at], (rows, cols)), shape=(m, m))
 
     def length_gradient(self, u: np.ndarray) -> np.ndarray:
         """g = grad l = B^T t on self.dofs."""
@@ -244,7 +261,7 @@ class Cable:
 
     def segment_nodes(self, bs: int) -> list[np.ndarray]:
         """Global node numbers each segment's curvature block couples (one array per segment)."""
-        J, _, pair = self._segment_blocks()
+        J, _, _, pair = self._segment_blocks()[:4]
         return [np.unique(self.dofs[j[v]] // bs) for j, v in zip(J, pair[:, :, 0] | pair[:, 0, :])]
 
 

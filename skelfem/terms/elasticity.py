@@ -84,6 +84,7 @@ class Elasticity(Term):
         self._update_fields()
         self._scale_form = fem.form(ctx.thickness * (self.mu + self.lam) * ufl.dx)
         self._groups = None
+        self._fit = None
 
     def _update_fields(self) -> None:
         for name, cells in self.cells.items():
@@ -126,12 +127,58 @@ class Elasticity(Term):
             pinned = ctx.comm.allreduce(bool(ctx.fixed[dofs].any()), op=MPI.LOR)
             if count >= 3 and not pinned:
                 groups.append(dofs)
-        self._X = V.tabulate_dof_coordinates()[:, :ctx.dim]
-        return groups
+        X = V.tabulate_dof_coordinates()[:, :ctx.dim]
+        return [(dofs, X[dofs[:, 0] // bs]) for dofs in groups]
 
     def _sum(self, a):
         comm = self.ctx.comm
         return a if comm.size == 1 else comm.allreduce(a)
+
+    def _rigid_fits(self, u0: np.ndarray, p: np.ndarray) -> list:
+        """Per bone: (dofs, r = y - c, omega), the least-squares rotation rate of p about the centroid.
+
+        Kept for the last (u0, p) pair: a line search tries several alpha on one direction.
+        """
+        if self._fit is not None and self._fit[0] is u0 and self._fit[1] is p:
+            return self._fit[2]
+        if self._groups is None:
+            self._groups = self._bone_groups()
+        dim, fits = self.ctx.dim, []
+        for dofs, X in self._groups:   # one vectorised block per bone
+            y = X + u0[dofs]
+            n = self._sum(len(y))
+            r = y - self._sum(y.sum(axis=0)) / n
+            q = p[dofs] - self._sum(p[dofs].sum(axis=0)) / n
+            if dim == 2:
+                w = float(self._sum(np.sum(r[:, 0] * q[:, 1] - r[:, 1] * q[:, 0])) / self._sum(np.sum(r * r)))
+            else:
+                M = self._sum(np.einsum("ni,nj->ij", r, r))
+                w = np.linalg.solve(np.trace(M) * np.eye(3) - M, self._sum(np.cross(r, q).sum(axis=0)))
+            fits.append((dofs, r, w))
+        self._fit = (u0, p, fits)
+        return fits
+
+    def carry_over(self, u: np.ndarray) -> None:
+        """Make each free bone's start displacement its best-fitting rigid motion (Kabsch).
+
+        A field interpolated from another mesh strains a bone whose outline
+        moved (nodes that were silicone are now bone, 10^4 times stiffer);
+        the rigid motion y = c_y + R (X - c_X) that fits the interpolated
+        positions best in least squares costs the bone no energy.
+        """
+        if self._groups is None:
+            self._groups = self._bone_groups()
+        for dofs, X in self._groups:
+            n = self._sum(len(X))
+            y = X + u[dofs]
+            cx, cy = self._sum(X.sum(axis=0)) / n, self._sum(y.sum(axis=0)) / n
+            r = X - cx
+            H = self._sum(r.T @ (y - cy))                       # sum r (y - c_y)^T
+            U, _, Vt = np.linalg.svd(H)
+            D = np.eye(len(H))
+            D[-1, -1] = np.sign(np.linalg.det(Vt.T @ U.T))      # a rotation, not a reflection
+            R = Vt.T @ D @ U.T
+            u[dofs] = cy + r @ R.T - X
 
     def step_correction(self, u0: np.ndarray, p: np.ndarray, alpha: float):
         """Second-order correction that makes each bone follow an exact rotation.
@@ -145,23 +192,14 @@ class Elasticity(Term):
             self._groups = self._bone_groups()
         if not self._groups:
             return None
-        bs, dim = self.ctx.bs, self.ctx.dim
         corr = np.zeros_like(p)
-        for dofs in self._groups:   # one vectorised block per bone
-            y = self._X[dofs[:, 0] // bs] + u0[dofs]
-            n = self._sum(len(y))
-            r = y - self._sum(y.sum(axis=0)) / n
-            q = p[dofs] - self._sum(p[dofs].sum(axis=0)) / n
-            if dim == 2:
-                w = float(self._sum(np.sum(r[:, 0] * q[:, 1] - r[:, 1] * q[:, 0])) / self._sum(np.sum(r * r)))
-                th = alpha * w
+        for dofs, r, w in self._rigid_fits(u0, p):
+            th = alpha * w
+            if self.ctx.dim == 2:
                 c, s_ = np.cos(th), np.sin(th)
                 rot = np.column_stack([c * r[:, 0] - s_ * r[:, 1], s_ * r[:, 0] + c * r[:, 1]])
                 lin = r + th * np.column_stack([-r[:, 1], r[:, 0]])
             else:
-                M = self._sum(np.einsum("ni,nj->ij", r, r))
-                w = np.linalg.solve(np.trace(M) * np.eye(3) - M, self._sum(np.cross(r, q).sum(axis=0)))
-                th = alpha * w
                 angle = np.linalg.norm(th)
                 if angle < 1e-14:
                     continue
