@@ -9,6 +9,7 @@ import json
 import os
 import tempfile
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -138,16 +139,20 @@ def marker_positions(model) -> dict:
     return dict(zip(terms[0].names, terms[0].positions(model.u.x.array)))
 
 
-def snapshot(scene):
-    """The whole state on rank 0, for files and pictures (collective; None on other ranks).
+class Snapshot(SimpleNamespace):
+    """The whole state gathered in one place: what files and pictures are made from."""
+
+
+def snapshot(scene, to=(0,)) -> Snapshot | None:
+    """The whole state on the ranks in `to` (collective; None on other ranks).
 
     Under MPI each rank holds its part of the mesh; nodes are matched by their
-    input (Gmsh) numbers, so rank 0 gets the same arrays as a serial run.
-    Returns a namespace with x (rest nodes), u (their displacement), cells,
+    input (Gmsh) numbers, so rank 0 gets the same arrays as a serial run, and
+    sends them on to the other ranks in `to` (e.g. one that draws the picture
+    while rank 0 writes the XDMF file).
+    Returns a Snapshot with x (rest nodes), u (their displacement), cells,
     regions (tag per cell), cables (see cable_states), markers (name -> position).
     """
-    from types import SimpleNamespace
-
     comm = scene.comm
     x, u, cells = vertex_displacements(scene)
     n_cells = scene.mesh.topology.index_map(scene.mesh.topology.dim).size_local
@@ -157,21 +162,33 @@ def snapshot(scene):
     if comm.size > 1:
         orig = np.asarray(scene.mesh.geometry.input_global_indices, dtype=np.int64)
         parts = comm.gather((orig, x, u, orig[cells], regions), root=0)
-        if comm.rank != 0:
-            return None
-        orig_all = np.concatenate([p[0] for p in parts])
-        numbers, first = np.unique(orig_all, return_index=True)
-        x = np.concatenate([p[1] for p in parts])[first]
-        u = np.concatenate([p[2] for p in parts])[first]
-        cells = np.searchsorted(numbers, np.concatenate([p[3] for p in parts]))
-        regions = np.concatenate([p[4] for p in parts])
-    return SimpleNamespace(x=x, u=u, cells=cells, regions=regions, cables=cables, markers=markers,
-                           body_tag=scene.tm.tags["body"], design=scene.design)
+        if comm.rank == 0:
+            orig_all = np.concatenate([p[0] for p in parts])
+            numbers, first = np.unique(orig_all, return_index=True)
+            x = np.concatenate([p[1] for p in parts])[first]
+            u = np.concatenate([p[2] for p in parts])[first]
+            cells = np.searchsorted(numbers, np.concatenate([p[3] for p in parts]))
+            regions = np.concatenate([p[4] for p in parts])
+    snap = Snapshot(x=x, u=u, cells=cells, regions=regions, cables=cables, markers=markers,
+                    body_tag=scene.tm.tags["body"], design=scene.design) if comm.rank == 0 else None
+    for rank in sorted(set(to) - {0}):
+        if comm.rank == 0:
+            comm.send(snap, dest=rank, tag=71)
+        elif comm.rank == rank:
+            snap = comm.recv(source=0, tag=71)
+    return snap if comm.rank in to else None
+
+
+def _gathered(state) -> Snapshot | None:
+    """A Snapshot as it is, or the snapshot of a model (collective)."""
+    return state if isinstance(state, Snapshot) else snapshot(state)
 
 
 # -- files ------------------------------------------------------------------------------------------
 def write_xdmf(path: Path, scene) -> None:
     """Mesh (rest coordinates) with displacement, region tag, and cables as polylines.
+
+    `scene` is a model (collective) or a Snapshot of one.
 
     Cables are extra points and line cells in the same grid, carrying their
     tension and an id (the cable's position in the design), so a single file
@@ -179,7 +196,7 @@ def write_xdmf(path: Path, scene) -> None:
     """
     import meshio
 
-    snap = snapshot(scene)
+    snap = _gathered(scene)
     if snap is None:
         return
     x, u, cells = snap.x, snap.u, snap.cells
@@ -226,7 +243,7 @@ def plot_deformed(path: Path, scene, title: str = "", ax=None, show_rest: bool =
     import matplotlib.pyplot as plt
     from matplotlib.collections import PolyCollection
 
-    snap = snapshot(scene)
+    snap = _gathered(scene)
     if snap is None:
         return
     design = snap.design
@@ -293,7 +310,7 @@ def plot_deformed_3d(path: Path, scene, title: str = "", window_size=(900, 900),
     os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
     import pyvista as pv
 
-    snap = snapshot(scene)
+    snap = _gathered(scene)
     if snap is None:
         return
     x, u, tets = snap.x, snap.u, snap.cells

@@ -29,7 +29,7 @@ def write_results(session, result, out: Path, t0: float, picture: bool = True,
                   extra: dict | None = None) -> dict:
     """result.json always; solution.xdmf and deformed.png only for an equilibrium."""
     from .outdir import publish
-    from .output import plot_deformed, plot_deformed_3d, write_json, write_xdmf
+    from .output import plot_deformed, plot_deformed_3d, snapshot, write_json, write_xdmf
 
     design, model = session.design, session.model
     comm = model.comm
@@ -38,11 +38,17 @@ def write_results(session, result, out: Path, t0: float, picture: bool = True,
     # staged beside `out` and swapped in whole (skelfem.outdir): the folder holds the old
     # complete result until the new one is complete, never a mix of the two
     with publish(out, comm) as stage:
-        if result.converged:                     # collective: every rank takes part, rank 0 writes
-            stage.run(write_xdmf, stage.path / "solution.xdmf", model)
-            if picture:
+        if result.converged:
+            # one gather; under MPI the last rank draws the picture while rank 0 writes the XDMF
+            painter = comm.size - 1 if picture else 0
+            snap = snapshot(model, to=(0, painter))
+            if comm.rank == 0:
+                stage.run(write_xdmf, stage.path / "solution.xdmf", snap)
+            if picture and comm.rank == painter:
                 plot = plot_deformed if design.dim == 2 else plot_deformed_3d
-                stage.run(plot, stage.path / "deformed.png", model, picture_title(design))
+                stage.run(plot, stage.path / "deformed.png", snap, picture_title(design))
+        if comm.size > 1:
+            comm.Barrier()                       # the total includes the picture
         data["timings"]["total"] = round(time.perf_counter() - t0, 4)
         if comm.rank == 0:
             stage.run(write_json, stage.path / "result.json", data)
