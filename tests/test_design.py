@@ -186,3 +186,20 @@ def test_polygon_predicates():
     notch = np.array([[0, 0], [3, 0], [3, 3], [2, 3], [2, 1], [1, 1], [1, 3], [0, 3]], float)
     pts = sample_polyline(np.array([[0.5, 2.0], [2.5, 2.0]]), [notch])
     assert not np.all(contains(notch, pts, 1e-12))
+
+
+def test_geometry_checks_are_remembered_only_when_they_pass():
+    """Re-parsing (a live --set) repeats no geometry check; a failing check fails every time."""
+    import skelfem.design as design_module
+    good = _with_bones()
+    parse_design(good, "a.toml")
+    known = len(design_module._MEMO)
+    parse_design(good, "a.toml", ["cables.flexor.contraction=0.2"])
+    assert len(design_module._MEMO) == known                      # nothing checked again
+    bad = _set(copy.deepcopy(good), ["bones", 1, "outline"], [[2, 30], [8, 55], [8, 30], [2, 55]])
+    for _ in range(2):
+        with pytest.raises(DesignError, match="not simple"):
+            parse_design(bad, "a.toml")
+    moved = _set(copy.deepcopy(good), ["bones", 1, "outline"], [[2, 30], [8, 30], [8, 55], [2, 58]])
+    with pytest.raises(DesignError, match="outside|outline"):
+        parse_design(_set(moved, ["bones", 1, "outline", 3], [2, 61]), "a.toml")

@@ -79,6 +79,65 @@ def test_edit_carries_the_solution_over():
     assert r.converged and r.newton_iterations < cold.newton_iterations
 
 
+@pytest.mark.parametrize("delta", [1.0, -1.0])
+def test_warm_set_takes_the_euler_predictor_and_few_newton_iterations(delta):
+    """A 1 mm contraction change either way: the predictor du/dp dp, then <= 5 Newton iterations.
+
+    Releasing the tendon leaves it momentarily slack at the old equilibrium; a
+    Newton step there (no cable stiffness) overshoots, which took 12 iterations
+    before the predictor. The answer equals a cold solve of the changed design.
+    """
+    with Session(FINGER) as s:
+        s.solve()
+        u0 = s.design.cable("flexor").contraction
+        s.set({"cables.flexor.contraction": u0 + delta})
+        r = s.solve()
+        assert r.converged and r.attempts[0]["predictor_step"] > 0.0
+        assert r.newton_iterations <= 5, r.report.residual_history
+        assert not s.model.changes                          # consumed by the solve
+    with Session(FINGER, [f"cables.flexor.contraction={u0 + delta}"]) as fresh:
+        ref = fresh.solve()
+    _close(r.markers, ref.markers, rel=1e-7)
+
+
+def test_predictor_follows_vector_parameters_and_repeated_sets(strip_design):
+    """Pin moves and loads (vectors) move along old + s (new - old); two sets before one solve add up."""
+    d = strip_design(size=3.0, contraction=0.5)
+    d["loads"] = [{"name": "push", "at": [5.0, 60.0], "force": [0.0, 0.0]}]
+    with Session(d) as s:
+        s.solve()
+        s.set({"loads.push.force": [0.02, 0.0]})
+        s.set({"loads.push.force": [0.05, -0.01], "pins.base.move": [0.5, 0.0]})
+        (old, new), = [s.model.changes["loads.push.force"]]
+        assert np.allclose(old, 0.0) and np.allclose(new, [0.05, -0.01])
+        r = s.solve()
+        assert r.converged and r.attempts[0]["predictor_step"] > 0.0
+    changed = dict(d, loads=[{"name": "push", "at": [5.0, 60.0], "force": [0.05, -0.01]}])
+    changed["pins"] = [dict(d["pins"][0], move=[0.5, 0.0])]
+    with Session(changed) as fresh:
+        ref = fresh.solve()
+    _close(r.markers, ref.markers, rel=1e-7)
+
+
+def test_carry_over_makes_free_bones_rigid(strip_design):
+    """Elasticity.carry_over: a bone's start motion becomes the rigid motion that fits it best."""
+    with Session(strip_design(size=3.0, bones=True)) as s:
+        term = s.model.term("materials")
+        rng = np.random.default_rng(1)
+        u = rng.normal(scale=0.3, size=s.model.n_local)
+        term.carry_over(u)
+        groups = term._bone_groups()
+        assert len(groups) == 2
+        for dofs, X in groups:
+            y = X + u[dofs]
+            dX = np.linalg.norm(X[:, None] - X[None], axis=2)
+            dy = np.linalg.norm(y[:, None] - y[None], axis=2)
+            assert np.allclose(dX, dy, atol=1e-10)          # distances kept: a rigid motion
+        v = u.copy()
+        term.carry_over(v)
+        assert np.allclose(u, v, atol=1e-12)               # a rigid motion stays as it is
+
+
 @pytest.mark.parametrize("changes, key", [
     ({"cables.nope.contraction": 1.0}, "cables"),
     ({"materials.pla.E": -5.0}, "materials.pla.E"),
