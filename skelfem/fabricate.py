@@ -78,6 +78,41 @@ class Surface:
         return n / np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
 
 
+def _candidates(origins: np.ndarray, d: np.ndarray, corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(ray, triangle) pairs whose shadows along the common direction d can overlap.
+
+    Rays and triangles are projected onto a plane normal to d; the plane is
+    cut into about one cell per triangle, each triangle listed in every cell
+    its bounding box touches, and a ray meets only the triangles of its cell.
+    """
+    a = np.cross(d, np.eye(3)[int(np.argmin(np.abs(d)))])
+    a /= np.linalg.norm(a)
+    basis = np.column_stack([a, np.cross(d, a)])
+    P, C = origins @ basis, corners @ basis
+    lo, hi = C.min(axis=1), C.max(axis=1)
+    g0, g1 = lo.min(axis=0), hi.max(axis=0)
+    h = max(float(np.sqrt(np.prod(np.maximum(g1 - g0, 1e-12)) / max(len(C), 1))), 1e-12)
+    shape = np.maximum(np.ceil((g1 - g0) / h).astype(int), 1)
+    i0 = np.clip(((lo - g0) / h).astype(int), 0, shape - 1)
+    i1 = np.clip(((hi - g0) / h).astype(int), 0, shape - 1)
+    nx, ny = i1[:, 0] - i0[:, 0] + 1, i1[:, 1] - i0[:, 1] + 1
+    count = nx * ny
+    tri = np.repeat(np.arange(len(C)), count)
+    k = np.arange(len(tri)) - np.repeat(np.cumsum(count) - count, count)
+    cx, cy = i0[tri, 0] + k % nx[tri], i0[tri, 1] + k // nx[tri]
+    cell = cx * shape[1] + cy
+    order = np.argsort(cell, kind="stable")
+    cell, tri = cell[order], tri[order]
+    r = np.floor((P - g0) / h).astype(int)
+    inside_grid = np.all((r >= 0) & (r < shape), axis=1)
+    rc = np.where(inside_grid, r[:, 0] * shape[1] + r[:, 1], -1)
+    first, last = np.searchsorted(cell, rc, "left"), np.searchsorted(cell, rc, "right")
+    n = np.where(inside_grid, last - first, 0)
+    ray = np.repeat(np.arange(len(P)), n)
+    j = np.arange(len(ray)) - np.repeat(np.cumsum(n) - n, n)
+    return ray, tri[np.repeat(first, n) + j]
+
+
 def ray_hits(origins: np.ndarray, direction: np.ndarray, corners: np.ndarray, tol: float,
              chunk: int = 2_000_000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where rays o + t d (t > -tol) cross triangles: (ray index, t, triangle index), sorted by ray then t.
@@ -87,38 +122,34 @@ def ray_hits(origins: np.ndarray, direction: np.ndarray, corners: np.ndarray, to
     u = s.(d x e2)/det, v = s.(e1 x d)/det, t = s.(e1 x e2)/det; a hit has
     u, v >= 0 and u + v <= 1 (a little slack, so that a ray through a shared
     edge hits both triangles; such repeats, within tol along the ray, are
-    merged). With one direction for all rays every product is a matrix
-    product o @ X - a.X; direction may also be one per ray (r, 3).
+    merged). direction is one vector for all rays (then only the pairs that
+    _candidates finds are tested) or one per ray (r, 3).
     """
     origins = np.atleast_2d(np.asarray(origins, float))
     direction = np.asarray(direction, float)
-    a, e1, e2 = corners[:, 0], corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
-    scale = np.maximum(np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1), 1e-300)
-    nrm = np.cross(e1, e2)
-    step = max(1, chunk // max(len(a), 1))
-    R, T, I = [], [], []
-    for i0 in range(0, len(origins), step):
-        o = origins[i0:i0 + step]
-        if direction.ndim == 1:
-            p, m = np.cross(direction, e2), np.cross(e1, direction)
-            det = (p * e1).sum(1)
-            u = o @ p.T - (a * p).sum(1)
-            v = o @ m.T - (a * m).sum(1)
-            t = o @ nrm.T - (a * nrm).sum(1)
-        else:
-            d = direction[i0:i0 + step, None, :]
-            p, m = np.cross(d, e2), np.cross(e1, d)
-            det = np.einsum("rtk,tk->rt", p, e1)
-            s = o[:, None, :] - a
-            u, v = np.einsum("rtk,rtk->rt", s, p), np.einsum("rtk,rtk->rt", s, m)
-            t = np.einsum("rtk,tk->rt", s, nrm)
-        ok = np.abs(det) > 1e-12 * scale
+    if direction.ndim == 1:
+        rays, tris = _candidates(origins, direction / np.linalg.norm(direction), corners)
+        d = np.broadcast_to(direction, (len(rays), 3))
+    else:
+        rays = np.repeat(np.arange(len(origins)), len(corners))
+        tris = np.tile(np.arange(len(corners)), len(origins))
+        d = direction[rays]
+    R, T, I = [np.zeros(0, int)], [np.zeros(0)], [np.zeros(0, int)]
+    for i0 in range(0, len(rays), chunk):
+        r, k, dd = rays[i0:i0 + chunk], tris[i0:i0 + chunk], d[i0:i0 + chunk]
+        a = corners[k, 0]
+        e1, e2 = corners[k, 1] - a, corners[k, 2] - a
+        p = np.cross(dd, e2)
+        det = (p * e1).sum(1)
+        ok = np.abs(det) > 1e-12 * np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1)
         inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-        u, v, t = u * inv, v * inv, t * inv
+        s = origins[r] - a
+        u = (s * p).sum(1) * inv
+        v = (s * np.cross(e1, dd)).sum(1) * inv
+        t = (s * np.cross(e1, e2)).sum(1) * inv
         eps = 1e-9
         hit = ok & (u >= -eps) & (v >= -eps) & (u + v <= 1 + eps) & (t > -tol)
-        r, k = np.nonzero(hit)
-        R.append(r + i0), T.append(t[r, k]), I.append(k)
+        R.append(r[hit]), T.append(t[hit]), I.append(k[hit])
     r, t, k = np.concatenate(R), np.concatenate(T), np.concatenate(I)
     order = np.lexsort((t, r))
     r, t, k = r[order], t[order], k[order]
@@ -246,6 +277,10 @@ def write_stl(path, points: np.ndarray, tris: np.ndarray, name: str) -> None:
     c = points[tris]
     n = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
     n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+    # Readers that guess ASCII or binary from the bytes after the header (admesh: any byte > 127 means
+    # binary) are sure to see one if the first triangle's normal has a negative component.
+    first = int(np.argmin(n.min(axis=1))) if len(n) else 0
+    n, c = np.roll(n, -first, axis=0), np.roll(c, -first, axis=0)
     rec = np.zeros(len(tris), STL_RECORD)
     rec["normal"], rec["corners"] = n, c
     header = f"skelfem fabricate: {name} (mm)".encode("utf-8", "replace")[:80].ljust(80, b" ")
@@ -321,7 +356,7 @@ def _mesh(gmsh, size: float, curvature: int) -> None:
     gmsh.option.setNumber("Mesh.MeshSizeMax", size)
     gmsh.option.setNumber("Mesh.MeshSizeMin", min(MIN_EDGE, size / 4))
     gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
-    gmsh.option.setNumber("Mesh.Algorithm", 6)
+    gmsh.option.setNumber("Mesh.Algorithm", 5)
     gmsh.model.mesh.generate(2)
 
 
@@ -386,6 +421,7 @@ class Tool:
     bone: str | None = None
     cable: str | None = None
     extend: tuple = (0.0, 0.0)     # lengths the cylinder runs on beyond the first and the last point
+    side: str | None = None        # pegs: the mould half they belong to, "bottom" or "top"
 
     @property
     def length(self) -> float:
@@ -408,7 +444,7 @@ class Plan:
     frame: Frame
     scale: float
     bone_tools: dict = field(default_factory=dict)      # bone name -> [Tool]
-    pegs: list = field(default_factory=list)            # Tools of kind "peg" (with side in .cable: "bottom"/"top")
+    pegs: list = field(default_factory=list)            # Tools of kind "peg"
     mould_tools: list = field(default_factory=list)     # pins, pin holes, pour, vents, exits
     body_volume: float = 0.0
     bone_volumes: dict = field(default_factory=dict)    # un-cut bone volumes (probe pass)
@@ -530,9 +566,9 @@ class _Planner:
                                              f"side does not fit in bone {tool.bone!r} (at most "
                                              f"{2 * max(self.inradius(tool.bone) - self.wall, 0):.3g} mm there)")
         i = int(np.argmin(worst))
-        raise FabricationError(key_path, f"{what} would open the side of bone {tool.bone!r} near "
-                                         f"{_where(pts[i])}: only {max(worst[i] - tool.radius, 0):.2f} mm of wall "
-                                         f"(min_wall {self.wall:g} mm)")
+        raise FabricationError(key_path, f"{what} would open the side of bone {tool.bone!r}: near "
+                                         f"{_where(pts[i])} its axis passes {worst[i]:.2f} mm from the bone's "
+                                         f"surface, and radius + min_wall = {need:g} mm are needed")
 
     def inradius(self, bone: str) -> float:
         """Radius of the largest ball inside a bone (a grid of inside points, their distance to the surface)."""
@@ -703,7 +739,7 @@ class _Planner:
         A site (u, v) on side s (+1: top half, -1: bottom) is taken where the
         line along n leaves the bone at E (its last crossing toward s) and:
         the bone is flat enough there for a socket (a ring of radius socket +
-        min_wall crosses it within socket_depth/4 of E, with socket_depth +
+        min_wall crosses it within socket_depth/2 of E, with socket_depth +
         min_wall of bone beneath); nothing of the bone, of another bone, or of
         the body after it leaves it, lies in the peg's column beyond E (a ring
         of radius peg + clearance); the body is left on the peg's own side of
@@ -753,7 +789,7 @@ class _Planner:
                 for site, e, tip, leave in self._spread(ok, 2):
                     far = leave + side * spec.wall / 2          # into the half's material beyond the body
                     peg = Tool("peg", f.world([[*site, tip], [*site, far]]), self.r_peg, bone.name,
-                               "top" if side > 0 else "bottom")
+                               side="top" if side > 0 else "bottom")
                     sock = Tool("socket", f.world([[*site, e + side * 0.5], [*site, e - side * h]]), self.r_socket,
                                 bone.name)
                     pegs.append(peg)
@@ -776,7 +812,7 @@ class _Planner:
             if not len(mine[j]):
                 return None
             ej = mine[j][-1] if side > 0 else mine[j][0]
-            if side * (ej - e) < -h / 4 or side * (ej - e) > h:
+            if side * (ej - e) < -h / 2 or side * (ej - e) > h:
                 return None
         leave = None
         for j in [i, *rp]:
@@ -814,7 +850,7 @@ class _Planner:
         the middle, the vents the sites farthest from it and from each other.
         """
         spec, f = self.spec, self.frame
-        top_pegs = np.array([f.local(p.points[0])[:2] for p in pegs if p.cable == "top"]).reshape(-1, 2)
+        top_pegs = np.array([f.local(p.points[0])[:2] for p in pegs if p.side == "top"]).reshape(-1, 2)
         sites = self.grid(f.local(self.body.points)[:, :2], 600)
         tools = []
 
@@ -948,6 +984,18 @@ def _volumes(out) -> list[int]:
     return [t for d, t in out if d == 3]
 
 
+def _solid(occ, out) -> list:
+    """The volumes of a boolean's result without the empty slivers OpenCASCADE sometimes leaves
+    (a solid of zero volume where a plane touches a sphere, say); those are removed from the model."""
+    occ.synchronize()
+    vols = [(3, t) for t in _volumes(out)]
+    mass = np.array([occ.getMass(*v) for v in vols])
+    empty = [v for v, m in zip(vols, mass) if m <= 1e-9 * max(mass.max(initial=0.0), 1.0)]
+    if empty:
+        occ.remove(empty, recursive=True)
+    return [v for v in vols if v not in empty]
+
+
 def _finish(gmsh, name: str, kind: str, volumes: list[int], plan: Plan, folder: Path | None, info: dict) -> Part:
     """Measure, triangulate and (if folder) write the STEP file of the part in the current model."""
     occ = gmsh.model.occ
@@ -989,7 +1037,7 @@ def build_bone(plan: Plan, bone, folder: Path | None = None) -> Part:
             occ.synchronize()
             removed = float(sum(occ.getMass(3, t) for t in _volumes(common)))
             occ.remove(common, recursive=True)
-            solid, _ = occ.cut(solid, tools)
+            solid = _solid(occ, occ.cut(solid, tools)[0])
         kinds = [t.kind for t in plan.bone_tools[bone.name]]
         info = {"uncut_volume": plan.bone_volumes[bone.name], "removed_volume": removed,
                 "channels": kinds.count("channel"), "anchor_holes": kinds.count("anchor"),
@@ -998,12 +1046,26 @@ def build_bone(plan: Plan, bone, folder: Path | None = None) -> Part:
 
 
 def _block(occ, frame: Frame, n0: float, n1: float) -> tuple[int, float]:
-    """The block's slab between n0 and n1 (frame coordinates) as an OCC box; (tag, volume)."""
+    """The block's slab between n0 and n1 (frame coordinates) as an OCC box; (tag, volume).
+
+    When the frame's axes are the coordinate axes (2D, and 3D planes normal
+    to an axis) the box is made in place; otherwise it is made in frame
+    coordinates and rotated rigidly (an affine map would turn its faces into
+    general surfaces, which the boolean operations handle badly).
+    """
     lo, hi = frame.lo.copy(), frame.hi.copy()
     lo[2], hi[2] = n0, n1
-    tag = occ.addBox(*lo, *(hi - lo))
     M = frame.matrix
-    occ.affineTransform([(3, tag)], [*M[0], 0.0, *M[1], 0.0, *M[2], 0.0])
+    if np.allclose(np.abs(M), np.round(np.abs(M)), atol=1e-12):
+        corners = frame.world(np.array([lo, hi]))
+        a, b = corners.min(axis=0), corners.max(axis=0)
+        return occ.addBox(*a, *(b - a)), float(np.prod(hi - lo))
+    from scipy.spatial.transform import Rotation
+    tag = occ.addBox(*lo, *(hi - lo))
+    rv = Rotation.from_matrix(M).as_rotvec()
+    angle = float(np.linalg.norm(rv))
+    if angle > 0:
+        occ.rotate([(3, tag)], 0.0, 0.0, 0.0, *(rv / angle), angle)
     return tag, float(np.prod(hi - lo))
 
 
@@ -1019,20 +1081,33 @@ def build_half(plan: Plan, side: str, folder: Path | None = None) -> Part:
         body, _ = add_design_solids(occ, plan.design, bones=[])
         n0, n1 = (f.lo[2], f.c) if side == "bottom" else (f.c, f.hi[2])
         box, block = _block(occ, f, n0, n1)
-        half, _ = occ.cut([(3, box)], [(3, t) for t in body])
-        adds = [t for t in plan.pegs if t.cable == side] + [t for t in plan.mould_tools if t.kind == "pin"
-                                                             and side == "bottom"]
+        half = _solid(occ, occ.cut([(3, box)], [(3, t) for t in body])[0])
+        adds = [t for t in plan.pegs if t.side == side] + [t for t in plan.mould_tools if t.kind == "pin"
+                                                            and side == "bottom"]
         if adds:
-            half, _ = occ.fuse(half, [s for t in adds for s in _shapes(occ, t)])
+            half = _solid(occ, occ.fuse(half, [s for t in adds for s in _shapes(occ, t)])[0])
         cuts = [t for t in plan.mould_tools
                 if t.kind == "exit" or (side == "top" and t.kind in ("pin_hole", "pour", "vent"))]
         if cuts:
-            half, _ = occ.cut(half, [s for t in cuts for s in _shapes(occ, t)])
-        info = {"block_volume": block, "pegs": sum(t.cable == side for t in plan.pegs)}
+            half = _solid(occ, occ.cut(half, [s for t in cuts for s in _shapes(occ, t)])[0])
+        info = {"block_volume": block, "pegs": sum(t.side == side for t in plan.pegs)}
         return _finish(gmsh, f"mould_{side}", "mould", _volumes(half), plan, folder, info)
 
 
 # -- the picture ---------------------------------------------------------------------------------------------------
+def coarsen(points: np.ndarray, tris: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """Vertex clustering, for drawing: corners in one cube of side h merge at their mean, triangles
+    that collapse are dropped. Keeps the look of a surface at a fraction of its triangles."""
+    keys = np.floor(points / h).astype(np.int64)
+    _, cluster, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    cluster = cluster.ravel()
+    merged = np.zeros((len(counts), 3))
+    np.add.at(merged, cluster, points)
+    t = cluster[tris]
+    keep = (t[:, 0] != t[:, 1]) & (t[:, 1] != t[:, 2]) & (t[:, 0] != t[:, 2])
+    return merged / counts[:, None], t[keep]
+
+
 COLOURS = {"bone": (0.93, 0.55, 0.18), "mould_bottom": (0.45, 0.62, 0.85), "mould_top": (0.55, 0.75, 0.60)}
 
 
@@ -1058,16 +1133,19 @@ def picture(path, parts: list, plan: Plan, title: str = "") -> None:
     ax = fig.add_subplot(projection="3d")
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
     for part in parts:
-        y = f.local(part.surface.points)
+        h = plan.scale / (150 if part.kind == "mould" else 600)     # the mould halves carry most triangles
+        points, tris = coarsen(part.surface.points, part.surface.tris, h)
+        y = f.local(points)
         y[:, 2] += shift.get(part.name, 0.0)
-        tri = y[part.surface.tris]
+        tri = y[tris]
         n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
         base = np.array(COLOURS.get(part.name, COLOURS["bone"]))
         shade = 0.35 + 0.65 * np.clip(n @ light, 0.0, 1.0)
         alpha = 0.35 if part.name == "mould_top" else 1.0
         colours = np.column_stack([np.clip(shade[:, None] * base, 0, 1), np.full(len(tri), alpha)])
-        ax.add_collection3d(Poly3DCollection(tri, facecolors=colours, edgecolors=colours, linewidths=0.2))
+        ax.add_collection3d(Poly3DCollection(tri, facecolors=colours, edgecolors=colours,
+                                             linewidths=0.2 if alpha == 1.0 else 0.0))
         lo, hi = np.minimum(lo, y.min(axis=0)), np.maximum(hi, y.max(axis=0))
     centre, span = (lo + hi) / 2, (hi - lo)
     for set_lim, c, s in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre, span):
@@ -1079,7 +1157,7 @@ def picture(path, parts: list, plan: Plan, title: str = "") -> None:
     handles = [plt.Rectangle((0, 0), 1, 1, color=COLOURS[k]) for k in ("mould_top", "bone", "mould_bottom")]
     ax.legend(handles, ["mould top (translucent)", "bones", "mould bottom"], loc="upper left", fontsize=8)
     ax.set_title(title or f"{plan.design.name}: parts, exploded along the mould's normal", fontsize=10)
-    fig.tight_layout()
+    fig.subplots_adjust(left=0.0, right=1.0, bottom=0.04, top=0.94)
     atomic_write(Path(path), lambda tmp: fig.savefig(tmp, format="png"))
     plt.close(fig)
 
@@ -1147,7 +1225,7 @@ def write(plan: Plan, folder: Path, picture_file: bool = True) -> dict:
                   for t in plan.mould_tools if t.kind == "vent"],
         "exits": {t.cable: {"from": _plain(t.points[0]), "to": _plain(t.points[-1])}
                   for t in plan.mould_tools if t.kind == "exit"},
-        "pegs": [{"bone": t.bone, "half": t.cable, "tip": _plain(t.points[0]), "diameter": 2 * t.radius}
+        "pegs": [{"bone": t.bone, "half": t.side, "tip": _plain(t.points[0]), "diameter": 2 * t.radius}
                  for t in plan.pegs]}
     checks["stl_closed_and_oriented"] = all(r["oriented"] and r["degenerate"] == 0 and r["parts"] == 1
                                             for r in stl.values())
