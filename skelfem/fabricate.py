@@ -351,13 +351,19 @@ def _quiet():
 
 def _mesh(gmsh, size: float, curvature: int) -> None:
     """Triangulate every surface of the current model: planar faces coarsely (they are exact anyway),
-    curved ones with `curvature` triangles per turn."""
-    gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", curvature)
-    gmsh.option.setNumber("Mesh.MeshSizeMax", size)
-    gmsh.option.setNumber("Mesh.MeshSizeMin", min(MIN_EDGE, size / 4))
-    gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
-    gmsh.option.setNumber("Mesh.Algorithm", 5)
-    gmsh.model.mesh.generate(2)
+    curved ones with `curvature` triangles per turn. Gmsh's options are global to the process: the
+    previous values are put back, so that later finite-element meshes are not affected."""
+    options = {"Mesh.MeshSizeFromCurvature": curvature, "Mesh.MeshSizeMax": size,
+               "Mesh.MeshSizeMin": min(MIN_EDGE, size / 4), "Mesh.MeshSizeExtendFromBoundary": 0,
+               "Mesh.Algorithm": 5}
+    saved = {name: gmsh.option.getNumber(name) for name in options}
+    try:
+        for name, value in options.items():
+            gmsh.option.setNumber(name, value)
+        gmsh.model.mesh.generate(2)
+    finally:
+        for name, value in saved.items():
+            gmsh.option.setNumber(name, value)
 
 
 def _surface(gmsh, volumes) -> Surface:
@@ -739,12 +745,14 @@ class _Planner:
         A site (u, v) on side s (+1: top half, -1: bottom) is taken where the
         line along n leaves the bone at E (its last crossing toward s) and:
         the bone is flat enough there for a socket (a ring of radius socket +
-        min_wall crosses it within socket_depth/2 of E, with socket_depth +
-        min_wall of bone beneath); nothing of the bone, of another bone, or of
-        the body after it leaves it, lies in the peg's column beyond E (a ring
-        of radius peg + clearance); the body is left on the peg's own side of
-        the parting plane; the column keeps clear of every cable and the
-        socket of every channel and anchor hole.
+        min_wall crosses it within socket_depth/2 of E, with 2 socket_depth +
+        min_wall of bone beneath, room for a socket from the other side too);
+        nothing of the bone, of another bone, or of the body after it leaves
+        it, lies in the peg's column beyond E (a ring of radius peg +
+        clearance); the body is left on the peg's own side of the parting
+        plane; the column keeps clear of every cable, and the socket of every
+        channel and anchor hole. The peg's tip stops clearance short of the
+        socket's bottom, and clearance separates it from the socket's wall.
         """
         from scipy.spatial import cKDTree
         spec, f = self.spec, self.frame
@@ -806,7 +814,7 @@ class _Planner:
             return None
         e = ax[-1] if side > 0 else ax[0]
         beneath = (ax[-1] - ax[-2]) if side > 0 else (ax[1] - ax[0])
-        if beneath < h + self.wall:
+        if beneath < 2 * h + self.wall:                 # room for a socket from the other side too
             return None
         for j in rs:
             if not len(mine[j]):
