@@ -1124,7 +1124,9 @@ def picture(path, parts: list, plan: Plan, title: str = "") -> None:
     normal (up in the picture), bones between them where they are cast.
 
     Each triangle is shaded by Lambert's law, colour x (0.35 + 0.65 max(0, n . l)),
-    with n its outward normal and l a fixed light from above and in front.
+    with n its outward normal and l a fixed light from above and in front;
+    triangles facing away from the eye (n . e <= 0) are left out, which also
+    spares matplotlib's painter's algorithm most of its depth-order mistakes.
     """
     import matplotlib
     matplotlib.use("Agg")
@@ -1134,6 +1136,8 @@ def picture(path, parts: list, plan: Plan, title: str = "") -> None:
     from .output import atomic_write
 
     f = plan.frame
+    elev, azim = math.radians(22), math.radians(-58)
+    eye = np.array([math.cos(elev) * math.cos(azim), math.cos(elev) * math.sin(azim), math.sin(elev)])
     height = float(f.hi[2] - f.lo[2])
     shift = {"mould_bottom": -0.9 * height, "mould_top": 0.9 * height}
     light = np.array([0.4, -0.6, 0.7]) / np.linalg.norm([0.4, -0.6, 0.7])
@@ -1148,6 +1152,8 @@ def picture(path, parts: list, plan: Plan, title: str = "") -> None:
         tri = y[tris]
         n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+        facing = n @ eye > 0                # back faces are hidden in a closed solid: not drawn
+        tri, n = tri[facing], n[facing]
         base = np.array(COLOURS.get(part.name, COLOURS["bone"]))
         shade = 0.35 + 0.65 * np.clip(n @ light, 0.0, 1.0)
         alpha = 0.35 if part.name == "mould_top" else 1.0
@@ -1159,7 +1165,7 @@ def picture(path, parts: list, plan: Plan, title: str = "") -> None:
     for set_lim, c, s in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre, span):
         set_lim(c - s / 2, c + s / 2)
     ax.set_box_aspect(span)
-    ax.view_init(elev=22, azim=-58)
+    ax.view_init(elev=math.degrees(elev), azim=math.degrees(azim))
     ax.set_xlabel("u [mm]"), ax.set_ylabel("v [mm]"), ax.set_zlabel("n [mm]")
     ax.tick_params(labelsize=7)
     handles = [plt.Rectangle((0, 0), 1, 1, color=COLOURS[k]) for k in ("mould_top", "bone", "mould_bottom")]
@@ -1174,6 +1180,13 @@ def picture(path, parts: list, plan: Plan, title: str = "") -> None:
 TOLERANCE = 0.01       # relative: bone volumes and the mould's cavity against their references
 
 
+def build(plan: Plan, folder: Path | None = None) -> list[Part]:
+    """Every part of the plan: the bones in design order, then mould_bottom and mould_top (STEP files
+    into folder if given)."""
+    parts = [build_bone(plan, b, folder) for b in plan.design.bones]
+    return parts + [build_half(plan, side, folder) for side in ("bottom", "top")]
+
+
 def _plain(x) -> list:
     return [round(float(v), 6) for v in np.ravel(x)]
 
@@ -1186,8 +1199,7 @@ def write(plan: Plan, folder: Path, picture_file: bool = True) -> dict:
 
     folder = Path(folder)
     design, spec, f = plan.design, plan.spec, plan.frame
-    parts = [build_bone(plan, b, folder) for b in design.bones]
-    parts += [build_half(plan, side, folder) for side in ("bottom", "top")]
+    parts = build(plan, folder)
     report = {"format": FORMAT, "design": design.name, "dim": design.dim,
               "bone_depth": spec.bone_depth if design.dim == 2 else None,
               "fabrication": {k: (_plain(v) if isinstance(v, np.ndarray) else v)
