@@ -738,7 +738,7 @@ def _fabrication(top: _Table, dim: int, thickness: float, body: Body) -> Fabrica
     """[fabrication]: every key optional; defaults follow the body's size (see the README).
 
     bone_depth defaults to 0.8 x thickness (2D), the mould wall to 5 % of the
-    body's largest extent (at least 3 mm), the pour hole to 30 % of its
+    body's largest extent (to 0.5 mm, at least 3 mm), the pour hole to 30 % of its
     smallest extent (at most 6 mm); the 3D parting plane to the mid-plane of
     the body's bounding box across its smallest extent. Geometric feasibility
     (channels inside bones, room for pegs and the pour hole) is checked by

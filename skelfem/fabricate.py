@@ -591,7 +591,8 @@ class _Planner:
 
     # -- channels and anchors
     def route(self) -> dict:
-        design, spec = self.design, self.spec
+        """Channels and anchor holes per bone, every wall checked; records each tendon's way out (spool)."""
+        design = self.design
         tools = {b.name: [] for b in design.bones}
         spool = {}
         for cable in design.cables:
@@ -657,7 +658,7 @@ class _Planner:
         p, d = pts[i], (pts[i] - pts[j]) / np.linalg.norm(pts[i] - pts[j])
         back = min(self.r_channel, 0.5 * float(np.linalg.norm(pts[i] - pts[j])))
         origin = p - back * d
-        r, t, k = ray_hits(origin, d, self.body.corners, self.tol)
+        _, t, _ = ray_hits(origin, d, self.body.corners, self.tol)
         t = t[t > self.tol]
         if not len(t):
             raise FabricationError(key, f"its end at {_where(p)} does not lead out of the body")
@@ -687,15 +688,15 @@ class _Planner:
         """Channels and holes of different cables in one bone must not meet."""
         from scipy.spatial import cKDTree
         for i, a in enumerate(tools):
-            pa, _ = _samples(a.points, min(0.2, a.radius / 2))
+            pa, _ = _samples(a.points, 0.1)
             tree = cKDTree(pa)
             for b in tools[:i]:
                 if b.cable == a.cable:
                     continue
-                pb, _ = _samples(b.points, min(0.2, b.radius / 2))
-                gap = float(tree.query(pb)[0].min())
+                pb, _ = _samples(b.points, 0.1)
+                gap = float(tree.query(pb)[0].min())      # sampled every 0.1 mm: within 0.05 mm
                 need = a.radius + b.radius + self.wall
-                if gap < need - 0.2:
+                if gap < need - 0.05:
                     raise FabricationError(f"cables.{a.cable}.path", f"its {a.kind} in bone {bone!r} comes within "
                                                                      f"{gap:.2f} mm of the {b.kind} of {b.cable!r} "
                                                                      f"(axes {need:g} mm apart are needed)")

@@ -401,3 +401,12 @@ def test_arm_with_rerouted_tendons_parted_through_its_bones(tmp_path):
     halves = sum(solid_report(out / f"mould_{h}.stl")["volume"] for h in ("bottom", "top"))
     assert block - halves == pytest.approx(body, rel=0.01)
     assert report["mould"]["axes"]["n"] == [1.0, 0.0, 0.0]
+
+
+def test_an_unusable_output_folder_is_bad_input(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    assert main(["fabricate", str(GEOMETRY / "finger_soft.toml"), "--out", str(blocker / "fab"), "-q"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and "is not a folder" in err[0], err
+    assert blocker.read_text() == "not a folder" and sorted(p.name for p in tmp_path.iterdir()) == ["file"]
