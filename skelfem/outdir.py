@@ -47,6 +47,9 @@ OUTPUTS = {
 # files whose names follow the design (one per bone): a pattern per command
 PATTERNS = {"fabricate": re.compile(r"^(bone_[^/\\]+|mould_(bottom|top))\.(stl|step)$")}
 STALE_FILE = re.compile(r"^\.(result|solution|deformed|ik|track|bench|summary|fabrication)-.*")
+NAME_MAX = 255
+RESERVED_CHARS = 48           # room for ".<name>.tmp-<pid>-<random>" beside the target
+PATH_MAX = 4096 - 128
 
 
 def written_by(name: str) -> str | None:
@@ -58,9 +61,6 @@ def written_by(name: str) -> str | None:
         if pattern.match(name):
             return kind
     return None
-NAME_MAX = 255
-RESERVED_CHARS = 48           # room for ".<name>.tmp-<pid>-<random>" beside the target
-PATH_MAX = 4096 - 128
 
 
 class OutputError(Exception):
