@@ -255,7 +255,8 @@ def fabricate(args) -> int:
             print(f"  {part['stl']:24s} {part['volume']:10.1f} mm^3  {part['triangles']:6d} triangles")
         m = report["mould"]
         print(f"  mould cavity {m['cavity_volume']:.1f} mm^3 against the body's {m['body_volume']:.1f} mm^3 "
-              f"({100 * m['relative_error']:+.2f} %); every STL closed and oriented")
+              f"({100 * m['relative_error']:+.2f} %; {100 * m['closed_relative_error']:+.3f} % without the pour "
+              "hole, vents, exits, pins and pegs); every STL closed and oriented")
     return EXIT_OK
 
 

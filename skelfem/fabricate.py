@@ -799,7 +799,7 @@ class _Planner:
                     far = leave + side * spec.wall / 2          # into the half's material beyond the body
                     peg = Tool("peg", f.world([[*site, tip], [*site, far]]), self.r_peg, bone.name,
                                side="top" if side > 0 else "bottom")
-                    sock = Tool("socket", f.world([[*site, e + side * 0.5], [*site, e - side * h]]), self.r_socket,
+                    sock = Tool("socket", f.world([[*site, e + side * h], [*site, e - side * h]]), self.r_socket,
                                 bone.name)
                     pegs.append(peg)
                     bone_tools[bone.name].append(sock)
@@ -825,7 +825,9 @@ class _Planner:
                 return None
         leave = None
         for j in [i, *rp]:
-            if len(mine[j]) and side * ((mine[j][-1] if side > 0 else mine[j][0]) - e) > self.tol:
+            # bone beyond E within the peg's radius (a face not normal to n) is cut away by the socket,
+            # which starts socket_depth beyond E: up to half that is accepted
+            if len(mine[j]) and side * ((mine[j][-1] if side > 0 else mine[j][0]) - e) > h / 2:
                 return None
             beyond = body[j][side * (body[j] - e) > self.tol]
             if len(beyond) != 1:
@@ -989,6 +991,11 @@ def _shapes(occ, tool: Tool) -> list:
     return out
 
 
+def _mass(occ, dimtags) -> float:
+    occ.synchronize()
+    return float(sum(occ.getMass(*v) for v in dimtags))
+
+
 def _volumes(out) -> list[int]:
     return [t for d, t in out if d == 3]
 
@@ -1091,15 +1098,19 @@ def build_half(plan: Plan, side: str, folder: Path | None = None) -> Part:
         n0, n1 = (f.lo[2], f.c) if side == "bottom" else (f.c, f.hi[2])
         box, block = _block(occ, f, n0, n1)
         half = _solid(occ, occ.cut([(3, box)], [(3, t) for t in body])[0])
+        mass = [_mass(occ, half)]                     # the slab minus the body
         adds = [t for t in plan.pegs if t.side == side] + [t for t in plan.mould_tools if t.kind == "pin"
                                                             and side == "bottom"]
         if adds:
             half = _solid(occ, occ.fuse(half, [s for t in adds for s in _shapes(occ, t)])[0])
+        mass.append(_mass(occ, half))
         cuts = [t for t in plan.mould_tools
                 if t.kind == "exit" or (side == "top" and t.kind in ("pin_hole", "pour", "vent"))]
         if cuts:
             half = _solid(occ, occ.cut(half, [s for t in cuts for s in _shapes(occ, t)])[0])
-        info = {"block_volume": block, "pegs": sum(t.side == side for t in plan.pegs)}
+        mass.append(_mass(occ, half))
+        info = {"block_volume": block, "pegs": sum(t.side == side for t in plan.pegs),
+                "added_volume": mass[1] - mass[0], "cut_volume": mass[1] - mass[2]}
         return _finish(gmsh, f"mould_{side}", "mould", _volumes(half), plan, folder, info)
 
 
@@ -1234,11 +1245,16 @@ def write(plan: Plan, folder: Path, picture_file: bool = True) -> dict:
     block = sum(p.info["block_volume"] for p in halves.values())
     cavity = block - sum(stl[name]["volume"] for name in halves)
     cavity_cad = block - sum(p.cad_volume for p in halves.values())
+    cut = sum(p.info["cut_volume"] for p in halves.values())
+    added = sum(p.info["added_volume"] for p in halves.values())
+    closed = cavity - cut + added
     report["mould"] = {
         "split": report["fabrication"]["split"], "axes": {"u": _plain(f.u), "v": _plain(f.v), "n": _plain(f.n)},
         "block": {"min": _plain(f.lo), "max": _plain(f.hi), "volume": block},
         "body_volume": plan.body_volume, "cavity_volume": cavity, "cavity_volume_cad": cavity_cad,
         "relative_error": (cavity - plan.body_volume) / plan.body_volume,
+        "openings_volume": cut, "pegs_and_pins_volume": added, "closed_cavity_volume": closed,
+        "closed_relative_error": (closed - plan.body_volume) / plan.body_volume,
         "pins": [{"at": _plain(t.points[0]), "diameter": 2 * t.radius} for t in plan.mould_tools if t.kind == "pin"],
         "pour": [{"from": _plain(t.points[-1]), "to": _plain(t.points[0]), "diameter": 2 * t.radius}
                  for t in plan.mould_tools if t.kind == "pour"],
@@ -1251,7 +1267,9 @@ def write(plan: Plan, folder: Path, picture_file: bool = True) -> dict:
     checks["stl_closed_and_oriented"] = all(r["oriented"] and r["degenerate"] == 0 and r["parts"] == 1
                                             for r in stl.values())
     checks["bone_volumes"] = all(abs(b["relative_error"]) <= TOLERANCE for b in report["bones"].values())
-    checks["cavity_is_body"] = abs(report["mould"]["relative_error"]) <= TOLERANCE
+    # the cavity (block minus both halves, from the STL files) holds the body plus what the pour hole,
+    # vents, exits and pin holes take out of the halves, minus what the pegs and pins put in
+    checks["cavity_is_body"] = abs(report["mould"]["closed_relative_error"]) <= TOLERANCE
     checks["tolerance"] = TOLERANCE
     checks["passed"] = checks["stl_closed_and_oriented"] and checks["bone_volumes"] and checks["cavity_is_body"]
     if picture_file:

@@ -189,6 +189,9 @@ def test_mould_cavity_is_the_body(name, fabricated):
     assert block - halves == pytest.approx(body, rel=0.01)
     assert report["mould"]["body_volume"] == pytest.approx(body, rel=1e-9)
     assert report["mould"]["split"]["point"][2] == pytest.approx(thickness / 2)
+    # with what the openings take out of the halves put back, and the pegs and pins taken out: the body
+    m = report["mould"]
+    assert block - halves - m["openings_volume"] + m["pegs_and_pins_volume"] == pytest.approx(body, rel=1e-3)
 
 
 # -- admesh, an independent STL checker from Debian ------------------------------------------------------------------
@@ -313,6 +316,24 @@ def test_3d_keys_and_defaults():
         load_design(GEOMETRY / "finger3d.toml", ["fabrication.bone_depth=10"])
     with pytest.raises(DesignError, match=r"fabrication\.split\.normal: must be a non-zero vector"):
         load_design(GEOMETRY / "arm3d.toml", ["fabrication.split.normal=[0,0,0]"])
+
+
+@pytest.mark.slow
+def test_a_tilted_parting_plane(tmp_path):
+    """finger3d.toml parted by a plane 8.5 degrees off its mid-plane: the block turns with it."""
+    out = tmp_path / "fab"
+    args = ["fabricate", str(GEOMETRY / "finger3d.toml"), "--out", str(out), "-q", "--no-picture",
+            "--set", "fabrication.split={ point = [10, 50, 10], normal = [0, 0.15, 1] }"]
+    assert main(args) == 0
+    report = json.loads((out / "fabrication.json").read_text())
+    n = np.array(report["mould"]["axes"]["n"])
+    assert n == pytest.approx(np.array([0, 0.15, 1]) / math.hypot(0.15, 1), abs=1e-6)
+    assert report["checks"]["passed"] and {p["bone"] for p in report["mould"]["pegs"]} == {"proximal", "middle",
+                                                                                            "distal"}
+    for part, entry in report["parts"].items():
+        r = solid_report(out / entry["stl"])
+        assert r["edges_not_two"] == r["directed_repeats"] == 0 and r["volume"] > 0, (part, r)
+    assert report["mould"]["closed_cavity_volume"] == pytest.approx(39340.0, rel=1e-3)
 
 
 def test_a_plane_that_misses_the_body_is_refused(tmp_path, capsys):
