@@ -8,7 +8,7 @@ SHELL := /bin/bash
 # venv that sees the system site-packages (numpy/scipy pinned to Debian's).
 APT_PACKAGES := python3-dolfinx python3-gmsh python3-meshio python3-venv \
 	python3-scipy python3-matplotlib python3-pytest python3-setuptools python3-h5py \
-	libopenblas0-pthread openmpi-bin libegl1 libegl-mesa0 libgl1-mesa-dri
+	libopenblas0-pthread openmpi-bin libegl1 libegl-mesa0 libgl1-mesa-dri admesh
 SYSPY := /usr/bin/python3
 VENV := .venv
 PY := $(VENV)/bin/python

@@ -1,4 +1,4 @@
-"""Command line: ``skelfem simulate DESIGN [--out DIR] [--set KEY=VALUE ...]``.
+"""Command line: ``skelfem simulate DESIGN [--out DIR] [--set KEY=VALUE ...]``, ``skelfem fabricate DESIGN``, ....
 
 Exit status: 0 on success, 1 for bad input (one ``error:`` line on stderr;
 command-line mistakes included), 2 when the solve does not converge
@@ -91,6 +91,17 @@ def _parser() -> argparse.ArgumentParser:
                    help="choose mesh size and degree so that the estimated marker error stays below "
                         "ABS_MM mm at the least cost (replaces [mesh] size and degree)")
     s.set_defaults(handler=simulate)
+    f = sub.add_parser("fabricate", help="printable bones (STL, STEP) and a two-part mould for casting the body",
+                       description="Bones with cable channels and ligament anchor holes, and a two-part mould "
+                                   "whose cavity is the body, from the design's [fabrication] section.")
+    f.add_argument("design", type=Path, help="design file (TOML)")
+    f.add_argument("--out", type=Path, default=None, help="output folder (default: results/<name>)")
+    f.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override one design value, e.g. fabrication.channel_diameter=1.5")
+    f.add_argument("--no-picture", action="store_true", help="skip fabrication.png")
+    f.add_argument("-q", "--quiet", action="store_true", help="print only errors")
+    f.add_argument("-v", "--verbose", action="store_true", help="print the tracebacks of internal errors")
+    f.set_defaults(handler=fabricate)
     import importlib
     for name in COMMAND_MODULES:
         importlib.import_module(name).add_parsers(sub)
@@ -197,6 +208,55 @@ def simulate(args) -> int:
         return EXIT_SOLVE
     if not args.quiet and MPI.COMM_WORLD.rank == 0:
         _summary(result, args.out)
+    return EXIT_OK
+
+
+def fabricate(args) -> int:
+    """Plan (every check before the folder is touched), then build and publish the parts whole."""
+    from mpi4py import MPI
+
+    from . import fabricate as fab
+    from .design import DesignError, load_design
+    from .outdir import publish
+
+    t0 = time.perf_counter()
+    if MPI.COMM_WORLD.size > 1:
+        raise InputError("fabricate runs on one process; start it without mpirun")
+    try:
+        design = load_design(args.design, args.overrides)
+        plan = fab.plan(design)
+    except DesignError as exc:
+        raise InputError(str(exc)) from None
+    except fab.FabricationError as exc:
+        raise InputError(f"{design.source}: {exc.key}: {exc.message}") from None
+    args.out = reserve_output(args, design, "fabricate")
+    log.info("%s: building %d bone(s) and the mould", design.name, len(design.bones))
+    with publish(args.out, MPI.COMM_WORLD, "fabricate") as stage:
+        try:
+            report = fab.write(plan, stage.path, picture_file=not args.no_picture)
+        except OSError as exc:
+            stage.errors.append(f"cannot write {Path(exc.filename).name if exc.filename else 'the parts'}: "
+                                f"{exc.strerror or exc}")
+            report = None
+    if report is None:
+        return EXIT_INPUT
+    for note in report["notes"]:
+        log.warning("%s: warning: %s", design.name, note)
+    checks = report["checks"]
+    if not checks["passed"]:
+        failed = [k for k in ("stl_closed_and_oriented", "bone_volumes", "cavity_is_body") if not checks[k]]
+        error(f"internal error: {design.name}: fabrication check(s) failed: {', '.join(failed)}; "
+              f"see {args.out / 'fabrication.json'}")
+        return EXIT_INTERNAL
+    if not args.quiet:
+        print(f"{design.name}: {len(design.bones)} bone(s) and a two-part mould in {args.out}/, "
+              f"{time.perf_counter() - t0:.1f} s")
+        for name, part in report["parts"].items():
+            print(f"  {part['stl']:24s} {part['volume']:10.1f} mm^3  {part['triangles']:6d} triangles")
+        m = report["mould"]
+        print(f"  mould cavity {m['cavity_volume']:.1f} mm^3 against the body's {m['body_volume']:.1f} mm^3 "
+              f"({100 * m['relative_error']:+.2f} %; {100 * m['closed_relative_error']:+.3f} % without the pour "
+              "hole, vents, exits, pins and pegs); every STL closed and oriented")
     return EXIT_OK
 
 

@@ -120,6 +120,24 @@ class SolverSpec:
 
 
 @dataclass(frozen=True, eq=False)
+class FabricationSpec:
+    """The [fabrication] section (skelfem fabricate), every default resolved; lengths in mm."""
+    channel_diameter: float = 1.2     # tendon channels through the bones
+    anchor_diameter: float = 1.5      # ligament anchor holes (the rubber band loops through)
+    bone_depth: float = 0.0           # 2D: extrusion depth of the bones, centred in the slab
+    min_wall: float = 0.4             # least printed material left around a channel, hole or socket
+    wall: float = 5.0                 # mould wall beyond the body
+    clearance: float = 0.2            # fit of registration pins and bone pegs in their holes
+    pour_diameter: float = 6.0
+    vent_diameter: float = 2.0
+    vents: int = 2
+    peg_diameter: float = 2.0         # pegs that hold the bones in the mould
+    socket_depth: float = 1.0         # sockets in the bones that the pegs enter
+    split_point: np.ndarray | None = None    # the mould's parting plane (2D: the slab's mid-plane)
+    split_normal: np.ndarray | None = None
+
+
+@dataclass(frozen=True, eq=False)
 class Design:
     source: str
     name: str
@@ -138,6 +156,7 @@ class Design:
     solver: SolverSpec = field(default_factory=SolverSpec)
     gravity: np.ndarray | None = None    # m/s^2 as written; None: no gravity
     tractions: tuple = ()
+    fabrication: FabricationSpec = field(default_factory=FabricationSpec)
     format: int = FORMAT
     raw: dict = field(default_factory=dict)   # the TOML data after overrides
     measure: float = 0.0      # body area (2D, mm^2) or volume (3D, mm^3), bones included
@@ -721,6 +740,89 @@ def _lowest(body: Body, dim: int, point: np.ndarray, normal: np.ndarray) -> floa
     return float(min(lows))
 
 
+def _body_box(body: Body, dim: int, thickness: float) -> tuple[np.ndarray, np.ndarray]:
+    """An axis-aligned box around the body (3D: around its primitives, conservative for round ones)."""
+    if dim == 2:
+        lo, hi = body.outline.min(axis=0), body.outline.max(axis=0)
+        return np.r_[lo, 0.0], np.r_[hi, thickness]
+    los, his = [], []
+    for prim in body.solids:
+        (kind, p), = prim.items()
+        if kind == "box":
+            los.append(p["min"]), his.append(p["max"])
+        elif kind == "cylinder":
+            ends = np.array([p["from"], p["to"]])
+            los.append(ends.min(axis=0) - p["radius"]), his.append(ends.max(axis=0) + p["radius"])
+        elif kind == "sphere":
+            los.append(p["center"] - p["radius"]), his.append(p["center"] + p["radius"])
+        else:
+            los.append(np.r_[p["outline"].min(axis=0), p["z"][0]]), his.append(np.r_[p["outline"].max(axis=0), p["z"][1]])
+    return np.min(los, axis=0), np.max(his, axis=0)
+
+
+def _fabrication(top: _Table, dim: int, thickness: float, body: Body) -> FabricationSpec:
+    """[fabrication]: every key optional; defaults follow the body's size (see the README).
+
+    bone_depth defaults to 0.8 x thickness (2D), the mould wall to 5 % of the
+    body's largest extent (to 0.5 mm, at least 3 mm), the pour hole to 30 % of its
+    smallest extent (at most 6 mm); the 3D parting plane to the mid-plane of
+    the body's bounding box across its smallest extent. Geometric feasibility
+    (channels inside bones, room for pegs and the pour hole) is checked by
+    skelfem.fabricate before anything is written.
+    """
+    t = _Table(top.take("fabrication", "table", {}), "fabrication", top.source)
+    d = FabricationSpec()
+    lo, hi = _body_box(body, dim, thickness)
+    extent = hi - lo
+    if dim == 2:
+        extent = np.r_[extent[:2], thickness]
+
+    def length(name, default, strict=True):
+        value = _positive(t, name, t.take(name, "number", default), strict)
+        if value > MAX_COORDINATE:
+            t.fail(name, f"must be at most {MAX_COORDINATE:g} mm, got {value:g}")
+        return value
+
+    channel = length("channel_diameter", d.channel_diameter)
+    anchor = length("anchor_diameter", d.anchor_diameter)
+    if dim == 2:
+        depth = length("bone_depth", 0.8 * thickness)
+        if depth >= thickness:
+            t.fail("bone_depth", f"must be less than thickness ({thickness:g} mm): the bones are cast inside the slab")
+    else:
+        if t.has("bone_depth"):
+            t.fail("bone_depth", "is for dim = 2 only (3D bones are their solids)")
+        depth = 0.0
+    min_wall = length("min_wall", d.min_wall, strict=False)
+    wall = length("wall", max(3.0, round(0.1 * float(extent.max())) / 2))
+    clearance = length("clearance", d.clearance, strict=False)
+    pour = length("pour_diameter", min(d.pour_diameter, 0.3 * float(extent.min())))
+    vent = length("vent_diameter", d.vent_diameter)
+    vents = t.take("vents", "int", d.vents)
+    if not 0 <= vents <= 16:
+        t.fail("vents", f"must be between 0 and 16, got {vents}")
+    peg = length("peg_diameter", d.peg_diameter)
+    socket = length("socket_depth", d.socket_depth)
+    if dim == 2:
+        if t.has("split"):
+            t.fail("split", "is for dim = 3 only (a 2D mould parts at the slab's mid-plane)")
+        point, normal = np.array([0.0, 0.0, thickness / 2]), np.array([0.0, 0.0, 1.0])
+    else:
+        axis = 2 - int(np.argmin(extent[::-1]))      # the smallest extent; ties prefer z, then y
+        s = _Table(t.take("split", "table", {}), "fabrication.split", top.source)
+        point = _bounded(s, "point", s.take("point", "vector", 0.5 * (lo + hi), dim=3))
+        normal = s.take("normal", "vector", np.eye(3)[axis], dim=3)
+        scale = float(np.abs(normal).max())
+        if not scale > 0:
+            s.fail("normal", "must be a non-zero vector")
+        normal = normal / scale
+        normal = normal / float(np.linalg.norm(normal))
+        s.done()
+    t.done()
+    return FabricationSpec(channel, anchor, depth, min_wall, wall, clearance, pour, vent, vents, peg, socket,
+                           point, normal)
+
+
 def _markers(top: _Table, dim: int, region) -> dict:
     t = _Table(top.take("markers", "table", {}), "markers", top.source)
     out = {}
@@ -797,6 +899,7 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     solver = _solver(top)
     gravity = _gravity(top, dim, materials, [body.material] + [b.material for b in bones])
     tractions = _tractions(top, dim)
+    fabrication = _fabrication(top, dim, thickness, body)
     top.done()
     if dim == 2:
         measure = abs(polygons.signed_area(body.outline)) - sum(abs(polygons.signed_area(h)) for h in body.holes)
@@ -815,7 +918,7 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
         source=str(source), name=name, dim=dim, thickness=thickness, mesh=mesh,
         materials=materials, body=body, bones=bones, cables=cables, pins=pins, loads=loads,
         grounds=grounds, contact=contact, markers=markers, solver=solver, gravity=gravity,
-        tractions=tractions, raw=data, measure=float(measure), vertices=int(vertices),
+        tractions=tractions, fabrication=fabrication, raw=data, measure=float(measure), vertices=int(vertices),
     )
 
 

@@ -82,6 +82,29 @@ def _union(occ, dim: int, tags: list[int]) -> list[int]:
     return keep
 
 
+def add_design_solids(occ, design, bone_depth: float | None = None, bones=None) -> tuple[list[int], dict]:
+    """The design's body and bones as separate OCC volumes (not fragmented): (body tags, {bone: tags}).
+
+    2D outlines are extruded along z: the body (outline minus holes) through
+    [0, thickness], each bone over bone_depth centred in the slab. 3D solids
+    are the unions of their primitives. bones: the names to build (default all).
+    Used by skelfem.fabricate, which needs the solids themselves, not a mesh.
+    """
+    wanted = [b for b in design.bones if bones is None or b.name in bones]
+    if design.dim == 3:
+        body = _union(occ, 3, [_add_solid(occ, s) for s in design.body.solids])
+        return body, {b.name: _union(occ, 3, [_add_solid(occ, s) for s in b.solids]) for b in wanted}
+    t = float(design.thickness)
+    body = [_add_solid(occ, {"extrude": {"outline": design.body.outline, "z": [0.0, t]}})]
+    if design.body.holes:
+        holes = [(3, _add_solid(occ, {"extrude": {"outline": h, "z": [-1.0, t + 1.0]}})) for h in design.body.holes]
+        out, _ = occ.cut([(3, body[0])], holes)
+        body = [tag for d, tag in out if d == 3]
+    z0 = 0.5 * (t - float(bone_depth if bone_depth is not None else t))
+    bones = {b.name: [_add_solid(occ, {"extrude": {"outline": b.outline, "z": [z0, t - z0]}})] for b in wanted}
+    return body, bones
+
+
 def _build_model(gmsh, design) -> dict:
     """Create the geometry in the current Gmsh model; returns name -> entity tags."""
     occ = gmsh.model.occ

@@ -42,12 +42,25 @@ OUTPUTS = {
     "track": ("track.csv", "track.json", "track.png"),
     "bench": ("bench.json",),
     "sweep": ("summary.csv", "summary.png"),
+    "fabricate": ("fabrication.json", "fabrication.png"),
 }
-KNOWN = frozenset(n for names in OUTPUTS.values() for n in names)
-STALE_FILE = re.compile(r"^\.(result|solution|deformed|ik|track|bench|summary)-.*")
+# files whose names follow the design (one per bone): a pattern per command
+PATTERNS = {"fabricate": re.compile(r"^(bone_[^/\\]+|mould_(bottom|top))\.(stl|step)$")}
+STALE_FILE = re.compile(r"^\.(result|solution|deformed|ik|track|bench|summary|fabrication)-.*")
 NAME_MAX = 255
 RESERVED_CHARS = 48           # room for ".<name>.tmp-<pid>-<random>" beside the target
 PATH_MAX = 4096 - 128
+
+
+def written_by(name: str) -> str | None:
+    """The command that writes a file of this name (None if none does)."""
+    for kind, names in OUTPUTS.items():
+        if name in names:
+            return kind
+    for kind, pattern in PATTERNS.items():
+        if pattern.match(name):
+            return kind
+    return None
 
 
 class OutputError(Exception):
@@ -80,7 +93,7 @@ def _foreign(folder: Path, kind: str) -> str | None:
     except OSError as exc:
         return f"({exc.strerror})"
     for e in entries:
-        if e in KNOWN or STALE_FILE.match(e):
+        if written_by(e) is not None or STALE_FILE.match(e):
             continue
         path = folder / e
         if kind == "sweep":
@@ -365,9 +378,8 @@ def _carry_over(old: Path, new: Path, kind: str) -> None:
     """Hard-link the other commands' files of the old folder into the new one."""
     if not old.is_dir():
         return
-    mine = set(OUTPUTS.get(kind, ()))
     for e in os.listdir(old):
-        if e in KNOWN and e not in mine and not (new / e).exists():
+        if written_by(e) not in (None, kind) and not (new / e).exists():
             try:
                 os.link(old / e, new / e)
             except OSError:

@@ -1,4 +1,5 @@
-"""Figures for the README: the demo finger, three skeletons side by side, Newton's residuals, the 3D arm.
+"""Figures for the README: the demo finger, three skeletons side by side, Newton's residuals, the 3D arm,
+and the fabrication parts of the demo finger (exploded view).
 
     python studies/readme_figures.py [--out studies/figures] [--size 2.0]
 
@@ -24,8 +25,10 @@ def solve(name: str, overrides=()):
     return session, session.solve()
 
 
-def run(size: float = 2.0, contraction: float = 8.0, out: Path | None = None, arm: bool = False) -> dict:
-    """Solve the three finger conditions (and arm3d.toml if arm); if out is given, write the figures there."""
+def run(size: float = 2.0, contraction: float = 8.0, out: Path | None = None, arm: bool = False,
+        fabrication: bool = False) -> dict:
+    """Solve the three finger conditions (and arm3d.toml if arm, and build finger.toml's fabrication
+    parts if fabrication); if out is given, write the figures there."""
     overrides = [f"mesh.size={size}", f"cables.flexor.contraction={contraction}"]
     results, models = {}, {}
     for name in CONDITIONS:
@@ -41,7 +44,23 @@ def run(size: float = 2.0, contraction: float = 8.0, out: Path | None = None, ar
         _figures(Path(out), models, results, contraction)
     if arm:
         results["arm3d"] = _arm(out)
+    if fabrication:
+        results["fabrication"] = _fabrication(out)
     return results
+
+
+def _fabrication(out: Path | None) -> dict:
+    """finger.toml's bones and mould (skelfem.fabricate); the exploded view as fabrication.png."""
+    from skelfem import fabricate
+    from skelfem.design import load_design
+
+    plan = fabricate.plan(load_design(ROOT / "geometry" / "finger.toml"))
+    parts = fabricate.build(plan)
+    if out is not None:
+        Path(out).mkdir(parents=True, exist_ok=True)
+        fabricate.picture(Path(out) / "fabrication.png", parts, plan,
+                          "finger.toml: bones and the two-part mould, exploded along the mould's normal")
+    return {p.name: p.cad_volume for p in parts}
 
 
 def _arm(out: Path | None) -> dict:
@@ -99,9 +118,13 @@ def main(argv=None) -> int:
     p.add_argument("--size", type=float, default=2.0)
     p.add_argument("--contraction", type=float, default=8.0)
     p.add_argument("--no-arm", action="store_true", help="skip the 3D arm picture")
+    p.add_argument("--no-fabrication", action="store_true", help="skip the fabrication picture")
     a = p.parse_args(argv)
-    res = run(a.size, a.contraction, a.out, arm=not a.no_arm)
+    res = run(a.size, a.contraction, a.out, arm=not a.no_arm, fabrication=not a.no_fabrication)
     arm = res.pop("arm3d", None)
+    fab = res.pop("fabrication", None)
+    if fab:
+        say("fabrication   " + ", ".join(f"{name} {volume:.0f} mm^3" for name, volume in fab.items()))
     if arm:
         say(f"arm3d         hand at ({', '.join(f'{v:.2f}' for v in arm['hand'])}) mm, "
               f"{arm['newton_iterations']} Newton iterations")

@@ -18,3 +18,10 @@ def test_readme_figures_tiny(tmp_path, picture):
     picture(tmp_path / "newton.png", 600, 380)
     assert all(r["newton_iterations"] > 0 and r["residual_history"] for r in res.values())
     assert not list(tmp_path.glob(".*"))
+
+
+def test_readme_fabrication_figure(tmp_path, picture):
+    res = _load()._fabrication(tmp_path)
+    assert set(res) == {"bone_proximal", "bone_middle", "bone_distal", "mould_bottom", "mould_top"}
+    assert all(v > 0 for v in res.values())
+    picture(tmp_path / "fabrication.png", 900, 700)
