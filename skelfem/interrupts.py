@@ -10,7 +10,9 @@ rename that publishes a result) a signal is held back until the block ends.
 """
 from __future__ import annotations
 
+import os
 import signal
+import sys
 import threading
 from contextlib import contextmanager
 
@@ -49,6 +51,18 @@ def received() -> int | None:
     return _received
 
 
+def _unraisable(info) -> None:
+    """An Interrupted raised where Python cannot raise (a finalizer, a weakref callback) is not lost:
+    the signal is sent again a moment later, from a timer thread, so the handler raises at an
+    ordinary point of the main thread once the callback is over; nothing is printed."""
+    if isinstance(info.exc_value, Interrupted):
+        timer = threading.Timer(0.005, os.kill, (os.getpid(), info.exc_value.signum))
+        timer.daemon = True
+        timer.start()
+        return
+    sys.__unraisablehook__(info)
+
+
 def install() -> None:
     """Make SIGINT and SIGTERM raise Interrupted (main thread only; a no-op elsewhere)."""
     global _installed, _received
@@ -58,6 +72,7 @@ def install() -> None:
         return
     for s in SIGNALS:
         signal.signal(s, _handler)
+    sys.unraisablehook = _unraisable
     _installed = True
 
 
@@ -105,6 +120,7 @@ def uninstall() -> None:
     if _installed and threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.default_int_handler)
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        sys.unraisablehook = sys.__unraisablehook__
     _installed = False
 
 

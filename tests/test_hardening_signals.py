@@ -13,6 +13,8 @@ import os
 import random
 import signal
 import subprocess
+import sys
+import textwrap
 import time
 from pathlib import Path
 
@@ -218,3 +220,28 @@ def test_sweep_interrupted_resumes(tmp_path, sig):
     assert len(_check_sweep_folder(out)) == 8
     with open(out / "summary.csv") as f:
         assert len(f.read().strip().splitlines()) == 9
+
+
+def test_interrupt_inside_a_finalizer_is_not_lost():
+    """A signal whose Interrupted is raised inside a weakref callback (where Python only prints
+    "Exception ignored") is delivered again and ends the run as interrupted, with no traceback."""
+    code = textwrap.dedent("""
+        import gc, os, signal, sys, time, weakref
+        from skelfem import interrupts
+        interrupts.install()
+        class Box: pass
+        def callback(_):
+            os.kill(os.getpid(), signal.SIGINT)   # the handler raises here, inside the callback
+            time.sleep(0.05)
+        b = Box(); ref = weakref.ref(b, callback)
+        try:
+            del b; gc.collect()
+            for _ in range(200):
+                time.sleep(0.01)
+            print("not interrupted")
+        except interrupts.Interrupted as exc:
+            print("interrupted", exc.code)
+    """)
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert p.stdout.strip() == "interrupted 130", (p.stdout, p.stderr)
+    assert "Traceback" not in p.stderr and "Exception ignored" not in p.stderr, p.stderr
