@@ -71,6 +71,7 @@ class CableSpec:
     stiffness: float      # k, N/mm
     contraction: float = 0.0   # tendon: u, mm
     pretension: float = 0.0    # ligament: rest-length shortening, mm
+    anchor_radius: float | None = None   # mm; an end in silicone pulls on a disk/ball this wide (None: default)
 
 
 @dataclass(frozen=True, eq=False)
@@ -631,11 +632,16 @@ def _cables(top: _Table, dim: int, region, tol) -> tuple:
             pretension = _positive(t, "pretension", t.take("pretension", "number", 0.0), strict=False)
             if t.has("contraction"):
                 t.fail("contraction", "ligaments are passive and never contracted (use pretension)")
+        anchor = None
+        if t.has("anchor_radius"):
+            anchor = _positive(t, "anchor_radius", t.take("anchor_radius", "number"), strict=False)
+            if anchor >= seg.sum():
+                t.fail("anchor_radius", f"must be smaller than the cable ({seg.sum():g} mm)")
         if max(contraction, pretension) >= seg.sum():
             t.fail("contraction" if kind == "tendon" else "pretension",
                    f"must be shorter than the cable ({seg.sum():g} mm)")
         t.done()
-        cables.append(CableSpec(name, kind, path, k, contraction, pretension))
+        cables.append(CableSpec(name, kind, path, k, contraction, pretension, anchor))
     return tuple(cables)
 
 

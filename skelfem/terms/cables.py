@@ -33,8 +33,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+from mpi4py import MPI
 
-from ..points import DofGather, global_interpolation
+from ..points import DofGather, global_interpolation, locate_cells, owner_ranks
 from .base import Context, Term
 
 _EPS = 1e-10
@@ -119,6 +120,55 @@ def via_points(mesh, path: np.ndarray) -> np.ndarray:
     return points[np.concatenate([[True], gap > 1e-12])]
 
 
+def anchor_samples(center: np.ndarray, radius: float, per_radius: int = 4) -> np.ndarray:
+    """Points of a square (2D) or cubic (3D) lattice inside the disk/ball, spacing radius / per_radius.
+
+    Equal weights on a uniform lattice spread the anchor's force evenly over
+    its area (volume): a dead-load-like traction instead of a point force,
+    whose 2D displacement is log-singular.
+    """
+    gdim = len(center)
+    axis = np.arange(-per_radius, per_radius + 1) * (radius / per_radius)
+    grid = np.stack(np.meshgrid(*([axis] * gdim), indexing="ij"), axis=-1).reshape(-1, gdim)
+    return center + grid[np.linalg.norm(grid, axis=1) <= radius * (1 + 1e-12)]
+
+
+def _anchored_interpolation(V, X: np.ndarray, anchors: dict):
+    """(S, DofGather) of the via points X, rows of anchored points replaced by their disk's mean.
+
+    S_anchored = A S_all over the via points and every anchor's lattice
+    points inside the mesh (A: identity rows, and rows of equal weights).
+    """
+    mesh = V.mesh
+    if not anchors:
+        S, gather, _ = global_interpolation(V, X)
+        return S, gather
+    gdim = mesh.geometry.dim
+    points, rows, cols, vals = [X], [], [], []
+    n = len(X)
+    anchored = {i: r for i, r in anchors.items() if r > 0.0}
+    for i in range(n):
+        if i not in anchored:
+            rows.append(i), cols.append(i), vals.append(1.0)
+    offset = n
+    for i, r in anchored.items():
+        samples = anchor_samples(X[i], r)
+        inside = owner_ranks(mesh, samples)[0] < mesh.comm.size
+        samples = samples[inside]
+        points.append(samples)
+        m = len(samples)
+        rows += [i] * m
+        cols += list(range(offset, offset + m))
+        vals += [1.0 / m] * m
+        offset += m
+    A = sp.kron(sp.csr_matrix((vals, (rows, cols)), shape=(n, offset)), sp.identity(gdim), format="csr")
+    S_all, gather_all, _ = global_interpolation(V, np.vstack(points))
+    S = (A @ S_all).tocsc()
+    used = np.flatnonzero(np.diff(S.indptr) > 0)                # DOFs some via point still touches
+    gather = DofGather(V, gather_all.dofs[used])
+    return S[:, used].tocsr(), gather
+
+
 def _block_diagonal(blocks: np.ndarray) -> sp.csr_matrix:
     """Sparse block-diagonal matrix from stacked (n, b, b) blocks, no Python loop."""
     n, b, _ = blocks.shape
@@ -149,12 +199,16 @@ class Cable:
         self.BT = self.B.T.tocsr()      # g = B^T t, every gradient evaluation
 
     @classmethod
-    def build(cls, V, spec) -> "Cable":
+    def build(cls, V, spec, anchors: dict | None = None) -> "Cable":
+        """The cable through its via points; anchors = {sketch end index (0 or -1): radius} makes that
+        end pull on the mean displacement of a disk (2D) or ball (3D) of that radius (a finite anchor)."""
         mesh = V.mesh
         X = via_points(mesh, spec.path)
-        S, gather, owner = global_interpolation(V, X)
+        owner, _ = owner_ranks(mesh, X)
         if np.any(owner == mesh.comm.size):
             raise ValueError(f"cable {spec.name!r} leaves the mesh")
+        S, gather = _anchored_interpolation(V, X, {(0 if k == 0 else len(X) - 1): r
+                                                   for k, r in (anchors or {}).items()})
         gdim = mesh.geometry.dim
         n = len(X)
         D = sp.kron(sp.diags([-np.ones(n - 1), np.ones(n - 1)], [0, 1], shape=(n - 1, n)),
@@ -277,7 +331,8 @@ class CableTerm(Term):
 
     def __init__(self, ctx: Context, spec):
         try:
-            self.cable = Cable.build(ctx.V, spec)
+            self.anchors = end_anchors(ctx, spec)
+            self.cable = Cable.build(ctx.V, spec, self.anchors)
         except ValueError as exc:
             from ..design import DesignError
             raise DesignError(f"{ctx.design.source}: cables.{spec.name}.path: {exc}") from None
@@ -327,6 +382,44 @@ class CableTerm(Term):
         u, c, L = model.u.x.array, self.cable, self.rest_length
         return {self.name: {"kind": self.kind, "contraction": float(c.contraction), "rest_length": L,
                             "length": c.length(u), "tension": c.tension(u, L)}}
+
+
+def default_anchor_radius(ctx: Context) -> float:
+    """1 % of the body's bounding-box diagonal (about a knot or bead on a finger-sized body)."""
+    x = ctx.mesh.geometry.x[:, :ctx.dim]
+    lo = x.min(axis=0) if len(x) else np.full(ctx.dim, np.inf)
+    hi = x.max(axis=0) if len(x) else np.full(ctx.dim, -np.inf)
+    if ctx.comm.size > 1:
+        ctx.comm.Allreduce(MPI.IN_PLACE, lo, op=MPI.MIN)
+        ctx.comm.Allreduce(MPI.IN_PLACE, hi, op=MPI.MAX)
+    return 0.01 * float(np.linalg.norm(hi - lo))
+
+
+def end_anchors(ctx: Context, spec) -> dict:
+    """{0 or -1: radius} for the cable's ends that lie in silicone (the body's region, not a bone)
+    and not in a fixed pin's box: those pull on a finite anchor; ends in bones or on the
+    pinned base stay material points."""
+    radius = spec.anchor_radius if spec.anchor_radius is not None else default_anchor_radius(ctx)
+    if radius <= 0.0:
+        return {}
+    ends = np.array([spec.path[0], spec.path[-1]], dtype=float)
+    tm = ctx.tagged
+    n_owned = ctx.mesh.topology.index_map(ctx.mesh.topology.dim).size_local
+    cells = locate_cells(ctx.mesh, ends, below=n_owned)
+    soft_cells = tm.cell_tags.indices[tm.cell_tags.values == tm.tags["body"]]
+    soft = np.where(cells >= 0, np.isin(cells, soft_cells), False).astype(np.int32)
+    found = (cells >= 0).astype(np.int32)
+    if ctx.comm.size > 1:
+        ctx.comm.Allreduce(MPI.IN_PLACE, soft, op=MPI.MAX)
+        ctx.comm.Allreduce(MPI.IN_PLACE, found, op=MPI.MAX)
+    fixed_boxes = [p.region for p in ctx.design.pins if p.kind == "fixed"]
+    out = {}
+    for k, end in zip((0, -1), ends):
+        pinned = any(np.all(end >= box[0] - 1e-9) and np.all(end <= box[1] + 1e-9) for box in fixed_boxes)
+        j = 0 if k == 0 else 1
+        if found[j] and soft[j] and not pinned:
+            out[k] = radius
+    return out
 
 
 def build(ctx: Context) -> list[Term]:

@@ -1,0 +1,75 @@
+"""Finite anchors: a cable end in silicone pulls on a disk, so refinement converges (a point force does not)."""
+import numpy as np
+import pytest
+
+from skelfem import Session
+from skelfem.design import DesignError, load_design, parse_design
+from skelfem.terms.cables import anchor_samples
+
+from conftest import GEOMETRY
+
+SOFT = GEOMETRY / "finger_soft.toml"
+STRAIGHT = "cables.flexor.path=[[3,0],[3,84]]"       # no bend in the silicone: the end is the only point force
+
+
+def _tip(size, radius):
+    with Session(SOFT, [f"mesh.size={size}", STRAIGHT, f"cables.flexor.anchor_radius={radius}"]) as s:
+        r = s.solve()
+        assert r.converged
+        return np.array(r.markers["tip"]["position"])
+
+
+@pytest.mark.slow
+def test_anchored_end_converges_under_refinement_where_a_point_end_does_not():
+    sizes = (2.0, 1.0, 0.5)
+    anchored = [_tip(h, 1.0) for h in sizes]
+    point = [_tip(h, 0.0) for h in sizes]
+    da = [np.linalg.norm(b - a) for a, b in zip(anchored[:-1], anchored[1:])]
+    dp = [np.linalg.norm(b - a) for a, b in zip(point[:-1], point[1:])]
+    assert da[1] < 0.7 * da[0] and da[1] < 0.06            # halving h about halves the change (0.077, 0.039)
+    assert dp[1] > 0.3 and dp[1] > da[1] * 5               # the point force's log singularity: 0.82 mm
+
+
+def test_anchor_lattice_is_inside_the_disk_and_centred():
+    c = np.array([3.0, 4.0])
+    p = anchor_samples(c, 1.5)
+    assert np.all(np.linalg.norm(p - c, axis=1) <= 1.5 + 1e-12)
+    assert np.allclose(p.mean(axis=0), c) and len(p) > 40
+    q = anchor_samples(np.zeros(3), 1.0)
+    assert np.allclose(q.mean(axis=0), 0.0) and len(q) > 200
+
+
+def test_only_ends_in_silicone_off_the_pinned_base_are_anchored():
+    with Session(SOFT, ["mesh.size=3"]) as s:
+        term = s.model.term("cables", "flexor")
+        assert set(term.anchors) == {-1}                   # [9, 84] in silicone; [3, 0] on the fixed base
+        assert term.anchors[-1] == pytest.approx(0.01 * np.hypot(20.0, 100.0), rel=1e-6)
+        u = np.zeros(s.model.n_local)
+        u[0::2], u[1::2] = 0.3, -0.2                        # a translation moves every via point alike
+        X = term.cable.X
+        assert np.allclose(term.cable.positions(u), X + [0.3, -0.2])
+    with Session(GEOMETRY / "finger.toml", ["mesh.size=4"]) as s:
+        assert all(not t.anchors for t in s.model.terms_in("cables"))   # ends in bones or on the base
+
+
+@pytest.mark.parametrize("value, message", [(-1.0, ">= 0"), (500.0, "smaller than the cable")])
+def test_bad_anchor_radius_is_one_error(value, message):
+    raw = load_design(SOFT).raw
+    with pytest.raises(DesignError, match=message) as exc:
+        parse_design(raw, "soft.toml", [f"cables.flexor.anchor_radius={value}"])
+    assert "cables.flexor.anchor_radius" in str(exc.value) and "\n" not in str(exc.value)
+
+
+@pytest.mark.mpi
+def test_anchored_cable_serial_equals_mpirun_2(tmp_path, mpirun):
+    import json
+    tips = []
+    for ranks in (1, 2):
+        out = tmp_path / f"r{ranks}"
+        p = mpirun.run([mpirun.skelfem, "simulate", SOFT, "--set", "mesh.size=2", "--out", out,
+                        "--no-picture", "-q"], ranks=ranks)
+        assert p.returncode == 0, p.stderr
+        r = json.loads((out / "result.json").read_text())
+        tips.append((np.array(r["markers"]["tip"]["position"]), r["cables"]["flexor"]["tension"]))
+    assert np.allclose(tips[0][0], tips[1][0], rtol=0, atol=1e-9)
+    assert tips[0][1] == pytest.approx(tips[1][1], rel=1e-9)
