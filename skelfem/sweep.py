@@ -239,7 +239,7 @@ def run_case(sweep: Sweep, case: Case, out: Path, comm, force: bool = False) -> 
     """
     from . import resources
     from .geometry import MeshingError
-    from .interrupts import Interrupted
+    from .interrupts import Interrupted, received
     from .outdir import OutputError
     from .run import simulate_design
 
@@ -249,6 +249,8 @@ def run_case(sweep: Sweep, case: Case, out: Path, comm, force: bool = False) -> 
     t0 = time.perf_counter()
     in_step = True
     try:
+        if received() is not None:            # a signal swallowed by a callback during the last case
+            raise Interrupted(received())
         design = load_design(sweep.design, case.overrides)
         resources.check(design, force)
         return simulate_design(design, folder, comm, picture=sweep.picture, extra=extra), True
@@ -259,8 +261,12 @@ def run_case(sweep: Sweep, case: Case, out: Path, comm, force: bool = False) -> 
     except OutputError as exc:
         status, message = "bad_output", str(exc)
     except Exception as exc:  # recorded, and the sweep goes on
+        if received() is not None:            # an interrupt that surfaced as another error (a C callback)
+            raise Interrupted(received()) from None
         status, message = "internal_error", f"{type(exc).__name__}: {exc}"
         in_step = False
+    if received() is not None:
+        raise Interrupted(received())
     result = {"format": 1, "converged": False, "status": status, "error": message,
               "timings": {"total": round(time.perf_counter() - t0, 4)}, **extra}
     if in_step:
