@@ -85,7 +85,7 @@ def render(text: str, new: dict, default_name: str | None = None) -> str:
     doc = tomlkit.parse(text)
     old = tomllib.loads(text)
     new = dict(new)
-    if "name" not in old and new.get("name") == default_name:
+    if "name" not in old and "name" in new and new["name"] == default_name:
         new.pop("name")                        # the loader's default: do not write it in
     _merge(doc, old, new)
     out = tomlkit.dumps(doc)

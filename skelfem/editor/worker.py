@@ -19,6 +19,20 @@ from concurrent.futures import Future
 log = logging.getLogger("skelfem")
 
 
+def one_openmp_thread() -> None:
+    """Make OpenMP run one thread on the calling thread, as Gmsh sets it on the main thread.
+
+    OpenMP's thread count is per thread: a new thread starts with the machine's
+    default (all cores), and Gmsh meshing there in parallel does not give the
+    same mesh twice, so the editor's mesh would differ from `skelfem simulate`'s.
+    """
+    import ctypes
+    try:
+        ctypes.CDLL("libgomp.so.1").omp_set_num_threads(1)
+    except (OSError, AttributeError):
+        pass
+
+
 class Superseded(Exception):
     """A newer request of the same channel replaced this one before it ran."""
 
@@ -56,6 +70,7 @@ class Worker:
         return fut
 
     def _run(self) -> None:
+        one_openmp_thread()
         while True:
             with self._cond:
                 while not self._pending and not self._closed:
