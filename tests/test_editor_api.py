@@ -159,7 +159,7 @@ def test_ik_reaches_a_target_with_tendons_only(editor, design):
     ik = a["ik"]
     assert ik["reached"] and ik["error"] < ik["tol"] and np.allclose(tip(a), goal, atol=ik["tol"])
     assert abs(a["cables"]["flexor"]["contraction"] - 5.5) < 0.05
-    cables = {c["name"]: c for c in a["design"]["cables"]}
+    cables = {c["name"]: c for c in a["new_design"]["cables"]}
     assert cables["flexor"]["contraction"] == ik["contractions"]["cables.flexor.contraction"] != 8.0
     assert all("contraction" not in c for n, c in cables.items() if n != "flexor")     # ligaments untouched
     status, far = request(editor, "POST", "/api/ik", {"design": design, "marker": "tip", "target": [200.0, 300.0]})

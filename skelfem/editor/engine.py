@@ -180,7 +180,7 @@ class Engine:
         """Soft IK: tendon contractions that bring marker to target, from the current equilibrium.
 
         Returns solve()'s answer for the design with those contractions (rounded to
-        0.1 um, re-solved warm), its ``design`` key the new design, and ``ik``: target,
+        0.1 um, re-solved warm), plus ``new_design`` (the design with them) and ``ik``: target,
         position, error, tol, reached, status, forward solves.
         """
         from ..control import SoftIK
@@ -209,7 +209,7 @@ class Engine:
             return answer
         position = np.asarray(answer["markers"][marker]["position"], dtype=float)
         error = float(np.linalg.norm(position - target))
-        answer["design"] = copy.deepcopy(self.session.design.raw)
+        answer["new_design"] = copy.deepcopy(self.session.design.raw)
         answer["ik"] = {"marker": marker, "target": target.tolist(), "position": position.tolist(),
                         "error": error, "tol": float(ik.tol), "reached": bool(error < ik.tol),
                         "status": "reached" if error < ik.tol else res.status,

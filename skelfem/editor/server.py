@@ -5,7 +5,7 @@ Routes (the JSON API is documented in the README, "The editor"):
     GET  /                 the page (static/index.html, editor.js, editor.css)
     GET  /api/design       the design as loaded: its TOML keys, file name, live parameter keys
     POST /api/solve        body: a design (the TOML's keys) -> result.json's keys + "mesh" + "editor"
-    POST /api/ik           body: {"design", "marker", "target"} -> the same + "ik" and the new "design"
+    POST /api/ik           body: {"design", "marker", "target"} -> the same + "ik" and "new_design"
     POST /api/save         body: {"design", "name"?, "overwrite"?} -> {"saved", "file"}
     WS   /api/live         the page's solves and IK: {"id", "kind", ...} -> {"id", "ok", "answer" | "error"}
 

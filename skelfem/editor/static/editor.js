@@ -19,7 +19,7 @@ const S = {
   ws: null, reqSeq: 0, inflight: null, queued: null,
   inputSeq: 0, inputs: [],               // input events not yet shown: {seq, t, kind}
   latency: { rendered: [], events: [] }, // ms from an input event to the picture showing it
-  solves: 0, errors: 0, ready: false,
+  solves: 0, errors: 0, ready: false, server: [],
 };
 window.skelfemEditor = S;
 
@@ -64,6 +64,7 @@ function send(req) {
   req.id = msg.id;
   req.input = S.inputSeq;                 // everything typed or dragged so far is in this design
   S.inflight = req;
+  req.sent = performance.now();
   S.ws.send(JSON.stringify(msg));
 }
 function onAnswer(data) {
@@ -73,9 +74,10 @@ function onAnswer(data) {
   if (data.dropped) { /* a newer request replaced it on the server */ }
   else if (data.ok && data.answer.converged) {
     const a = data.answer;
-    if (a.design && req.kind === "ik") adoptContractions(a.design);
+    if (a.new_design && req.kind === "ik") adoptContractions(a.new_design);
     if (a.ik) S.ik.info = a.ik;
     S.answer = a; S.failed = null; S.solves += 1;
+    S.server.push({ how: a.editor.how, s: a.editor.seconds, rtt: performance.now() - req.sent });
     clearError();
     render();
     painted(req.input);
@@ -427,8 +429,9 @@ function startDrag(e, handle, path, what) {
 }
 function onMove(e) {
   const g = S.drag; if (!g || e.pointerId !== g.pointer) return;
-  const p = toMM(e), dx = p[0] - g.start[0], dy = p[1] - g.start[1];
+  const p = toMM(e);
   if (g.what === "ik") { S.ik.target = [snap(p[0]), snap(p[1])]; input("ik"); drawIK(); requestIK(false); return; }
+  const dx = p[0] - g.start[0], dy = p[1] - g.start[1];
   if (g.what === "box") setPath(S.design, g.path, g.orig.map((c) => [snap(c[0] + dx), snap(c[1] + dy)]));
   else setPath(S.design, g.path, [snap(g.orig[0] + dx), snap(g.orig[1] + dy)]);
   changed(g.kind, true);
