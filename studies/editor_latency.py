@@ -103,14 +103,14 @@ def _api(port: int, design: dict, repeats: int) -> dict:
     vertex, contraction, hows = [], [], set()
     for k in range(repeats):
         d = copy.deepcopy(design)
-        d["bones"][-1]["outline"][0][0] += 0.5 * (k % 2)
+        d["bones"][-1]["outline"][0][0] += 0.5 * ((k + 1) % 2)      # moved, back, moved, ...: never unchanged
         status, ms, a = _post(port, "/api/solve", d)
         assert status == 200 and a["converged"], a.get("error") or a.get("status")
         vertex.append(ms)
         hows.add(a["editor"]["how"])
     for k in range(repeats):
         d = copy.deepcopy(design)
-        d["cables"][0]["contraction"] = float(d["cables"][0].get("contraction", 0.0)) + 0.5 * (k % 2)
+        d["cables"][0]["contraction"] = float(d["cables"][0].get("contraction", 0.0)) + 0.5 * ((k + 1) % 2)
         status, ms, a = _post(port, "/api/solve", d)
         assert status == 200 and a["converged"]
         contraction.append(ms)

@@ -19,7 +19,7 @@ const S = {
   ws: null, reqSeq: 0, inflight: null, queued: null,
   inputSeq: 0, inputs: [],               // input events not yet shown: {seq, t, kind}
   latency: { rendered: [], events: [] }, // ms from an input event to the picture showing it
-  solves: 0, errors: 0, ready: false, server: [],
+  solves: 0, errors: 0, ready: false, server: [], renderMs: [],
 };
 window.skelfemEditor = S;
 
@@ -280,8 +280,10 @@ function fit() {
 }
 
 function render() {
+  const t0 = performance.now();
   if (S.dim !== 2) { draw3d(); return; }
   drawMesh(); drawCables(); drawSketch(); drawMarkers(); drawIK(); showStatus(); markError();
+  S.renderMs.push(performance.now() - t0);
 }
 
 function drawMesh() {
