@@ -99,6 +99,8 @@ function painted(upto) {
   requestAnimationFrame(() => setTimeout(() => {
     const now = performance.now();
     performance.mark(`paint-${upto}`);
+    for (const list of [S.latency.events, S.latency.rendered, S.server, S.renderMs])
+      if (list.length > 20000) list.splice(0, list.length - 10000);     // a long session keeps the recent ones
     const shown = S.inputs.filter((i) => i.seq <= upto);
     S.inputs = S.inputs.filter((i) => i.seq > upto);
     for (const i of shown) S.latency.events.push({ kind: i.kind, ms: now - i.t });
