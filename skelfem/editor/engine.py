@@ -1,0 +1,241 @@
+"""The editor's solver side: one Session driven by whole designs (dicts of the TOML's keys).
+
+``Engine.solve(design)`` validates the design, compares it with the one the
+Session holds and takes the cheapest way there:
+
+* nothing changed: the last answer again (no solve);
+* only live parameters changed (contractions, pretensions, stiffnesses, E and nu,
+  loads, pin moves, ...; ``model.parameters()``): ``Session.set``, a warm re-solve
+  on the same mesh and matrix;
+* anything else (outlines, holes, cable sketches, markers, mesh size, ...):
+  ``Session.edit``, a re-mesh with the last solution carried over.
+
+``draft=True`` (the page sends it while a vertex is being dragged) meshes at
+DRAFT_FACTOR x the design's mesh size: a quick, coarser picture; the page
+sends the same design without ``draft`` on release, which re-meshes at the
+design's own size. ``Engine.ik`` runs Soft IK (skelfem.control.SoftIK, the
+same as ``skelfem ik``) for a marker target from the current equilibrium;
+ligaments are never actuated.
+
+A bad design raises EditError with the one-line DesignError message and its
+key (e.g. ``bones.proximal.outline``) and leaves the Session as it was, so the
+last valid result stays the current one. Not thread-safe: one thread (the
+worker's) calls it.
+"""
+from __future__ import annotations
+
+import copy
+import dataclasses
+import logging
+import math
+import re
+import time
+
+import numpy as np
+
+from ..design import SECTIONS_BY_NAME, DesignError, MeshSpec, parse_design
+from .payload import mesh_payload
+
+log = logging.getLogger("skelfem")
+
+DRAFT_FACTOR = 2.0        # a draft (while dragging) meshes this much coarser
+IK_LIVE_SOLVES = 12       # forward solves of one Soft IK request while a target is dragged
+IK_FINAL_SOLVES = 40      # ... and when it is let go (as `skelfem ik`)
+CONTRACTION_DECIMALS = 4  # contractions Soft IK finds are written back rounded to 0.1 um
+TOP_KEYS = ("format", "name", "dim", "thickness", "mesh", "materials", "body", "bones", "cables", "pins",
+            "loads", "grounds", "contact", "markers", "solver", "gravity", "tractions", "fabrication",
+            "dynamics")
+
+
+class EditError(Exception):
+    """A request the engine cannot carry out; ``key`` names the design element at fault ("" if none)."""
+
+    def __init__(self, message: str, key: str = "", status: int = 422):
+        super().__init__(message)
+        self.message, self.key, self.status = message, key, status
+
+    def to_dict(self) -> dict:
+        return {"error": self.message, "key": self.key}
+
+
+def error_key(message: str, source: str) -> str:
+    """The design key of a one-line DesignError (``source: key: message``), or ""."""
+    rest = message[len(source) + 2:] if message.startswith(f"{source}: ") else message
+    if rest.startswith("--set "):
+        return ""
+    key = rest.split(": ", 1)[0] if ": " in rest else ""
+    top = re.split(r"[.\[]", key, maxsplit=1)[0]
+    return key if top in TOP_KEYS else ""
+
+
+def flatten(raw: dict, prefix: str = "") -> dict:
+    """{dotted key: value}: the --set keys of a design dict; named entries by name (order kept as a key)."""
+    out = {}
+    for key, value in raw.items():
+        path = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(flatten(value, path + "."))
+        elif (not prefix and key in SECTIONS_BY_NAME and isinstance(value, list)
+              and all(isinstance(e, dict) and isinstance(e.get("name"), str) for e in value)
+              and len({e["name"] for e in value}) == len(value)):
+            out[f"{path}.#order"] = tuple(e["name"] for e in value)
+            for e in value:
+                out.update(flatten(e, f"{path}.{e['name']}."))
+        else:
+            out[path] = value
+    return out
+
+
+def live_changes(old: dict, new: dict, live) -> dict | None:
+    """{key: value} taking flat design old to new if only live parameters differ; None if not."""
+    changed = {k for k in old.keys() | new.keys() if old.get(k, _MISSING) != new.get(k, _MISSING)}
+    if any(k not in new or k not in live for k in changed):
+        return None
+    return {k: new[k] for k in changed}
+
+
+_MISSING = object()
+
+
+class Engine:
+    """A Session that follows the designs it is given; answers are payload dicts (see solve)."""
+
+    def __init__(self, design: dict, source: str, comm=None):
+        from mpi4py import MPI
+
+        from ..session import Session
+        self.source = source
+        self.comm = comm if comm is not None else MPI.COMM_WORLD
+        d = self.parse(design)
+        self.session = Session(d, comm=self.comm)
+        self.flat, self.draft, self.answer, self.good = flatten(d.raw), False, None, d
+        self.first = self._answer(self.session.solve(), time.perf_counter(), "built")
+
+    # -- designs ----------------------------------------------------------------------------------
+    def parse(self, design):
+        """A validated Design from a dict; EditError (422) naming the key otherwise."""
+        if not isinstance(design, dict):
+            raise EditError("the design must be a JSON object of the TOML's keys", "", 400)
+        try:
+            return parse_design(design, self.source)
+        except DesignError as exc:
+            raise EditError(str(exc), error_key(str(exc), self.source)) from None
+        except RecursionError:
+            raise EditError(f"{self.source}: the design is nested too deeply", "", 400) from None
+
+    @property
+    def design(self):
+        return self.session.design
+
+    def _answer(self, result, t0: float, how: str) -> dict:
+        payload = result.to_dict()
+        payload["mesh"] = mesh_payload(self.session.model) if result.converged else None
+        payload["editor"] = {"how": how, "draft": self.draft, "mesh_size": self.meshed_size(),
+                             "seconds": round(time.perf_counter() - t0, 4)}
+        if result.converged:
+            self.answer, self.good = payload, self.session.design
+        return payload
+
+    def meshed_size(self) -> float:
+        d = self.session.design
+        return float(d.mesh.size * (DRAFT_FACTOR if self.draft else 1.0))
+
+    # -- solving --------------------------------------------------------------------------------------
+    def solve(self, design: dict, draft: bool = False) -> dict:
+        """Equilibrium of design (a dict): result.json's keys plus ``mesh`` and ``editor`` (how it was got).
+
+        ``converged`` false: the solve failed; ``mesh`` is None and the last valid answer stays.
+        """
+        t0 = time.perf_counter()
+        d = self.parse(design)
+        flat = flatten(d.raw)
+        draft = bool(draft) and d.dim == 2
+        if flat == self.flat and draft == self.draft and self.answer is not None and self.session.solved:
+            again = dict(self.answer, editor=dict(self.answer["editor"], how="unchanged", seconds=0.0))
+            return again
+        changes = live_changes(self.flat, flat, self.session.model.parameters()) if draft == self.draft else None
+        if changes is not None:
+            how = "set"
+            self.session.set(changes)       # validated above: the same design
+        else:
+            how = "edit (draft)" if draft else "edit"
+            self._edit(d, draft)
+        self.flat, self.draft = flat, draft
+        return self._answer(self.session.solve(), t0, how)
+
+    def _edit(self, d, draft: bool) -> None:
+        from ..geometry import MeshingError
+        meshed = dataclasses.replace(d, mesh=MeshSpec(d.mesh.size * DRAFT_FACTOR, d.mesh.degree)) if draft else d
+        old = self.session.design
+        try:
+            self.session.edit(meshed)
+        except (DesignError, MeshingError) as exc:   # the old mesh, model and solution are intact
+            self.session.design = old
+            raise EditError(f"{self.source}: {exc}" if isinstance(exc, MeshingError) else str(exc),
+                            error_key(str(exc), self.source)) from None
+        if draft:
+            self.session.design = d        # the design as given (its raw has the real mesh size)
+
+    def ik(self, design: dict, marker: str, target, final: bool = True) -> dict:
+        """Soft IK: tendon contractions that bring marker to target, from the current equilibrium.
+
+        Returns solve()'s answer for the design with those contractions (rounded to
+        0.1 um, re-solved warm), plus ``new_design`` (the design with them) and ``ik``: target,
+        position, error, tol, reached, status, forward solves.
+        """
+        from ..control import SoftIK
+        t0 = time.perf_counter()
+        if not isinstance(marker, str):
+            raise EditError("marker: must be a marker name", "markers", 400)
+        answer = self.solve(design)
+        if not answer["converged"]:
+            raise EditError(f"{self.source}: the design's own equilibrium failed ({answer['status']}); "
+                            "no Soft IK from there", "", 422)
+        d = self.session.design
+        if marker not in d.markers:
+            raise EditError(f"{self.source}: markers.{marker}: no such marker (have: "
+                            f"{', '.join(d.markers) or 'none'})", "markers", 422)
+        if not d.tendons:
+            raise EditError(f"{self.source}: cables: Soft IK needs a tendon to steer the marker", "cables", 422)
+        target = _point(target, d.dim)
+        ik = SoftIK(self.session, marker, max_solves=IK_FINAL_SOLVES if final else IK_LIVE_SOLVES)
+        res = ik.solve(target)
+        changes = {f"cables.{n}.contraction": round(float(u), CONTRACTION_DECIMALS)
+                   for n, u in zip(ik.names, res.contractions)}
+        self.session.set(changes)
+        self.flat = flatten(self.session.design.raw)
+        answer = self._answer(self.session.solve(), t0, "ik")
+        if not answer["converged"]:
+            return answer
+        position = np.asarray(answer["markers"][marker]["position"], dtype=float)
+        error = float(np.linalg.norm(position - target))
+        answer["new_design"] = copy.deepcopy(self.session.design.raw)
+        answer["ik"] = {"marker": marker, "target": target.tolist(), "position": position.tolist(),
+                        "error": error, "tol": float(ik.tol), "reached": bool(error < ik.tol),
+                        "status": "reached" if error < ik.tol else res.status,
+                        "forward_solves": int(res.forward_solves), "contractions": changes}
+        return answer
+
+    def recover(self) -> None:
+        """After an unexpected failure: a fresh Session on the last design that solved."""
+        from ..session import Session
+        try:
+            self.session.close()
+        except Exception:  # noqa: BLE001 - the old session is dropped either way
+            pass
+        self.session = Session(self.good, comm=self.comm)
+        self.draft, self.answer = False, None
+        self.flat = flatten(self.good.raw)
+        self._answer(self.session.solve(), time.perf_counter(), "recovered")
+
+    def close(self) -> None:
+        if self.session is not None:
+            self.session.close()
+
+
+def _point(value, dim: int) -> np.ndarray:
+    if (not isinstance(value, (list, tuple)) or len(value) != dim
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                       and abs(v) <= 1e7 for v in value)):
+        raise EditError(f"target: must be {dim} finite numbers (mm)", "target", 400)
+    return np.asarray(value, dtype=float)

@@ -1,0 +1,98 @@
+"""What a solve sends to the page and to API scripts: result.json plus the deformed mesh.
+
+``mesh_payload(model)`` returns, in mm:
+
+* ``x``, ``y``: rest and deformed coordinates of the mesh vertices (P1 geometry; for P2 the
+  vertex values), ``cells``: vertex indices per triangle (2D) or per boundary triangle (3D),
+  ``regions``: region tag per cell and ``region_names`` (tag -> "body" / "bone:NAME");
+* ``fields`` (2D): per cell, ``stretch`` (largest principal stretch of F) and
+  ``energy_density`` (the Neo-Hookean psi(F) of skelfem.terms.elasticity, N mm / mm^3);
+* ``cables``: per cable its kind, via points at rest and deformed (the sketch cut at every
+  mesh facet, as the solver routes it), tension, length, rest length and ``slack``;
+* ``markers``: name -> deformed position.
+
+Numbers are rounded to 0.1 um (1e-4 mm): far below what a picture shows, and a third
+of the bytes.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+DECIMALS = 4
+
+
+def _round(a) -> list:
+    return np.round(np.asarray(a, dtype=float), DECIMALS).tolist()
+
+
+def cell_fields(x: np.ndarray, y: np.ndarray, cells: np.ndarray, mu: np.ndarray, lam: np.ndarray) -> dict:
+    """Per triangle: largest principal stretch and psi(F) = mu/2 (tr C - 2) - mu ln J + lam/2 (ln J)^2.
+
+    F maps the rest triangle onto the deformed one (exact for P1), C = F^T F, J = det F.
+    """
+    A = np.stack([x[cells[:, 1]] - x[cells[:, 0]], x[cells[:, 2]] - x[cells[:, 0]]], axis=2)
+    B = np.stack([y[cells[:, 1]] - y[cells[:, 0]], y[cells[:, 2]] - y[cells[:, 0]]], axis=2)
+    F = B @ np.linalg.inv(A)
+    C = np.transpose(F, (0, 2, 1)) @ F
+    tr = C[:, 0, 0] + C[:, 1, 1]
+    det = C[:, 0, 0] * C[:, 1, 1] - C[:, 0, 1] * C[:, 1, 0]
+    lam_max = 0.5 * tr + np.sqrt(np.maximum(0.25 * tr * tr - det, 0.0))
+    J = np.linalg.det(F)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        lnJ = np.log(J)
+    psi = mu / 2 * (tr - 2) - mu * lnJ + lam / 2 * lnJ ** 2
+    return {"stretch": _round(np.sqrt(lam_max)), "energy_density": _round(np.where(J > 0, psi, np.nan))}
+
+
+def _lame_by_tag(design, tags: dict) -> tuple[dict, dict]:
+    from ..terms.elasticity import lame
+    names = {"body": design.body.material, **{f"bone:{b.name}": b.material for b in design.bones}}
+    mu, lam = {}, {}
+    for name, tag in tags.items():
+        m = design.materials[names[name]] if name in names else None
+        mu[tag], lam[tag] = lame(m.E, m.nu) if m is not None else (0.0, 0.0)
+    return mu, lam
+
+
+def boundary_faces(tets: np.ndarray, regions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Triangles on the boundary of each region of a tetrahedral mesh, with their region."""
+    faces = np.concatenate([tets[:, [0, 1, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 3]], tets[:, [1, 2, 3]]])
+    owner = np.tile(regions, 4)
+    key = np.sort(faces, axis=1)
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.ravel()
+    # a face shared by two cells of the same region is interior; by two regions, it bounds both
+    order = np.argsort(inverse, kind="stable")
+    starts = np.r_[0, np.cumsum(counts)[:-1]]
+    second = np.minimum(starts + 1, len(order) - 1)
+    same = (counts == 2) & (owner[order[starts]] == owner[order[second]])
+    keep = ~same[inverse]
+    return faces[keep], owner[keep]
+
+
+def mesh_payload(model) -> dict:
+    """The deformed state of a Session's model (serial) as plain lists; see the module doc."""
+    from ..output import snapshot
+
+    snap = snapshot(model)
+    x, u, cells, regions = snap.x, snap.u, np.asarray(snap.cells), np.asarray(snap.regions)
+    y = x + u
+    tags = dict(model.tm.tags)
+    out = {"dim": int(x.shape[1]), "region_names": {str(v): k for k, v in tags.items()},
+           "body_tag": int(snap.body_tag)}
+    if x.shape[1] == 2:
+        mu, lam = _lame_by_tag(snap.design, tags)
+        out["fields"] = cell_fields(x, y, cells, np.vectorize(mu.get)(regions).astype(float),
+                                    np.vectorize(lam.get)(regions).astype(float))
+    else:
+        cells, regions = boundary_faces(cells, regions)
+        used, cells = np.unique(cells, return_inverse=True)
+        cells = cells.reshape(-1, 3)
+        x, y = x[used], y[used]
+    out.update(x=_round(x), y=_round(y), cells=cells.astype(int).tolist(), regions=regions.astype(int).tolist())
+    out["cables"] = [{"name": c["name"], "kind": c["kind"], "via_rest": _round(c["rest"]),
+                      "via": _round(c["deformed"]), "tension": float(c["tension"]),
+                      "length": float(c["length"]), "rest_length": float(c["rest_length"]),
+                      "slack": bool(c["tension"] <= 0.0)} for c in snap.cables]
+    out["markers"] = {name: _round(p) for name, p in snap.markers.items()}
+    return out

@@ -1,0 +1,597 @@
+// skelfem editor: the design (rest, editable) drawn over the equilibrium the server solves for it.
+// Plain JavaScript, no build step. Talks to the server over /api/live (websocket) and /api/* (JSON).
+"use strict";
+
+const SVGNS = "http://www.w3.org/2000/svg";
+const $ = (id) => document.getElementById(id);
+const REGION_FILL = { body: "#f4b6a6", bone: "#e8e4d8" };
+const PALETTE = ["#440154", "#482475", "#414487", "#355f8d", "#2a788e", "#21908d", "#22a884", "#42be71",
+  "#7ad151", "#bddf26", "#fde725"];
+const SNAP = 100;                      // coordinates are rounded to 1/SNAP mm
+
+const S = {
+  design: null, file: "", dim: 2, readonly: false,
+  answer: null, failed: null,            // last valid answer; message of the last failure
+  undo: [], redo: [],
+  view: { x0: 0, y0: 0, k: 1 },
+  drag: null,
+  ik: { on: false, marker: null, target: null, info: null },
+  ws: null, reqSeq: 0, inflight: null, queued: null,
+  inputSeq: 0, inputs: [],               // input events not yet shown: {seq, t, kind}
+  latency: { rendered: [], events: [] }, // ms from an input event to the picture showing it
+  solves: 0, errors: 0, ready: false, server: [], renderMs: [],
+};
+window.skelfemEditor = S;
+
+// -- small helpers -------------------------------------------------------------------------------
+function el(tag, attrs, parent) {
+  const e = document.createElementNS(SVGNS, tag);
+  for (const [k, v] of Object.entries(attrs || {})) e.setAttribute(k, v);
+  if (parent) parent.appendChild(e);
+  return e;
+}
+const clone = (x) => JSON.parse(JSON.stringify(x));
+const snap = (v) => Math.round(v * SNAP) / SNAP;
+const fmt = (v, d = 2) => (v === null || v === undefined ? "–" : Number(v).toFixed(d));
+function px(p) { const v = S.view; return [(p[0] - v.x0) * v.k, (v.y0 - p[1]) * v.k]; }
+function pts(list) { return list.map((p) => px(p).map((c) => c.toFixed(1)).join(",")).join(" "); }
+function toMM(evt) {
+  const r = $("view").getBoundingClientRect(), v = S.view;
+  return [(evt.clientX - r.left) / v.k + v.x0, v.y0 - (evt.clientY - r.top) / v.k];
+}
+function getPath(obj, path) { return path.reduce((o, k) => o[k], obj); }
+function setPath(obj, path, value) { getPath(obj, path.slice(0, -1))[path[path.length - 1]] = value; }
+function named(section) { return (S.design[section] || []); }
+
+// -- talking to the server ----------------------------------------------------------------------------
+function connect() {
+  const ws = new WebSocket(`ws://${location.host}/api/live`);
+  ws.onopen = () => { S.ws = ws; S.inflight = null; if (S.queued || S.design) request({ kind: "solve" }); };
+  ws.onmessage = (e) => onAnswer(JSON.parse(e.data));
+  ws.onclose = () => { S.ws = null; setStatus("connection lost; retrying…", true); setTimeout(connect, 700); };
+}
+
+// request(): the newest request replaces a waiting one (latest wins); at most one is in flight.
+function request(req) {
+  req.input = S.inputSeq;
+  if (S.inflight || !S.ws) { S.queued = req; return; }
+  send(req);
+}
+function send(req) {
+  const msg = { id: ++S.reqSeq, kind: req.kind, design: S.design };
+  if (req.kind === "solve") msg.draft = !!req.draft;
+  if (req.kind === "ik") Object.assign(msg, { marker: req.marker, target: req.target, final: !!req.final });
+  req.id = msg.id;
+  req.input = S.inputSeq;                 // everything typed or dragged so far is in this design
+  S.inflight = req;
+  req.sent = performance.now();
+  S.ws.send(JSON.stringify(msg));
+}
+function onAnswer(data) {
+  const req = S.inflight;
+  if (!req || data.id !== req.id) return;
+  S.inflight = null;
+  if (data.dropped) { /* a newer request replaced it on the server */ }
+  else if (data.ok && data.answer.converged) {
+    const a = data.answer;
+    if (a.new_design && req.kind === "ik") adoptContractions(a.new_design);
+    if (a.ik) S.ik.info = a.ik;
+    S.answer = a; S.failed = null; S.solves += 1;
+    S.server.push({ how: a.editor.how, s: a.editor.seconds, rtt: performance.now() - req.sent });
+    clearError();
+    render();
+    painted(req.input);
+  } else if (data.ok) {
+    S.failed = `solve failed: ${data.answer.status} after ${data.answer.newton_iterations} Newton iterations; ` +
+      "the last equilibrium stays on screen"; S.errors += 1;
+    showError(S.failed, "");
+    painted(req.input);
+  } else {
+    S.errors += 1;
+    showError(data.error, data.key || "");
+    painted(req.input);
+  }
+  if (S.queued && S.ws) { const q = S.queued; S.queued = null; send(q); }
+}
+
+// After the picture is on screen (the frame after this one), time every input it shows.
+function painted(upto) {
+  requestAnimationFrame(() => setTimeout(() => {
+    const now = performance.now();
+    performance.mark(`paint-${upto}`);
+    for (const list of [S.latency.events, S.latency.rendered, S.server, S.renderMs])
+      if (list.length > 20000) list.splice(0, list.length - 10000);     // a long session keeps the recent ones
+    const shown = S.inputs.filter((i) => i.seq <= upto);
+    S.inputs = S.inputs.filter((i) => i.seq > upto);
+    for (const i of shown) S.latency.events.push({ kind: i.kind, ms: now - i.t });
+    const own = shown.find((i) => i.seq === upto);
+    if (own) {
+      S.latency.rendered.push({ kind: own.kind, ms: now - own.t });
+      try { performance.measure(`latency-${own.kind}-${upto}`, `input-${upto}`, `paint-${upto}`); } catch (e) { /* */ }
+    }
+  }, 0));
+}
+function input(kind) {
+  S.inputSeq += 1;
+  performance.mark(`input-${S.inputSeq}`);
+  S.inputs.push({ seq: S.inputSeq, t: performance.now(), kind });
+}
+
+async function api(path, body) {
+  const r = await fetch(path, body === undefined ? {} : {
+    method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body) });
+  const data = await r.json();
+  return { status: r.status, data };
+}
+
+// -- editing: every change goes through here ------------------------------------------------------------
+function checkpoint() { S.undo.push(clone(S.design)); if (S.undo.length > 200) S.undo.shift(); S.redo = []; buttons(); }
+function changed(kind, draft) {
+  input(kind);
+  drawSketch();
+  request({ kind: "solve", draft: !!draft });
+}
+function undo() { if (!S.undo.length) return; S.redo.push(clone(S.design)); S.design = S.undo.pop(); afterJump(); }
+function redo() { if (!S.redo.length) return; S.undo.push(clone(S.design)); S.design = S.redo.pop(); afterJump(); }
+function afterJump() { buildPanel(); changed("undo", false); buttons(); }
+function buttons() { $("undo").disabled = !S.undo.length; $("redo").disabled = !S.redo.length; }
+function adoptContractions(design) {
+  for (const c of design.cables || []) {
+    const mine = named("cables").find((m) => m.name === c.name);
+    if (mine && c.kind === "tendon" && c.contraction !== undefined) mine.contraction = c.contraction;
+  }
+  syncSliders();
+}
+
+// -- the panel ------------------------------------------------------------------------------------------------
+function buildPanel() {
+  const d = S.design;
+  $("file").textContent = S.file;
+  const sliders = $("sliders"); sliders.textContent = "";
+  for (const c of d.cables || []) {
+    const key = c.kind === "tendon" ? "contraction" : "pretension";
+    const L = c.path.slice(1).reduce((s, p, i) => s + Math.hypot(p[0] - c.path[i][0], p[1] - c.path[i][1]), 0);
+    const max = Math.max(1, Math.ceil((c.kind === "tendon" ? 0.3 : 0.2) * L), Math.ceil(c[key] || 0));
+    const box = document.createElement("div"); box.className = "slider";
+    box.innerHTML = `<label><span>${c.name} ${key} (mm)</span><output></output></label>`;
+    const r = document.createElement("input");
+    Object.assign(r, { type: "range", min: 0, max, step: 0.05, value: c[key] || 0 });
+    r.dataset.cable = c.name; r.dataset.param = key; r.dataset.key = `cables.${c.name}.${key}`;
+    r.addEventListener("pointerdown", () => { if (!r.dataset.live) { checkpoint(); r.dataset.live = "1"; } });
+    r.addEventListener("keydown", () => { if (!r.dataset.live) { checkpoint(); r.dataset.live = "1"; } });
+    r.addEventListener("input", () => {
+      if (!r.dataset.live) { checkpoint(); r.dataset.live = "1"; }
+      const m = named("cables").find((x) => x.name === c.name); m[key] = Number(r.value);
+      box.querySelector("output").textContent = fmt(r.value);
+      changed(c.kind === "tendon" ? "contraction" : "pretension", false);
+    });
+    r.addEventListener("change", () => { delete r.dataset.live; });
+    box.querySelector("output").textContent = fmt(r.value);
+    box.appendChild(r); sliders.appendChild(box);
+  }
+  const mats = $("materials"); mats.textContent = "";
+  for (const [name, m] of Object.entries(d.materials || {})) {
+    const row = document.createElement("div"); row.className = "material";
+    row.innerHTML = `<span>${name}</span>`;
+    for (const [p, step] of [["E", "any"], ["nu", "0.01"]]) {
+      const inp = document.createElement("input");
+      Object.assign(inp, { type: "number", step, value: m[p], title: p === "E" ? "E (MPa)" : "ν" });
+      inp.dataset.key = `materials.${name}.${p}`;
+      inp.addEventListener("change", () => {
+        const v = Number(inp.value); if (!Number.isFinite(v)) return;
+        checkpoint(); d.materials[name][p] = v; changed("field", false);
+      });
+      row.appendChild(inp);
+    }
+    mats.appendChild(row);
+  }
+  $("mesh-size").value = (d.mesh || {}).size ?? 2;
+  $("mesh-degree").value = String((d.mesh || {}).degree ?? 1);
+  const sel = $("ik-marker"); sel.textContent = "";
+  for (const name of Object.keys(d.markers || {})) {
+    const o = document.createElement("option"); o.textContent = name; sel.appendChild(o);
+  }
+  S.ik.marker = sel.value || null;
+  $("ik-tools").disabled = !sel.value || !(d.cables || []).some((c) => c.kind === "tendon");
+}
+function syncSliders() {
+  for (const r of document.querySelectorAll("#sliders input[type=range]")) {
+    const c = named("cables").find((x) => x.name === r.dataset.cable);
+    if (!c) continue;
+    const v = c[r.dataset.param] || 0;
+    if (Number(r.max) < v) r.max = Math.ceil(v);
+    r.value = v; r.parentElement.querySelector("output").textContent = fmt(v);
+  }
+}
+function meshField(id, key, parse) {
+  $(id).addEventListener("change", () => {
+    const v = parse($(id).value); if (!Number.isFinite(v)) return;
+    checkpoint(); S.design.mesh = S.design.mesh || {}; S.design.mesh[key] = v; changed("field", false);
+  });
+}
+
+function setStatus(text, failed) { $("status").textContent = text; $("status").classList.toggle("failed", !!failed); }
+function showStatus() {
+  const a = S.answer; if (!a) return;
+  const e = a.editor || {};
+  setStatus(`${a.design}: ${a.converged ? "converged" : a.status} in ${a.newton_iterations} Newton iterations` +
+    `\n${a.dofs} DOFs, ${a.cells} cells (h = ${fmt(e.mesh_size, 2)} mm${e.draft ? ", draft" : ""}), ` +
+    `${e.how}, ${fmt(1000 * (e.seconds || 0), 0)} ms`, false);
+  const rows = [];
+  for (const [n, m] of Object.entries(a.markers || {}))
+    rows.push(`<tr><td>marker ${n}</td><td>(${m.position.map((v) => fmt(v)).join(", ")}) mm</td></tr>`);
+  for (const [n, c] of Object.entries(a.cables || {}))
+    rows.push(`<tr><td>${c.kind} ${n}</td><td>${c.tension > 0 ? fmt(c.tension, 3) + " N" : "slack"}</td></tr>`);
+  for (const [n, p] of Object.entries(a.pins || {}))
+    rows.push(`<tr><td>pin ${n}</td><td>(${p.reaction.map((v) => fmt(v, 3)).join(", ")}) N</td></tr>`);
+  for (const [n, g] of Object.entries(a.grounds || {}))
+    rows.push(`<tr><td>ground ${n}</td><td>(${g.force.map((v) => fmt(v, 3)).join(", ")}) N</td></tr>`);
+  $("readouts").innerHTML = `<table>${rows.join("")}</table>`;
+}
+
+// -- errors at their element ------------------------------------------------------------------------------
+function keyMatches(elKey, key) {
+  if (!key || !elKey) return false;
+  return elKey === key || key.startsWith(elKey + ".") || key.startsWith(elKey + "[") || elKey.startsWith(key + ".")
+    || elKey.startsWith(key + "[");
+}
+function showError(message, key) {
+  S.error = { message, key };
+  $("error").hidden = false;
+  $("error").textContent = message;
+  markError();
+}
+function clearError() { S.error = null; $("error").hidden = true; markError(); }
+function markError() {
+  const layer = $("layer-error"); layer.textContent = "";
+  for (const e of document.querySelectorAll(".bad")) e.classList.remove("bad");
+  if (!S.error || !S.error.key) return;
+  let box = null;
+  for (const e of document.querySelectorAll("[data-key]")) {
+    if (!keyMatches(e.dataset.key, S.error.key)) continue;
+    e.classList.add("bad");
+    if (e instanceof SVGGraphicsElement && !e.classList.contains("hit")) {
+      const b = e.getBBox();
+      if (b.width || b.height) box = box || b;
+    }
+  }
+  if (box) {
+    const text = S.error.message.split(": ").slice(1).join(": ") || S.error.message;
+    const t = el("text", { x: box.x + box.width + 6, y: box.y + 12, class: "error-label", "data-error-for": S.error.key }, layer);
+    t.textContent = text.length > 90 ? text.slice(0, 87) + "…" : text;
+  }
+}
+
+// -- drawing -------------------------------------------------------------------------------------------------
+function fit() {
+  const svg = $("view"), W = svg.clientWidth || 800, H = svg.clientHeight || 600;
+  const all = [];
+  const d = S.design;
+  if (d.body && d.body.outline) all.push(...d.body.outline);
+  if (S.answer && S.answer.mesh && S.answer.mesh.dim === 2) all.push(...S.answer.mesh.y);
+  for (const p of Object.values(d.markers || {})) all.push(p);
+  if (!all.length) all.push([0, 0], [1, 1]);
+  const xs = all.map((p) => p[0]), ys = all.map((p) => p[1]);
+  let [x0, x1, y0, y1] = [Math.min(...xs), Math.max(...xs), Math.min(...ys), Math.max(...ys)];
+  const pad = 0.12 * Math.max(x1 - x0, y1 - y0, 1);
+  x0 -= pad; x1 += pad; y0 -= pad; y1 += pad;
+  const k = Math.min(W / (x1 - x0), H / (y1 - y0));
+  S.view = { k, x0: (x0 + x1) / 2 - W / 2 / k, y0: (y0 + y1) / 2 + H / 2 / k };
+  svg.setAttribute("viewBox", `0 0 ${W} ${H}`);
+  render();
+}
+
+function render() {
+  const t0 = performance.now();
+  if (S.dim !== 2) { draw3d(); return; }
+  drawMesh(); drawCables(); drawSketch(); drawMarkers(); drawIK(); showStatus(); markError();
+  S.renderMs.push(performance.now() - t0);
+}
+
+function drawMesh() {
+  const layer = $("layer-mesh"); layer.textContent = "";
+  const a = S.answer; if (!a || !a.mesh) return;
+  const m = a.mesh, y = m.y.map(px);
+  const mode = $("colour").value;
+  const groups = new Map();
+  let lo = 0, hi = 1;
+  const f = mode === "region" ? null : m.fields[mode];
+  if (f) {
+    const vals = f.filter((v) => v !== null && Number.isFinite(v)).sort((p, q) => p - q);
+    lo = mode === "stretch" ? 1 : 0;
+    hi = vals.length ? vals[Math.min(vals.length - 1, Math.floor(0.98 * vals.length))] : 1;
+    if (!(hi > lo)) hi = lo + 1e-9;
+    $("legend").className = "bar";
+    $("legend").innerHTML = `<span>${fmt(lo, 3)}</span><span>${mode === "stretch" ? "stretch" : "ψ (N·mm/mm³)"}</span><span>≥ ${fmt(hi, 3)}</span>`;
+  } else { $("legend").className = ""; $("legend").textContent = ""; }
+  m.cells.forEach((c, i) => {
+    let fill;
+    if (f) {
+      const v = f[i] === null ? hi : f[i];
+      fill = PALETTE[Math.max(0, Math.min(PALETTE.length - 1, Math.round((v - lo) / (hi - lo) * (PALETTE.length - 1))))];
+    } else fill = m.regions[i] === m.body_tag ? REGION_FILL.body : REGION_FILL.bone;
+    const p0 = y[c[0]], p1 = y[c[1]], p2 = y[c[2]];
+    const s = `M${p0[0].toFixed(1)} ${p0[1].toFixed(1)}L${p1[0].toFixed(1)} ${p1[1].toFixed(1)}L${p2[0].toFixed(1)} ${p2[1].toFixed(1)}Z`;
+    if (!groups.has(fill)) groups.set(fill, []);
+    groups.get(fill).push(s);
+  });
+  for (const [fill, parts] of groups) el("path", { d: parts.join(""), fill, class: "cell-edges" }, layer);
+}
+
+function drawCables() {
+  const layer = $("layer-cables"); layer.textContent = "";
+  const a = S.answer; if (!a || !a.mesh) return;
+  for (const c of a.mesh.cables) {
+    const cls = `${c.kind}${c.slack ? " slack" : ""}`;
+    el("polyline", { points: pts(c.via), class: `cable-line ${cls}`, "data-cable": c.name }, layer);
+    for (const p of c.via) { const q = px(p); el("circle", { cx: q[0], cy: q[1], r: 2.2, class: `via ${c.kind}` }, layer); }
+    const mid = px(c.via[Math.floor(c.via.length / 2)]);
+    const t = el("text", { x: mid[0] + 6, y: mid[1], class: `tension ${c.kind}`, "data-tension": c.name }, layer);
+    t.textContent = c.slack ? `${c.name}: slack` : `${c.name}: ${fmt(c.tension, 2)} N`;
+  }
+}
+
+function polygonItem(layer, points, cls, key, path, minCount) {
+  el("polygon", { points: pts(points), class: `sketch ${cls}`, "data-key": key }, layer);
+  const hit = el("polygon", { points: pts(points), class: "hit", "data-key": key }, layer);
+  hit.addEventListener("dblclick", (e) => insertVertex(e, path, true));
+  handles(layer, points, cls, key, path, minCount);
+}
+function handles(layer, points, cls, key, path, minCount) {
+  points.forEach((p, i) => {
+    const q = px(p);
+    const h = el("circle", { cx: q[0], cy: q[1], r: 5, class: `handle ${cls}`, "data-key": key,
+      "data-path": JSON.stringify([...path, i]) }, layer);
+    h.addEventListener("pointerdown", (e) => {
+      if (e.button === 2 || e.altKey) { e.preventDefault(); removeVertex(path, i, minCount); return; }
+      startDrag(e, h, [...path, i], "vertex");
+    });
+    h.addEventListener("contextmenu", (e) => e.preventDefault());
+  });
+}
+function drawSketch() {
+  const layer = $("layer-sketch"); layer.textContent = "";
+  const d = S.design; if (!d || S.dim !== 2) return;
+  for (const [i, pin] of (d.pins || []).entries()) {
+    const [a, b] = [px(pin.region[0]), px(pin.region[1])];
+    const r = el("rect", { x: Math.min(a[0], b[0]), y: Math.min(a[1], b[1]), width: Math.max(3, Math.abs(b[0] - a[0])),
+      height: Math.max(3, Math.abs(b[1] - a[1])), class: "pin", "data-key": `pins.${pin.name}.region`,
+      "data-path": JSON.stringify(["pins", i, "region"]) }, layer);
+    r.addEventListener("pointerdown", (e) => startDrag(e, r, ["pins", i, "region"], "box"));
+  }
+  for (const g of d.grounds || []) {
+    const t = [-g.normal[1], g.normal[0]], n = Math.hypot(...t) || 1, L = 1e4;
+    const a = px([g.point[0] - L * t[0] / n, g.point[1] - L * t[1] / n]), b = px([g.point[0] + L * t[0] / n, g.point[1] + L * t[1] / n]);
+    el("line", { x1: a[0], y1: a[1], x2: b[0], y2: b[1], class: "ground", "data-key": `grounds.${g.name}.point` }, layer);
+  }
+  if (d.body && d.body.outline) {
+    polygonItem(layer, d.body.outline, "body", "body.outline", ["body", "outline"], 3);
+    (d.body.holes || []).forEach((h, k) => polygonItem(layer, h, "body", `body.holes[${k}]`, ["body", "holes", k], 3));
+  }
+  (d.bones || []).forEach((b, k) => { if (b.outline) polygonItem(layer, b.outline, "bone", `bones.${b.name}.outline`, ["bones", k, "outline"], 3); });
+  (d.cables || []).forEach((c, k) => {
+    const key = `cables.${c.name}.path`;
+    el("polyline", { points: pts(c.path), class: `sketch cable ${c.kind}`, "data-key": key }, layer);
+    const hit = el("polyline", { points: pts(c.path), class: "hit", "data-key": key }, layer);
+    hit.addEventListener("dblclick", (e) => insertVertex(e, ["cables", k, "path"], false));
+    handles(layer, c.path, `cable ${c.kind}`, key, ["cables", k, "path"], 2);
+  });
+  (d.loads || []).forEach((ld, k) => {
+    const a = px(ld.at), f = ld.force, n = Math.hypot(f[0], f[1]) || 1;
+    el("line", { x1: a[0], y1: a[1], x2: a[0] + 40 * f[0] / n, y2: a[1] - 40 * f[1] / n, class: "load" }, layer);
+    const h = el("circle", { cx: a[0], cy: a[1], r: 5, class: "handle", "data-key": `loads.${ld.name}.at`,
+      "data-path": JSON.stringify(["loads", k, "at"]) }, layer);
+    h.addEventListener("pointerdown", (e) => startDrag(e, h, ["loads", k, "at"], "point"));
+  });
+  (d.grounds || []).forEach((g, k) => {
+    const a = px(g.point);
+    const h = el("circle", { cx: a[0], cy: a[1], r: 5, class: "handle", "data-key": `grounds.${g.name}.point`,
+      "data-path": JSON.stringify(["grounds", k, "point"]) }, layer);
+    h.addEventListener("pointerdown", (e) => startDrag(e, h, ["grounds", k, "point"], "point"));
+  });
+  for (const [name, p] of Object.entries(d.markers || {})) {
+    const a = px(p);
+    const h = el("rect", { x: a[0] - 4.5, y: a[1] - 4.5, width: 9, height: 9, class: "handle", "data-key": `markers.${name}`,
+      "data-path": JSON.stringify(["markers", name]) }, layer);
+    h.addEventListener("pointerdown", (e) => startDrag(e, h, ["markers", name], "point"));
+  }
+}
+
+function drawMarkers() {
+  const layer = $("layer-markers"); layer.textContent = "";
+  const a = S.answer; if (!a || !a.mesh) return;
+  for (const [name, p] of Object.entries(a.mesh.markers)) {
+    const q = px(p);
+    el("circle", { cx: q[0], cy: q[1], r: 4, class: "marker-now", "data-marker": name }, layer);
+    const t = el("text", { x: q[0] + 7, y: q[1] - 6, class: "marker-label" }, layer);
+    t.textContent = `${name} (${fmt(p[0], 1)}, ${fmt(p[1], 1)})`;
+  }
+}
+
+function drawIK() {
+  const layer = $("layer-ik"); layer.textContent = "";
+  const t = S.ik.target; if (!t || !S.ik.on) { $("ik-status").textContent = ""; return; }
+  const q = px(t);
+  el("path", { d: `M${q[0] - 8} ${q[1] - 8}L${q[0] + 8} ${q[1] + 8}M${q[0] - 8} ${q[1] + 8}L${q[0] + 8} ${q[1] - 8}`, class: "target", id: "ik-target" }, layer);
+  const info = S.ik.info, s = $("ik-status");
+  if (info) {
+    s.className = info.reached ? "reached" : "unreached";
+    s.textContent = info.reached ? `reached: ${fmt(info.error, 3)} mm from the target`
+      : `unreachable: ${fmt(info.error, 2)} mm from the target (${info.status}); closest pose shown`;
+  }
+}
+
+// -- dragging ---------------------------------------------------------------------------------------------------
+function startDrag(e, handle, path, what) {
+  if (S.readonly || e.button !== 0) return;
+  e.preventDefault(); e.stopPropagation();
+  $("view").setPointerCapture(e.pointerId);
+  checkpoint();
+  const start = toMM(e);
+  S.drag = { path, what, start, orig: clone(getPath(S.design, path)), pointer: e.pointerId,
+    kind: what === "vertex" ? "vertex" : "move" };
+}
+function onMove(e) {
+  const g = S.drag; if (!g || e.pointerId !== g.pointer) return;
+  const p = toMM(e);
+  if (g.what === "ik") { S.ik.target = [snap(p[0]), snap(p[1])]; input("ik"); drawIK(); requestIK(false); return; }
+  const dx = p[0] - g.start[0], dy = p[1] - g.start[1];
+  if (g.what === "box") setPath(S.design, g.path, g.orig.map((c) => [snap(c[0] + dx), snap(c[1] + dy)]));
+  else setPath(S.design, g.path, [snap(g.orig[0] + dx), snap(g.orig[1] + dy)]);
+  changed(g.kind, true);
+}
+function onUp(e) {
+  const g = S.drag; if (!g || e.pointerId !== g.pointer) return;
+  S.drag = null;
+  if (g.what === "ik") { input("ik-release"); requestIK(true); return; }
+  changed("release", false);
+}
+function insertVertex(e, path, closed) {
+  if (S.readonly) return;
+  e.preventDefault();
+  const p = toMM(e), list = getPath(S.design, path);
+  let best = 0, bestD = Infinity;
+  const n = closed ? list.length : list.length - 1;
+  for (let i = 0; i < n; i++) {
+    const a = list[i], b = list[(i + 1) % list.length];
+    const t = Math.max(0, Math.min(1, ((p[0] - a[0]) * (b[0] - a[0]) + (p[1] - a[1]) * (b[1] - a[1])) /
+      ((b[0] - a[0]) ** 2 + (b[1] - a[1]) ** 2 || 1)));
+    const dd = Math.hypot(a[0] + t * (b[0] - a[0]) - p[0], a[1] + t * (b[1] - a[1]) - p[1]);
+    if (dd < bestD) { bestD = dd; best = i; }
+  }
+  checkpoint();
+  list.splice(best + 1, 0, [snap(p[0]), snap(p[1])]);
+  changed("add-vertex", false);
+}
+function removeVertex(path, i, minCount) {
+  if (S.readonly) return;
+  const list = getPath(S.design, path);
+  if (list.length <= minCount) { showError(`a ${minCount === 2 ? "cable" : "polygon"} needs at least ${minCount} points`, ""); return; }
+  checkpoint();
+  list.splice(i, 1);
+  changed("remove-vertex", false);
+}
+
+// -- Soft IK ---------------------------------------------------------------------------------------------------------
+function requestIK(final) {
+  if (!S.ik.marker || !S.ik.target) return;
+  request({ kind: "ik", marker: S.ik.marker, target: S.ik.target, final });
+}
+function startIK(e) {
+  if (!S.ik.on || S.readonly || e.button !== 0) return;
+  e.preventDefault();
+  $("view").setPointerCapture(e.pointerId);
+  checkpoint();
+  const p = toMM(e);
+  S.ik.target = [snap(p[0]), snap(p[1])]; S.ik.info = null;
+  S.drag = { what: "ik", pointer: e.pointerId };
+  input("ik"); drawIK(); requestIK(false);
+}
+
+// -- 3D: read-only view ----------------------------------------------------------------------------------------------
+const V3 = { yaw: 0.6, pitch: -0.5, drag: null };
+function draw3d() {
+  const cv = $("view3d"), a = S.answer;
+  const W = cv.clientWidth, H = cv.clientHeight;
+  cv.width = W; cv.height = H;
+  const ctx = cv.getContext("2d");
+  ctx.clearRect(0, 0, W, H);
+  showStatus();
+  if (!a || !a.mesh) return;
+  const m = a.mesh, cy = Math.cos(V3.yaw), sy = Math.sin(V3.yaw), cp = Math.cos(V3.pitch), sp = Math.sin(V3.pitch);
+  const lo = [0, 1, 2].map((j) => Math.min(...m.y.map((p) => p[j]))), hi = [0, 1, 2].map((j) => Math.max(...m.y.map((p) => p[j])));
+  const c = lo.map((v, j) => (v + hi[j]) / 2), size = Math.max(...hi.map((v, j) => v - lo[j]));
+  const k = 0.8 * Math.min(W, H) / size;
+  const proj = m.y.map((p) => {
+    const x = p[0] - c[0], y = p[1] - c[1], z = p[2] - c[2];
+    const x1 = cy * x + sy * z, z1 = -sy * x + cy * z;
+    const y2 = cp * y - sp * z1, z2 = sp * y + cp * z1;
+    return [W / 2 + k * x1, H / 2 - k * y2, z2];
+  });
+  const order = m.cells.map((f, i) => i).sort((i, j) =>
+    (proj[m.cells[i][0]][2] + proj[m.cells[i][1]][2] + proj[m.cells[i][2]][2]) -
+    (proj[m.cells[j][0]][2] + proj[m.cells[j][1]][2] + proj[m.cells[j][2]][2]));
+  for (const i of order) {
+    const [a0, a1, a2] = m.cells[i].map((v) => proj[v]);
+    const nz = (a1[0] - a0[0]) * (a2[1] - a0[1]) - (a1[1] - a0[1]) * (a2[0] - a0[0]);
+    const area = Math.hypot(nz) / ((Math.hypot(a1[0] - a0[0], a1[1] - a0[1]) * Math.hypot(a2[0] - a0[0], a2[1] - a0[1])) || 1);
+    const shade = 0.55 + 0.45 * Math.min(1, area);
+    const bone = m.regions[i] !== m.body_tag;
+    ctx.fillStyle = bone ? `rgba(${Math.round(232 * shade)},${Math.round(228 * shade)},${Math.round(216 * shade)},1)`
+      : `rgba(${Math.round(244 * shade)},${Math.round(182 * shade)},${Math.round(166 * shade)},0.45)`;
+    ctx.beginPath(); ctx.moveTo(a0[0], a0[1]); ctx.lineTo(a1[0], a1[1]); ctx.lineTo(a2[0], a2[1]); ctx.closePath(); ctx.fill();
+  }
+  const p3 = (p) => proj[0] && (() => {
+    const x = p[0] - c[0], y = p[1] - c[1], z = p[2] - c[2];
+    const x1 = cy * x + sy * z, z1 = -sy * x + cy * z;
+    return [W / 2 + k * x1, H / 2 - k * (cp * y - sp * z1)];
+  })();
+  for (const cb of m.cables) {
+    ctx.strokeStyle = cb.kind === "tendon" ? "#1f5fbf" : "#d9822b"; ctx.lineWidth = cb.slack ? 1.5 : 3;
+    ctx.setLineDash(cb.slack ? [3, 3] : []);
+    ctx.beginPath(); cb.via.forEach((p, i) => { const q = p3(p); if (i) ctx.lineTo(q[0], q[1]); else ctx.moveTo(q[0], q[1]); }); ctx.stroke();
+  }
+  ctx.setLineDash([]);
+  ctx.fillStyle = "#222"; ctx.font = "12px sans-serif";
+  for (const [n, p] of Object.entries(m.markers)) { const q = p3(p); ctx.beginPath(); ctx.arc(q[0], q[1], 4, 0, 7); ctx.fill(); ctx.fillText(n, q[0] + 6, q[1] - 6); }
+}
+function setup3d() {
+  $("view").hidden = true; const cv = $("view3d"); cv.hidden = false;
+  $("edit-tools").hidden = true;
+  for (const id of ["undo", "redo", "save", "saveas"]) $(id).disabled = true;
+  const b = $("banner"); b.hidden = false;
+  b.textContent = "This is a 3D design: the editor shows it read-only (drag to turn it). Edit its TOML file and " +
+    "simulate it with `skelfem simulate`; the editor edits 2D designs.";
+  cv.addEventListener("pointerdown", (e) => { V3.drag = [e.clientX, e.clientY, V3.yaw, V3.pitch]; cv.setPointerCapture(e.pointerId); });
+  cv.addEventListener("pointermove", (e) => {
+    if (!V3.drag) return;
+    V3.yaw = V3.drag[2] + (e.clientX - V3.drag[0]) * 0.01; V3.pitch = V3.drag[3] + (e.clientY - V3.drag[1]) * 0.01; draw3d();
+  });
+  cv.addEventListener("pointerup", () => { V3.drag = null; });
+}
+
+// -- saving -------------------------------------------------------------------------------------------------------------
+async function save(name) {
+  const body = { design: S.design };
+  if (name) body.name = name;
+  let r = await api("/api/save", body);
+  if (r.status === 409 && name && confirm(`${name} exists. Replace it?`)) r = await api("/api/save", { ...body, overwrite: true });
+  if (r.status === 200) { S.file = r.data.file; $("file").textContent = S.file; setStatusNote(`saved ${r.data.file}`); S.saved = r.data; }
+  else showError(r.data.error, r.data.key || "");
+  return r;
+}
+function setStatusNote(text) { const s = $("status"); s.textContent = s.textContent.split("\n— ")[0] + `\n— ${text}`; }
+
+// -- start ------------------------------------------------------------------------------------------------------------------
+async function main() {
+  const { status, data } = await api("/api/design");
+  if (status !== 200) { setStatus(`cannot load the design: ${data.error}`, true); return; }
+  S.design = data.design; S.file = data.file; S.dim = data.dim; S.readonly = data.readonly;
+  if (data.first) S.answer = data.first;
+  if (S.dim !== 2) { setup3d(); draw3d(); S.ready = true; window.addEventListener("resize", draw3d); return; }
+  buildPanel(); buttons();
+  const svg = $("view");
+  svg.addEventListener("pointermove", onMove);
+  svg.addEventListener("pointerup", onUp);
+  svg.addEventListener("pointercancel", onUp);
+  svg.addEventListener("pointerdown", startIK);
+  svg.addEventListener("contextmenu", (e) => e.preventDefault());
+  $("undo").onclick = undo; $("redo").onclick = redo; $("fit").onclick = fit;
+  $("save").onclick = () => save(null);
+  $("saveas").onclick = () => { const n = prompt("Save as (a .toml name in the same folder):", S.file); if (n) save(n); };
+  $("colour").onchange = () => drawMesh();
+  $("ik-on").onchange = () => { S.ik.on = $("ik-on").checked; S.ik.info = null; drawIK(); };
+  $("ik-marker").onchange = () => { S.ik.marker = $("ik-marker").value; };
+  meshField("mesh-size", "size", Number);
+  meshField("mesh-degree", "degree", (v) => parseInt(v, 10));
+  document.addEventListener("keydown", (e) => {
+    if (!(e.ctrlKey || e.metaKey) || e.target.tagName === "INPUT") return;
+    if (e.key === "z" && !e.shiftKey) { e.preventDefault(); undo(); }
+    else if (e.key === "y" || (e.key === "Z" && e.shiftKey) || (e.key === "z" && e.shiftKey)) { e.preventDefault(); redo(); }
+  });
+  window.addEventListener("resize", fit);
+  fit();
+  S.ready = true;
+  connect();
+}
+main();

@@ -1,0 +1,203 @@
+"""How fast the editor answers a drag: from the pointer event to the updated picture, in the browser.
+
+Serves a design (default: the demo, geometry/finger.toml) with `skelfem edit`'s
+server, opens it in headless Chromium (Debian's, through Selenium) and drags
+with real pointer input (one move every `step_ms` ms, as a mouse sends them):
+
+* contraction: the flexor's slider, back and forth (a live parameter: warm
+  re-solve on the same mesh);
+* vertex: a vertex of the distal bone, back and forth (drafts on a mesh twice
+  as coarse while dragging, the full mesh on release).
+
+The page marks every input event (``performance.mark("input-N")``) and the
+frame after the picture that shows it (``paint-N``); ``performance.measure``
+gives, for every request it sends, the time from the input event that request
+carries to the picture of its answer ("rendered"). Moves that arrive while a
+solve runs are merged into the next request (latest wins, never queued): the
+time from *every* input event to the first picture that includes it is
+reported too ("every event"). Finally `POST /api/solve` is timed from a
+script for a one-vertex change (a bone vertex moved 0.5 mm, alternately) and
+a contraction change. Prints p50 / p95 and writes latency.json to `out`.
+
+    python studies/editor_latency.py [DESIGN] [--moves 30] [--drags 4] [--api 20] [--out DIR]
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import http.client
+import json
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _pct(values) -> dict:
+    v = np.asarray(values, dtype=float)
+    if not len(v):
+        return {"n": 0, "p50": None, "p95": None, "max": None}
+    return {"n": int(len(v)), "p50": float(np.percentile(v, 50)), "p95": float(np.percentile(v, 95)),
+            "max": float(v.max())}
+
+
+def _reset(page) -> None:
+    page.js("(() => { S.latency = {rendered: [], events: []}; S.server = [];"
+            " performance.clearMarks(); performance.clearMeasures(); return 1; })()")
+
+
+def _collect(page) -> dict:
+    measures = page.js("performance.getEntriesByType('measure').map(m => [m.name, m.duration])")
+    events = page.js("S.latency.events.map(e => [e.kind, e.ms])")
+    server = page.js("S.server.map(e => [e.how, 1000 * e.s])")
+    out: dict = {"rendered": {}, "every_event": {}, "server_ms": {}}
+    kinds = sorted({name.split("-")[1] for name, _ in measures} | {k for k, _ in events})
+    for kind in kinds:
+        out["rendered"][kind] = _pct([ms for name, ms in measures if name.split("-")[1] == kind])
+        out["every_event"][kind] = _pct([ms for k, ms in events if k == kind])
+    for how in sorted({h for h, _ in server}):
+        out["server_ms"][how] = _pct([ms for h, ms in server if h == how])
+    return out
+
+
+def _slider_drags(page, moves: int, drags: int, step_ms: int) -> None:
+    css = "#sliders input[data-cable]"
+    _, y = page.center(css)
+    rect = page.js("document.querySelector(arguments[0]).getBoundingClientRect().toJSON()", css)
+    for k in range(drags):
+        x0 = page.js("(() => { const r = document.querySelector(arguments[0]); const b = r.getBoundingClientRect();"
+                     " return b.left + 8 + (r.value / r.max) * (b.width - 16); })()", css)
+        span = 0.15 * rect["width"] * (-1 if k % 2 == 0 else 1)
+        page.drag((x0, y), [(x0 + span * i / moves, y) for i in range(1, moves + 1)], step_ms)
+        page.idle()
+
+
+def _vertex_drags(page, moves: int, drags: int, step_ms: int, path) -> None:
+    css = page.handle_css(path)
+    for k in range(drags):
+        x0, y0 = page.center(css)
+        dx = 12.0 * (-1 if k % 2 == 0 else 1)
+        page.drag((x0, y0), [(x0 + dx * i / moves, y0 + 0.5 * dx * i / moves) for i in range(1, moves + 1)],
+                  step_ms)
+        page.idle()
+
+
+def _post(port: int, path: str, body) -> tuple[int, float, dict]:
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=120)
+    data = json.dumps(body).encode()
+    t0 = time.perf_counter()
+    conn.request("POST", path, body=data, headers={"Content-Type": "application/json"})
+    r = conn.getresponse()
+    answer = json.loads(r.read())
+    dt = time.perf_counter() - t0
+    conn.close()
+    return r.status, 1000 * dt, answer
+
+
+def _api(port: int, design: dict, repeats: int) -> dict:
+    _post(port, "/api/solve", design)
+    vertex, contraction, hows = [], [], set()
+    for k in range(repeats):
+        d = copy.deepcopy(design)
+        d["bones"][-1]["outline"][0][0] += 0.5 * ((k + 1) % 2)      # moved, back, moved, ...: never unchanged
+        status, ms, a = _post(port, "/api/solve", d)
+        assert status == 200 and a["converged"], a.get("error") or a.get("status")
+        vertex.append(ms)
+        hows.add(a["editor"]["how"])
+    for k in range(repeats):
+        d = copy.deepcopy(design)
+        d["cables"][0]["contraction"] = float(d["cables"][0].get("contraction", 0.0)) + 0.5 * ((k + 1) % 2)
+        status, ms, a = _post(port, "/api/solve", d)
+        assert status == 200 and a["converged"]
+        contraction.append(ms)
+    return {"one_vertex_ms": _pct(vertex), "contraction_ms": _pct(contraction), "hows": sorted(hows)}
+
+
+def run(design="geometry/finger.toml", moves: int = 30, drags: int = 4, api: int = 20, step_ms: int = 16,
+        out=None, screenshot: bool = True) -> dict:
+    """Drive the editor on design; returns {contraction, vertex, api} latencies in ms (see the module doc)."""
+    import tomllib
+
+    from skelfem.editor.browser import Page, chrome
+    from skelfem.editor.server import Editor
+
+    design = Path(design)
+    if not design.is_absolute() and not design.exists():
+        design = ROOT / design
+    work = Path(tempfile.mkdtemp(prefix="skelfem-latency-"))
+    shutil.copy(design, work / design.name)
+    raw = tomllib.loads(design.read_text())
+    bone = len(raw.get("bones", [])) - 1
+    editor = Editor(work / design.name, port=0).start()
+    driver = None
+    try:
+        driver = chrome()
+        page = Page(driver, editor.url)
+        _vertex_drags(page, 5, 2, step_ms, ["bones", bone, "outline", 0])      # warm-up: draft and full meshes
+        _slider_drags(page, 5, 2, step_ms)
+        _reset(page)
+        t0 = time.perf_counter()
+        _slider_drags(page, moves, drags, step_ms)
+        contraction = _collect(page)
+        _reset(page)
+        _vertex_drags(page, moves, drags, step_ms, ["bones", bone, "outline", 0])
+        vertex = _collect(page)
+        browser_seconds = time.perf_counter() - t0
+        if screenshot and out is not None:
+            Path(out).mkdir(parents=True, exist_ok=True)
+            page.screenshot(Path(out) / "editor_latency.png")
+        answer = page.js("S.answer")
+        api_times = _api(editor.port, raw, api)
+    finally:
+        if driver is not None:
+            driver.quit()
+        editor.stop()
+        shutil.rmtree(work, ignore_errors=True)
+    res = {"design": str(design.name), "dofs": answer["dofs"], "cells": answer["cells"], "moves": moves,
+           "drags": drags, "step_ms": step_ms, "contraction": contraction, "vertex": vertex, "api": api_times,
+           "browser_seconds": browser_seconds}
+    if out is not None:
+        Path(out).mkdir(parents=True, exist_ok=True)
+        (Path(out) / "latency.json").write_text(json.dumps(res, indent=2) + "\n")
+    return res
+
+
+def _row(name: str, p: dict) -> str:
+    if not p or not p.get("n"):
+        return f"  {name:34s} (none)"
+    return f"  {name:34s} p50 {p['p50']:6.0f} ms   p95 {p['p95']:6.0f} ms   (n = {p['n']})"
+
+
+def main(argv=None) -> dict:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("design", nargs="?", default="geometry/finger.toml")
+    p.add_argument("--moves", type=int, default=30, help="pointer moves per drag")
+    p.add_argument("--drags", type=int, default=4, help="drags of each kind")
+    p.add_argument("--api", type=int, default=20, help="POST /api/solve requests of each kind")
+    p.add_argument("--step-ms", type=int, default=16, help="time between pointer moves")
+    p.add_argument("--out", type=Path, default=ROOT / "studies" / "output" / "editor_latency")
+    args = p.parse_args(argv)
+    res = run(args.design, args.moves, args.drags, args.api, args.step_ms, args.out)
+    print(f"{res['design']}: {res['dofs']} DOFs, {res['cells']} cells; drags of {res['moves']} moves, "
+          f"one every {res['step_ms']} ms")
+    print("input event -> updated picture (the request's own event; every event incl. waiting):")
+    print(_row("contraction slider", res["contraction"]["rendered"].get("contraction")))
+    print(_row("  every event", res["contraction"]["every_event"].get("contraction")))
+    print(_row("vertex drag (draft mesh)", res["vertex"]["rendered"].get("vertex")))
+    print(_row("  every event", res["vertex"]["every_event"].get("vertex")))
+    print(_row("vertex release (full mesh)", res["vertex"]["rendered"].get("release")))
+    print("server time per answer:")
+    for how, v in {**res["contraction"]["server_ms"], **res["vertex"]["server_ms"]}.items():
+        print(_row(how, v))
+    print("POST /api/solve from a script:")
+    print(_row("one bone vertex moved 0.5 mm", res["api"]["one_vertex_ms"]))
+    print(_row("contraction changed 0.5 mm", res["api"]["contraction_ms"]))
+    return res
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,184 @@
+"""The editor end to end in a real headless Chromium (Debian's chromium + chromedriver, Selenium).
+
+One editor on a copy of geometry/finger.toml and one browser serve the
+module; the tests run in order, as a person would: load, drag a bone
+vertex, move the contraction slider, make an invalid edit and undo it, save
+and re-simulate the saved file, drag a Soft IK target. Screenshots go to a
+temporary folder, or to $SKELFEM_FIGURES (the README's are made with
+``SKELFEM_FIGURES=studies/figures``). No browser is downloaded; if Chromium
+is missing these tests fail and say what to install.
+"""
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import GEOMETRY, MPI_ENV, ROOT
+
+from skelfem.editor.browser import BrowserMissing, Page, chrome
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def figures(tmp_path_factory):
+    out = os.environ.get("SKELFEM_FIGURES")
+    return Path(out) if out else tmp_path_factory.mktemp("figures")
+
+
+@pytest.fixture(scope="module")
+def editor(tmp_path_factory):
+    from skelfem.editor.server import Editor
+    folder = tmp_path_factory.mktemp("designs")
+    shutil.copy(GEOMETRY / "finger.toml", folder / "finger.toml")
+    ed = Editor(folder / "finger.toml", port=0).start()
+    yield ed
+    ed.stop()
+
+
+@pytest.fixture(scope="module")
+def page(editor):
+    try:
+        driver = chrome()
+    except BrowserMissing as exc:
+        pytest.fail(f"the browser tests need Debian's Chromium: {exc}", pytrace=False)
+    try:
+        yield Page(driver, editor.url)
+    finally:
+        driver.quit()
+
+
+def bone_vertex(page, bone=2, i=0):
+    return page.handle_css(["bones", bone, "outline", i])
+
+
+def test_load_shows_design_over_equilibrium_with_via_points(page, figures, picture):
+    assert page.js("S.answer.converged") and page.js("S.file") == "finger.toml"
+    assert page.js("document.querySelectorAll('#layer-mesh path').length") >= 2        # body and bones
+    vias = page.js("document.querySelectorAll('circle.via').length")
+    assert vias > 40                                                     # the cut points the solver routes through
+    assert page.js("document.querySelectorAll('polyline.cable-line.slack').length") >= 1   # slack ligaments dotted
+    label = page.js("document.querySelector('[data-tension=flexor]').textContent")
+    assert label.startswith("flexor: ") and label.endswith(" N")
+    assert page.js("document.querySelectorAll('.handle').length") > 30
+    picture(page.screenshot(figures / "editor.png"), 1000, 700)
+    assert not page.console_errors()
+
+
+def test_drag_bone_vertex_changes_equilibrium(page):
+    tip0, solves0 = page.tip(), page.solves()
+    page.drag_by(bone_vertex(page), -10, 6, steps=12)
+    page.idle()
+    editor = page.js("S.answer.editor")
+    assert editor["how"] == "edit" and not editor["draft"]           # the full solve follows the release
+    hows = page.js("S.server.map(x => x.how)")
+    assert "edit (draft)" in hows                                    # drafts answered while dragging
+    assert page.solves() >= solves0 + 2
+    moved = page.js("S.design.bones[2].outline[0]")
+    assert moved[0] < 6 - 0.5 and moved[1] < 74 - 0.2
+    assert np.linalg.norm(page.tip() - tip0) > 0.05
+    assert page.js("S.undo.length") >= 1
+
+
+def test_contraction_slider_moves_tip(page):
+    tip0 = page.tip()
+    css = "#sliders input[data-cable=flexor]"
+    x, y = page.center(css)
+    width = page.js("document.querySelector(arguments[0]).getBoundingClientRect().width", css)
+    start = page.js("(() => { const r = document.querySelector(arguments[0]); return r.getBoundingClientRect().left"
+                    " + (r.value / r.max) * r.getBoundingClientRect().width; })()", css)
+    page.drag((start, y), [(start - k * 0.02 * width, y) for k in range(1, 8)])
+    page.idle()
+    u = page.js("S.design.cables[0].contraction")
+    assert 0 < u < 8.0 - 1.0
+    assert page.js("S.answer.cables.flexor.contraction") == pytest.approx(u)
+    assert page.js("S.answer.editor.how") == "set"                   # a live parameter: no re-mesh
+    assert page.tip()[0] > tip0[0] + 1.0                             # less pull: the finger straightens
+    kinds = {e["kind"] for e in page.js("S.latency.rendered")}
+    assert "contraction" in kinds
+
+
+def test_invalid_edit_shows_error_at_element_and_undo(page, figures, picture):
+    tip0, design0 = page.tip(), page.js("JSON.stringify(S.design)")
+    css = page.handle_css(["bones", 0, "outline", 0])
+    page.drag_by(css, -80, 0, steps=1)                               # straight out of the body
+    page.idle()
+    assert page.js("!document.getElementById('error').hidden")
+    msg = page.js("document.getElementById('error').textContent")
+    assert "bones.proximal.outline" in msg and "inside" in msg
+    assert page.js("document.querySelector('polygon.sketch.bad[data-key=\"bones.proximal.outline\"]') !== null")
+    label = page.js("document.querySelector('.error-label')")
+    assert label is not None and page.js("document.querySelector('.error-label').dataset.errorFor") \
+        == "bones.proximal.outline"
+    assert np.allclose(page.tip(), tip0)                              # the last valid result stays
+    picture(page.screenshot(figures / "editor_error.png"), 1000, 700)
+    page.click("#undo")
+    page.idle()
+    assert page.js("document.getElementById('error').hidden")
+    assert page.js("JSON.stringify(S.design)") == design0
+    assert np.allclose(page.tip(), tip0, atol=1e-6)
+    assert page.js("S.redo.length") == 1
+
+
+def test_save_then_simulate_gives_the_same_tip(page, editor, tmp_path):
+    page.click("#save")
+    page.wait("S.saved && S.saved.file === 'finger.toml'")
+    saved = editor.folder / "finger.toml"
+    text = saved.read_text()
+    assert "# A cable-driven finger after the paper's EcoFlex/PLA finger" in text
+    assert json.loads(page.js("JSON.stringify(S.design)"))["cables"][0]["contraction"] != 8.0
+    out = tmp_path / "sim"
+    r = subprocess.run([sys.executable, "-m", "skelfem", "simulate", str(saved), "--out", str(out), "--no-picture",
+                        "-q"], cwd=ROOT, env={**MPI_ENV, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr
+    result = json.loads((out / "result.json").read_text())
+    assert result["cells"] == page.js("S.answer.cells")
+    assert np.allclose(result["markers"]["tip"]["position"], page.tip(), atol=1e-4)
+
+
+def test_drag_ik_target_reaches_it(page, editor, figures, picture):
+    # one tendon: reachable targets lie on the tip's curve; take the tip at a contraction of 5 mm
+    design = json.loads(page.js("JSON.stringify(S.design)"))
+    design["cables"][0]["contraction"] = 5.0
+    from skelfem.editor.engine import Engine
+    probe = Engine(design, "probe.toml")
+    goal = np.array(probe.first["markers"]["tip"]["position"])
+    probe.close()
+    page.click("#ik-on")
+    start = page.screen(page.tip() + np.array([0.0, 0.0]))
+    end = page.screen(goal)
+    page.drag(start, [(start[0] + (end[0] - start[0]) * k / 10, start[1] + (end[1] - start[1]) * k / 10)
+                      for k in range(1, 11)])
+    page.idle()
+    info = page.wait("S.ik.info")
+    target = np.array(page.js("S.ik.target"))
+    assert np.linalg.norm(target - goal) < 0.1                       # the pointer landed on the goal (0.01 mm snap)
+    assert info["reached"] and info["error"] < info["tol"]
+    assert np.linalg.norm(page.tip() - target) < info["tol"]
+    assert "reached" in page.js("document.getElementById('ik-status').textContent")
+    assert abs(page.js("S.design.cables[0].contraction") - 5.0) < 0.2
+    assert all("contraction" not in c for c in page.js("S.design.cables.slice(1)"))   # ligaments never actuated
+    picture(page.screenshot(figures / "editor_ik.png"), 1000, 700)
+    assert not page.console_errors()
+
+
+def test_3d_design_opens_read_only(tmp_path, figures, picture):
+    from skelfem.editor.server import Editor
+    shutil.copy(GEOMETRY / "arm3d.toml", tmp_path / "arm3d.toml")
+    ed = Editor(tmp_path / "arm3d.toml", port=0).start()
+    driver = chrome(900, 700)
+    try:
+        page = Page(driver, ed.url)
+        assert page.js("S.readonly") and page.js("!document.getElementById('banner').hidden")
+        assert "3D design" in page.js("document.getElementById('banner').textContent")
+        assert page.js("document.getElementById('edit-tools').hidden")
+        img = picture(page.screenshot(figures / "editor_3d.png"), 800, 500)
+        assert img is not None and not page.console_errors()
+    finally:
+        driver.quit()
+        ed.stop()
