@@ -34,6 +34,10 @@ from .linear import LowRankSolver, default_petsc_options  # noqa: F401 (re-expor
 
 log = logging.getLogger("skelfem")
 
+MAX_PREDICTED_GRADIENT = 0.5   # largest predicted change of |grad u| in one continuation step
+STEP_RTOL = 1e-5               # Newton tolerance (relative to the force scale) of intermediate steps
+PATH_EPS = 1e-6                # step in s of the difference quotient dR/ds
+
 
 _REASONS = {
     PETSc.SNES.ConvergedReason.DIVERGED_MAX_IT: "max_iterations",
@@ -80,6 +84,7 @@ class NewtonSolver:
             raise ValueError(f"line search {self.strategy!r} cannot limit steps to the model's "
                              "admissible ones; use 'energy'")
         self.max_iterations, self.rtol, self.atol = spec.max_iterations, spec.rtol, spec.atol
+        self.geodesic = True          # curved line search (geodesic acceleration) when a plain step fails
         self.xtol = 1e-11             # relative size of a full Newton step that ends the solve
         self.max_cuts = 8
         self._newton_step = np.inf    # |p| of the last undamped Newton step
@@ -93,6 +98,7 @@ class NewtonSolver:
         self._history: list[float] = []
         self._failure: str | None = None
         self._f0 = 0.0
+        self._rtol = self.rtol           # the tolerance of the running Newton solve
         self._last_trial = None       # (state, Pi) of the last accepted line-search trial
         self._factorised = False      # lin holds a factorisation of K near the current state
         self.snes = self._create_snes(prefix)
@@ -147,7 +153,7 @@ class NewtonSolver:
         log.debug("  newton %2d  |R| = %.3e  |dx| = %.3e", it, fnorm, ynorm)
         if not np.isfinite(fnorm):
             return PETSc.SNES.ConvergedReason.DIVERGED_FNORM_NAN
-        if fnorm <= max(self.atol, self.rtol * self._f0):
+        if fnorm <= max(self.atol, self._rtol * self._f0):
             return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_ABS
         if self._decrement_converged:
             return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_RELATIVE
@@ -176,13 +182,18 @@ class NewtonSolver:
         if slope > 0.0:                             # not a descent direction: turn around
             p, slope = -p, -slope
         f0 = float(np.sqrt(model.comm.allreduce(r @ r)))
-        alpha, accepted = self._backtrack(x, x0, p, e0, slope, f0, self._max_step(x0, p))
+        alpha0 = self._max_step(x0, p)
+        accel = None
+        if self.geodesic and not self._full_step_accepted(x, x0, p, e0, slope, alpha0):
+            accel = self._acceleration(x, x0, p, r)
+        alpha, accepted = self._backtrack(x, x0, p, e0, slope, f0, alpha0, accel=accel)
         model.sync(x)
         if not accepted:
             self._failure = "line_search_failed"
             y.set(0.0)
         else:
-            y.array_w[:] = -(alpha * p + model.step_correction(x0, p, alpha))
+            step = alpha * p + (0.5 * alpha ** 2 * accel if accel is not None else 0.0)
+            y.array_w[:] = -(step + model.step_correction(x0, step / alpha, alpha))
         log.debug("  line search: alpha %.3g, decrement %.3e, energy %.9e", alpha if accepted else 0.0,
                   -slope, e0)
         return True
@@ -191,7 +202,56 @@ class NewtonSolver:
         """The model's admissible step along p, agreed over ranks."""
         return self.model.max_step(x0, p)
 
-    def _backtrack(self, x, x0, p, e0, slope, f0, alpha0=1.0, c1=1e-4):
+    def _full_step_accepted(self, x, x0, p, e0, slope, alpha0, c1=1e-4) -> bool:
+        """Whether the plain step alpha0 p is admissible and passes the Armijo test."""
+        trial = x.duplicate()
+        try:
+            trial.array_w[:] = x0 + alpha0 * p + self.model.step_correction(x0, p, alpha0)
+            if not self.model.admissible(trial):
+                return False
+            e = self.model.energy(trial)
+            ok = e <= e0 + c1 * alpha0 * slope
+            if ok:
+                self._last_trial = (trial.array_r.copy(), e)
+            return ok
+        finally:
+            trial.destroy()
+            self.model.sync(x)
+
+    def _acceleration(self, x, x0, p, r=None, r_at_x=None) -> np.ndarray:
+        """Geodesic acceleration a = -H^{-1} D^2R[p, p] of the Newton step (second-order curve).
+
+        x(alpha) = x0 + alpha p + alpha^2 a / 2 follows the solution curve to
+        second order: where the body rotates, the straight step stretches it
+        by O(alpha^2) and the line search must cut; the curve bends back along
+        the arc. D^2R[p, p] by central differences over a step h p with
+        h max|grad p| = 1e-2; one back-substitution on the current factorisation.
+        """
+        model = self.model
+        vec = x.duplicate()
+        res = x.duplicate()
+        try:
+            vec.array_w[:] = p
+            g = model.max_gradient(vec)
+            h = 1e-2 / g if g > 0 else 1.0
+            if r is None:
+                vec.array_w[:] = x0
+                model.residual(vec, res)
+                r = res.array_r.copy()
+            d2 = -2.0 * r
+            for sign in (1.0, -1.0):
+                vec.array_w[:] = x0 + sign * h * p
+                model.residual(vec, res)
+                d2 = d2 + res.array_r
+            res.array_w[:] = d2 / h ** 2
+            self.lin.solve(res, vec)
+            return -vec.array_r.copy()
+        finally:
+            vec.destroy()
+            res.destroy()
+            model.sync(x)
+
+    def _backtrack(self, x, x0, p, e0, slope, f0, alpha0=1.0, c1=1e-4, accel=None):
         """Armijo backtracking with quadratic interpolation on phi(a) = Pi(x + a p), a <= alpha0.
 
         A trial state that is not admissible has phi = +inf. Within round-off
@@ -203,7 +263,8 @@ class NewtonSolver:
         trial = x.duplicate()
 
         def phi(a):
-            trial.array_w[:] = x0 + a * p + model.step_correction(x0, p, a)
+            step = a * p if accel is None else a * p + 0.5 * a * a * accel
+            trial.array_w[:] = x0 + step + model.step_correction(x0, step / a, a)
             return model.energy(trial) if model.admissible(trial) else np.inf
 
         noise = max(model.energy_noise, 1e-12 * abs(e0))
@@ -258,11 +319,12 @@ class NewtonSolver:
         return ok
 
     # -- solves ---------------------------------------------------------------------------
-    def _newton(self) -> tuple[bool, str, int]:
-        """Newton from the current state at the current load factor."""
+    def _newton(self, rtol: float | None = None) -> tuple[bool, str, int]:
+        """Newton from the current state at the current loads, to |R| <= rtol * the force scale."""
         self._history, self._failure, self._newton_step = [], None, np.inf
         self._decrement_converged = False
         self._last_trial = None
+        self._rtol = self.rtol if rtol is None else rtol
         self.model.u.vector.copy(self.x)
         self.model.apply_bcs(self.x)
         if not self.model.admissible(self.x):
@@ -271,84 +333,192 @@ class NewtonSolver:
         self.model.sync(self.x)
         reason = self.snes.getConvergedReason()
         its = self.snes.getIterationNumber()
+        self._factorised = self._factorised or its > 0
         if reason > 0:
             if not self.model.admissible(self.x):
                 return False, "inverted_elements", its
-            self._factorised = self._factorised or its > 0
             return True, "converged", its
         log.debug("SNES reason %s", reason)
         return False, self._failure or _REASONS.get(reason, f"diverged ({reason})"), its
 
-    def _predict(self, prev, a_prev: float, a: float, target: float) -> None:
-        """Secant predictor: extrapolate the last increment to the new load factor."""
-        if prev is None or a <= a_prev:
-            return
+    # -- continuation: Euler predictor, Newton corrector ------------------------------------------
+    def _path_residuals(self, path, s: float) -> tuple[PETSc.Vec, PETSc.Vec]:
+        """(R(u; s), dR/ds(u; s)): the residual at the current state and its rate along the path.
+
+        The rate is a forward difference over a small step in s, so it keeps
+        the active set of u (a taut cable stays taut, a slack one slack).
+        """
+        model, x = self.model, self.model.u.vector
+        r0, rate = x.duplicate(), x.duplicate()
+        path(s)
+        model.gradient(x, r0)
+        path(s + PATH_EPS)
+        model.gradient(x, rate)
+        path(s)
+        rate.axpy(-1.0, r0)
+        rate.scale(1.0 / PATH_EPS)
+        return r0, rate
+
+    def _predict(self, path, s: float, ds: float) -> tuple[float, float]:
+        """Euler predictor from the equilibrium at s; returns (t, alpha) and leaves the loads at t.
+
+        With H the Hessian factorised next to u (the last Newton matrix: one
+        back-substitution per right-hand side, no assembly), the state moves
+        along p = -H^{-1} (R + (t - s) dR/ds), i.e. to u(s) + du/ds (t - s) to
+        first order. t <= s + ds is cut so that the predicted change of the
+        displacement gradient, (t - s) max |grad du/ds|, stays below
+        MAX_PREDICTED_GRADIENT (large rotations are taken in steps the
+        linearisation can follow). The energy line search at t scales the
+        step (alpha). Pinned rows move from g(s) to g(t) with the step.
+        """
         model = self.model
-        u = model.u.vector
-        guess = u.copy()
-        guess.axpy((target - a) / (a - a_prev), u - prev)
-        model.set_factor(target)
-        current = u.copy()
-        model.apply_bcs(current)
-        model.apply_bcs(guess)
-        reachable = self._max_step(u.array_r, guess.array_r - u.array_r) >= 1.0
-        if reachable and model.admissible(guess) and (not model.admissible(current)
-                                                      or model.energy(guess) < model.energy(current)):
-            guess.copy(u)
-        for v in (guess, current):
+        x = model.u.vector
+        r0, rate = self._path_residuals(path, s)
+        d0, d1 = x.duplicate(), x.duplicate()
+        try:
+            self._dirichlet_rows(r0, rate, s, path)
+            self.lin.solve(r0, d0)
+            self.lin.solve(rate, d1)
+        except np.linalg.LinAlgError:
+            t = min(s + ds, 1.0)
+            path(t)
+            return t, 0.0
+        finally:
+            r0.destroy()
+            rate.destroy()
+        change = model.max_gradient(d1)
+        tangent = -d1.array_r.copy()                       # du/ds
+        accel = self._acceleration(x, x.array_r.copy(), tangent, r_at_x=None) if self.geodesic else None
+        if change * ds > MAX_PREDICTED_GRADIENT:
+            ds = MAX_PREDICTED_GRADIENT / change
+        if accel is not None:                              # the second-order term at most half the first
+            ratio = np.sqrt(model.comm.allreduce(accel @ accel) / max(model.comm.allreduce(tangent @ tangent),
+                                                                      1e-300))
+            if ratio * ds > 1.0:
+                ds = 1.0 / ratio
+        t = min(s + ds, 1.0)
+        p = (t - s) * tangent - d0.array_r
+        for v in (d0, d1):
             v.destroy()
-        model.set_factor(a)
-        model.sync(u)
+        path(t)
+        return t, self._line_step(p, None if accel is None else (t - s) ** 2 * accel)
+
+    def _dirichlet_rows(self, r0, rate, s, path) -> None:
+        """Dirichlet rows of the two right-hand sides: x - g(s) and -dg/ds (the pins' own motion)."""
+        model = self.model
+        x = model.u.vector
+        g = x.duplicate()
+        path(s + PATH_EPS)
+        model.apply_bcs(g)                   # g(s + eps) on pinned rows (0 elsewhere)
+        g1 = g.array_r.copy()
+        g.set(0.0)
+        path(s)
+        model.apply_bcs(g)                   # g(s)
+        fixed = model.fixed[:len(g1)]
+        r0.array_w[fixed] = x.array_r[fixed] - g.array_r[fixed]
+        rate.array_w[fixed] = -(g1[fixed] - g.array_r[fixed]) / PATH_EPS
+        g.destroy()
+
+    def _line_step(self, p: np.ndarray, accel: np.ndarray | None = None) -> float:
+        """Move the state along x + alpha p (+ alpha^2 accel / 2) as far as the energy line search
+        allows; returns alpha (0 if none)."""
+        model = self.model
+        x = model.u.vector.copy()
+        try:
+            model.gradient(x, self.b)
+            r = self.b.array_r
+            slope = float(model.comm.allreduce(r @ p))
+            if not np.isfinite(slope) or slope >= 0.0:
+                return 0.0
+            x0 = x.array_r.copy()
+            f0 = float(np.sqrt(model.comm.allreduce(r @ r)))
+            alpha, ok = self._backtrack(x, x0, p, model.energy(x), slope, f0, self._max_step(x0, p), accel=accel)
+            if not ok:
+                return 0.0
+            step = alpha * p + (0.5 * alpha ** 2 * accel if accel is not None else 0.0)
+            x.array_w[:] = x0 + step + model.step_correction(x0, step / alpha, alpha)
+            x.copy(model.u.vector)
+            return float(alpha)
+        finally:
+            model.sync(model.u.vector)
+            x.destroy()
+
+    def _force_scale(self, path) -> float:
+        """|R| at the current state with the loads at the path's end: the scale rtol refers to."""
+        model, x = self.model, self.model.u.vector
+        path(1.0)
+        model.residual(x, self.b)
+        scale = self.b.norm()
+        return float(scale) if np.isfinite(scale) else 0.0
+
+    def _follow(self, path, steps: int, report: SolveReport) -> bool:
+        """Continuation from s = 0 (the current equilibrium) to s = 1 along path(s).
+
+        Each step: an Euler predictor (see _predict), then Newton to the step
+        tolerance (STEP_RTOL: the path is only followed, not resolved) or, at
+        s = 1, to the full tolerance. A step that converged in few iterations
+        lets the next one double (up to 1 / steps); one that failed is
+        retried from the last equilibrium at half the size, up to max_cuts
+        times. Every Newton iteration of every attempt is counted, and so is
+        every factorisation made only for a predictor.
+        """
+        model = self.model
+        s, ds_max = 0.0, 1.0 / max(int(steps), 1)
+        ds, cuts = ds_max, 0
+        saved = model.u.vector.copy()
+        try:
+            while s < 1.0 - 1e-12:
+                if not self._factorised:
+                    path(s)
+                    self.jacobian(model.u.vector)
+                    self._factorised = True
+                    report.newton_iterations += 1
+                    report.attempts.append({"factor": float(s), "iterations": 1, "status": "factorised"})
+                t, alpha = self._predict(path, s, ds)
+                final = t >= 1.0 - 1e-12
+                ok, status, its = self._newton(None if final else max(STEP_RTOL, self.rtol))
+                report.newton_iterations += its
+                report.attempts.append({"factor": float(t), "iterations": int(its), "status": status,
+                                        "predictor_step": alpha})
+                if ok:
+                    report.load_steps += 1
+                    report.residual_history.append(self._history)
+                    log.info("step %d: s = %.4g, predictor %.3g, %d Newton iterations, |R| %.2e -> %.2e",
+                             report.load_steps, t, alpha, its,
+                             self._history[0] if self._history else 0.0,
+                             self._history[-1] if self._history else 0.0)
+                    model.end_step()
+                    model.u.vector.copy(saved)
+                    s, ds = t, (min(2.0 * (t - s), ds_max) if its <= 4 else t - s)
+                    continue
+                log.info("step to s = %.4g failed (%s)", t, status)
+                saved.copy(model.u.vector)
+                path(s)
+                model.sync(model.u.vector)
+                self._factorised = False
+                cuts += 1
+                if cuts > self.max_cuts:
+                    report.status = status
+                    report.residual_history.append(self._history)
+                    return False
+                ds = (t - s) / 2.0
+            return True
+        finally:
+            saved.destroy()
 
     def solve(self, steps: int = 1, start: float = 0.0, end: float = 1.0) -> SolveReport:
-        """Ramp the load factor from start to end in `steps` steps (cut in half on failure)."""
+        """Follow the load factor from start to end (steps: the largest step is (end - start) / steps)."""
         t0 = time.perf_counter()
         model = self.model
         model.changes.clear()
         report = SolveReport(False, "not_started")
-        a, da, cuts = start, (end - start) / max(int(steps), 1), 0
-        da0 = da
-        saved = model.u.vector.copy()
-        prev, a_prev = None, a
-        while a < end - 1e-12:
-            target = min(a + da, end)
-            self._predict(prev, a_prev, a, target)
-            model.set_factor(target)
-            ok, status, its = self._newton()
-            if self._history:
-                self.reference_residual = max(self.reference_residual, self._history[0])
-            report.newton_iterations += its
-            report.attempts.append({"factor": float(target), "iterations": int(its), "status": status})
-            if ok:
-                report.load_steps += 1
-                report.residual_history.append(self._history)
-                log.info("load step %d: factor %.4g, %d Newton iterations, |R| %.2e -> %.2e",
-                         report.load_steps, target, its,
-                         self._history[0] if self._history else 0.0,
-                         self._history[-1] if self._history else 0.0)
-                model.end_step()
-                prev = prev or saved.duplicate()
-                saved.copy(prev)
-                a_prev, a = a, target
-                if its <= 8:
-                    da = min(2.0 * da, da0)
-                model.u.vector.copy(saved)
-                continue
-            log.info("load step to factor %.4g failed (%s)", target, status)
-            saved.copy(model.u.vector)
-            model.set_factor(a)
-            model.sync(model.u.vector)
-            cuts += 1
-            if cuts > self.max_cuts:
-                report.status = status
-                report.residual_history.append(self._history)
-                break
-            da = (target - a) / 2.0
-        else:
+
+        def path(s):
+            model.set_factor(start + s * (end - start))
+        self.reference_residual = max(self.reference_residual, self._force_scale(path))
+        path(0.0)
+        if self._follow(path, steps, report):
             report.converged, report.status = True, "converged"
-        for v in (saved, prev):
-            if v is not None:
-                v.destroy()
         return self._finish(report, t0)
 
     def _finish(self, report: SolveReport, t0: float) -> SolveReport:
@@ -358,86 +528,44 @@ class NewtonSolver:
         report.time = time.perf_counter() - t0
         return report
 
-    def _tangent_predictor(self) -> float:
-        """Euler predictor from the last equilibrium u_0 to the changed parameters p_1.
-
-        The step is d = -H_0^{-1} (dR/dp) (p_1 - p_0) = du/dp (p_1 - p_0), the
-        first-order change of the equilibrium, with H_0 the Hessian already
-        factorised next to u_0 (one back-substitution: no assembly, no
-        factorisation). dR/dp (p_1 - p_0) is the difference quotient of R(u_0)
-        along the parameter path with the active set of u_0 (a small step
-        keeps taut cables taut): a cable that the new rest length leaves
-        momentarily slack at u_0 still pulls in the prediction, where a
-        Newton step at u_0 would let the body spring past the equilibrium.
-        The energy line search with the new parameters scales it like a
-        Newton step. Returns the step length taken (0 if none).
-        """
-        model = self.model
-        if not self._factorised or all(np.array_equal(o, n) for o, n in model.changes.values()):
-            return 0.0
-        x = model.u.vector.copy()
-        r0, d = x.duplicate(), x.duplicate()
-        eps = 1e-4
-        try:
-            for s, vec in ((0.0, r0), (eps, self.b)):
-                model.parameter_path(s)
-                model.residual(x, vec)
-            self.b.axpy(-1.0, r0)
-            self.b.scale(1.0 / eps)                         # dR/dp (p_1 - p_0) at u_0
-            model.parameter_path(1.0)
-            try:
-                self.lin.solve(self.b, d)
-            except np.linalg.LinAlgError:
-                return 0.0
-            p = -d.array_r.copy()
-            model.apply_bcs(x)                              # pins moved: the bc rows of p follow g
-            model.residual(x, self.b)
-            r = self.b.array_r
-            slope = float(model.comm.allreduce(r @ p))
-            if not np.isfinite(slope) or slope >= 0.0:
-                return 0.0
-            x0 = x.array_r.copy()
-            f0 = float(np.sqrt(model.comm.allreduce(r @ r)))
-            alpha, ok = self._backtrack(x, x0, p, model.energy(x), slope, f0, self._max_step(x0, p))
-            if not ok:
-                return 0.0
-            x.array_w[:] = x0 + alpha * p + model.step_correction(x0, p, alpha)
-            x.copy(model.u.vector)
-            return float(alpha)
-        finally:
-            model.parameter_path(1.0)
-            model.sync(model.u.vector)
-            for v in (x, r0, d):
-                v.destroy()
-
     def resolve(self, steps: int = 1) -> SolveReport:
-        """Warm re-solve: a tangent predictor, then Newton at full load, from the last equilibrium.
+        """Warm re-solve from the last equilibrium: follow the changed parameters (model.changes).
 
-        If that fails, the state is restored and the load is ramped from the
-        rest state in `steps` steps, as a cold solve would; the report counts
-        the iterations of both.
+        One Euler predictor and Newton at full tolerance when the change is
+        small, more steps when the predicted change is large. If that fails,
+        the state is restored and the load is ramped from the rest state in
+        `steps` steps, as a cold solve would; the report counts the
+        iterations of both.
         """
         t0 = time.perf_counter()
         model = self.model
         saved = model.u.vector.copy()
         model.set_factor(1.0)
-        predicted = self._tangent_predictor()
+        report = SolveReport(False, "not_started")
+        if any(not np.array_equal(o, n) for o, n in model.changes.values()):
+            ok = self._follow(model.parameter_path, 1, report)
+        else:
+            ok, status, its = self._newton()
+            report.newton_iterations, report.load_steps = its, int(ok)
+            report.residual_history = [self._history] if ok else []
+            report.attempts.append({"factor": 1.0, "iterations": int(its), "status": status})
+            report.status = status
+            if ok:
+                model.end_step()
         model.changes.clear()
-        ok, status, its = self._newton()
-        report = SolveReport(ok, status, its, int(ok), [self._history] if ok else [],
-                             [{"factor": 1.0, "iterations": int(its), "status": status, "warm": True,
-                               "predictor_step": predicted}])
+        for attempt in report.attempts:
+            attempt["warm"] = True
         if ok:
-            model.end_step()
+            report.converged, report.status = True, "converged"
             saved.destroy()
             return self._finish(report, t0)
-        log.info("warm re-solve failed (%s); ramping from rest", status)
+        log.info("warm re-solve failed (%s); ramping from rest", report.status)
         self._factorised = False
         model.u.vector.set(0.0)
         model.sync(model.u.vector)
         cold = self.solve(steps)
         saved.destroy()
-        cold.newton_iterations += its
+        cold.newton_iterations += report.newton_iterations
         cold.attempts = report.attempts + cold.attempts
         cold.time = time.perf_counter() - t0
         return cold
