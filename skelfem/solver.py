@@ -12,7 +12,13 @@ in every element, no term objects) and satisfies the Armijo condition
     Pi(x + alpha p) <= Pi(x) + c alpha grad Pi . p,
 
 or, once energy differences drown in round-off, reduces |grad Pi|. A trial
-state with an inverted element is never accepted. Other strategies
+state with an inverted element is never accepted. ``curved`` is the same
+line search along the second-order curve x + alpha p + alpha^2 a / 2 with the
+geodesic acceleration a = -H^{-1} D^2R[p, p] (one more back-substitution and
+two residuals per iteration; the straight step is kept when it is lower at
+alpha_max): on slender bodies that rotate a lot the straight step stretches
+the body by O(alpha^2) and the energy model fails, the curve follows the
+rotation. Other strategies
 (``residual``: PETSc's backtracking on |grad Pi|, ``none``: full steps,
 ``trust_region``: PETSc's newtontr) exist to compare against.
 
@@ -34,10 +40,22 @@ from .linear import LowRankSolver, default_petsc_options  # noqa: F401 (re-expor
 
 log = logging.getLogger("skelfem")
 
-MAX_PREDICTED_GRADIENT = 0.5   # largest predicted change of |grad u| in one continuation step
-STEP_RTOL = 1e-5               # Newton tolerance (relative to the force scale) of intermediate steps
-PATH_EPS = 1e-6                # step in s of the difference quotient dR/ds
 
+C1 = 1e-4          # Armijo constant
+MAX_ROTATION = 1.0
+WATCHDOG = 5       # relaxed (energy-raising) full steps of the curved strategy before it checks Pi
+
+
+def resolve_strategy(design) -> str:
+    """What line_search = "auto" means for a design: "curved" for bodies without bones, else "energy".
+
+    The exact bone rotation (Elasticity.step_correction) keeps stiff bones
+    robust under the monotone energy line search; a geodesic acceleration
+    through a stiff bone is dominated by its stiffness and does not help, and
+    relaxed steps cost bony designs iterations. Soft bodies without bones
+    are the ones that crawl under the monotone search.
+    """
+    return "energy" if getattr(design, "bones", None) else "curved"
 
 _REASONS = {
     PETSc.SNES.ConvergedReason.DIVERGED_MAX_IT: "max_iterations",
@@ -80,11 +98,13 @@ class NewtonSolver:
         self.strategy = spec.line_search
         if self.strategy not in STRATEGIES:
             raise ValueError(f"unknown line search {self.strategy!r}")
-        if self.strategy != "energy" and model.bounds_steps:
+        if self.strategy == "auto":
+            self.strategy = resolve_strategy(model.design)
+        self.energy_search = self.strategy in ("energy", "curved")
+        if not self.energy_search and model.bounds_steps:
             raise ValueError(f"line search {self.strategy!r} cannot limit steps to the model's "
                              "admissible ones; use 'energy'")
         self.max_iterations, self.rtol, self.atol = spec.max_iterations, spec.rtol, spec.atol
-        self.geodesic = True          # curved line search (geodesic acceleration) when a plain step fails
         self.xtol = 1e-11             # relative size of a full Newton step that ends the solve
         self.max_cuts = 8
         self._newton_step = np.inf    # |p| of the last undamped Newton step
@@ -98,8 +118,12 @@ class NewtonSolver:
         self._history: list[float] = []
         self._failure: str | None = None
         self._f0 = 0.0
-        self._rtol = self.rtol           # the tolerance of the running Newton solve
         self._last_trial = None       # (state, Pi) of the last accepted line-search trial
+        self.curved = self.strategy == "curved"
+        self.watchdog = WATCHDOG if self.curved else 0   # full steps that may raise Pi before it must
+        #                                                   be below the reference
+        self._watch = None            # the watchdog's reference (state, energy, Newton step) while relaxed
+        self._watch_allowed = True
         self._factorised = False      # lin holds a factorisation of K near the current state
         self.snes = self._create_snes(prefix)
 
@@ -121,7 +145,7 @@ class NewtonSolver:
             snes.setType("newtonls")
             options = {"snes_linesearch_type": "bt" if self.strategy == "residual" else "basic",
                        **options}
-            if self.strategy == "energy":
+            if self.energy_search:
                 snes.setLineSearchPreCheck(self._energy_line_search)
         opts = PETSc.Options()
         for key, value in options.items():
@@ -153,11 +177,11 @@ class NewtonSolver:
         log.debug("  newton %2d  |R| = %.3e  |dx| = %.3e", it, fnorm, ynorm)
         if not np.isfinite(fnorm):
             return PETSc.SNES.ConvergedReason.DIVERGED_FNORM_NAN
-        if fnorm <= max(self.atol, self._rtol * self._f0):
+        if fnorm <= max(self.atol, self.rtol * self._f0):
             return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_ABS
         if self._decrement_converged:
             return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_RELATIVE
-        step = self._newton_step if self.strategy == "energy" else ynorm
+        step = self._newton_step if self.energy_search else ynorm
         if it > 0 and step <= self.xtol * max(xnorm, self.model.size):
             return PETSc.SNES.ConvergedReason.CONVERGED_SNORM_RELATIVE
         if self._failure is not None:
@@ -167,7 +191,8 @@ class NewtonSolver:
         return PETSc.SNES.ConvergedReason.ITERATING
 
     def _energy_line_search(self, x, y):
-        """SNES pre-check: scale the step -y so that x - y is admissible and lowers Pi."""
+        """SNES pre-check: scale the step -y so that x - y is admissible and lowers Pi
+        (or, with the watchdog, take the full step and check the energy a few iterations later)."""
         model = self.model
         p = -y.array_r.copy()                       # Newton direction (SNES steps x - y)
         r = self.b.array_r.copy()                   # grad Pi at x, set by SNES
@@ -182,62 +207,131 @@ class NewtonSolver:
         if slope > 0.0:                             # not a descent direction: turn around
             p, slope = -p, -slope
         f0 = float(np.sqrt(model.comm.allreduce(r @ r)))
+        wd = self._watch
+        if wd is not None:
+            if e0 <= wd["e0"] + C1 * wd["alpha0"] * wd["slope"]:
+                self._watch = wd = None             # the relaxed steps paid off: back to monotone
+                log.debug("  watchdog: energy %.9e below the reference", e0)
+            elif wd["n"] >= self.watchdog:
+                self._watch, self._watch_allowed = None, False
+                log.debug("  watchdog: energy %.9e still above the reference %.9e: back to it", e0, wd["e0"])
+                return self._fall_back(x, y, wd)
         alpha0 = self._max_step(x0, p)
-        accel = None
-        if self.geodesic and not self._full_step_accepted(x, x0, p, e0, slope, alpha0):
-            accel = self._acceleration(x, x0, p, r)
+        if self.curved and MAX_ROTATION > 0.0:
+            g = self._max_gradient(x, p)
+            if g * alpha0 > MAX_ROTATION:
+                alpha0 = MAX_ROTATION / g
+        accel = self._choose_curve(x, x0, p, r, e0, slope, alpha0) if self.curved else None
+        if wd is not None or (self.watchdog and self._watch_allowed):
+            e_full = self._phi(x, x0, p, accel, alpha0) if alpha0 > 0.0 else np.inf
+            if np.isfinite(e_full) and not e_full <= e0 + C1 * alpha0 * slope:
+                # the full step is admissible but raises Pi: take it anyway (watchdog)
+                if wd is None:
+                    self._watch = wd = {"x0": x0, "e0": e0, "p": p, "slope": slope, "f0": f0,
+                                        "alpha0": alpha0, "accel": accel, "n": 0}
+                wd["n"] += 1
+                self._set_step(y, x0, p, accel, alpha0)
+                self._last_trial = None
+                log.debug("  watchdog: full step %d, energy %.9e -> %.9e", wd["n"], e0, e_full)
+                return True
+            if not np.isfinite(e_full) and wd is not None:
+                self._watch, self._watch_allowed = None, False
+                return self._fall_back(x, y, wd)
         alpha, accepted = self._backtrack(x, x0, p, e0, slope, f0, alpha0, accel=accel)
         model.sync(x)
         if not accepted:
             self._failure = "line_search_failed"
             y.set(0.0)
         else:
-            step = alpha * p + (0.5 * alpha ** 2 * accel if accel is not None else 0.0)
-            y.array_w[:] = -(step + model.step_correction(x0, step / alpha, alpha))
+            self._set_step(y, x0, p, accel, alpha)
         log.debug("  line search: alpha %.3g, decrement %.3e, energy %.9e", alpha if accepted else 0.0,
                   -slope, e0)
         return True
+
+    def _set_step(self, y, x0, p, accel, alpha) -> None:
+        """y such that x0 - y is the trial state of step alpha (SNES steps x - y)."""
+        y.array_w[:] = -self._step(x0, p, accel, alpha)
+
+    def _fall_back(self, x, y, wd) -> bool:
+        """Back to the watchdog's reference state and Armijo backtracking along its Newton step."""
+        model = self.model
+        ref = x.duplicate()
+        try:
+            ref.array_w[:] = wd["x0"]
+            alpha, accepted = self._backtrack(ref, wd["x0"], wd["p"], wd["e0"], wd["slope"], wd["f0"],
+                                              wd["alpha0"], accel=wd["accel"])
+        finally:
+            ref.destroy()
+            model.sync(x)
+        if not accepted:
+            self._failure = "line_search_failed"
+            y.set(0.0)
+            return True
+        y.array_w[:] = x.array_r - self._trial(wd["x0"], wd["p"], wd["accel"], alpha)
+        log.debug("  watchdog fall-back: alpha %.3g from the reference", alpha)
+        return True
+
+    def _max_gradient(self, x, p) -> float:
+        vec = x.duplicate()
+        try:
+            vec.array_w[:] = p
+            return self.model.max_gradient(vec)
+        finally:
+            vec.destroy()
+
+    def _choose_curve(self, x, x0, p, r, e0, slope, alpha0):
+        """The geodesic acceleration if the curved step is lower than the straight one at alpha0, else None."""
+        model = self.model
+        if alpha0 <= 0.0 or model.bounds_steps:
+            return None
+        e_line = self._phi(x, x0, p, None, alpha0)
+        accel = self._acceleration(x, x0, p, r)
+        e_curve = self._phi(x, x0, p, accel, alpha0)
+        log.debug("  curve: |a|/|p| %.3g, Pi - Pi0 at alpha %.3g: line %.4e, curve %.4e",
+                  float(np.sqrt(model.comm.allreduce(accel @ accel) / model.comm.allreduce(p @ p))),
+                  alpha0, e_line - e0, e_curve - e0)
+        return accel if e_curve < e_line else None
 
     def _max_step(self, x0: np.ndarray, p: np.ndarray) -> float:
         """The model's admissible step along p, agreed over ranks."""
         return self.model.max_step(x0, p)
 
-    def _full_step_accepted(self, x, x0, p, e0, slope, alpha0, c1=1e-4) -> bool:
-        """Whether the plain step alpha0 p is admissible and passes the Armijo test."""
+    def _step(self, x0, p, accel, a) -> np.ndarray:
+        """The step a p (+ a^2 accel / 2) from x0, bones moved along their exact rotation."""
+        if accel is None:
+            return a * p + self.model.step_correction(x0, p, a)
+        direction = p + 0.5 * a * accel
+        return a * direction + self.model.step_correction(x0, direction, a)
+
+    def _trial(self, x0, p, accel, a) -> np.ndarray:
+        """The trial state x0 + _step(...)."""
+        return x0 + self._step(x0, p, accel, a)
+
+    def _phi(self, x, x0, p, accel, a) -> float:
+        """Pi at the trial state of step a (+inf if not admissible)."""
+        model = self.model
         trial = x.duplicate()
         try:
-            trial.array_w[:] = x0 + alpha0 * p + self.model.step_correction(x0, p, alpha0)
-            if not self.model.admissible(trial):
-                return False
-            e = self.model.energy(trial)
-            ok = e <= e0 + c1 * alpha0 * slope
-            if ok:
-                self._last_trial = (trial.array_r.copy(), e)
-            return ok
+            trial.array_w[:] = self._trial(x0, p, accel, a)
+            return model.energy(trial) if model.admissible(trial) else np.inf
         finally:
             trial.destroy()
-            self.model.sync(x)
+            model.sync(x)
 
-    def _acceleration(self, x, x0, p, r=None, r_at_x=None) -> np.ndarray:
+    def _acceleration(self, x, x0, p, r) -> np.ndarray:
         """Geodesic acceleration a = -H^{-1} D^2R[p, p] of the Newton step (second-order curve).
 
         x(alpha) = x0 + alpha p + alpha^2 a / 2 follows the solution curve to
-        second order: where the body rotates, the straight step stretches it
-        by O(alpha^2) and the line search must cut; the curve bends back along
-        the arc. D^2R[p, p] by central differences over a step h p with
-        h max|grad p| = 1e-2; one back-substitution on the current factorisation.
+        second order. D^2R[p, p] by central differences of the residual over
+        h p with h max|grad p| = 1e-2 (r: the residual at x0); one
+        back-substitution on the current factorisation.
         """
         model = self.model
-        vec = x.duplicate()
-        res = x.duplicate()
+        vec, res = x.duplicate(), x.duplicate()
         try:
             vec.array_w[:] = p
             g = model.max_gradient(vec)
             h = 1e-2 / g if g > 0 else 1.0
-            if r is None:
-                vec.array_w[:] = x0
-                model.residual(vec, res)
-                r = res.array_r.copy()
             d2 = -2.0 * r
             for sign in (1.0, -1.0):
                 vec.array_w[:] = x0 + sign * h * p
@@ -252,7 +346,8 @@ class NewtonSolver:
             model.sync(x)
 
     def _backtrack(self, x, x0, p, e0, slope, f0, alpha0=1.0, c1=1e-4, accel=None):
-        """Armijo backtracking with quadratic interpolation on phi(a) = Pi(x + a p), a <= alpha0.
+        """Armijo backtracking with quadratic interpolation on phi(a) = Pi(x + a p), a <= alpha0
+        (along x + a p + a^2 accel / 2 if accel is given).
 
         A trial state that is not admissible has phi = +inf. Within round-off
         of e0 a step is accepted if it lowers |grad Pi|. Bones move along the
@@ -263,8 +358,7 @@ class NewtonSolver:
         trial = x.duplicate()
 
         def phi(a):
-            step = a * p if accel is None else a * p + 0.5 * a * a * accel
-            trial.array_w[:] = x0 + step + model.step_correction(x0, step / a, a)
+            trial.array_w[:] = self._trial(x0, p, accel, a)
             return model.energy(trial) if model.admissible(trial) else np.inf
 
         noise = max(model.energy_noise, 1e-12 * abs(e0))
@@ -319,12 +413,12 @@ class NewtonSolver:
         return ok
 
     # -- solves ---------------------------------------------------------------------------
-    def _newton(self, rtol: float | None = None) -> tuple[bool, str, int]:
-        """Newton from the current state at the current loads, to |R| <= rtol * the force scale."""
+    def _newton(self) -> tuple[bool, str, int]:
+        """Newton from the current state at the current load factor."""
         self._history, self._failure, self._newton_step = [], None, np.inf
+        self._watch, self._watch_allowed = None, True
         self._decrement_converged = False
         self._last_trial = None
-        self._rtol = self.rtol if rtol is None else rtol
         self.model.u.vector.copy(self.x)
         self.model.apply_bcs(self.x)
         if not self.model.admissible(self.x):
@@ -333,192 +427,84 @@ class NewtonSolver:
         self.model.sync(self.x)
         reason = self.snes.getConvergedReason()
         its = self.snes.getIterationNumber()
-        self._factorised = self._factorised or its > 0
         if reason > 0:
             if not self.model.admissible(self.x):
                 return False, "inverted_elements", its
+            self._factorised = self._factorised or its > 0
             return True, "converged", its
         log.debug("SNES reason %s", reason)
         return False, self._failure or _REASONS.get(reason, f"diverged ({reason})"), its
 
-    # -- continuation: Euler predictor, Newton corrector ------------------------------------------
-    def _path_residuals(self, path, s: float) -> tuple[PETSc.Vec, PETSc.Vec]:
-        """(R(u; s), dR/ds(u; s)): the residual at the current state and its rate along the path.
-
-        The rate is a forward difference over a small step in s, so it keeps
-        the active set of u (a taut cable stays taut, a slack one slack).
-        """
-        model, x = self.model, self.model.u.vector
-        r0, rate = x.duplicate(), x.duplicate()
-        path(s)
-        model.gradient(x, r0)
-        path(s + PATH_EPS)
-        model.gradient(x, rate)
-        path(s)
-        rate.axpy(-1.0, r0)
-        rate.scale(1.0 / PATH_EPS)
-        return r0, rate
-
-    def _predict(self, path, s: float, ds: float) -> tuple[float, float]:
-        """Euler predictor from the equilibrium at s; returns (t, alpha) and leaves the loads at t.
-
-        With H the Hessian factorised next to u (the last Newton matrix: one
-        back-substitution per right-hand side, no assembly), the state moves
-        along p = -H^{-1} (R + (t - s) dR/ds), i.e. to u(s) + du/ds (t - s) to
-        first order. t <= s + ds is cut so that the predicted change of the
-        displacement gradient, (t - s) max |grad du/ds|, stays below
-        MAX_PREDICTED_GRADIENT (large rotations are taken in steps the
-        linearisation can follow). The energy line search at t scales the
-        step (alpha). Pinned rows move from g(s) to g(t) with the step.
-        """
+    def _predict(self, prev, a_prev: float, a: float, target: float) -> None:
+        """Secant predictor: extrapolate the last increment to the new load factor."""
+        if prev is None or a <= a_prev:
+            return
         model = self.model
-        x = model.u.vector
-        r0, rate = self._path_residuals(path, s)
-        d0, d1 = x.duplicate(), x.duplicate()
-        try:
-            self._dirichlet_rows(r0, rate, s, path)
-            self.lin.solve(r0, d0)
-            self.lin.solve(rate, d1)
-        except np.linalg.LinAlgError:
-            t = min(s + ds, 1.0)
-            path(t)
-            return t, 0.0
-        finally:
-            r0.destroy()
-            rate.destroy()
-        change = model.max_gradient(d1)
-        tangent = -d1.array_r.copy()                       # du/ds
-        accel = self._acceleration(x, x.array_r.copy(), tangent, r_at_x=None) if self.geodesic else None
-        if change * ds > MAX_PREDICTED_GRADIENT:
-            ds = MAX_PREDICTED_GRADIENT / change
-        if accel is not None:                              # the second-order term at most half the first
-            ratio = np.sqrt(model.comm.allreduce(accel @ accel) / max(model.comm.allreduce(tangent @ tangent),
-                                                                      1e-300))
-            if ratio * ds > 1.0:
-                ds = 1.0 / ratio
-        t = min(s + ds, 1.0)
-        p = (t - s) * tangent - d0.array_r
-        for v in (d0, d1):
+        u = model.u.vector
+        guess = u.copy()
+        guess.axpy((target - a) / (a - a_prev), u - prev)
+        model.set_factor(target)
+        current = u.copy()
+        model.apply_bcs(current)
+        model.apply_bcs(guess)
+        reachable = self._max_step(u.array_r, guess.array_r - u.array_r) >= 1.0
+        if reachable and model.admissible(guess) and (not model.admissible(current)
+                                                      or model.energy(guess) < model.energy(current)):
+            guess.copy(u)
+        for v in (guess, current):
             v.destroy()
-        path(t)
-        return t, self._line_step(p, None if accel is None else (t - s) ** 2 * accel)
-
-    def _dirichlet_rows(self, r0, rate, s, path) -> None:
-        """Dirichlet rows of the two right-hand sides: x - g(s) and -dg/ds (the pins' own motion)."""
-        model = self.model
-        x = model.u.vector
-        g = x.duplicate()
-        path(s + PATH_EPS)
-        model.apply_bcs(g)                   # g(s + eps) on pinned rows (0 elsewhere)
-        g1 = g.array_r.copy()
-        g.set(0.0)
-        path(s)
-        model.apply_bcs(g)                   # g(s)
-        fixed = model.fixed[:len(g1)]
-        r0.array_w[fixed] = x.array_r[fixed] - g.array_r[fixed]
-        rate.array_w[fixed] = -(g1[fixed] - g.array_r[fixed]) / PATH_EPS
-        g.destroy()
-
-    def _line_step(self, p: np.ndarray, accel: np.ndarray | None = None) -> float:
-        """Move the state along x + alpha p (+ alpha^2 accel / 2) as far as the energy line search
-        allows; returns alpha (0 if none)."""
-        model = self.model
-        x = model.u.vector.copy()
-        try:
-            model.gradient(x, self.b)
-            r = self.b.array_r
-            slope = float(model.comm.allreduce(r @ p))
-            if not np.isfinite(slope) or slope >= 0.0:
-                return 0.0
-            x0 = x.array_r.copy()
-            f0 = float(np.sqrt(model.comm.allreduce(r @ r)))
-            alpha, ok = self._backtrack(x, x0, p, model.energy(x), slope, f0, self._max_step(x0, p), accel=accel)
-            if not ok:
-                return 0.0
-            step = alpha * p + (0.5 * alpha ** 2 * accel if accel is not None else 0.0)
-            x.array_w[:] = x0 + step + model.step_correction(x0, step / alpha, alpha)
-            x.copy(model.u.vector)
-            return float(alpha)
-        finally:
-            model.sync(model.u.vector)
-            x.destroy()
-
-    def _force_scale(self, path) -> float:
-        """|R| at the current state with the loads at the path's end: the scale rtol refers to."""
-        model, x = self.model, self.model.u.vector
-        path(1.0)
-        model.residual(x, self.b)
-        scale = self.b.norm()
-        return float(scale) if np.isfinite(scale) else 0.0
-
-    def _follow(self, path, steps: int, report: SolveReport) -> bool:
-        """Continuation from s = 0 (the current equilibrium) to s = 1 along path(s).
-
-        Each step: an Euler predictor (see _predict), then Newton to the step
-        tolerance (STEP_RTOL: the path is only followed, not resolved) or, at
-        s = 1, to the full tolerance. A step that converged in few iterations
-        lets the next one double (up to 1 / steps); one that failed is
-        retried from the last equilibrium at half the size, up to max_cuts
-        times. Every Newton iteration of every attempt is counted, and so is
-        every factorisation made only for a predictor.
-        """
-        model = self.model
-        s, ds_max = 0.0, 1.0 / max(int(steps), 1)
-        ds, cuts = ds_max, 0
-        saved = model.u.vector.copy()
-        try:
-            while s < 1.0 - 1e-12:
-                if not self._factorised:
-                    path(s)
-                    self.jacobian(model.u.vector)
-                    self._factorised = True
-                    report.newton_iterations += 1
-                    report.attempts.append({"factor": float(s), "iterations": 1, "status": "factorised"})
-                t, alpha = self._predict(path, s, ds)
-                final = t >= 1.0 - 1e-12
-                ok, status, its = self._newton(None if final else max(STEP_RTOL, self.rtol))
-                report.newton_iterations += its
-                report.attempts.append({"factor": float(t), "iterations": int(its), "status": status,
-                                        "predictor_step": alpha})
-                if ok:
-                    report.load_steps += 1
-                    report.residual_history.append(self._history)
-                    log.info("step %d: s = %.4g, predictor %.3g, %d Newton iterations, |R| %.2e -> %.2e",
-                             report.load_steps, t, alpha, its,
-                             self._history[0] if self._history else 0.0,
-                             self._history[-1] if self._history else 0.0)
-                    model.end_step()
-                    model.u.vector.copy(saved)
-                    s, ds = t, (min(2.0 * (t - s), ds_max) if its <= 4 else t - s)
-                    continue
-                log.info("step to s = %.4g failed (%s)", t, status)
-                saved.copy(model.u.vector)
-                path(s)
-                model.sync(model.u.vector)
-                self._factorised = False
-                cuts += 1
-                if cuts > self.max_cuts:
-                    report.status = status
-                    report.residual_history.append(self._history)
-                    return False
-                ds = (t - s) / 2.0
-            return True
-        finally:
-            saved.destroy()
+        model.set_factor(a)
+        model.sync(u)
 
     def solve(self, steps: int = 1, start: float = 0.0, end: float = 1.0) -> SolveReport:
-        """Follow the load factor from start to end (steps: the largest step is (end - start) / steps)."""
+        """Ramp the load factor from start to end in `steps` steps (cut in half on failure)."""
         t0 = time.perf_counter()
         model = self.model
         model.changes.clear()
         report = SolveReport(False, "not_started")
-
-        def path(s):
-            model.set_factor(start + s * (end - start))
-        self.reference_residual = max(self.reference_residual, self._force_scale(path))
-        path(0.0)
-        if self._follow(path, steps, report):
+        a, da, cuts = start, (end - start) / max(int(steps), 1), 0
+        da0 = da
+        saved = model.u.vector.copy()
+        prev, a_prev = None, a
+        while a < end - 1e-12:
+            target = min(a + da, end)
+            self._predict(prev, a_prev, a, target)
+            model.set_factor(target)
+            ok, status, its = self._newton()
+            if self._history:
+                self.reference_residual = max(self.reference_residual, self._history[0])
+            report.newton_iterations += its
+            report.attempts.append({"factor": float(target), "iterations": int(its), "status": status})
+            if ok:
+                report.load_steps += 1
+                report.residual_history.append(self._history)
+                log.info("load step %d: factor %.4g, %d Newton iterations, |R| %.2e -> %.2e",
+                         report.load_steps, target, its,
+                         self._history[0] if self._history else 0.0,
+                         self._history[-1] if self._history else 0.0)
+                model.end_step()
+                prev = prev or saved.duplicate()
+                saved.copy(prev)
+                a_prev, a = a, target
+                if its <= 8:
+                    da = min(2.0 * da, da0)
+                model.u.vector.copy(saved)
+                continue
+            log.info("load step to factor %.4g failed (%s)", target, status)
+            saved.copy(model.u.vector)
+            model.set_factor(a)
+            model.sync(model.u.vector)
+            cuts += 1
+            if cuts > self.max_cuts:
+                report.status = status
+                report.residual_history.append(self._history)
+                break
+            da = (target - a) / 2.0
+        else:
             report.converged, report.status = True, "converged"
+        for v in (saved, prev):
+            if v is not None:
+                v.destroy()
         return self._finish(report, t0)
 
     def _finish(self, report: SolveReport, t0: float) -> SolveReport:
@@ -528,44 +514,86 @@ class NewtonSolver:
         report.time = time.perf_counter() - t0
         return report
 
-    def resolve(self, steps: int = 1) -> SolveReport:
-        """Warm re-solve from the last equilibrium: follow the changed parameters (model.changes).
+    def _tangent_predictor(self) -> float:
+        """Euler predictor from the last equilibrium u_0 to the changed parameters p_1.
 
-        One Euler predictor and Newton at full tolerance when the change is
-        small, more steps when the predicted change is large. If that fails,
-        the state is restored and the load is ramped from the rest state in
-        `steps` steps, as a cold solve would; the report counts the
-        iterations of both.
+        The step is d = -H_0^{-1} (dR/dp) (p_1 - p_0) = du/dp (p_1 - p_0), the
+        first-order change of the equilibrium, with H_0 the Hessian already
+        factorised next to u_0 (one back-substitution: no assembly, no
+        factorisation). dR/dp (p_1 - p_0) is the difference quotient of R(u_0)
+        along the parameter path with the active set of u_0 (a small step
+        keeps taut cables taut): a cable that the new rest length leaves
+        momentarily slack at u_0 still pulls in the prediction, where a
+        Newton step at u_0 would let the body spring past the equilibrium.
+        The energy line search with the new parameters scales it like a
+        Newton step. Returns the step length taken (0 if none).
+        """
+        model = self.model
+        if not self._factorised or all(np.array_equal(o, n) for o, n in model.changes.values()):
+            return 0.0
+        x = model.u.vector.copy()
+        r0, d = x.duplicate(), x.duplicate()
+        eps = 1e-4
+        try:
+            for s, vec in ((0.0, r0), (eps, self.b)):
+                model.parameter_path(s)
+                model.residual(x, vec)
+            self.b.axpy(-1.0, r0)
+            self.b.scale(1.0 / eps)                         # dR/dp (p_1 - p_0) at u_0
+            model.parameter_path(1.0)
+            try:
+                self.lin.solve(self.b, d)
+            except np.linalg.LinAlgError:
+                return 0.0
+            p = -d.array_r.copy()
+            model.apply_bcs(x)                              # pins moved: the bc rows of p follow g
+            model.residual(x, self.b)
+            r = self.b.array_r
+            slope = float(model.comm.allreduce(r @ p))
+            if not np.isfinite(slope) or slope >= 0.0:
+                return 0.0
+            x0 = x.array_r.copy()
+            f0 = float(np.sqrt(model.comm.allreduce(r @ r)))
+            alpha, ok = self._backtrack(x, x0, p, model.energy(x), slope, f0, self._max_step(x0, p))
+            if not ok:
+                return 0.0
+            x.array_w[:] = x0 + alpha * p + model.step_correction(x0, p, alpha)
+            x.copy(model.u.vector)
+            return float(alpha)
+        finally:
+            model.parameter_path(1.0)
+            model.sync(model.u.vector)
+            for v in (x, r0, d):
+                v.destroy()
+
+    def resolve(self, steps: int = 1) -> SolveReport:
+        """Warm re-solve: a tangent predictor, then Newton at full load, from the last equilibrium.
+
+        If that fails, the state is restored and the load is ramped from the
+        rest state in `steps` steps, as a cold solve would; the report counts
+        the iterations of both.
         """
         t0 = time.perf_counter()
         model = self.model
         saved = model.u.vector.copy()
         model.set_factor(1.0)
-        report = SolveReport(False, "not_started")
-        if any(not np.array_equal(o, n) for o, n in model.changes.values()):
-            ok = self._follow(model.parameter_path, 1, report)
-        else:
-            ok, status, its = self._newton()
-            report.newton_iterations, report.load_steps = its, int(ok)
-            report.residual_history = [self._history] if ok else []
-            report.attempts.append({"factor": 1.0, "iterations": int(its), "status": status})
-            report.status = status
-            if ok:
-                model.end_step()
+        predicted = self._tangent_predictor()
         model.changes.clear()
-        for attempt in report.attempts:
-            attempt["warm"] = True
+        ok, status, its = self._newton()
+        report = SolveReport(ok, status, its, int(ok), [self._history] if ok else [],
+                             [{"factor": 1.0, "iterations": int(its), "status": status, "warm": True,
+                               "predictor_step": predicted}])
         if ok:
-            report.converged, report.status = True, "converged"
+            model.end_step()
             saved.destroy()
             return self._finish(report, t0)
-        log.info("warm re-solve failed (%s); ramping from rest", report.status)
+        log.info("warm re-solve failed (%s); ramping from rest", status)
         self._factorised = False
         model.u.vector.set(0.0)
         model.sync(model.u.vector)
         cold = self.solve(steps)
         saved.destroy()
-        cold.newton_iterations += report.newton_iterations
+        cold.newton_iterations += its
         cold.attempts = report.attempts + cold.attempts
         cold.time = time.perf_counter() - t0
         return cold
