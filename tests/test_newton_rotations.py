@@ -59,16 +59,18 @@ def elastica_design(alpha, L=120.0, h=3.0, size=0.75, degree=2, **solver):
             "solver": dict(solver)}
 
 
-def curl_design(turn=0.5, L=100.0, h=4.0, d=1.2, k=100.0, size=0.5, degree=2, **solver):
-    """A strip clamped at y = 0, a tendon at d from its axis contracted by turn * pi * d
-    (a uniform curvature turn * pi / L: half a circle for turn = 0.5); markers along the axis."""
+def curl_design(contraction=7.3, L=100.0, h=4.0, d=1.2, k=100.0, size=0.5, degree=2, **solver):
+    """A strip clamped at y = 0, a tendon at d from its axis; markers along the axis.
+
+    The tendon bends the strip (kappa L d = pi d for half a circle) and
+    compresses it (kappa h^2 L / (12 d)): 7.3 mm curl it to about half a circle."""
     markers = {f"m{i}": [h / 2, L * i / 10] for i in range(1, 11)}
     return {"format": 1, "name": "curl", "dim": 2, "thickness": THICK,
             "mesh": {"size": size, "degree": degree},
             "materials": {"soft": {"E": E, "nu": NU}},
             "body": {"outline": [[0, 0], [h, 0], [h, L], [0, L]], "material": "soft"},
             "cables": [{"name": "flexor", "kind": "tendon", "path": [[h / 2 + d, 0], [h / 2 + d, L]],
-                        "stiffness": k, "contraction": turn * np.pi * d}],
+                        "stiffness": k, "contraction": contraction}],
             "pins": [{"name": "base", "region": [[-1, -1], [h + 1, 1e-6]], "kind": "fixed"}],
             "markers": markers,
             "solver": dict(solver)}
@@ -88,7 +90,7 @@ def _solve(design):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("alpha, cap", [(1.0, 15), (3.0, 25), (10.0, 45)])
+@pytest.mark.parametrize("alpha, cap", [(1.0, 15), (3.0, 25), (10.0, 25)])
 def test_elastica_tip_and_iterations(alpha, cap):
     L, h = 120.0, 3.0
     r = _solve(elastica_design(alpha))
@@ -101,9 +103,13 @@ def test_elastica_tip_and_iterations(alpha, cap):
 
 
 @pytest.mark.slow
-def test_curl_half_circle_curvature_and_iterations():
+@pytest.mark.parametrize("contraction, turn, rel", [(0.5 * np.pi * 1.2, 0.125, 0.03), (7.3, 0.5, 0.05)])
+def test_curl_curvature_and_iterations(contraction, turn, rel):
+    """turn: the fraction of a circle; rel: the tolerance on T d / (E'I), a linear beam's curvature
+    (at half a circle the tendon compresses the strip by 3.5 %, and the measured curvature is 4 %
+    below the linear formula; at an eighth of a circle, 0.9 %, it agrees within 3 %)."""
     L, h, d = 100.0, 4.0, 1.2
-    r = _solve(curl_design(0.5, L=L, h=h, d=d))
+    r = _solve(curl_design(contraction, L=L, h=h, d=d))
     assert r.converged
     assert r.newton_iterations <= 40
     T = r.cables["flexor"]["tension"]
@@ -111,8 +117,8 @@ def test_curl_half_circle_curvature_and_iterations():
     # the middle of the strip (away from the clamp and the tendon's end)
     pts = np.array([r.markers[f"m{i}"]["position"] for i in range(2, 9)])
     kappa = _circle_curvature(pts)
-    assert kappa == pytest.approx(kappa_beam, rel=0.03)
-    assert kappa * L == pytest.approx(np.pi, rel=0.15)     # about half a circle
+    assert kappa == pytest.approx(kappa_beam, rel=rel)
+    assert kappa * L / (2 * np.pi) == pytest.approx(turn, rel=0.15)
 
 
 def test_auto_is_curved_without_bones_and_energy_with():
