@@ -423,7 +423,14 @@ class NewtonSolver:
         self.model.apply_bcs(self.x)
         if not self.model.admissible(self.x):
             return False, "inverted_elements", 0
-        self.snes.solve(None, self.x)
+        try:
+            self.snes.solve(None, self.x)
+        except np.linalg.LinAlgError as exc:     # a singular Newton matrix: this attempt failed
+            log.debug("%s", exc)
+            self.lin.reset()
+            its = max(len(self._history) - 1, 0)
+            self.model.sync(self.model.u.vector)
+            return False, "linear_solve_failed", its
         self.model.sync(self.x)
         reason = self.snes.getConvergedReason()
         its = self.snes.getIterationNumber()
