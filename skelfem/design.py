@@ -23,7 +23,7 @@ FORMAT = 1
 MAX_COORDINATE = 1e7      # mm: geometry beyond +-10 km is a typo, and overflows the predicates
 MAX_STEPS = 10_000        # load steps and Newton iterations: a cap against runaway runs
 MAX_NAME = 100            # bytes in a design, entry or marker name
-LINE_SEARCHES = ("energy", "residual", "none", "trust_region")
+LINE_SEARCHES = ("auto", "energy", "curved", "residual", "none", "trust_region")
 SECTIONS_BY_NAME = ("bones", "cables", "pins", "loads", "grounds", "tractions")
 PRIMITIVES = ("box", "cylinder", "sphere", "extrude")
 
@@ -115,7 +115,7 @@ class ContactSpec:
 class SolverSpec:
     steps: int = 1
     max_iterations: int = 50
-    line_search: str = "energy"
+    line_search: str = "auto"
     rtol: float = 1e-9
     atol: float = 1e-10
 

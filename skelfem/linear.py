@@ -66,6 +66,14 @@ class LowRankSolver:
         self.G = np.column_stack([g.array_r for _, g in parts]) if parts else np.zeros((n, 0))
         self.Z = None
 
+    def reset(self) -> None:
+        """Forget a failed factorisation (the next update factorises from scratch)."""
+        self.ksp.reset()
+        self.ksp.setOperators(self.K)
+        self.ksp.setFromOptions()
+        self._dense = {}
+        self.Z = None
+
     def _check(self) -> None:
         reason = self.ksp.getConvergedReason()
         if reason < 0:

@@ -69,6 +69,11 @@ class Model:
         self.residual_form = fem.form(R)
         self.jacobian_form = fem.form(ufl.derivative(R, self.u, du))
         self.detF = min_jacobian_expression(self.u)
+        self._w = fem.Function(V)                         # scratch field for max_gradient
+        k = max(V.ufl_element().degree() - 1, 0)
+        W = fem.FunctionSpace(self.mesh, ("DG", k))
+        self._grad_w = fem.Expression(ufl.sqrt(ufl.inner(ufl.grad(self._w), ufl.grad(self._w))),
+                                      W.element.interpolation_points())
         self._vectors: list[PETSc.Vec] = []
         self._fixed_cache: dict = {}
         self._block_cache: dict = {}   # (term, block) -> its map into the matrix (see _term_blocks_at)
@@ -144,6 +149,14 @@ class Model:
         if x is not None:
             self.sync(x)
         return self.comm.allreduce(cell_values_min(self.detF, self.num_cells), op=MPI.MIN)
+
+    def max_gradient(self, v: PETSc.Vec) -> float:
+        """max |grad v| over the mesh (exact for P1 and P2 fields; reduced over ranks)."""
+        v.copy(self._w.vector)
+        self._w.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        cells = np.arange(self.num_cells, dtype=np.int32)
+        local = float(self._grad_w.eval(cells).max()) if self.num_cells else 0.0
+        return self.comm.allreduce(local, op=MPI.MAX)
 
     def admissible(self, x: PETSc.Vec) -> bool:
         """det F > 0 everywhere and every term accepts the state (e.g. no self-intersection)."""

@@ -9,7 +9,10 @@ ratio x E_silicone, the flexor's contraction to u. Strategies
 
 * ``none``: Newton with full steps,
 * ``residual``: PETSc's backtracking on |grad Pi|,
-* ``energy``: Armijo backtracking on Pi with the det F > 0 guard (the default),
+* ``energy``: Armijo backtracking on Pi with the det F > 0 guard (what the
+  default ``auto`` picks for designs with bones, such as this one),
+* ``curved``: the energy line search along the geodesic-acceleration curve,
+  with a watchdog and steps limited to 1 rad (what ``auto`` picks without bones),
 * ``trust_region``: PETSc's newtontr.
 
 Each runs in two load-stepping modes:
@@ -25,6 +28,14 @@ also checked to be the same equilibrium as the energy strategy's (tip within
 The study picks the strategy with the most successes, ties broken by total
 time. run(**params) returns the numbers; main(argv) writes cases.csv,
 summary.json and stability.png.
+
+Slender bodies that rotate a lot (``run_slender``, every strategy, default
+settings: one load step with the solver's cutting): a cantilever strip
+3 x 120 mm under a dead tip load with P L^2 / (E'I) = 1, 3, 10 (P2, h =
+0.75), a strip 4 x 100 mm curled by a tendon at 1.2 mm from its axis to half
+a circle and to a full one (P2, h = 0.5), and finger_soft.toml (no bones)
+at flexor contractions 16 and 24 mm. Written to slender.csv and the
+summary's "slender" entry.
 """
 from __future__ import annotations
 
@@ -41,7 +52,7 @@ ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "studies" / "output" / "stability"
 FINGER = ROOT / "geometry" / "finger.toml"
 
-STRATEGIES = ("none", "residual", "energy", "trust_region")
+STRATEGIES = ("none", "residual", "energy", "curved", "trust_region")
 RATIOS = (1.0, 10.0, 1e2, 1e3, 1e4, 1e5, 1e6)
 CONTRACTIONS = (4.0, 8.0, 16.0)
 STEPPING = (1, 4)
@@ -126,8 +137,8 @@ def summarise(rows: list[dict], ratios, contractions) -> dict:
 
 
 def run(ratios=RATIOS, contractions=CONTRACTIONS, strategies=STRATEGIES, stepping=STEPPING, size: float = 3.0,
-        agree_mm: float = 0.05, out: Path | None = None, progress=print) -> dict:
-    """Solve the whole grid; returns {"cases": [...], "summary": {...}}."""
+        agree_mm: float = 0.05, out: Path | None = None, progress=print, slender=()) -> dict:
+    """Solve the whole grid (and the slender cases named in `slender`); returns {"cases": [...], "summary": {...}}."""
     solve_case(1e3, 1.0, "energy", 1, size)     # warm-up: FFCx cache, imports
     rows = []
     for strategy in strategies:
@@ -142,9 +153,97 @@ def run(ratios=RATIOS, contractions=CONTRACTIONS, strategies=STRATEGIES, steppin
                                  f"{r['newton_iterations']:4d} its {r['load_steps']:3d} steps {r['time']:6.2f} s")
     check_agreement(rows, agree_mm)
     result = {"cases": rows, "summary": summarise(rows, ratios, contractions), "size": size}
+    if slender:
+        result["slender"] = run_slender(slender, strategies, progress)
+        result["summary"]["slender"] = summarise_slender(result["slender"])
     if out is not None:
         write_outputs(Path(out), result)
     return result
+
+
+E_SOFT, NU_SOFT, THICK = 1.0, 0.3, 10.0
+
+
+def elastica_dict(alpha: float, L=120.0, h=3.0, size=0.75) -> dict:
+    """A cantilever strip under a dead transverse tip load P L^2 / (E'I) = alpha (plane strain E')."""
+    P = alpha * E_SOFT / (1 - NU_SOFT ** 2) * THICK * h ** 3 / 12 / L ** 2
+    return {"format": 1, "name": "elastica", "dim": 2, "thickness": THICK, "mesh": {"size": size, "degree": 2},
+            "materials": {"soft": {"E": E_SOFT, "nu": NU_SOFT}},
+            "body": {"outline": [[0, 0], [L, 0], [L, h], [0, h]], "material": "soft"},
+            "pins": [{"name": "base", "region": [[-1, -1], [1e-6, h + 1]], "kind": "fixed"}],
+            "loads": [{"name": "tip", "at": [L, h / 2], "force": [0.0, -P]}],
+            "markers": {"tip": [L, h / 2]}}
+
+
+def curl_dict(contraction: float, L=100.0, h=4.0, d=1.2, size=0.5) -> dict:
+    """A strip clamped at one end, curled by a tendon at d from its axis (7.3 mm: half a circle)."""
+    return {"format": 1, "name": "curl", "dim": 2, "thickness": THICK, "mesh": {"size": size, "degree": 2},
+            "materials": {"soft": {"E": E_SOFT, "nu": NU_SOFT}},
+            "body": {"outline": [[0, 0], [h, 0], [h, L], [0, L]], "material": "soft"},
+            "cables": [{"name": "flexor", "kind": "tendon", "path": [[h / 2 + d, 0], [h / 2 + d, L]],
+                        "stiffness": 100.0, "contraction": contraction}],
+            "pins": [{"name": "base", "region": [[-1, -1], [h + 1, 1e-6]], "kind": "fixed"}],
+            "markers": {"tip": [h / 2, L]}}
+
+
+def soft_finger_dict(contraction: float) -> dict:
+    with open(ROOT / "geometry" / "finger_soft.toml", "rb") as f:
+        d = copy.deepcopy(tomllib.load(f))
+    next(c for c in d["cables"] if c["name"] == "flexor")["contraction"] = contraction
+    return d
+
+
+SLENDER = {"elastica PL²/EI=1": lambda: elastica_dict(1.0), "elastica PL²/EI=3": lambda: elastica_dict(3.0),
+           "elastica PL²/EI=10": lambda: elastica_dict(10.0), "curl ½ circle": lambda: curl_dict(7.3),
+           "curl full circle": lambda: curl_dict(14.6), "finger_soft u=16": lambda: soft_finger_dict(16.0),
+           "finger_soft u=24": lambda: soft_finger_dict(24.0)}
+
+
+def solve_slender(case: str, strategy: str) -> dict:
+    """One slender case at default settings with the given line search."""
+    from skelfem import Session
+    from skelfem.design import parse_design
+
+    d = SLENDER[case]()
+    d["solver"] = {**d.get("solver", {}), "line_search": strategy}
+    t0 = time.perf_counter()
+    try:
+        with Session(parse_design(d, f"{case}.toml")) as session:
+            result = session.solve()
+            converged, status, its = bool(result.converged), result.status, result.newton_iterations
+            attempts = len(result.attempts)
+            tip = result.markers["tip"]["position"] if converged else [float("nan")] * 2
+    except Exception as exc:          # a PETSc error inside a strategy is a failure of that strategy
+        converged, status, its, attempts, tip = False, f"error: {type(exc).__name__}", 0, 0, [float("nan")] * 2
+    return {"case": case, "strategy": strategy, "converged": converged, "status": status,
+            "newton_iterations": its, "attempts": attempts, "time": time.perf_counter() - t0,
+            "tip_x": float(tip[0]), "tip_y": float(tip[1])}
+
+
+def run_slender(cases=tuple(SLENDER), strategies=STRATEGIES, progress=print) -> list[dict]:
+    rows = []
+    for case in cases:
+        for strategy in strategies:
+            r = solve_slender(case, strategy)
+            rows.append(r)
+            if progress:
+                progress(f"{case:20s} {strategy:12s} {'ok  ' if r['converged'] else 'FAIL'} {r['status']:20s} "
+                         f"{r['newton_iterations']:5d} its {r['attempts']:3d} attempts {r['time']:7.2f} s")
+    return rows
+
+
+def summarise_slender(rows: list[dict]) -> dict:
+    per = {}
+    for s in STRATEGIES:
+        mine = [r for r in rows if r["strategy"] == s]
+        if mine:
+            per[s] = {"successes": sum(r["converged"] for r in mine), "cases": len(mine),
+                      "iterations": {r["case"]: (r["newton_iterations"] if r["converged"] else None) for r in mine},
+                      "total_time": float(sum(r["time"] for r in mine))}
+    return per
+
+
+SLENDER_FIELDS = ("case", "strategy", "converged", "status", "newton_iterations", "attempts", "time", "tip_x", "tip_y")
 
 
 CSV_FIELDS = ("strategy", "steps", "ratio", "contraction", "converged", "status", "newton_iterations",
@@ -156,6 +255,8 @@ def write_outputs(out: Path, result: dict) -> None:
 
     out.mkdir(parents=True, exist_ok=True)
     write_csv(out / "cases.csv", CSV_FIELDS, result["cases"])
+    if result.get("slender"):
+        write_csv(out / "slender.csv", SLENDER_FIELDS, result["slender"])
     write_json(out / "summary.json", {"size": result["size"], **result["summary"]})
     plot(out / "stability.png", result)
 
@@ -178,9 +279,13 @@ def plot(path: Path, result: dict) -> None:
     stepping = sorted({r["steps"] for r in rows})
     ratios = sorted({r["ratio"] for r in rows})
     us = sorted({r["contraction"] for r in rows})
-    its_max = max([r["newton_iterations"] for r in rows if r["converged"]] + [2])
-    fig, axes = plt.subplots(len(stepping), len(strategies), squeeze=False, dpi=110,
-                             figsize=(2.7 * len(strategies) + 1.2, 0.42 * len(ratios) * len(stepping) + 1.6))
+    slender = result.get("slender") or []
+    cases = list(dict.fromkeys(r["case"] for r in slender))
+    its_max = max([r["newton_iterations"] for r in rows + slender if r["converged"]] + [2])
+    heights = [len(ratios)] * len(stepping) + ([len(cases)] if cases else [])
+    fig, axes = plt.subplots(len(heights), len(strategies), squeeze=False, dpi=110,
+                             gridspec_kw={"height_ratios": heights},
+                             figsize=(2.7 * len(strategies) + 2.2, 0.42 * sum(heights) + 1.6))
     im = None
     for i, n in enumerate(stepping):
         for j, s in enumerate(strategies):
@@ -210,6 +315,29 @@ def plot(path: Path, result: dict) -> None:
                 ax.set_xlabel("contraction u [mm]")
             if j == 0:
                 ax.set_ylabel("E_bone / E_silicone")
+    if cases:
+        for j, s in enumerate(strategies):
+            ax = axes[len(stepping)][j]
+            grid = np.full((len(cases), 1), np.nan)
+            for r in slender:
+                if r["strategy"] == s and r["converged"]:
+                    grid[cases.index(r["case"]), 0] = max(r["newton_iterations"], 1)
+            im = ax.imshow(grid, origin="upper", aspect="auto", cmap="viridis_r", norm=LogNorm(vmin=1, vmax=its_max))
+            for r in slender:
+                if r["strategy"] != s:
+                    continue
+                y = cases.index(r["case"])
+                if r["converged"]:
+                    ax.text(0, y, str(r["newton_iterations"]), ha="center", va="center", fontsize=7,
+                            color="w" if r["newton_iterations"] > its_max ** 0.5 else "k")
+                else:
+                    ax.add_patch(plt.Rectangle((-0.5, y - 0.5), 1, 1, color="#c0392b"))
+                    ax.text(0, y, SHORT.get(r["status"].split(" ")[0].rstrip(":"), r["status"][:4]), ha="center",
+                            va="center", fontsize=7, color="w", fontweight="bold")
+            ax.set_xticks([])
+            ax.set_yticks(range(len(cases)), cases if j == 0 else [""] * len(cases), fontsize=7)
+            ok = sum(1 for r in slender if r["strategy"] == s and r["converged"])
+            ax.set_title(f"{s}, slender, default: {ok}/{len(cases)}", fontsize=9)
     fig.suptitle(f"finger.toml (h = {result['size']:g} mm): Newton iterations to converge; red = failure "
                  "(LS line search, MAX iterations, DIV diverged, INV inverted, TR trust region)", fontsize=9)
     fig.tight_layout(rect=(0, 0, 0.92, 0.95))
@@ -225,15 +353,19 @@ def main(argv=None) -> int:
     ap.add_argument("--figures", type=Path, default=None, help="also copy stability.png here (README)")
     ap.add_argument("--size", type=float, default=3.0, help="mesh size, mm")
     ap.add_argument("--quick", action="store_true", help="three ratios, one contraction, h = 5 (seconds)")
+    ap.add_argument("--no-slender", action="store_true", help="skip the slender large-rotation cases")
     a = ap.parse_args(argv)
     if a.quick:
-        res = run(ratios=(1.0, 1e3, 1e6), contractions=(DEMO_CONTRACTION,), size=5.0, out=a.out)
+        res = run(ratios=(1.0, 1e3, 1e6), contractions=(DEMO_CONTRACTION,), size=5.0, out=a.out,
+                  slender=() if a.no_slender else ("elastica PL²/EI=3",))
     else:
-        res = run(size=a.size, out=a.out)
+        res = run(size=a.size, out=a.out, slender=() if a.no_slender else tuple(SLENDER))
     s = res["summary"]
     for name, p in s["strategies"].items():
         say(f"{name:12s} {p['successes']:3d}/{p['cases']} converged (by steps {p['by_steps']}), "
               f"median {p['median_iterations']} its, {p['total_time']:.1f} s; failures: {', '.join(p['failures']) or '-'}")
+    for name, p in s.get("slender", {}).items():
+        say(f"slender {name:12s} {p['successes']}/{p['cases']} converged, {p['total_time']:.1f} s: {p['iterations']}")
     say(f"picked: {s['picked']} (default: {s['default']}); energy converges over all ratios at "
           f"u = {DEMO_CONTRACTION:g} mm: {s['energy_converges_over_all_ratios_at_demo_contraction']}")
     if a.figures is not None:

@@ -109,7 +109,7 @@ def test_bad_design_is_one_error_naming_file_and_key(label, factory, changes, ex
 
 def test_good_design_parses_with_defaults():
     d = parse_design(strip(bones=True), "robot.toml")
-    assert d.dim == 2 and d.mesh.degree == 1 and d.solver.steps == 1 and d.solver.line_search == "energy"
+    assert d.dim == 2 and d.mesh.degree == 1 and d.solver.steps == 1 and d.solver.line_search == "auto"
     assert [b.name for b in d.bones] == ["b1", "b2"]
     assert d.cables[0].kind == "tendon" and d.cables[0].contraction == 0.1
     assert np.allclose(d.pins[0].move, 0.0) and d.pins[0].kind == "fixed"

@@ -36,3 +36,14 @@ def test_strategies_that_converge_agree_on_the_equilibrium():
     assert len(ok) == 2
     assert all(r["same_equilibrium"] and r["tip_deviation"] < 1e-4 for r in ok)
     assert np.isfinite(res["summary"]["strategies"]["none"]["median_iterations"])
+
+
+def test_slender_case_curved_beats_monotone_energy():
+    study = _load()
+    rows = study.run_slender(("elastica PL²/EI=3",), ("energy", "curved"), progress=None)
+    by = {r["strategy"]: r for r in rows}
+    assert by["curved"]["converged"] and by["energy"]["converged"]
+    assert by["curved"]["newton_iterations"] <= 25 < by["energy"]["newton_iterations"]
+    assert np.hypot(by["curved"]["tip_x"] - by["energy"]["tip_x"], by["curved"]["tip_y"] - by["energy"]["tip_y"]) < 1e-3
+    s = study.summarise_slender(rows)
+    assert s["curved"]["successes"] == 1 and s["curved"]["iterations"]["elastica PL²/EI=3"] <= 25

@@ -178,8 +178,8 @@ def build(ctx: Context) -> list[Term]:
         raise DesignError(f"{where}: self-contact is implemented for dim = 2 only")
     if ctx.comm.size > 1:
         raise DesignError(f"{where}: self-contact runs on one MPI process (got {ctx.comm.size})")
-    if d.solver.line_search != "energy":
-        raise DesignError(f"{where}: self-contact needs solver.line_search = \"energy\" "
+    if d.solver.line_search not in ("auto", "energy", "curved"):
+        raise DesignError(f"{where}: self-contact needs solver.line_search = \"energy\" or \"curved\" "
                           f"(got {d.solver.line_search!r}): only it limits steps to collision-free ones")
     contact = SelfContact(ctx.V, d.contact.dhat, d.materials[d.body.material].E, float(d.thickness))
     d0 = contact.min_distance(np.zeros(len(ctx.u.x.array)))
