@@ -158,35 +158,19 @@ def _grid_pairs(box, labels, ids, region, depth):
     small = np.repeat(sizes <= LEAF, sizes)
     # small cells: pairs at offsets 1 .. LEAF - 1 within the sorted run
     cs, ss = cid[small], ids[seg[small]]
-    out_I, out_J, count = [], [], 0
-    for d in range(1, min(LEAF, len(cs))):
-        m = cs[:-d] == cs[d:]
-        if not m.any():
-            break
-        I, J = _emit(box, labels, ss[:-d][m], ss[d:][m])
-        out_I.append(I)
-        out_J.append(J)
-        count += len(I)
-        if count >= CHUNK:
-            yield _unique_pairs(out_I, out_J)
-            out_I, out_J, count = [], [], 0
-    if count:
-        yield _unique_pairs(out_I, out_J)
+
+    def offsets():
+        for d in range(1, min(LEAF, len(cs))):
+            m = cs[:-d] == cs[d:]
+            if not m.any():
+                return
+            yield _emit(box, labels, ss[:-d][m], ss[d:][m])
+    yield from _chunked(offsets())
     # crowded cells: pairwise up to MEDIUM boxes, else recurse into the cell
     # (or pairwise if that makes no progress)
-    out_I, out_J, count = [], [], 0
-    for s, k in zip(starts[(sizes > LEAF) & (sizes <= MEDIUM)], sizes[(sizes > LEAF) & (sizes <= MEDIUM)]):
-        members = ids[seg[s:s + k]]
-        i, j = np.triu_indices(k, 1)
-        I, J = _emit(box, labels, members[i], members[j])
-        out_I.append(I)
-        out_J.append(J)
-        count += len(I)
-        if count >= CHUNK:
-            yield _unique_pairs(out_I, out_J)
-            out_I, out_J, count = [], [], 0
-    if count:
-        yield _unique_pairs(out_I, out_J)
+    medium = (sizes > LEAF) & (sizes <= MEDIUM)
+    yield from _chunked(_emit(box, labels, *(ids[seg[s:s + k]][ij] for ij in np.triu_indices(k, 1)))
+                        for s, k in zip(starts[medium], sizes[medium]))
     for s, k in zip(starts[sizes > MEDIUM], sizes[sizes > MEDIUM]):
         members = ids[seg[s:s + k]]
         c = cid[s]
@@ -197,6 +181,20 @@ def _grid_pairs(box, labels, ids, region, depth):
             yield from _grid_pairs(box, labels, members, sub, depth + 1)
         else:
             yield from _all_pairs(box, labels, members)
+
+
+def _chunked(pairs):
+    """The (I, J) arrays of pairs merged and made unique, a chunk every CHUNK pairs (memory stays bounded)."""
+    out_I, out_J, count = [], [], 0
+    for I, J in pairs:
+        out_I.append(I)
+        out_J.append(J)
+        count += len(I)
+        if count >= CHUNK:
+            yield _unique_pairs(out_I, out_J)
+            out_I, out_J, count = [], [], 0
+    if count:
+        yield _unique_pairs(out_I, out_J)
 
 
 def _unique_pairs(Is, Js):

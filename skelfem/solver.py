@@ -552,9 +552,8 @@ class NewtonSolver:
                 self.lin.solve(self.b, d)
             except np.linalg.LinAlgError:
                 return 0.0
-            p = -d.array_r.copy()
-            model.apply_bcs(x)                              # pins moved: the bc rows of p follow g
-            model.residual(x, self.b)
+            p = -d.array_r.copy()                           # pinned rows: g(p_1) - g(p_0)
+            model.gradient(x, self.b)                       # grad Pi with the new parameters, all rows
             r = self.b.array_r
             slope = float(model.comm.allreduce(r @ p))
             if not np.isfinite(slope) or slope >= 0.0:

@@ -52,6 +52,17 @@ def finger4():
     session.close()
 
 
+@pytest.fixture(scope="module")
+def editor(tmp_path_factory):
+    """A running editor server (127.0.0.1, a free port) on a copy of geometry/finger.toml."""
+    from skelfem.editor.server import Editor
+    folder = tmp_path_factory.mktemp("designs")
+    shutil.copy(GEOMETRY / "finger.toml", folder / "finger.toml")
+    ed = Editor(folder / "finger.toml", port=0).start()
+    yield ed
+    ed.stop()
+
+
 # -- subprocesses under mpirun --------------------------------------------------------------------------
 class Mpirun:
     """Runs commands serially or under ``mpirun -n N`` with the environment the Makefile sets."""

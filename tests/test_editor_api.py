@@ -27,16 +27,6 @@ from skelfem.editor.worker import Superseded, Worker
 
 
 @pytest.fixture(scope="module")
-def editor(tmp_path_factory):
-    from skelfem.editor.server import Editor
-    folder = tmp_path_factory.mktemp("designs")
-    shutil.copy(GEOMETRY / "finger.toml", folder / "finger.toml")
-    ed = Editor(folder / "finger.toml", port=0).start()
-    yield ed
-    ed.stop()
-
-
-@pytest.fixture(scope="module")
 def design():
     return tomllib.loads((GEOMETRY / "finger.toml").read_text())
 

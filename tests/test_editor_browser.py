@@ -31,16 +31,6 @@ def figures(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def editor(tmp_path_factory):
-    from skelfem.editor.server import Editor
-    folder = tmp_path_factory.mktemp("designs")
-    shutil.copy(GEOMETRY / "finger.toml", folder / "finger.toml")
-    ed = Editor(folder / "finger.toml", port=0).start()
-    yield ed
-    ed.stop()
-
-
-@pytest.fixture(scope="module")
 def page(editor):
     try:
         driver = chrome()

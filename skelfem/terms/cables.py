@@ -134,15 +134,15 @@ def anchor_samples(center: np.ndarray, radius: float, per_radius: int = 4) -> np
 
 
 def _anchored_interpolation(V, X: np.ndarray, anchors: dict):
-    """(S, DofGather) of the via points X, rows of anchored points replaced by their disk's mean.
+    """(S, DofGather, owner of each via point) of the via points X, rows of anchored points replaced
+    by their disk's mean.
 
     S_anchored = A S_all over the via points and every anchor's lattice
     points inside the mesh (A: identity rows, and rows of equal weights).
     """
     mesh = V.mesh
     if not anchors:
-        S, gather, _ = global_interpolation(V, X)
-        return S, gather
+        return global_interpolation(V, X)
     gdim = mesh.geometry.dim
     points, rows, cols, vals = [X], [], [], []
     n = len(X)
@@ -162,11 +162,11 @@ def _anchored_interpolation(V, X: np.ndarray, anchors: dict):
         vals += [1.0 / m] * m
         offset += m
     A = sp.kron(sp.csr_matrix((vals, (rows, cols)), shape=(n, offset)), sp.identity(gdim), format="csr")
-    S_all, gather_all, _ = global_interpolation(V, np.vstack(points))
+    S_all, gather_all, owner = global_interpolation(V, np.vstack(points))
     S = (A @ S_all).tocsc()
     used = np.flatnonzero(np.diff(S.indptr) > 0)                # DOFs some via point still touches
     gather = DofGather(V, gather_all.dofs[used])
-    return S[:, used].tocsr(), gather
+    return S[:, used].tocsr(), gather, owner[:n]
 
 
 def _block_diagonal(blocks: np.ndarray) -> sp.csr_matrix:
@@ -204,11 +204,10 @@ class Cable:
         end pull on the mean displacement of a disk (2D) or ball (3D) of that radius (a finite anchor)."""
         mesh = V.mesh
         X = via_points(mesh, spec.path)
-        owner, _ = owner_ranks(mesh, X)
+        S, gather, owner = _anchored_interpolation(V, X, {(0 if k == 0 else len(X) - 1): r
+                                                          for k, r in (anchors or {}).items()})
         if np.any(owner == mesh.comm.size):
             raise ValueError(f"cable {spec.name!r} leaves the mesh")
-        S, gather = _anchored_interpolation(V, X, {(0 if k == 0 else len(X) - 1): r
-                                                   for k, r in (anchors or {}).items()})
         gdim = mesh.geometry.dim
         n = len(X)
         D = sp.kron(sp.diags([-np.ones(n - 1), np.ones(n - 1)], [0, 1], shape=(n - 1, n)),
