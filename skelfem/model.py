@@ -23,9 +23,12 @@ from dolfinx.fem import petsc as fem_petsc
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from . import jitcache
 from .points import global_dof_numbers
 from .terms import BUILDERS, Context
 from .terms.elasticity import cell_values_min, min_jacobian_expression
+
+jitcache.install()
 
 
 class Model:

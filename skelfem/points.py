@@ -7,6 +7,8 @@ operator that cables, point loads and markers share.
 """
 from __future__ import annotations
 
+import functools
+
 import basix
 import numpy as np
 import scipy.sparse as sp
@@ -46,6 +48,12 @@ def locate_cells(mesh, points: np.ndarray, below: int | None = None) -> np.ndarr
     return cells
 
 
+@functools.lru_cache(maxsize=None)
+def _lagrange(cell: str, degree: int):
+    return basix.create_element(basix.ElementFamily.P, _BASIX_CELL[cell], degree,
+                                basix.LagrangeVariant.equispaced)
+
+
 def reference_coordinates(mesh, points: np.ndarray, cells: np.ndarray) -> np.ndarray:
     """Pull points back to reference coordinates of affine simplex cells."""
     gdim = mesh.geometry.dim
@@ -69,9 +77,7 @@ def interpolation_matrix(V, points: np.ndarray, cells: np.ndarray | None = None)
     n_local = (V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts) * bs
     if len(points) == 0:
         return sp.csr_matrix((0, n_local))
-    element = basix.create_element(
-        basix.ElementFamily.P, _BASIX_CELL[mesh.topology.cell_type.name],
-        V.ufl_element().degree(), basix.LagrangeVariant.equispaced)
+    element = _lagrange(mesh.topology.cell_type.name, V.ufl_element().degree())
     xi = reference_coordinates(mesh, points, cells)
     phi = element.tabulate(0, xi)[0, :, :, 0]                    # (n_points, n_cell_dofs)
     cell_dofs = V.dofmap.list.array.reshape(-1, phi.shape[1])[cells]  # (n_points, n_cell_dofs)
@@ -87,7 +93,15 @@ def interpolation_matrix(V, points: np.ndarray, cells: np.ndarray | None = None)
 
 # -- material points under MPI ------------------------------------------------------------------
 def global_dof_numbers(V) -> np.ndarray:
-    """Global (unrolled) DOF number of every local DOF, owned and ghost."""
+    """Global (unrolled) DOF number of every local DOF, owned and ghost (computed once per space)."""
+    out = getattr(V, "_skelfem_global_dofs", None)
+    if out is None:
+        out = V._skelfem_global_dofs = _global_dof_numbers(V)
+        out.flags.writeable = False
+    return out
+
+
+def _global_dof_numbers(V) -> np.ndarray:
     bs = V.dofmap.index_map_bs
     imap = V.dofmap.index_map
     nodes = imap.local_to_global(np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32))

@@ -41,11 +41,13 @@ from .base import Context, Term
 _EPS = 1e-10
 
 
-def _mesh_facets(mesh) -> np.ndarray:
-    """Vertex coordinates of every facet, shape (n_facets, tdim, gdim) (computed once per mesh)."""
+def _mesh_facets(mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(vertex coordinates of every facet (n_facets, tdim, gdim), their bounding boxes' lower and
+    upper corners), computed once per mesh."""
     facets = getattr(mesh, "_skelfem_facets", None)
     if facets is None:
-        facets = mesh._skelfem_facets = _facet_vertices(mesh)
+        x = _facet_vertices(mesh)
+        facets = mesh._skelfem_facets = (x, x.min(axis=1), x.max(axis=1))
     return facets
 
 
@@ -98,8 +100,7 @@ def via_points(mesh, path: np.ndarray) -> np.ndarray:
     every rank gets the same via points as a serial run.
     """
     path = np.asarray(path, dtype=float)
-    facets = _mesh_facets(mesh)
-    lo_f, hi_f = facets.min(axis=1), facets.max(axis=1)
+    facets, lo_f, hi_f = _mesh_facets(mesh)
     crossings = _crossings_2d if mesh.geometry.dim == 2 else _crossings_3d
     cuts = []
     for p, q in zip(path[:-1], path[1:]):  # loop over sketch segments, not DOFs
@@ -385,6 +386,13 @@ class CableTerm(Term):
 
 def default_anchor_radius(ctx: Context) -> float:
     """1 % of the body's bounding-box diagonal (about a knot or bead on a finger-sized body)."""
+    radius = getattr(ctx, "_anchor_radius", None)
+    if radius is None:
+        radius = ctx._anchor_radius = _one_percent_of_diagonal(ctx)
+    return radius
+
+
+def _one_percent_of_diagonal(ctx: Context) -> float:
     x = ctx.mesh.geometry.x[:, :ctx.dim]
     lo = x.min(axis=0) if len(x) else np.full(ctx.dim, np.inf)
     hi = x.max(axis=0) if len(x) else np.full(ctx.dim, -np.inf)
