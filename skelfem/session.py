@@ -137,18 +137,23 @@ class Session:
         self._build()
 
     # -- building -----------------------------------------------------------------------------
-    def _build(self) -> None:
+    def _build(self, tm=None) -> None:
+        """A model and solver for self.design on tm (default: a new mesh of the design)."""
         from .geometry import mesh_design
         from .model import Model
         from .solver import NewtonSolver
 
         t0 = time.perf_counter()
-        tm = mesh_design(self.design, self.comm)
+        fresh = tm is None
+        if fresh:
+            tm = mesh_design(self.design, self.comm)
         t1 = time.perf_counter()
         model = Model(self.design, tm)
         solver = NewtonSolver(model, self.design.solver)
         self.close()
         self.model, self.solver, self.solved = model, solver, False
+        if fresh:
+            self._meshed, self._morph = self.design, None     # the design the mesh was made for
         self.timings = {"mesh": t1 - t0, "compile": time.perf_counter() - t1}
 
     @property
@@ -156,10 +161,15 @@ class Session:
         return int(self.model.V.dofmap.index_map.size_global * self.model.bs)
 
     # -- changing the design ---------------------------------------------------------------------
-    def set(self, changes: dict) -> None:
-        """Apply ``{--set key: value}``: live parameters in place, anything else by re-meshing."""
-        overrides = [f"{key}={_toml(value)}" for key, value in changes.items()]
-        design = parse_design(self.design.raw, self.design.source, overrides)
+    def set(self, changes: dict, design: Design | None = None) -> None:
+        """Apply ``{--set key: value}``: live parameters in place, anything else by re-meshing.
+
+        design: the validated Design these changes lead to, when the caller
+        has it already (the editor does): it is not parsed again.
+        """
+        if design is None:
+            overrides = [f"{key}={_toml(value)}" for key, value in changes.items()]
+            design = parse_design(self.design.raw, self.design.source, overrides)
         live = self.model.parameters()
         if not all(key in live for key in changes):
             self.edit(design)
@@ -168,9 +178,22 @@ class Session:
             self.model.set_parameter(key, value)
         self.design = design
 
-    def edit(self, design, overrides=()) -> None:
-        """Replace the design (a path, a dict or a Design) and re-mesh; the last solution is the start."""
+    def edit(self, design, overrides=(), morph: bool = False) -> str:
+        """Replace the design (a path, a dict or a Design); the last solution is the start.
+
+        The design is re-meshed, unless its mesh would be the same: when the
+        outlines, holes, bones and mesh size are those the current mesh was
+        made for (a cable, marker, pin or material edit), the mesh is kept.
+        morph=True (the editor's drafts while dragging) also keeps the mesh
+        when only polygon vertices moved, moving its nodes with them
+        (:mod:`skelfem.morph`), if the moved mesh stays good; otherwise it re-meshes.
+        Returns how: "re-meshed", "same mesh" or "moved nodes".
+        """
         design = as_design(design, overrides)
+        x = self._same_mesh(design, morph)
+        if x is not None:
+            self._move_mesh(design, x)
+            return "moved nodes" if morph and np.any(x != self._morph.X0) else "same mesh"
         old_model, old_solved = self.model, self.solved
         start = None
         if old_solved and self.comm.size == 1:
@@ -180,6 +203,43 @@ class Session:
         self._build()
         if start is not None:
             self._carry_over(*start)
+            self.solved = True
+        return "re-meshed"
+
+    def _same_mesh(self, design, morph: bool) -> np.ndarray | None:
+        """Node coordinates of the current mesh fit for design (see edit), or None to re-mesh."""
+        from .morph import Morph, polygons
+        meshed = self._meshed
+        if (self.comm.size != 1 or design.dim != 2 or self.model is None
+                or float(design.mesh.size) != float(meshed.mesh.size)
+                or int(design.mesh.degree) != int(self.design.mesh.degree)):
+            return None
+        if self._morph is None:
+            self._morph = Morph(self.model.tm, meshed)
+        if not morph:
+            new, old = polygons(design), self._morph.polys0
+            same = len(new) == len(old) and all(p.shape == q.shape and np.array_equal(p, q)
+                                                for p, q in zip(new, old))
+            return self._morph.X0 if same else None
+        return self._morph.moved(design)
+
+    def _move_mesh(self, design, x: np.ndarray) -> None:
+        """Rebuild the model for design on the current mesh with node coordinates x; u carries over as is."""
+        old_design, old_x = self.design, self.model.mesh.geometry.x[:, :2].copy()
+        u = self.model.u.x.array.copy() if self.solved else None
+        self._morph.apply(x)
+        self.design = design
+        try:
+            self._build(self.model.tm)
+        except BaseException:
+            self._morph.apply(old_x)
+            self.design = old_design
+            raise
+        if u is not None:
+            self.model.u.x.array[:] = u
+            self.model.set_factor(1.0)
+            self.model.carry_over(self.model.u.vector)         # bones: their best rigid motion
+            self.model.apply_bcs(self.model.u.vector)
             self.solved = True
 
     def _carry_over(self, X_old: np.ndarray, u_old: np.ndarray, old_model) -> None:

@@ -6,8 +6,8 @@ with real pointer input (one move every `step_ms` ms, as a mouse sends them):
 
 * contraction: the flexor's slider, back and forth (a live parameter: warm
   re-solve on the same mesh);
-* vertex: a vertex of the distal bone, back and forth (drafts on a mesh twice
-  as coarse while dragging, the full mesh on release).
+* vertex: a vertex of the distal bone, back and forth (drafts move the
+  mesh's nodes with the bone while dragging; a new mesh on release).
 
 The page marks every input event (``performance.mark("input-N")``) and the
 frame after the picture that shows it (``paint-N``); ``performance.measure``
@@ -46,21 +46,23 @@ def _pct(values) -> dict:
 
 
 def _reset(page) -> None:
-    page.js("(() => { S.latency = {rendered: [], events: []}; S.server = [];"
+    page.js("(() => { S.latency = {rendered: [], events: []}; S.server = []; S.renderMs = [];"
             " performance.clearMarks(); performance.clearMeasures(); return 1; })()")
 
 
 def _collect(page) -> dict:
     measures = page.js("performance.getEntriesByType('measure').map(m => [m.name, m.duration])")
     events = page.js("S.latency.events.map(e => [e.kind, e.ms])")
-    server = page.js("S.server.map(e => [e.how, 1000 * e.s])")
-    out: dict = {"rendered": {}, "every_event": {}, "server_ms": {}}
+    server = page.js("S.server.map(e => [e.how, 1000 * e.s, e.rtt])")
+    out: dict = {"rendered": {}, "every_event": {}, "server_ms": {}, "round_trip_ms": {},
+                 "render_ms": _pct(page.js("S.renderMs"))}
     kinds = sorted({name.split("-")[1] for name, _ in measures} | {k for k, _ in events})
     for kind in kinds:
         out["rendered"][kind] = _pct([ms for name, ms in measures if name.split("-")[1] == kind])
         out["every_event"][kind] = _pct([ms for k, ms in events if k == kind])
-    for how in sorted({h for h, _ in server}):
-        out["server_ms"][how] = _pct([ms for h, ms in server if h == how])
+    for how in sorted({h for h, _, _ in server}):
+        out["server_ms"][how] = _pct([ms for h, ms, _ in server if h == how])
+        out["round_trip_ms"][how] = _pct([rtt for h, _, rtt in server if h == how])
     return out
 
 
@@ -187,12 +189,15 @@ def main(argv=None) -> dict:
     print("input event -> updated picture (the request's own event; every event incl. waiting):")
     print(_row("contraction slider", res["contraction"]["rendered"].get("contraction")))
     print(_row("  every event", res["contraction"]["every_event"].get("contraction")))
-    print(_row("vertex drag (draft mesh)", res["vertex"]["rendered"].get("vertex")))
+    print(_row("vertex drag (draft: moved nodes)", res["vertex"]["rendered"].get("vertex")))
     print(_row("  every event", res["vertex"]["every_event"].get("vertex")))
     print(_row("vertex release (full mesh)", res["vertex"]["rendered"].get("release")))
-    print("server time per answer:")
+    print("server time per answer, and from sending the request to having the answer in the page:")
     for how, v in {**res["contraction"]["server_ms"], **res["vertex"]["server_ms"]}.items():
         print(_row(how, v))
+    for how, v in {**res["contraction"]["round_trip_ms"], **res["vertex"]["round_trip_ms"]}.items():
+        print(_row(f"{how}, round trip", v))
+    print(_row("drawing the answer (JavaScript)", res["vertex"]["render_ms"]))
     print("POST /api/solve from a script:")
     print(_row("one bone vertex moved 0.5 mm", res["api"]["one_vertex_ms"]))
     print(_row("contraction changed 0.5 mm", res["api"]["contraction_ms"]))

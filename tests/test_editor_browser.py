@@ -64,9 +64,9 @@ def test_drag_bone_vertex_changes_equilibrium(page):
     page.drag_by(bone_vertex(page), -10, 6, steps=12)
     page.idle()
     editor = page.js("S.answer.editor")
-    assert editor["how"] == "edit" and not editor["draft"]           # the full solve follows the release
+    assert editor["how"] == "edit (re-meshed)" and not editor["draft"]           # the full solve follows the release
     hows = page.js("S.server.map(x => x.how)")
-    assert "edit (draft)" in hows                                    # drafts answered while dragging
+    assert "edit (moved nodes)" in hows                                    # drafts answered while dragging
     assert page.solves() >= solves0 + 2
     moved = page.js("S.design.bones[2].outline[0]")
     assert moved[0] < 6 - 0.5 and moved[1] < 74 - 0.2

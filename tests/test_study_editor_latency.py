@@ -14,7 +14,7 @@ def test_editor_latency_tiny(tmp_path, picture):
     assert res["contraction"]["every_event"]["contraction"]["n"] >= 4       # every move is shown, none lost
     assert res["vertex"]["rendered"]["release"]["n"] == 1                   # the full solve after the drag
     assert res["vertex"]["every_event"]["vertex"]["n"] >= 4
-    assert "edit (draft)" in res["vertex"]["server_ms"] and "set" in res["contraction"]["server_ms"]
-    assert res["api"]["one_vertex_ms"]["n"] == 2 and res["api"]["hows"] == ["edit"]
+    assert "edit (moved nodes)" in res["vertex"]["server_ms"] and "set" in res["contraction"]["server_ms"]
+    assert res["api"]["one_vertex_ms"]["n"] == 2 and res["api"]["hows"] == ["edit (re-meshed)"]
     assert json.loads((tmp_path / "latency.json").read_text())["api"]["one_vertex_ms"]["n"] == 2
     picture(tmp_path / "editor_latency.png", 1000, 700)

@@ -8,12 +8,16 @@ Session holds and takes the cheapest way there:
   loads, pin moves, ...; ``model.parameters()``): ``Session.set``, a warm re-solve
   on the same mesh and matrix;
 * anything else (outlines, holes, cable sketches, markers, mesh size, ...):
-  ``Session.edit``, a re-mesh with the last solution carried over.
+  ``Session.edit``, with the last solution carried over: a re-mesh, or the
+  same mesh when the outlines and the mesh size did not change (cables,
+  markers, pins...).
 
-``draft=True`` (the page sends it while a vertex is being dragged) meshes at
-DRAFT_FACTOR x the design's mesh size: a quick, coarser picture; the page
-sends the same design without ``draft`` on release, which re-meshes at the
-design's own size. ``Engine.ik`` runs Soft IK (skelfem.control.SoftIK, the
+``draft=True`` (the page sends it while a vertex is being dragged) keeps the
+mesh and moves its nodes with the dragged outline (``Session.edit(...,
+morph=True)``, :mod:`skelfem.morph`): no meshing, no new DOF numbering, the
+last equilibrium as the exact start. Where the moved mesh would be poor it
+re-meshes. The page sends the same design without ``draft`` on release,
+which re-meshes, so the answer is the one ``skelfem simulate`` gives. ``Engine.ik`` runs Soft IK (skelfem.control.SoftIK, the
 same as ``skelfem ik``) for a marker target from the current equilibrium;
 ligaments are never actuated.
 
@@ -25,7 +29,6 @@ worker's) calls it.
 from __future__ import annotations
 
 import copy
-import dataclasses
 import logging
 import math
 import re
@@ -33,12 +36,11 @@ import time
 
 import numpy as np
 
-from ..design import SECTIONS_BY_NAME, DesignError, MeshSpec, parse_design
+from ..design import SECTIONS_BY_NAME, DesignError, parse_design
 from .payload import mesh_payload
 
 log = logging.getLogger("skelfem")
 
-DRAFT_FACTOR = 2.0        # a draft (while dragging) meshes this much coarser
 IK_LIVE_SOLVES = 12       # forward solves of one Soft IK request while a target is dragged
 IK_FINAL_SOLVES = 40      # ... and when it is let go (as `skelfem ik`)
 CONTRACTION_DECIMALS = 4  # contractions Soft IK finds are written back rounded to 0.1 um
@@ -129,15 +131,11 @@ class Engine:
     def _answer(self, result, t0: float, how: str) -> dict:
         payload = result.to_dict()
         payload["mesh"] = mesh_payload(self.session.model) if result.converged else None
-        payload["editor"] = {"how": how, "draft": self.draft, "mesh_size": self.meshed_size(),
+        payload["editor"] = {"how": how, "draft": self.draft, "mesh_size": float(self.session.design.mesh.size),
                              "seconds": round(time.perf_counter() - t0, 4)}
         if result.converged:
             self.answer, self.good = payload, self.session.design
         return payload
-
-    def meshed_size(self) -> float:
-        d = self.session.design
-        return float(d.mesh.size * (DRAFT_FACTOR if self.draft else 1.0))
 
     # -- solving --------------------------------------------------------------------------------------
     def solve(self, design: dict, draft: bool = False) -> dict:
@@ -155,25 +153,22 @@ class Engine:
         changes = live_changes(self.flat, flat, self.session.model.parameters()) if draft == self.draft else None
         if changes is not None:
             how = "set"
-            self.session.set(changes)       # validated above: the same design
+            self.session.set(changes, design=d)       # validated above
         else:
-            how = "edit (draft)" if draft else "edit"
-            self._edit(d, draft)
+            how = f"edit ({self._edit(d, draft)})"
         self.flat, self.draft = flat, draft
         return self._answer(self.session.solve(), t0, how)
 
-    def _edit(self, d, draft: bool) -> None:
+    def _edit(self, d, draft: bool) -> str:
+        """Session.edit (moving the mesh's nodes for a draft); returns how the mesh was got."""
         from ..geometry import MeshingError
-        meshed = dataclasses.replace(d, mesh=MeshSpec(d.mesh.size * DRAFT_FACTOR, d.mesh.degree)) if draft else d
         old = self.session.design
         try:
-            self.session.edit(meshed)
+            return self.session.edit(d, morph=draft)
         except (DesignError, MeshingError) as exc:   # the old mesh, model and solution are intact
             self.session.design = old
             raise EditError(f"{self.source}: {exc}" if isinstance(exc, MeshingError) else str(exc),
                             error_key(str(exc), self.source)) from None
-        if draft:
-            self.session.design = d        # the design as given (its raw has the real mesh size)
 
     def ik(self, design: dict, marker: str, target, final: bool = True) -> dict:
         """Soft IK: tendon contractions that bring marker to target, from the current equilibrium.
