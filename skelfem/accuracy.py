@@ -1,66 +1,173 @@
-"""Model no more than the scene needs: mesh size and degree for a marker tolerance.
+"""Model no more than the scene needs: refine the design's own mesh until its error estimate meets --tol.
 
-``skelfem simulate DESIGN --tol ABS_MM`` picks (degree p, size h) so that the
-estimated marker position error stays below ABS_MM at the least predicted
-cost. The models were fitted by ``studies/speed_accuracy.py`` on finger.toml
-(tip motion U_ref = 46.3 mm) against a Richardson-checked P2 reference:
+``skelfem simulate DESIGN --tol ABS_MM`` solves the design itself with P2 on
+a ladder of uniform meshes h_0 > h_1 > ... (each solve warm-started from the
+last) and estimates the marker error of each by Richardson extrapolation on
+the design itself, not on curves fitted to another design:
 
-    error   e_p(h) = C_p (U / U_ref) h^r_p      C_1 = 0.50, r_1 = 0.99;  C_2 = 0.086, r_2 = 1.47
-    cost    t_p(h) ~ T_p h^-q_p                  T_1 = 0.685, q_1 = 1.78;  T_2 = 3.16, q_2 = 2.14
+    with x_k the marker positions on h_k, d_k = max_markers |x_k - x_{k-1}|
+    and e(h) = C h^r, the error of level k is   E_k = d_k / (rho_k^r - 1),
+    rho_k = h_{k-1} / h_k, and the rate r is observed from the last three
+    levels (d_{k-1} / d_k = rho^r for equal ratios), clipped to [R_MIN, R_MAX].
 
-U, the design's largest marker motion, comes from a cheap P2 solve at h = 4
-(the error models scale with the motion). Each degree gets the coarsest h in
-[H_MIN, H_MAX] with 2 e_p(h) <= tol; the cheaper one wins. P1 triangles lock
-for nearly incompressible materials, so nu > 0.49 forces P2.
+It starts from h_0 = 2x the design's [mesh] size, halves h twice (three levels:
+the rate needs them; in 3D the ratio is sqrt 2), and then, while E_k > tol,
+jumps to the size the model predicts for tol / SAFETY. It stops when
+E_k <= tol (``met: true``), or when the next mesh would pass the DOF limit
+of skelfem.resources or MAX_LEVELS (``met: false``: the estimate on the
+finest mesh is reported, never a promise it does not keep). The answer is the
+last level's solve itself.
 
-Limit: a tendon anchored in silicone (not in a bone) pulls on a point, and in
-2D the displacement under a point force is log-singular: the answer near the
-anchor keeps changing with refinement (finger_soft.toml, P2: the tip moves
-0.45 mm from h = 2 to 1.5 and 0.35 mm more to h = 1), so no size is sure to
-meet a tolerance there. Anchor tendons in
-bones, or read the estimate as a guide only.
+What it assumes: the finest levels are in the asymptotic range, where the
+marker error falls like h^r. Where the continuum answer does not exist (a
+point force in 2D: a cable *bending* inside silicone, see the README), the
+differences do not fall, the observed rate is small, and the estimate stays
+large: ``met: false``, which is the truth.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import logging
+import math
+import time
+from dataclasses import asdict, dataclass, field
 
-U_REF = 46.3                                    # mm, tip motion of the calibration run
-ERROR = {1: (0.50, 0.99), 2: (0.086, 1.47)}     # C_p [mm / mm^r], r_p
-COST = {1: (0.685, 1.78), 2: (3.16, 2.14)}      # T_p [s mm^q], q_p
-SAFETY = 2.0
-H_MIN, H_MAX = 0.35, 4.0
-PRESOLVE = {"degree": 2, "size": 4.0}
+import numpy as np
+
+log = logging.getLogger("skelfem")
+
+DEGREE = 2
+RATIO = {2: 2.0, 3: math.sqrt(2.0)}   # h_{k-1} / h_k of the first levels
+R_MIN, R_MAX = 0.5, 3.0               # the observed rate is clipped to this range
+R_TWO_LEVELS = 1.0                    # the rate assumed before three levels exist
+SAFETY = 1.5                          # the size jump aims at tol / SAFETY
+MAX_LEVELS = 7
 
 
-@dataclass(frozen=True)
-class Choice:
-    degree: int
+@dataclass
+class Level:
     size: float
-    estimate: float       # estimated marker error at (degree, size), mm
-    cost: float           # predicted relative cost
-    met: bool             # whether the estimate meets the tolerance within [H_MIN, H_MAX]
+    dofs: int
+    iterations: int
+    seconds: float
+    markers: np.ndarray = field(repr=False)     # (n_markers, dim) positions, mm
+    change: float | None = None                 # d_k = max |x_k - x_{k-1}|, mm
+    rate: float | None = None                   # r used for the estimate
+    estimate: float | None = None               # E_k, mm
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d.pop("markers")
+        return d
 
 
-def error_estimate(degree: int, size: float, motion: float) -> float:
-    C, r = ERROR[degree]
-    return C * (motion / U_REF) * size ** r
+def observed_rate(h: tuple[float, float, float], d: tuple[float, float]) -> float:
+    """r with d_{k-1} / d_k = (h_{k-2}^r - h_{k-1}^r) / (h_{k-1}^r - h_k^r) for h = (h_{k-2}, h_{k-1}, h_k).
+
+    (e = C h^r gives d_k = C (h_{k-1}^r - h_k^r).) Clipped to [R_MIN, R_MAX];
+    R_MIN where the differences do not fall.
+    """
+    h0, h1, h2 = h
+    d1, d2 = d
+    if not (d1 > 0 and d2 > 0):
+        return R_MAX if d2 == 0 and d1 > 0 else R_MIN
+
+    def f(r):
+        return math.log((h0 ** r - h1 ** r) / (h1 ** r - h2 ** r)) - math.log(d1 / d2)
+    lo, hi = R_MIN, R_MAX
+    if f(lo) >= 0:
+        return R_MIN
+    if f(hi) <= 0:
+        return R_MAX
+    for _ in range(60):                              # f increases with r: bisection
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if f(mid) < 0 else (lo, mid)
+    return 0.5 * (lo + hi)
 
 
-def size_for(degree: int, tol: float, motion: float) -> float:
-    """Coarsest h in [H_MIN, H_MAX] with SAFETY * e_p(h) <= tol (H_MIN if none)."""
-    C, r = ERROR[degree]
-    scale = max(C * motion / U_REF, 1e-300)
-    h = (tol / (SAFETY * scale)) ** (1.0 / r)
-    return float(min(max(h, H_MIN), H_MAX))
+def richardson(levels: list[Level]) -> tuple[float, float]:
+    """(E_k, r) for the last of at least two levels."""
+    a, b = levels[-2], levels[-1]
+    d = float(np.max(np.linalg.norm(b.markers - a.markers, axis=1)))
+    r = R_TWO_LEVELS if len(levels) < 3 else observed_rate(
+        (levels[-3].size, a.size, b.size), (levels[-2].change, d))
+    rho = a.size / b.size
+    return d / (rho ** r - 1.0), r
 
 
-def choose(tol: float, motion: float, nu_max: float) -> Choice:
-    """The cheapest (degree, size) whose estimated marker error stays below tol."""
-    choices = []
-    for p in ((2,) if nu_max > 0.49 else (1, 2)):
-        h = size_for(p, tol, motion)
-        T, q = COST[p]
-        e = error_estimate(p, h, motion)
-        choices.append(Choice(p, round(h, 3), e, T * h ** -q, SAFETY * e <= tol * (1 + 1e-9)))
-    met = [c for c in choices if c.met] or choices
-    return min(met, key=lambda c: (c.cost, -c.degree) if c.met else (c.estimate, c.cost))
+def next_size(level: Level, tol: float, dim: int) -> float:
+    """The size the error model e = C h^r predicts for tol / SAFETY, at least one ratio finer, at most 4x."""
+    h, r = level.size, level.rate
+    want = h * (tol / (SAFETY * level.estimate)) ** (1.0 / r)
+    return float(min(max(want, h / 4.0), h / RATIO[dim]))
+
+
+def at_size(design, h: float):
+    """The design meshed at size h with P2 (validated as any --set)."""
+    from .design import parse_design
+    return parse_design(design.raw, design.source, [f"mesh.size={round(float(h), 6)!r}", f"mesh.degree={DEGREE}"])
+
+
+def first_level(design):
+    """The design at the first size of the ladder: twice its own [mesh] size."""
+    return at_size(design, 2.0 * float(design.mesh.size))
+
+
+def _positions(result) -> np.ndarray:
+    return np.array([m["position"] for m in result.markers.values()], dtype=float)
+
+
+def refine(session, tol: float, progress=None) -> tuple[object, dict]:
+    """Solve session's design on the ladder of meshes until the estimate meets tol.
+
+    session: a Session of the design at its first level (DEGREE, size h_0), not
+    yet solved. Returns (the last level's Result, the ``accuracy`` dict of
+    result.json). The session holds the last level afterwards.
+    """
+    from . import resources
+    from .design import DesignError
+
+    design = session.design
+    dim = design.dim
+    levels: list[Level] = []
+    t0 = time.perf_counter()
+    stop = "estimate met the tolerance"
+    result = None
+    while True:
+        t = time.perf_counter()
+        result = session.solve()
+        if not result.converged:
+            stop = f"the solve at h = {session.design.mesh.size:g} mm failed ({result.status})"
+            break
+        level = Level(float(session.design.mesh.size), int(result.dofs), int(result.newton_iterations),
+                      time.perf_counter() - t, _positions(result))
+        if levels:
+            level.estimate, level.rate = richardson(levels + [level])
+            level.change = float(np.max(np.linalg.norm(level.markers - levels[-1].markers, axis=1)))
+        levels.append(level)
+        if progress is not None:
+            progress(level)
+        log.info("--tol: h = %g mm, %d DOFs: change %s, estimate %s", level.size, level.dofs,
+                 "-" if level.change is None else f"{level.change:.3g} mm",
+                 "-" if level.estimate is None else f"{level.estimate:.3g} mm (r = {level.rate:.2f})")
+        if len(levels) >= 3 and level.estimate <= tol:
+            break
+        if len(levels) >= MAX_LEVELS:
+            stop = f"{MAX_LEVELS} levels"
+            break
+        h = level.size / RATIO[dim] if len(levels) < 3 else next_size(level, tol, dim)
+        finer = at_size(design, h)
+        try:
+            resources.check(finer)
+        except DesignError:
+            stop = f"the next mesh (h = {h:.3g} mm) would pass the DOF limit"
+            break
+        session.edit(finer)
+    if not levels:
+        return result, {"tol": tol, "met": False, "stop": stop, "levels": []}
+    last = levels[-1]
+    met = bool(result.converged and len(levels) >= 3 and last.estimate <= tol)
+    accuracy = {"tol": tol, "degree": DEGREE, "size": last.size, "dofs": last.dofs,
+                "estimated_error": last.estimate, "rate": last.rate, "met": met,
+                "stop": stop, "levels": [lv.to_dict() for lv in levels],
+                "time": round(time.perf_counter() - t0, 4)}
+    return result, accuracy

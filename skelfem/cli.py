@@ -88,8 +88,9 @@ def _parser() -> argparse.ArgumentParser:
     common_arguments(s)
     s.add_argument("--no-picture", action="store_true", help="skip deformed.png")
     s.add_argument("--tol", type=float, default=None, metavar="ABS_MM",
-                   help="choose mesh size and degree so that the estimated marker error stays below "
-                        "ABS_MM mm at the least cost (replaces [mesh] size and degree)")
+                   help="refine the mesh (P2, from twice [mesh] size) until the design's own marker error "
+                        "estimate (Richardson over the meshes) is below ABS_MM mm; result.json reports it "
+                        "under accuracy")
     s.set_defaults(handler=simulate)
     f = sub.add_parser("fabricate", help="printable bones (STL, STEP) and a two-part mould for casting the body",
                        description="Bones with cable channels and ligament anchor holes, and a two-part mould "
@@ -194,14 +195,17 @@ def simulate(args) -> int:
     t0 = time.perf_counter()
     if args.tol is not None and not (0 < args.tol < float("inf")):
         raise InputError(f"--tol: must be a finite number > 0, got {args.tol:g}")
-    args.out = reserve_output(args, load(args))       # before any work: a bad --out is bad input
     extra = {}
     if args.tol is not None:
-        extra["accuracy"] = choose_discretisation(args)
-    design, session = prepare(args)
-    with session:
-        solved = session.solve()
-        result = write_results(session, solved, args.out, t0, picture=not args.no_picture, extra=extra)
+        design, session = prepare_tol(args)
+        with session:
+            solved, extra["accuracy"] = refine_to_tol(session, args.tol)
+            result = write_results(session, solved, args.out, t0, picture=not args.no_picture, extra=extra)
+    else:
+        design, session = prepare(args)
+        with session:
+            solved = session.solve()
+            result = write_results(session, solved, args.out, t0, picture=not args.no_picture, extra=extra)
     if not solved.converged:
         error(f"{design.name}: solve failed ({solved.status}) after {solved.load_steps} load step(s); "
               f"try more [solver].steps or a finer mesh; details in {args.out / 'result.json'}")
@@ -209,6 +213,39 @@ def simulate(args) -> int:
     if not args.quiet and MPI.COMM_WORLD.rank == 0:
         _summary(result, args.out)
     return EXIT_OK
+
+
+def prepare_tol(args):
+    """--tol: the design at the first size of skelfem.accuracy's ladder (P2), meshed; (design, session)."""
+    from mpi4py import MPI
+
+    from . import accuracy
+    from .design import DesignError
+    from .geometry import MeshingError
+    from .run import open_session
+
+    design = load(args)
+    if not design.markers:
+        raise InputError(f"{args.design}: --tol needs at least one marker (its error is what --tol bounds)")
+    args.out = reserve_output(args, design)
+    try:
+        first = accuracy.first_level(design)
+        log.info("--tol %g mm: P%d from h = %g mm, refined until the estimate meets it",
+                 args.tol, accuracy.DEGREE, first.mesh.size)
+        return first, open_session(first, MPI.COMM_WORLD)
+    except (DesignError, MeshingError) as exc:
+        raise InputError(str(exc)) from None
+
+
+def refine_to_tol(session, tol: float):
+    """skelfem.accuracy.refine, with mesh failures of a finer level as one-line input errors."""
+    from . import accuracy
+    from .design import DesignError
+    from .geometry import MeshingError
+    try:
+        return accuracy.refine(session, tol)
+    except (DesignError, MeshingError) as exc:
+        raise InputError(str(exc)) from None
 
 
 def fabricate(args) -> int:
@@ -260,56 +297,16 @@ def fabricate(args) -> int:
     return EXIT_OK
 
 
-def choose_discretisation(args) -> dict:
-    """--tol: a cheap P2 solve measures the motion, skelfem.accuracy picks (degree, size).
-
-    Appends the choice to args.overrides and returns what result.json reports.
-    """
-    from mpi4py import MPI
-    import numpy as np
-
-    from . import accuracy
-    from .design import DesignError, load_design
-    from .geometry import MeshingError
-    from .run import open_session
-
-    if not 0 < args.tol < float("inf"):
-        raise InputError(f"--tol: must be a finite number > 0, got {args.tol:g}")
-    probe = [f"mesh.degree={accuracy.PRESOLVE['degree']}", f"mesh.size={accuracy.PRESOLVE['size']}"]
-    try:
-        design = load_design(args.design, list(args.overrides) + probe)
-        if not design.markers:
-            raise InputError(f"{args.design}: --tol needs at least one marker (its error is what --tol bounds)")
-        session = open_session(design, MPI.COMM_WORLD)
-    except (DesignError, MeshingError) as exc:
-        raise InputError(str(exc)) from None
-    log.info("--tol %g mm: estimating the motion with P2, h = %g mm", args.tol, accuracy.PRESOLVE["size"])
-    with session:
-        report = session.solve()
-    if not report.converged:
-        raise InputError(f"{args.design}: --tol: the coarse estimate solve failed ({report.status}); "
-                         "set [mesh] by hand")
-    motion = max(float(np.linalg.norm(m["displacement"])) for m in report.markers.values())
-    used = {design.body.material, *(b.material for b in design.bones)}
-    nu_max = max(design.materials[m].nu for m in used)
-    choice = accuracy.choose(args.tol, motion, nu_max)
-    args.overrides = list(args.overrides) + [f"mesh.degree={choice.degree}", f"mesh.size={choice.size}"]
-    note = "" if choice.met else f" (cannot promise {args.tol:g} mm: finest size {accuracy.H_MIN} mm)"
-    log.info("--tol %g mm: P%d, h = %g mm, estimated marker error %.3g mm (motion %.3g mm)%s",
-             args.tol, choice.degree, choice.size, choice.estimate, motion, note)
-    return {"tol": args.tol, "degree": choice.degree, "size": choice.size,
-            "estimated_error": choice.estimate, "met": choice.met, "motion_estimate": motion,
-            "estimate_time": round(report.timings["solve"], 4)}
-
-
 def _summary(result: dict, out: Path) -> None:
     hist = result["residual_history"][-1] if result["residual_history"] else []
     print(f"{result['design']}: converged in {result['newton_iterations']} Newton iterations "
           f"over {result['load_steps']} load step(s); min det F = {result['min_jacobian']:.3f}")
     if "accuracy" in result:
         a = result["accuracy"]
-        print(f"  --tol {a['tol']:g} mm: P{a['degree']}, h = {a['size']:g} mm, "
-              f"estimated marker error {a['estimated_error']:.3g} mm" + ("" if a["met"] else " (NOT met)"))
+        est = "-" if a.get("estimated_error") is None else f"{a['estimated_error']:.3g} mm"
+        print(f"  --tol {a['tol']:g} mm: P{a.get('degree', 2)}, h = {a.get('size', float('nan')):g} mm "
+              f"after {len(a['levels'])} meshes, estimated marker error {est}"
+              + ("" if a["met"] else f" (NOT met: {a['stop']})"))
     if hist:
         print("  last step |R|: " + " ".join(f"{r:.1e}" for r in hist[-5:]))
     for name, m in (result["markers"] or {}).items():

@@ -1,42 +1,89 @@
-"""--tol: the error model's choices, and a run that meets its tolerance against a finer reference."""
+"""--tol: Richardson estimates on the design's own meshes, and runs that meet the tolerance they report."""
 import json
+import math
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from skelfem import accuracy
+from skelfem import accuracy, resources
+from skelfem.accuracy import Level, observed_rate, richardson
 from skelfem.cli import main
+
+from _designs import strip, toml_text
 
 GEOMETRY = Path(__file__).resolve().parents[1] / "geometry"
 
 
-def test_tighter_tolerance_never_coarsens_and_locking_forces_p2():
-    sizes = [accuracy.choose(tol, 46.3, 0.45) for tol in (4.0, 1.0, 0.3, 0.1)]
-    est = [c.estimate for c in sizes]
-    assert all(c.met for c in sizes) and est == sorted(est, reverse=True)
-    for c, tol in zip(sizes, (4.0, 1.0, 0.3, 0.1)):
-        assert accuracy.SAFETY * c.estimate <= tol * (1 + 1e-9)
-    assert accuracy.choose(5.0, 46.3, 0.499).degree == 2          # P1 locks: never chosen
-    assert not accuracy.choose(1e-4, 46.3, 0.45).met              # beyond the finest size: said so
-    # a design that barely moves needs a much coarser mesh for the same tolerance
-    assert accuracy.choose(0.2, 2.0, 0.45).size > accuracy.choose(0.2, 46.3, 0.45).size
+def _levels(sizes, C=0.3, r=1.7, exact=np.array([[1.0, 2.0]])):
+    """Levels whose marker error is exactly C h^r (along a fixed direction)."""
+    out = []
+    for h in sizes:
+        out.append(Level(h, 0, 0, 0.0, exact + C * h ** r * np.array([[0.6, 0.8]])))
+        if len(out) > 1:
+            out[-1].estimate, out[-1].rate = richardson(out)
+            out[-1].change = float(np.linalg.norm(out[-1].markers - out[-2].markers))
+    return out
+
+
+@pytest.mark.parametrize("sizes", [(4.0, 2.0, 1.0), (4.0, 2.0, 1.0, 0.37), (3.0, 3 / math.sqrt(2), 1.5)])
+def test_richardson_is_exact_for_a_power_law(sizes):
+    levels = _levels(sizes)
+    last = levels[-1]
+    assert last.rate == pytest.approx(1.7, rel=1e-6)
+    assert last.estimate == pytest.approx(0.3 * sizes[-1] ** 1.7, rel=1e-6)
+
+
+def test_the_rate_is_clipped_and_differences_that_grow_give_the_smallest():
+    assert observed_rate((4.0, 2.0, 1.0), (1.0, 1.0 / 2 ** 5)) == accuracy.R_MAX
+    assert observed_rate((4.0, 2.0, 1.0), (1.0, 2.0)) == accuracy.R_MIN      # not converging
+    assert observed_rate((4.0, 2.0, 1.0), (0.0, 0.0)) == accuracy.R_MIN
+    two = _levels((4.0, 2.0))[-1]
+    assert two.rate == accuracy.R_TWO_LEVELS                                  # two levels: a rate is assumed
+
+
+def test_next_size_aims_below_the_tolerance_within_bounds():
+    lv = Level(1.0, 0, 0, 0.0, np.zeros((1, 2)), change=0.1, rate=2.0, estimate=0.1)
+    h = accuracy.next_size(lv, 0.01, 2)
+    assert h == pytest.approx((0.01 / (accuracy.SAFETY * 0.1)) ** 0.5)
+    assert accuracy.next_size(lv, 1e-9, 2) == 0.25                           # at most 4x finer
+    assert accuracy.next_size(lv, 0.099, 2) == 0.5                           # at least one ratio
+
+
+def _strip_file(tmp_path, **kw) -> Path:
+    p = tmp_path / "strip.toml"
+    p.write_text(toml_text(strip(length=40.0, width=8.0, size=2.0, contraction=0.3, tendon_offset=2.0, **kw)))
+    return p
+
+
+def _tip(path: Path) -> np.ndarray:
+    return np.asarray(json.loads(path.read_text())["markers"]["tip"]["position"], float)
 
 
 @pytest.mark.slow
-def test_tol_run_meets_its_tolerance_against_a_finer_reference(tmp_path, capsys):
-    design = str(GEOMETRY / "finger_bones.toml")       # tendon anchored in a bone: a converging answer
-    assert main(["simulate", design, "--out", str(tmp_path / "tol"), "--no-picture", "--tol", "0.3"]) == 0
+@pytest.mark.parametrize("tol", [0.01, 0.002])
+def test_tol_run_meets_the_tolerance_it_reports_against_a_much_finer_reference(tmp_path, capsys, tol):
+    design = _strip_file(tmp_path, bones=False)
+    assert main(["simulate", str(design), "--out", str(tmp_path / "tol"), "--no-picture", "--tol", str(tol)]) == 0
     res = json.loads((tmp_path / "tol" / "result.json").read_text())
     a = res["accuracy"]
-    assert a["met"] and a["estimated_error"] <= 0.3 / accuracy.SAFETY * (1 + 1e-9) and a["motion_estimate"] > 10.0
-    assert res["degree"] == a["degree"] and a["size"] < accuracy.H_MAX      # the tolerance, not a clamp, decided
-    assert "--tol 0.3 mm: P" in capsys.readouterr().out
-    assert main(["simulate", design, "--out", str(tmp_path / "ref"), "-q", "--no-picture",
-                 "--set", "mesh.degree=2", "--set", "mesh.size=1.0"]) == 0
-    ref = json.loads((tmp_path / "ref" / "result.json").read_text())
-    err = np.linalg.norm(np.subtract(res["markers"]["tip"]["position"], ref["markers"]["tip"]["position"]))
-    assert err < 0.3
+    assert a["met"] and a["estimated_error"] <= tol and len(a["levels"]) >= 3
+    assert res["degree"] == 2 and res["dofs"] == a["dofs"] and a["size"] == a["levels"][-1]["size"]
+    assert "--tol" in capsys.readouterr().out
+    assert main(["simulate", str(design), "--out", str(tmp_path / "ref"), "-q", "--no-picture",
+                 "--set", "mesh.degree=2", "--set", "mesh.size=0.2"]) == 0
+    err = float(np.linalg.norm(_tip(tmp_path / "tol" / "result.json") - _tip(tmp_path / "ref" / "result.json")))
+    assert err <= tol
+    assert 0.5 <= a["estimated_error"] / err <= 5.0            # effectivity
+
+
+def test_a_tolerance_beyond_the_dof_limit_is_reported_not_met(tmp_path, monkeypatch, capsys):
+    design = _strip_file(tmp_path)
+    monkeypatch.setitem(resources.MAX_DOFS, 2, 4000)
+    assert main(["simulate", str(design), "--out", str(tmp_path / "o"), "--no-picture", "--tol", "1e-6"]) == 0
+    a = json.loads((tmp_path / "o" / "result.json").read_text())["accuracy"]
+    assert not a["met"] and "DOF limit" in a["stop"] and a["estimated_error"] > 1e-6
+    assert "NOT met" in capsys.readouterr().out
 
 
 def test_tol_needs_a_marker_and_a_positive_value(tmp_path, capsys):

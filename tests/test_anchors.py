@@ -1,4 +1,4 @@
-"""Finite anchors: a cable end in silicone pulls on a disk, so refinement converges (a point force does not)."""
+"""Finite anchors: a cable end or bend in silicone acts on a disk, so refinement converges (a point force does not)."""
 import numpy as np
 import pytest
 
@@ -39,17 +39,32 @@ def test_anchor_lattice_is_inside_the_disk_and_centred():
     assert np.allclose(q.mean(axis=0), 0.0) and len(q) > 200
 
 
-def test_only_ends_in_silicone_off_the_pinned_base_are_anchored():
+def test_only_ends_and_bends_in_silicone_off_the_pinned_base_are_anchored():
     with Session(SOFT, ["mesh.size=3"]) as s:
         term = s.model.term("cables", "flexor")
-        assert set(term.anchors) == {-1}                   # [9, 84] in silicone; [3, 0] on the fixed base
-        assert term.anchors[-1] == pytest.approx(0.01 * np.hypot(20.0, 100.0), rel=1e-6)
+        assert set(term.anchors) == {1, 2}                 # [3, 78], [9, 84] in silicone; [3, 0] on the base
+        assert term.anchors[2] == pytest.approx(0.01 * np.hypot(20.0, 100.0), rel=1e-6)
         u = np.zeros(s.model.n_local)
         u[0::2], u[1::2] = 0.3, -0.2                        # a translation moves every via point alike
         X = term.cable.X
         assert np.allclose(term.cable.positions(u), X + [0.3, -0.2])
     with Session(GEOMETRY / "finger.toml", ["mesh.size=4"]) as s:
-        assert all(not t.anchors for t in s.model.terms_in("cables"))   # ends in bones or on the base
+        anchored = {t.name: set(t.anchors) for t in s.model.terms_in("cables") if t.anchors}
+        assert anchored == {"flexor": {1}}          # its bend at [3, 78]; every end in a bone or on the base
+
+
+@pytest.mark.slow
+def test_a_bend_in_silicone_converges_under_refinement_where_a_point_bend_does_not():
+    """finger_soft's flexor turns at [3, 78] in silicone: 2 T sin(theta/2) spread over the anchor disk."""
+    def tip(size, radius):
+        with Session(SOFT, [f"mesh.size={size}", "mesh.degree=2", f"cables.flexor.anchor_radius={radius}"]) as s:
+            r = s.solve()
+            assert r.converged
+            return np.array(r.markers["tip"]["position"])
+    sizes = (2.0, 1.0, 0.5)
+    spread = [tip(h, 1.0) for h in sizes]
+    d = [np.linalg.norm(b - a) for a, b in zip(spread[:-1], spread[1:])]
+    assert d[1] < 0.7 * d[0]                                # the changes fall with h
 
 
 @pytest.mark.parametrize("value, message", [(-1.0, ">= 0"), (500.0, "smaller than the cable")])

@@ -30,7 +30,8 @@ def test_energy_converges_where_plain_newton_fails(tmp_path, picture):
 
 def test_strategies_that_converge_agree_on_the_equilibrium():
     study = _load()
-    res = study.run(ratios=(1.0,), contractions=(8.0,), strategies=("none", "energy"), stepping=(1,),
+    # plain Newton ("none") is fragile by design; at 6 mm it converges, so both are compared
+    res = study.run(ratios=(1.0,), contractions=(6.0,), strategies=("none", "energy"), stepping=(1,),
                     size=5.0, progress=None)
     ok = [r for r in res["cases"] if r["converged"]]
     assert len(ok) == 2

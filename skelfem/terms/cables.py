@@ -201,12 +201,18 @@ class Cable:
 
     @classmethod
     def build(cls, V, spec, anchors: dict | None = None) -> "Cable":
-        """The cable through its via points; anchors = {sketch end index (0 or -1): radius} makes that
-        end pull on the mean displacement of a disk (2D) or ball (3D) of that radius (a finite anchor)."""
+        """The cable through its via points; anchors = {sketch vertex index: radius} makes that vertex
+        (an end, or a bend) act on the mean displacement of a disk (2D) or ball (3D) of that radius
+        (a finite anchor) instead of a material point."""
         mesh = V.mesh
         X = via_points(mesh, spec.path)
-        S, gather, owner = _anchored_interpolation(V, X, {(0 if k == 0 else len(X) - 1): r
-                                                          for k, r in (anchors or {}).items()})
+        path = np.asarray(spec.path, dtype=float)
+        at = {}
+        for k, r in (anchors or {}).items():       # sketch vertex -> its via point (the sketch's own vertex)
+            i = 0 if k == 0 else len(X) - 1 if k in (-1, len(path) - 1) else \
+                int(np.argmin(np.linalg.norm(X - path[k], axis=1)))
+            at[i] = r
+        S, gather, owner = _anchored_interpolation(V, X, at)
         if np.any(owner == mesh.comm.size):
             raise ValueError(f"cable {spec.name!r} leaves the mesh")
         gdim = mesh.geometry.dim
@@ -331,7 +337,7 @@ class CableTerm(Term):
 
     def __init__(self, ctx: Context, spec):
         try:
-            self.anchors = end_anchors(ctx, spec)
+            self.anchors = anchors(ctx, spec)
             self.cable = Cable.build(ctx.V, spec, self.anchors)
         except ValueError as exc:
             from ..design import DesignError
@@ -402,17 +408,18 @@ def _one_percent_of_diagonal(ctx: Context) -> float:
     return 0.01 * float(np.linalg.norm(hi - lo))
 
 
-def end_anchors(ctx: Context, spec) -> dict:
-    """{0 or -1: radius} for the cable's ends that lie in silicone (the body's region, not a bone)
-    and not in a fixed pin's box: those pull on a finite anchor; ends in bones or on the
-    pinned base stay material points."""
+def anchors(ctx: Context, spec) -> dict:
+    """{sketch vertex index: radius} for the cable's ends and bends that lie in silicone (the body's
+    region, not a bone) and not in a fixed pin's box: those act on a finite anchor (a bend pushes
+    on the silicone with 2 T sin(theta / 2), a point force unless spread); ends and bends in bones
+    or on the pinned base stay material points."""
     radius = spec.anchor_radius if spec.anchor_radius is not None else default_anchor_radius(ctx)
     if radius <= 0.0:
         return {}
-    ends = np.array([spec.path[0], spec.path[-1]], dtype=float)
+    points = np.asarray(spec.path, dtype=float)
     tm = ctx.tagged
     n_owned = ctx.mesh.topology.index_map(ctx.mesh.topology.dim).size_local
-    cells = locate_cells(ctx.mesh, ends, below=n_owned)
+    cells = locate_cells(ctx.mesh, points, below=n_owned)
     soft_cells = tm.cell_tags.indices[tm.cell_tags.values == tm.tags["body"]]
     soft = np.where(cells >= 0, np.isin(cells, soft_cells), False).astype(np.int32)
     found = (cells >= 0).astype(np.int32)
@@ -421,10 +428,9 @@ def end_anchors(ctx: Context, spec) -> dict:
         ctx.comm.Allreduce(MPI.IN_PLACE, found, op=MPI.MAX)
     fixed_boxes = [p.region for p in ctx.design.pins if p.kind == "fixed"]
     out = {}
-    for k, end in zip((0, -1), ends):
-        pinned = any(np.all(end >= box[0] - 1e-9) and np.all(end <= box[1] + 1e-9) for box in fixed_boxes)
-        j = 0 if k == 0 else 1
-        if found[j] and soft[j] and not pinned:
+    for k, point in enumerate(points):
+        pinned = any(np.all(point >= box[0] - 1e-9) and np.all(point <= box[1] + 1e-9) for box in fixed_boxes)
+        if found[k] and soft[k] and not pinned:
             out[k] = radius
     return out
 
