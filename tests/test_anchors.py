@@ -88,3 +88,29 @@ def test_anchored_cable_serial_equals_mpirun_2(tmp_path, mpirun):
         tips.append((np.array(r["markers"]["tip"]["position"]), r["cables"]["flexor"]["tension"]))
     assert np.allclose(tips[0][0], tips[1][0], rtol=0, atol=1e-9)
     assert tips[0][1] == pytest.approx(tips[1][1], rel=1e-9)
+
+
+def _strip_with_tendon_to_its_edge(anchor_radius):
+    """A 4 x 100 strip whose tendon ends on its free edge: the edge cuts the anchor disk in half."""
+    return {"format": 1, "name": "strip", "dim": 2, "thickness": 10.0, "mesh": {"size": 1.0, "degree": 2},
+            "materials": {"soft": {"E": 1.0, "nu": 0.3}},
+            "body": {"outline": [[0, 0], [4, 0], [4, 100], [0, 100]], "material": "soft"},
+            "cables": [{"name": "flexor", "kind": "tendon", "path": [[3.2, 0], [3.2, 100]],
+                        "stiffness": 100.0, "anchor_radius": anchor_radius}],
+            "pins": [{"name": "base", "region": [[-1, -1], [5, 1e-6]], "kind": "fixed"}]}
+
+
+@pytest.mark.parametrize("radius", [0.0, 1.0, 3.0])
+def test_cable_length_is_unchanged_by_a_rigid_rotation(radius):
+    # the anchored end is its disk's material centroid, so it turns with the body
+    with Session(_strip_with_tendon_to_its_edge(radius)) as s:
+        cable = s.model.term("cables", "flexor").cable
+        X = s.model.u.function_space.tabulate_dof_coordinates()[:, :2]
+        for angle in (0.5 * np.pi, np.pi):
+            c, s_ = np.cos(angle), np.sin(angle)
+            u = (X @ np.array([[c, s_], [-s_, c]]) - X + [7.0, -3.0]).ravel()
+            assert cable.length(u) == pytest.approx(cable.L0, rel=1e-12)
+        if radius:
+            end = cable.X[-1]                               # the half disk's centroid, below the edge
+            assert end[1] == pytest.approx(100.0 - 4 * radius / (3 * np.pi), abs=0.1 * radius)
+            assert np.all(np.diff(cable.X[:, 1]) > 0)       # no via point beyond it: the cable never turns back

@@ -13,7 +13,7 @@ and the cable stores the unilateral spring energy (paper eq. 3)
     U = k Q(l - L),  Q(s) = s^2/2 for s > 0, 0 otherwise,
 
 with rest length L = L0 - u_c for a tendon contracted by u_c and
-L = L0 - p for a ligament pretensioned by p (L0: sketch length). Its
+L = L0 - p for a ligament pretensioned by p (L0: the length at rest). Its
 derivatives, with t_i = d_i/|d_i| and s = max(l - L, 0):
 
     grad U = k s g,                    g = B^T t
@@ -135,19 +135,33 @@ def anchor_samples(center: np.ndarray, radius: float, per_radius: int = 4) -> np
 
 
 def _anchored_interpolation(V, X: np.ndarray, anchors: dict):
-    """(S, DofGather, owner of each via point) of the via points X, rows of anchored points replaced
-    by their disk's mean.
+    """(X, S, DofGather, owner of each via point) for via points X of which {index: radius} (ends,
+    bends) act on a disk (ball): each anchored point moves to the centroid of its disk's lattice
+    points inside the mesh, its row of S becomes their mean, and the via points inside its disk go.
 
     S_anchored = A S_all over the via points and every anchor's lattice
     points inside the mesh (A: identity rows, and rows of equal weights).
+    The anchored end is then a material point, x = mean(X_k + u_k), that moves with
+    the body. Had it kept the sketch's end X_e, x = X_e + mean(u_k) would carry the
+    offset X_e - mean(X_k) (not zero when the body's edge cuts the disk) unrotated,
+    and the cable's length would change under a rigid rotation. Via points
+    inside the disk would make the cable turn back to its centroid.
     """
     mesh = V.mesh
-    if not anchors:
-        return global_interpolation(V, X)
+    anchored = {int(i): r for i, r in anchors.items() if r > 0.0}
+    if not anchored:
+        return (X, *global_interpolation(V, X))
+    keep = np.ones(len(X), dtype=bool)
+    for i, r in anchored.items():
+        keep &= np.linalg.norm(X - X[i], axis=1) >= r
+    keep[list(anchored)] = True
+    renumber = np.cumsum(keep) - 1
+    anchored = {int(renumber[i]): r for i, r in anchored.items()}
+    X = X[keep]
     gdim = mesh.geometry.dim
     points, rows, cols, vals = [X], [], [], []
+    X = X.copy()
     n = len(X)
-    anchored = {i: r for i, r in anchors.items() if r > 0.0}
     for i in range(n):
         if i not in anchored:
             rows.append(i), cols.append(i), vals.append(1.0)
@@ -156,6 +170,7 @@ def _anchored_interpolation(V, X: np.ndarray, anchors: dict):
         samples = anchor_samples(X[i], r)
         inside = owner_ranks(mesh, samples)[0] < mesh.comm.size
         samples = samples[inside]
+        X[i] = samples.mean(axis=0)
         points.append(samples)
         m = len(samples)
         rows += [i] * m
@@ -167,7 +182,7 @@ def _anchored_interpolation(V, X: np.ndarray, anchors: dict):
     S = (A @ S_all).tocsc()
     used = np.flatnonzero(np.diff(S.indptr) > 0)                # DOFs some via point still touches
     gather = DofGather(V, gather_all.dofs[used])
-    return S[:, used].tocsr(), gather, owner[:n]
+    return X, S[:, used].tocsr(), gather, owner[:n]
 
 
 def _block_diagonal(blocks: np.ndarray) -> sp.csr_matrix:
@@ -191,7 +206,7 @@ class Cable:
     S: sp.csr_matrix         # via point interpolation restricted to dofs, (n*gdim, m)
     B: sp.csr_matrix         # D S restricted to dofs, (n_seg*gdim, m)
     d0: np.ndarray           # rest segment vectors D X, (n_seg, gdim)
-    L0: float                # sketch length at rest
+    L0: float                # length through the via points at rest
     gather: DofGather        # u (local array) -> u on `dofs`, on every rank
     contraction: float = 0.0
     pretension: float = 0.0
@@ -212,7 +227,7 @@ class Cable:
             i = 0 if k == 0 else len(X) - 1 if k in (-1, len(path) - 1) else \
                 int(np.argmin(np.linalg.norm(X - path[k], axis=1)))
             at[i] = r
-        S, gather, owner = _anchored_interpolation(V, X, at)
+        X, S, gather, owner = _anchored_interpolation(V, X, at)
         if np.any(owner == mesh.comm.size):
             raise ValueError(f"cable {spec.name!r} leaves the mesh")
         gdim = mesh.geometry.dim
