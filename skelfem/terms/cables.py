@@ -218,7 +218,7 @@ class Cable:
     def build(cls, V, spec, anchors: dict | None = None) -> "Cable":
         """The cable through its via points; anchors = {sketch vertex index: radius} makes that vertex
         (an end, or a bend) act on the mean displacement of a disk (2D) or ball (3D) of that radius
-        (a finite anchor) instead of a material point."""
+        (a finite anchor: the cable runs through the disk's material centroid) instead of a material point."""
         mesh = V.mesh
         X = via_points(mesh, spec.path)
         path = np.asarray(spec.path, dtype=float)
