@@ -201,3 +201,88 @@ def test_simulate_writes_trajectory_xdmf_gif_and_result(flick_file, tmp_path, ca
     gif = Image.open(out / "motion.gif")
     assert gif.n_frames == 21 and gif.size[0] >= 300
     assert not list(out.glob(".*")) and not list(tmp_path.glob(".out*")), "temporary files left behind"
+
+
+def _flick(**dynamics):
+    d = strip(length=40.0, width=8.0, size=4.0, contraction=0.0, k=5.0, E=0.5)
+    for m in d["materials"].values():
+        m["density"] = 1100.0
+    d["cables"][0]["schedule"] = [[0.0, 0.0], [0.05, 2.0]]
+    d["dynamics"] = {"dt": 0.01, "duration": 0.1, "integrator": "bdf2", **dynamics}
+    return d
+
+
+def test_failed_steps_are_cut_and_never_accepted():
+    d = _flick(dt=0.05)
+    d["solver"] = {"max_iterations": 3}
+    with Session(d) as s:
+        run = s.run()
+    dyn = run.dynamics
+    assert run.converged and dyn["time_reached"] == pytest.approx(0.1) and dyn["cuts"] >= 1
+    failed = [a for a in run.attempts if a["status"] != "converged"]
+    assert len(failed) == dyn["cuts"] and all(a["iterations"] == 3 for a in failed)
+    times = [r["time"] for r in run.report.trajectory]
+    assert len(times) == dyn["steps"] + 1 and np.all(np.diff(times) > 0)
+    # every accepted step is one of the converged attempts, in order
+    accepted = [a["time"] for a in run.attempts if a["status"] == "converged"]
+    assert np.allclose(times[1:], accepted)
+
+
+def test_a_run_that_cannot_step_stops_with_exit_2_and_keeps_its_trajectory(tmp_path, capsys):
+    d = _flick()
+    d["solver"] = {"max_iterations": 1}
+    path = tmp_path / "stuck.toml"
+    path.write_text(_toml(d))
+    out = tmp_path / "out"
+    assert main(["simulate", str(path), "--out", str(out), "-q", "--no-picture"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and "time step failed (max_iterations)" in err[0]
+    res = json.loads((out / "result.json").read_text())
+    assert not res["converged"] and res["status"] == "max_iterations" and res["markers"] is None
+    assert res["dynamics"]["time_reached"] == 0.0 and res["dynamics"]["cuts"] == 9
+    assert len((out / "trajectory.csv").read_text().splitlines()) == 2     # the header and t = 0
+
+
+@pytest.mark.slow
+def test_a_falling_cantilever_lands_on_a_ground():
+    d = cantilever(L=40.0, size=2.0, degree=1, gravity=9.81, dt=0.002, duration=0.1)
+    d["grounds"] = [{"name": "floor", "point": [0.0, -1.0], "normal": [0.0, 1.0], "stiffness": 10.0}]
+    d["markers"]["corner"] = [40.0, 0.0]
+    with Session(d) as s:
+        run = s.run()
+    assert run.converged
+    corner = np.array([r["corner_y"] for r in run.report.trajectory])
+    assert corner.min() < -0.95 and corner.min() > -1.1              # it reaches the floor and stays on it
+    assert run.grounds["floor"]["force"][1] < 0.0                      # pressing on it at the end
+    total = np.array(run.dynamics["energy_history"]["total"])
+    assert np.diff(total).max() <= 1e-9 * np.abs(run.dynamics["energy_history"]["potential"]).max()
+
+
+def test_progress_bar_prints_tenths_when_not_a_terminal():
+    import io
+    from skelfem.run import ProgressBar
+    stream = io.StringIO()
+    bar = ProgressBar("run", after=0.0, stream=stream)
+    for k in range(1, 101):
+        bar(k / 100)
+    bar.close()
+    lines = stream.getvalue().splitlines()
+    assert len(lines) == 10 and lines[0].startswith("run: 10 %") and lines[-1].startswith("run: 100 %")
+
+
+@pytest.mark.slow
+@pytest.mark.mpi
+def test_serial_equals_mpirun_2(tmp_path, mpirun):
+    import sys
+    path = tmp_path / "flick.toml"
+    path.write_text(_toml(_flick()))
+    rows = {}
+    for ranks in (1, 2):
+        out = tmp_path / f"out{ranks}"
+        p = mpirun.run([sys.executable, "-m", "skelfem", "simulate", path, "--out", out, "-q", "--no-picture"],
+                       ranks=ranks)
+        assert p.returncode == 0, p.stderr
+        lines = (out / "trajectory.csv").read_text().splitlines()
+        rows[ranks] = np.array([[float(v) for v in line.split(",")] for line in lines[1:]])
+    assert rows[1].shape == rows[2].shape
+    assert np.allclose(rows[1], rows[2], rtol=1e-7, atol=1e-9)
