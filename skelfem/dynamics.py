@@ -48,6 +48,8 @@ class DynamicsReport:
     kinetic: list = field(default_factory=list)
     potential: list = field(default_factory=list)
     trajectory: list = field(default_factory=list)    # one row (dict) per accepted state, t = 0 included
+    states: list = field(default_factory=list)        # with store=True: x_n (local arrays), t = 0 included
+    steps: list = field(default_factory=list)         # with store=True: (t_{n+1}, h, alphas) per accepted step
 
 
 def schedule_keys(design) -> dict:
@@ -101,9 +103,10 @@ class Dynamics:
         self.model.changes.clear()
 
     # -- the run -----------------------------------------------------------------------------------
-    def run(self, on_step=None, progress=None) -> DynamicsReport:
+    def run(self, on_step=None, progress=None, store: bool = False) -> DynamicsReport:
         """Step from rest to the duration; on_step(t, report) after every accepted state (t = 0 too),
-        progress(fraction) now and then. Returns the report (the model holds the last accepted state)."""
+        progress(fraction) now and then; store=True keeps every state and step (the adjoint).
+        Returns the report (the model holds the last accepted state)."""
         t_wall = time.perf_counter()
         model, solver, inertia, spec = self.model, self.solver, self.inertia, self.spec
         rep = DynamicsReport()
@@ -112,6 +115,8 @@ class Dynamics:
         model.u.x.array[:] = 0.0
         model.apply_bcs(model.u.vector)
         inertia.start(model.u.x.array, damping=(spec.damping_mass, spec.damping_stiffness))
+        if store:
+            rep.states.append(model.u.x.array.copy())
         try:
             self._record(rep, 0.0, on_step)
             T, dt = spec.duration, spec.dt
@@ -120,7 +125,8 @@ class Dynamics:
                 h_try = min(h, T - t)
                 if T - t - h_try < 1e-6 * dt:
                     h_try = T - t                     # no sliver of a last step
-                self.set_time(t + h_try)
+                t_next = t + h_try if t + h_try < T - 1e-9 * dt else T
+                self.set_time(t_next)
                 tilde = inertia.prepare(h_try)
                 x_n = inertia.x[0]
                 model.u.x.array[:] = tilde
@@ -130,11 +136,14 @@ class Dynamics:
                     model.apply_bcs(model.u.vector)
                 step = solver.newton()
                 rep.newton_iterations += step.newton_iterations
-                rep.attempts.append({"time": t + h_try, "dt": h_try, "iterations": step.newton_iterations,
+                rep.attempts.append({"time": t_next, "dt": h_try, "iterations": step.newton_iterations,
                                      "status": step.status})
                 if step.converged:
+                    if store:
+                        rep.states.append(model.u.x.array.copy())
+                        rep.steps.append((t_next, h_try, inertia.alpha))
                     model.end_step()
-                    t = t + h_try if t + h_try < T - 1e-9 * dt else T
+                    t = t_next
                     rep.load_steps += 1
                     rep.residual_history.append(step.residual_history[0])
                     self._record(rep, t, on_step)
@@ -146,7 +155,7 @@ class Dynamics:
                     continue
                 rep.cuts += 1
                 cuts_in_row += 1
-                log.info("time step to t = %.6g s (dt %.3g s) failed (%s)", t + h_try, h_try, step.status)
+                log.info("time step to t = %.6g s (dt %.3g s) failed (%s)", t_next, h_try, step.status)
                 model.u.x.array[:] = x_n
                 model.sync(model.u.vector)
                 if cuts_in_row > MAX_CUTS:

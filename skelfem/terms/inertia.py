@@ -76,6 +76,7 @@ class Inertia(Term):
 
     def __init__(self, ctx: Context):
         self.ctx = ctx
+        self._M = None                  # the mass matrix, assembled on first use
         design, mesh = ctx.design, ctx.mesh
         spec = design.dynamics
         self.order = 2 if spec.integrator == "bdf2" else 1
@@ -106,7 +107,15 @@ class Inertia(Term):
         self.h_last = 0.0                   # h_n: the size of the last accepted step
         self._alpha = (1.0, -1.0, 0.0)
 
+    @property
+    def alpha(self) -> tuple[float, float, float]:
+        """(alpha_0, alpha_1, alpha_2) of the step being solved (or last solved)."""
+        return self._alpha
+
     def _update_fields(self) -> None:
+        if self._M is not None and self._M.handle:
+            self._M.destroy()
+        self._M = None                  # the mass matrix follows the density
         for name, cells in self.cells.items():
             rho, E, nu = self.materials[name]
             self.rho.x.array[cells] = rho
@@ -188,11 +197,27 @@ class Inertia(Term):
         tilde = star - h * (a1 * v_n + a2 * v_m) / a0 ** 2
         self.u_star.x.array[:] = star
         self.u_tilde.x.array[:] = tilde
-        beta, gamma = 1.0 / a0 ** 2, 1.0 / a0
-        self.c_inertia.value = MASS_UNIT / (beta * h * h)
-        self.c_mass_damping.value = self.damping[0] * MASS_UNIT / (gamma * h)
-        self.c_stiffness_damping.value = self.damping[1] / (gamma * h)
+        self.set_coefficients(h, a0)
         return tilde
+
+    def set_coefficients(self, h: float, alpha0: float) -> None:
+        """1/(beta h^2) and 1/(gamma h) of a step (beta = 1/alpha0^2, gamma = 1/alpha0): the Hessian of
+        the step's incremental potential (x~, x* do not enter it)."""
+        self.c_inertia.value = MASS_UNIT * alpha0 ** 2 / (h * h)
+        self.c_mass_damping.value = self.damping[0] * MASS_UNIT * alpha0 / h
+        self.c_stiffness_damping.value = self.damping[1] * alpha0 / h
+
+    def mass_matrix(self):
+        """The consistent mass matrix M (PETSc, no boundary conditions), in N s^2/mm: 1/2 v^T M v is the
+        kinetic energy in N mm. Compiled and assembled on first use (the adjoint)."""
+        if self._M is None:
+            from dolfinx.fem import petsc as fem_petsc
+            V = self.ctx.V
+            w, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+            form = fem.form(MASS_UNIT * self.ctx.thickness * self.rho * ufl.inner(w, v) * ufl.dx)
+            self._M = fem_petsc.assemble_matrix(form)
+            self._M.assemble()
+        return self._M
 
     def velocity(self, x: np.ndarray) -> np.ndarray:
         """v_{n+1} of the step being solved, at state x."""
