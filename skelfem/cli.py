@@ -65,7 +65,8 @@ def common_arguments(parser: argparse.ArgumentParser, out_help: str = "output fo
 
 # Modules that add sub-commands: each has add_parsers(subparsers), and every
 # parser it adds sets `handler` (a function args -> exit status).
-COMMAND_MODULES = ("skelfem.cli_sweep", "skelfem.cli_bench", "skelfem.cli_control", "skelfem.cli_edit")
+COMMAND_MODULES = ("skelfem.cli_sweep", "skelfem.cli_bench", "skelfem.cli_control", "skelfem.cli_edit",
+                   "skelfem.cli_optimize")
 
 
 class _Parser(argparse.ArgumentParser):

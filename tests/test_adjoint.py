@@ -68,3 +68,71 @@ def test_gradient_costs_at_most_one_and_a_half_forward_runs():
             r = schedule_gradient(s, TARGETS)
             ratios.append((r.forward_time + r.adjoint_time) / forward)
     assert min(ratios) <= 1.5, ratios                   # measured: 1.2
+
+
+# -- skelfem optimize ---------------------------------------------------------------------------------
+def _design_file(tmp_path, **changes):
+    from _designs import toml_text
+    d = flick(duration=0.08)
+    d.pop("solver")
+    d["cables"][0]["schedule"] = [[0.0, 0.0], [0.08, 0.0]]
+    d.update(changes)
+    path = tmp_path / "flick.toml"
+    path.write_text(toml_text(d))
+    return path, d
+
+
+@pytest.mark.slow
+def test_optimize_reaches_a_reachable_target_and_reports_an_unreachable_one(tmp_path, capsys):
+    import json
+
+    from skelfem.cli import main
+    from skelfem.optimize import schedule_items
+    path, d = _design_file(tmp_path)
+    with Session(d) as s:                                  # the target: a forward run of a known schedule
+        s.set(schedule_items(["flexor"], np.linspace(0.0, 0.08, 4), [[0.5, 2.5, 1.0, 2.0]]))
+        tip = np.array(s.run().markers["tip"]["position"])
+    out = tmp_path / "reach"
+    assert main(["optimize", str(path), "--marker", "tip", "--target", *map(str, tip), "--knots", "4",
+                 "--out", str(out), "-q"]) == 0
+    res = json.loads((out / "optimize.json").read_text())
+    assert res["reached"] and res["error"] <= 1e-3 * 40.0, res["error"]       # 1e-3 x finger length
+    assert res["forward_runs"] == res["adjoint_sweeps"] >= 1 and len(res["schedules"]["flexor"]) == 4
+    assert all(0.0 <= u <= 10.0 for _, u in res["schedules"]["flexor"])
+    lines = (out / "schedules.csv").read_text().splitlines()
+    assert lines[0] == "time,flexor" and len(lines) == 5
+    assert (out / "optimize.png").stat().st_size > 10_000
+    # bending the other way is out of reach of a tendon on the right: best found, reached false, exit 0
+    out2 = tmp_path / "unreachable"
+    assert main(["optimize", str(path), "--marker", "tip", "--target", "-30", "30", "--max-evaluations", "8",
+                 "--out", str(out2), "-q"]) == 0
+    res = json.loads((out2 / "optimize.json").read_text())
+    assert not res["reached"] and res["error"] > 10.0 and res["forward_runs"] <= 8
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--marker", "nope", "--target", "1", "2"], "marker 'nope' not in design"),
+    (["--marker", "tip", "--target", "1", "2", "--at", "0.5"], "target time 0.5 s: must lie in (0, 0.08]"),
+    (["--marker", "tip", "--target", "1", "2", "--knots", "1"], "--knots 1: must be >= 2"),
+    (["--marker", "tip", "--target", "1"], "--target: expected a multiple of 2 coordinates"),
+    (["--marker", "tip", "--target", "1", "2", "--max-contraction", "ligament=3"], "is not a tendon"),
+])
+def test_optimize_bad_input_is_one_error_line(tmp_path, capsys, extra, message):
+    from skelfem.cli import main
+    path, _ = _design_file(tmp_path)
+    out = tmp_path / "never"
+    assert main(["optimize", str(path), *extra, "--out", str(out), "-q"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and message in err[0], err
+    assert not out.exists()
+
+
+def test_optimize_needs_dynamics(tmp_path, capsys):
+    from _designs import toml_text
+    from skelfem.cli import main
+    d = strip(size=4.0)
+    path = tmp_path / "static.toml"
+    path.write_text(toml_text(d))
+    assert main(["optimize", str(path), "--marker", "tip", "--target", "1", "2", "--out",
+                 str(tmp_path / "o"), "-q"]) == 1
+    assert "dynamics: missing" in capsys.readouterr().err
