@@ -191,3 +191,114 @@ def _local_sum(v: PETSc.Vec) -> np.ndarray:
     out = np.zeros(len(_local(v)))
     out[:len(v.array_r)] = v.array_r
     return out
+
+
+def schedule_sensitivities(session, targets: list[TimedTarget], report=None) -> tuple[np.ndarray, np.ndarray,
+                                                                                       list]:
+    """Forward (tangent) sensitivities of the targets' marker positions to the schedule knots.
+
+    Returns (residuals r, Jacobian dr/du, parameter names): r stacks y(t_i) - y'_i
+    (len(targets) * dim), dr/du has one column per (tendon, knot) of every
+    scheduled tendon, in design order. The tangents of all knots go through
+    the steps together, n = 0, ..., N-1:
+
+        H_{n+1} x'_{n+1} = -M [D (a1 x'_n + a2 x'_{n-1}) / a0 + c_I h (a1 v'_n + a2 v'_{n-1}) / a0^2]
+                           - sum_k phi_k(t_{n+1}) k g
+        v'_{n+1} = (a0 x'_{n+1} + a1 x'_n + a2 x'_{n-1}) / h
+
+    one factorisation and one multi-column back-substitution per step (for
+    Gauss-Newton). `report`: a DynamicsReport with stored states of the
+    current schedules (a new forward run if None).
+    """
+    from .dynamics import Dynamics
+
+    design, model, solver = session.design, session.model, session.solver
+    spec = design.dynamics
+    if spec.damping_stiffness > 0.0:
+        raise ValueError("the sensitivities do not differentiate stiffness damping (damping.stiffness = 0 needed)")
+    dyn = Dynamics(model, solver, design)
+    rep = report if report is not None else dyn.run(store=True)
+    if not rep.converged:
+        raise RuntimeError(f"{design.name}: the forward run failed ({rep.status}) at t = {rep.t_end:g} s")
+    inertia, markers = model.term("dynamics"), model.term("markers")
+    names, d = list(markers.names), model.dim
+    tendons = [t for t in model.terms_in("cables") if t.kind == "tendon"]
+    scheduled = [(t.name, design.cable(t.name).schedule) for t in tendons if design.cable(t.name).schedule is not None]
+    columns = [(n, k) for n, sched in scheduled for k in range(len(sched))]
+    P = len(columns)
+    n_owned = len(model.u.vector.array_r)
+    N = len(rep.steps)
+    step_times = np.array([0.0] + [s[0] for s in rep.steps])
+    need = {}                                           # step index -> targets using that state
+    for i, tt in enumerate(targets):
+        a, b, w = _bracket(step_times, tt.time)
+        need.setdefault(a, []).append((i, 1 - w))
+        need.setdefault(b, []).append((i, w))
+    r = np.zeros(len(targets) * d)
+    J = np.zeros((len(targets) * d, P))
+    xs = [np.zeros((n_owned, P)), np.zeros((n_owned, P))]        # x'_n, x'_{n-1}
+    vs = [np.zeros((n_owned, P)), np.zeros((n_owned, P))]
+    M = inertia.mass_matrix()
+    vec, out = model.u.vector.duplicate(), model.u.vector.duplicate()
+    fixed = model.fixed[:n_owned]
+    a_mass = spec.damping_mass
+
+    def record(n, xdot):
+        for i, w in need.get(n, []):
+            k = names.index(targets[i].marker)
+            S = markers.S[k * d:(k + 1) * d]
+            y = markers.positions(rep.states[n])[k]
+            r[i * d:(i + 1) * d] += w * (y - np.asarray(targets[i].target, float))
+            if P:
+                cols = np.column_stack([markers.gather(_full(model, xdot[:, p])) for p in range(P)])
+                J[i * d:(i + 1) * d] += w * (S @ cols)
+
+    try:
+        record(0, xs[0])
+        for n in range(N):
+            t_next, h, (a0, a1, a2) = rep.steps[n]
+            model.u.x.array[:] = rep.states[n + 1]
+            model.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+            dyn.set_time(t_next)
+            inertia.set_coefficients(h, a0)
+            lin = Linearization(model, solver)
+            try:
+                c_i = a0 * a0 / (h * h)
+                D = c_i + a_mass * a0 / h
+                hist = D * (a1 * xs[0] + a2 * xs[1]) / a0 + c_i * h * (a1 * vs[0] + a2 * vs[1]) / a0 ** 2
+                xdot = np.zeros((n_owned, P))
+                for p, (name, k) in enumerate(columns):
+                    vec.array_w[:] = hist[:, p]
+                    M.mult(vec, out)
+                    b = -out.array_r.copy()
+                    c = [j for j, term in enumerate(lin.tendons) if term.name == name][0]
+                    b -= knot_weights(dict(scheduled)[name][:, 0], t_next)[k] * lin.dR_du[c].array_r
+                    b[fixed] = 0.0
+                    vec.array_w[:] = b
+                    sol = lin.solve(vec)
+                    xdot[:, p] = sol.array_r
+                    sol.destroy()
+                vdot = (a0 * xdot + a1 * xs[0] + a2 * xs[1]) / h
+                xs, vs = [xdot, xs[0]], [vdot, vs[0]]
+            finally:
+                lin.destroy()
+            record(n + 1, xs[0])
+    finally:
+        inertia.stop()
+        dyn.set_time(rep.t_end)
+        model.u.x.array[:] = rep.states[-1]
+        model.sync(model.u.vector)
+        vec.destroy()
+        out.destroy()
+    return r, J, [f"cables.{n}.schedule[{k}]" for n, k in columns]
+
+
+def _full(model, owned: np.ndarray) -> np.ndarray:
+    """A local array (ghosts updated) from owned values."""
+    v = model.u.vector.duplicate()
+    try:
+        v.array_w[:] = owned
+        v.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        return _local(v)
+    finally:
+        v.destroy()

@@ -1,11 +1,12 @@
 """``skelfem optimize``: tendon schedules that put a marker on timed targets (skelfem.optimize).
 
     skelfem optimize DESIGN --marker M (--target X Y [--at T] | --csv TIMED_TARGETS) [--knots K]
-                     [--max-contraction TENDON=MM ...] [--smooth RHO] [--tol MM] [--max-evaluations N] [--out DIR]
+                     [--max-contraction TENDON=MM ...] [--smooth RHO] [--tol MM] [--max-evaluations N]
+                     [--method lbfgsb|gauss-newton] [--out DIR]
 
 The design needs [dynamics] (its dt, duration, integrator and damping set the
 runs). Writes optimize.json (schedules, achieved positions, error in mm,
-reached, iterations, forward runs and adjoint sweeps, time), schedules.csv
+reached, iterations, forward runs and adjoint (or tangent) sweeps, time), schedules.csv
 (time and every tendon's contraction at the knots) and optimize.png (the
 marker's path over the run with the targets, on the final pose). An
 unreachable target is not an error: the best schedules found are written
@@ -44,6 +45,8 @@ def add_parsers(subparsers) -> None:
                    help="smoothness regulariser rho sum (u_k+1 - u_k)^2 (default 1e-6)")
     p.add_argument("--tol", type=float, default=None, metavar="MM",
                    help="distance that counts as reached (default 1e-3 x finger length)")
+    p.add_argument("--method", choices=["lbfgsb", "gauss-newton"], default="lbfgsb",
+                   help="L-BFGS-B on adjoint gradients (default) or bounded Gauss-Newton on forward sensitivities")
     p.add_argument("--max-evaluations", type=int, default=60, metavar="N",
                    help="forward runs (each with its adjoint sweep) allowed (default 60)")
     p.set_defaults(handler=optimize_command)
@@ -92,7 +95,7 @@ def _check(args, design) -> list:
     return targets
 
 
-def optimize_dict(design, marker, targets, res, timings: dict) -> dict:
+def optimize_dict(design, marker, targets, res, timings: dict, method: str = "lbfgsb") -> dict:
     return {
         "format": FORMAT, "design": design.name, "marker": marker,
         "targets": [{"time": t, "target": [float(v) for v in p], "position": [float(v) for v in y],
@@ -102,7 +105,7 @@ def optimize_dict(design, marker, targets, res, timings: dict) -> dict:
                       for n, row in zip(res.names, res.schedules)},
         "max_contraction": {n: float(u) for n, u in zip(res.names, res.upper)},
         "objective": res.objective, "iterations": res.iterations, "forward_runs": res.forward_runs,
-        "adjoint_sweeps": res.adjoint_sweeps, "failed_runs": res.failed_runs,
+        "adjoint_sweeps": res.adjoint_sweeps, "failed_runs": res.failed_runs, "method": method,
         "history": [{"objective": j, "error": e} for j, e in res.history],
         "dynamics": {"dt": design.dynamics.dt, "duration": design.dynamics.duration,
                      "integrator": design.dynamics.integrator},
@@ -155,13 +158,13 @@ def optimize_command(args) -> int:
             res = optimize_schedules(session, args.marker, targets, knots=args.knots,
                                      upper=_bounds(args.max_contraction),
                                      smooth=DEFAULT_SMOOTH if args.smooth is None else args.smooth,
-                                     tol=args.tol, max_evaluations=args.max_evaluations)
+                                     tol=args.tol, max_evaluations=args.max_evaluations, method=args.method)
         except RuntimeError as exc:
             cli.error(f"{design.name}: {exc}; nothing written to {args.out}")
             return cli.EXIT_SOLVE
         final = session.run()                        # the best schedules, for the picture
         timings.update(optimize=res.time, total=time.perf_counter() - t0)
-        result = optimize_dict(session.design, args.marker, targets, res, timings)
+        result = optimize_dict(session.design, args.marker, targets, res, timings, args.method)
         header = ["time"] + list(res.names)
         rows = [dict(zip(header, [float(t), *map(float, res.schedules[:, k])]))
                 for k, t in enumerate(res.knot_times)]

@@ -136,3 +136,41 @@ def test_optimize_needs_dynamics(tmp_path, capsys):
     assert main(["optimize", str(path), "--marker", "tip", "--target", "1", "2", "--out",
                  str(tmp_path / "o"), "-q"]) == 1
     assert "dynamics: missing" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_forward_sensitivities_agree_with_the_adjoint_and_central_differences():
+    from skelfem.adjoint import schedule_sensitivities
+    d = flick("bdf2", damping={"mass": 5.0})
+    with Session(d) as s:
+        g = schedule_gradient(s, TARGETS)
+        r, J, names = schedule_sensitivities(s, TARGETS)
+        assert names == [f"cables.flexor.schedule[{k}]" for k in range(3)]
+        assert r @ r == pytest.approx(g.value, rel=1e-12)
+        adj = g.gradient["flexor"]
+        assert np.abs(2.0 * J.T @ r - adj).max() <= 1e-10 * np.abs(adj).max()   # measured 4e-15
+        base = np.array(d["cables"][0]["schedule"], float)
+        eps = 1e-4
+        sched = base.copy()
+        sched[1, 1] += eps
+        s.set({"cables.flexor.schedule": sched.tolist()})
+        rp = schedule_sensitivities(s, TARGETS)[0]
+        sched[1, 1] -= 2 * eps
+        s.set({"cables.flexor.schedule": sched.tolist()})
+        rm = schedule_sensitivities(s, TARGETS)[0]
+    fd = (rp - rm) / (2 * eps)
+    assert np.abs(fd - J[:, 1]).max() <= 1e-5 * np.abs(fd).max()
+
+
+@pytest.mark.slow
+def test_gauss_newton_reaches_a_reachable_target():
+    from skelfem.optimize import optimize_schedules, schedule_items
+    d = flick(duration=0.08)
+    d.pop("solver")
+    with Session(d) as s:
+        s.set(schedule_items(["flexor"], np.linspace(0.0, 0.08, 4), [[0.5, 2.5, 1.0, 2.0]]))
+        run = s.run()
+        end = np.array(run.markers["tip"]["position"])
+        mid = np.array([run.report.trajectory[4]["tip_x"], run.report.trajectory[4]["tip_y"]])
+        res = optimize_schedules(s, "tip", [(0.08, end), (0.04, mid)], knots=4, method="gauss-newton")
+    assert res.reached and res.error <= 0.04 and res.forward_runs <= 10, (res.errors, res.forward_runs)
