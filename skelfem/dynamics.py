@@ -52,6 +52,11 @@ class DynamicsReport:
     steps: list = field(default_factory=list)         # with store=True: (t_{n+1}, h, alphas) per accepted step
 
 
+def _snap(t: float, dt: float) -> float:
+    """t rounded to 12 significant digits of dt (0.29000000000000015 -> 0.29): sums of steps stay readable."""
+    return float(round(t, 12 - int(np.floor(np.log10(dt)))))
+
+
 def schedule_keys(design) -> dict:
     """{live parameter key: CableSpec} of every tendon with a schedule."""
     return {f"cables.{c.name}.contraction": c for c in design.tendons if c.schedule is not None}
@@ -125,7 +130,7 @@ class Dynamics:
                 h_try = min(h, T - t)
                 if T - t - h_try < 1e-6 * dt:
                     h_try = T - t                     # no sliver of a last step
-                t_next = t + h_try if t + h_try < T - 1e-9 * dt else T
+                t_next = _snap(t + h_try, dt) if t + h_try < T - 1e-9 * dt else T
                 self.set_time(t_next)
                 tilde = inertia.prepare(h_try)
                 x_n = inertia.x[0]

@@ -174,3 +174,27 @@ def test_gauss_newton_reaches_a_reachable_target():
         mid = np.array([run.report.trajectory[4]["tip_x"], run.report.trajectory[4]["tip_y"]])
         res = optimize_schedules(s, "tip", [(0.08, end), (0.04, mid)], knots=4, method="gauss-newton")
     assert res.reached and res.error <= 0.04 and res.forward_runs <= 10, (res.errors, res.forward_runs)
+
+
+@pytest.mark.slow
+def test_optimize_follows_timed_targets_from_a_csv(tmp_path, capsys):
+    import json
+
+    from skelfem.cli import main
+    from skelfem.optimize import schedule_items
+    path, d = _design_file(tmp_path)
+    with Session(d) as s:
+        s.set(schedule_items(["flexor"], np.linspace(0.0, 0.08, 4), [[0.5, 2.5, 1.0, 2.0]]))
+        rows = s.run().report.trajectory
+    csv = tmp_path / "targets.csv"
+    csv.write_text("t,x,y\n" + "".join(f"{r['time']},{r['tip_x']},{r['tip_y']}\n" for r in rows[4::4]))
+    out = tmp_path / "csv"
+    assert main(["optimize", str(path), "--marker", "tip", "--csv", str(csv), "--method", "gauss-newton",
+                 "--out", str(out), "-q"]) == 0
+    res = json.loads((out / "optimize.json").read_text())
+    assert [t["time"] for t in res["targets"]] == [0.04, 0.08] and res["method"] == "gauss-newton"
+    assert res["reached"] and max(t["error"] for t in res["targets"]) <= 0.04
+    csv.write_text("t,x,y\n0.04,1\n")
+    assert main(["optimize", str(path), "--marker", "tip", "--csv", str(csv), "--out", str(tmp_path / "n"),
+                 "-q"]) == 1
+    assert "line 2: expected 3 finite numbers" in capsys.readouterr().err
