@@ -9,7 +9,7 @@ SHELL := /bin/bash
 # The editor's web stack (Starlette, uvicorn, websockets, tomlkit) and what its
 # browser tests drive (Chromium, chromedriver, Selenium) are Debian's too:
 # nothing downloads a browser at run time.
-APT_PACKAGES := python3-dolfinx python3-gmsh python3-meshio python3-venv \
+APT_PACKAGES := python3-dolfinx python3-gmsh python3-meshio python3-venv python3-pil \
 	python3-scipy python3-matplotlib python3-pytest python3-setuptools python3-h5py \
 	libopenblas0-pthread openmpi-bin libegl1 libegl-mesa0 libgl1-mesa-dri admesh \
 	python3-starlette python3-uvicorn python3-websockets python3-tomlkit \

@@ -65,7 +65,8 @@ def common_arguments(parser: argparse.ArgumentParser, out_help: str = "output fo
 
 # Modules that add sub-commands: each has add_parsers(subparsers), and every
 # parser it adds sets `handler` (a function args -> exit status).
-COMMAND_MODULES = ("skelfem.cli_sweep", "skelfem.cli_bench", "skelfem.cli_control", "skelfem.cli_edit")
+COMMAND_MODULES = ("skelfem.cli_sweep", "skelfem.cli_bench", "skelfem.cli_control", "skelfem.cli_edit",
+                   "skelfem.cli_optimize")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -84,9 +85,9 @@ def _parser() -> argparse.ArgumentParser:
     p = _Parser(prog="skelfem", description="Simulate and control cable-driven soft robots "
                 "with embedded skeletons.")
     sub = p.add_subparsers(dest="command", required=True)
-    s = sub.add_parser("simulate", help="static equilibrium of a design")
+    s = sub.add_parser("simulate", help="static equilibrium of a design (a run in time if it has [dynamics])")
     common_arguments(s)
-    s.add_argument("--no-picture", action="store_true", help="skip deformed.png")
+    s.add_argument("--no-picture", action="store_true", help="skip deformed.png (motion.gif with [dynamics])")
     s.add_argument("--tol", type=float, default=None, metavar="ABS_MM",
                    help="refine the mesh (P2, from twice [mesh] size) until the design's own marker error "
                         "estimate (Richardson over the meshes) is below ABS_MM mm; result.json reports it "
@@ -195,14 +196,23 @@ def simulate(args) -> int:
     t0 = time.perf_counter()
     if args.tol is not None and not (0 < args.tol < float("inf")):
         raise InputError(f"--tol: must be a finite number > 0, got {args.tol:g}")
+    design = load(args)
+    if args.tol is not None and design.dynamics is not None:
+        raise InputError(f"{args.design}: --tol chooses the mesh of a static run; a design with [dynamics] "
+                         "sets [mesh] by hand")
+    if args.tol is not None and not design.markers:
+        raise InputError(f"{args.design}: --tol needs at least one marker (its error is what --tol bounds)")
+    args.out = reserve_output(args, design)           # before any work: a bad --out is bad input
     extra = {}
     if args.tol is not None:
-        design, session = prepare_tol(args)
+        design, session = prepare_tol(args, design)
         with session:
             solved, extra["accuracy"] = refine_to_tol(session, args.tol)
             result = write_results(session, solved, args.out, t0, picture=not args.no_picture, extra=extra)
     else:
         design, session = prepare(args)
+        if design.dynamics is not None:
+            return _simulate_in_time(args, design, session, t0, extra)
         with session:
             solved = session.solve()
             result = write_results(session, solved, args.out, t0, picture=not args.no_picture, extra=extra)
@@ -215,8 +225,8 @@ def simulate(args) -> int:
     return EXIT_OK
 
 
-def prepare_tol(args):
-    """--tol: the design at the first size of skelfem.accuracy's ladder (P2), meshed; (design, session)."""
+def prepare_tol(args, design):
+    """--tol: design at the first size of skelfem.accuracy's ladder (P2), meshed; (that design, session)."""
     from mpi4py import MPI
 
     from . import accuracy
@@ -224,10 +234,6 @@ def prepare_tol(args):
     from .geometry import MeshingError
     from .run import open_session
 
-    design = load(args)
-    if not design.markers:
-        raise InputError(f"{args.design}: --tol needs at least one marker (its error is what --tol bounds)")
-    args.out = reserve_output(args, design)
     try:
         first = accuracy.first_level(design)
         log.info("--tol %g mm: P%d from h = %g mm, refined until the estimate meets it",
@@ -246,6 +252,39 @@ def refine_to_tol(session, tol: float):
         return accuracy.refine(session, tol)
     except (DesignError, MeshingError) as exc:
         raise InputError(str(exc)) from None
+
+
+def _simulate_in_time(args, design, session, t0, extra) -> int:
+    """simulate for a design with [dynamics]: the run in time and its files (see run.write_dynamic_results)."""
+    from mpi4py import MPI
+
+    from .run import ProgressBar, write_dynamic_results
+
+    bar = None if args.quiet else ProgressBar(f"{design.name}: t = 0 .. {design.dynamics.duration:g} s")
+    try:
+        with session:
+            result = write_dynamic_results(session, args.out, t0, picture=not args.no_picture, progress=bar,
+                                           extra=extra)
+    finally:
+        if bar is not None:
+            bar.close()
+    dyn = result["dynamics"]
+    if not result["converged"]:
+        error(f"{design.name}: time step failed ({result['status']}) at t = {dyn['time_reached']:.6g} s after "
+              f"{dyn['steps']} step(s) and {dyn['cuts']} cut(s); try a smaller [dynamics].dt or a finer mesh; "
+              f"the trajectory up to there is in {args.out}")
+        return EXIT_SOLVE
+    if not args.quiet and MPI.COMM_WORLD.rank == 0:
+        print(f"{result['design']}: {dyn['steps']} time steps ({design.dynamics.integrator}, dt = "
+              f"{design.dynamics.dt:g} s) to t = {dyn['time_reached']:.4g} s, {result['newton_iterations']} "
+              f"Newton iterations, {dyn['cuts']} cut(s); min det F = {result['min_jacobian']:.3f}")
+        for name, m in (result["markers"] or {}).items():
+            print(f"  marker {name} at t = {dyn['time_reached']:.4g} s: "
+                  f"({', '.join(f'{p:.2f}' for p in m['position'])}) mm")
+        files = "result.json, trajectory.csv, trajectory.xdmf" + (", motion.gif" if design.dim == 2
+                                                                   and not args.no_picture else "")
+        print(f"  results in {args.out}/ ({files}), {result['timings']['total']:.1f} s")
+    return EXIT_OK
 
 
 def fabricate(args) -> int:

@@ -24,6 +24,8 @@ MAX_COORDINATE = 1e7      # mm: geometry beyond +-10 km is a typo, and overflows
 MAX_STEPS = 10_000        # load steps and Newton iterations: a cap against runaway runs
 MAX_NAME = 100            # bytes in a design, entry or marker name
 LINE_SEARCHES = ("auto", "energy", "curved", "residual", "none", "trust_region")
+INTEGRATORS = ("euler", "bdf2")
+MAX_TIME_STEPS = 1_000_000   # duration / dt: a cap against runaway runs
 SECTIONS_BY_NAME = ("bones", "cables", "pins", "loads", "grounds", "tractions")
 PRIMITIVES = ("box", "cylinder", "sphere", "extrude")
 
@@ -72,6 +74,14 @@ class CableSpec:
     contraction: float = 0.0   # tendon: u, mm
     pretension: float = 0.0    # ligament: rest-length shortening, mm
     anchor_radius: float | None = None   # mm; an end in silicone pulls on a disk/ball this wide (None: default)
+    schedule: np.ndarray | None = None   # tendons, dynamics: (n, 2) rows [t (s), contraction (mm)], t increasing
+
+    def contraction_at(self, t: float) -> float:
+        """The contraction at time t: the schedule, piecewise linear and held beyond its ends, or the
+        constant contraction if there is no schedule."""
+        if self.schedule is None:
+            return self.contraction
+        return float(np.interp(t, self.schedule[:, 0], self.schedule[:, 1]))
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,6 +131,21 @@ class SolverSpec:
 
 
 @dataclass(frozen=True, eq=False)
+class DynamicsSpec:
+    """The [dynamics] section: its presence makes a run dynamic."""
+    dt: float                         # time step, s
+    duration: float                   # s
+    integrator: str = "bdf2"          # "euler" or "bdf2"
+    damping_mass: float = 0.0         # Rayleigh a, 1/s: damping force a M v
+    damping_stiffness: float = 0.0    # Rayleigh b, s: damping force b K v (K: elastic tangent at the last step)
+
+    @property
+    def steps(self) -> int:
+        """Number of time steps of size dt (the last one may be shorter)."""
+        return int(math.ceil(self.duration / self.dt * (1.0 - 1e-12)))
+
+
+@dataclass(frozen=True, eq=False)
 class FabricationSpec:
     """The [fabrication] section (skelfem fabricate), every default resolved; lengths in mm."""
     channel_diameter: float = 1.2     # tendon channels through the bones
@@ -158,6 +183,7 @@ class Design:
     gravity: np.ndarray | None = None    # m/s^2 as written; None: no gravity
     tractions: tuple = ()
     fabrication: FabricationSpec = field(default_factory=FabricationSpec)
+    dynamics: DynamicsSpec | None = None   # None: a static run
     format: int = FORMAT
     raw: dict = field(default_factory=dict)   # the TOML data after overrides
     measure: float = 0.0      # body area (2D, mm^2) or volume (3D, mm^3), bones included
@@ -640,9 +666,62 @@ def _cables(top: _Table, dim: int, region, tol) -> tuple:
         if max(contraction, pretension) >= seg.sum():
             t.fail("contraction" if kind == "tendon" else "pretension",
                    f"must be shorter than the cable ({seg.sum():g} mm)")
+        schedule = None
+        if t.has("schedule"):
+            if kind != "tendon":
+                t.fail("schedule", "ligaments are passive and never actuated (only tendons take a schedule)")
+            schedule = _schedule(t, t.take("schedule", "list"), float(seg.sum()))
         t.done()
-        cables.append(CableSpec(name, kind, path, k, contraction, pretension, anchor))
+        cables.append(CableSpec(name, kind, path, k, contraction, pretension, anchor, schedule))
     return tuple(cables)
+
+
+def _schedule(t: _Table, value: list, length: float) -> np.ndarray:
+    """[[t0, u0], [t1, u1], ...]: times (s) >= 0 strictly increasing, contractions (mm) in [0, length)."""
+    if not value:
+        t.fail("schedule", "must be a non-empty list of [time, contraction] pairs")
+    for i, row in enumerate(value):
+        if not (isinstance(row, list) and len(row) == 2 and all(_is_number(x) for x in row)):
+            t.fail("schedule", f"entry {i} must be a [time, contraction] pair of numbers, got {_show(row)}")
+        if not all(_finite(x) for x in row):
+            t.fail("schedule", f"entry {i} must be finite, got {_show(row)}")
+    a = np.asarray(value, dtype=float)
+    if a[0, 0] < 0:
+        t.fail("schedule", f"times must be >= 0, got {a[0, 0]:g}")
+    bad = np.flatnonzero(np.diff(a[:, 0]) <= 0)
+    if len(bad):
+        i = int(bad[0]) + 1
+        t.fail("schedule", f"times must increase strictly: entry {i} (t = {a[i, 0]:g}) "
+                           f"does not come after entry {i - 1} (t = {a[i - 1, 0]:g})")
+    if np.any(a[:, 1] < 0):
+        t.fail("schedule", f"contractions must be >= 0, got {a[:, 1].min():g}")
+    if np.any(a[:, 1] >= length):
+        t.fail("schedule", f"contractions must be shorter than the cable ({length:g} mm), got {a[:, 1].max():g}")
+    return a
+
+
+def _dynamics(top: _Table, materials: dict, used: list) -> DynamicsSpec | None:
+    if not top.has("dynamics"):
+        return None
+    t = _Table(top.take("dynamics", "table"), "dynamics", top.source)
+    dt = _positive(t, "dt", t.take("dt", "number"))
+    duration = _positive(t, "duration", t.take("duration", "number"))
+    if duration < dt:
+        t.fail("duration", f"must be at least one time step (dt = {dt:g} s), got {duration:g}")
+    if duration / dt > MAX_TIME_STEPS:
+        t.fail("dt", f"duration / dt must be at most {MAX_TIME_STEPS:g} time steps, got {duration / dt:.3g}")
+    integrator = t.take("integrator", "str", "bdf2")
+    if integrator not in INTEGRATORS:
+        t.fail("integrator", f"must be one of {', '.join(INTEGRATORS)}; got {integrator!r}")
+    d = _Table(t.take("damping", "table", {}), "dynamics.damping", top.source)
+    mass = _positive(d, "mass", d.take("mass", "number", 0.0), strict=False)
+    stiffness = _positive(d, "stiffness", d.take("stiffness", "number", 0.0), strict=False)
+    d.done()
+    t.done()
+    for name in used:
+        if materials[name].density is None:
+            raise DesignError(f"{top.source}: materials.{name}.density: missing (required with [dynamics])")
+    return DynamicsSpec(dt, duration, integrator, mass, stiffness)
 
 
 def _pins(top: _Table, dim: int) -> tuple:
@@ -906,6 +985,7 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     gravity = _gravity(top, dim, materials, [body.material] + [b.material for b in bones])
     tractions = _tractions(top, dim)
     fabrication = _fabrication(top, dim, thickness, body)
+    dynamics = _dynamics(top, materials, [body.material] + [b.material for b in bones])
     top.done()
     if dim == 2:
         measure = abs(polygons.signed_area(body.outline)) - sum(abs(polygons.signed_area(h)) for h in body.holes)
@@ -924,7 +1004,7 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
         source=str(source), name=name, dim=dim, thickness=thickness, mesh=mesh,
         materials=materials, body=body, bones=bones, cables=cables, pins=pins, loads=loads,
         grounds=grounds, contact=contact, markers=markers, solver=solver, gravity=gravity,
-        tractions=tractions, fabrication=fabrication, raw=data, measure=float(measure), vertices=int(vertices),
+        tractions=tractions, fabrication=fabrication, dynamics=dynamics, raw=data, measure=float(measure), vertices=int(vertices),
     )
 
 

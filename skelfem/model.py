@@ -100,14 +100,13 @@ class Model:
 
     def set_parameter(self, key: str, value) -> None:
         """Change a live parameter; the change is remembered (``changes``) until the next solve."""
-        for term in self.terms:
-            params = term.parameters()
-            if key in params:
-                term.set_parameter(key, value)
-                old = self.changes.get(key, (np.array(params[key], dtype=float), None))[0]
-                self.changes[key] = (old, np.array(term.parameters()[key], dtype=float))
-                return
-        raise KeyError(key)
+        owners = [term for term in self.terms if key in term.parameters()]
+        if not owners:
+            raise KeyError(key)
+        old = self.changes.get(key, (np.array(owners[0].parameters()[key], dtype=float), None))[0]
+        for term in owners:          # a key may belong to several terms (density: gravity and inertia)
+            term.set_parameter(key, value)
+        self.changes[key] = (old, np.array(owners[0].parameters()[key], dtype=float))
 
     def parameter_path(self, s: float) -> None:
         """Set every changed parameter to old + s (new - old): s = 0 the last solved state, 1 the new one."""

@@ -37,16 +37,18 @@ from . import interrupts
 
 # files each command writes; a folder holding only these (and stale temporaries) may be replaced
 OUTPUTS = {
-    "simulate": ("result.json", "solution.xdmf", "solution.h5", "deformed.png"),
+    "simulate": ("result.json", "solution.xdmf", "solution.h5", "deformed.png",
+                 "trajectory.csv", "trajectory.xdmf", "trajectory.h5", "motion.gif"),
     "ik": ("ik.json", "ik.png"),
     "track": ("track.csv", "track.json", "track.png"),
     "bench": ("bench.json",),
     "sweep": ("summary.csv", "summary.png"),
     "fabricate": ("fabrication.json", "fabrication.png"),
+    "optimize": ("optimize.json", "schedules.csv", "optimize.png"),
 }
 # files whose names follow the design (one per bone): a pattern per command
 PATTERNS = {"fabricate": re.compile(r"^(bone_[^/\\]+|mould_(bottom|top))\.(stl|step)$")}
-STALE_FILE = re.compile(r"^\.(result|solution|deformed|ik|track|bench|summary|fabrication)-.*")
+STALE_FILE = re.compile(r"^\.(result|solution|deformed|trajectory|motion|optimize|schedules|ik|track|bench|summary|fabrication)-.*")
 NAME_MAX = 255
 RESERVED_CHARS = 48           # room for ".<name>.tmp-<pid>-<random>" beside the target
 PATH_MAX = 4096 - 128

@@ -405,3 +405,77 @@ def draw_track(ax, model, results, poses: list, title: str = "") -> None:
     ax.legend(handles=[h1, h2], loc="upper right", fontsize=8)
     if title:
         ax.set_title(title, fontsize=10)
+
+
+# -- runs in time (skelfem.dynamics) -------------------------------------------------------------------
+def _body_arrays(snap: Snapshot) -> tuple[np.ndarray, list, np.ndarray]:
+    """(points, cell blocks, displacement) of a snapshot's mesh, padded to 3D as in solution.xdmf."""
+    x, u = snap.x, snap.u
+    if x.shape[1] == 2:
+        x, u = np.column_stack([x, np.zeros(len(x))]), np.column_stack([u, np.zeros(len(u))])
+    return x, [("triangle" if snap.x.shape[1] == 2 else "tetra", snap.cells)], u
+
+
+class XdmfSeries:
+    """trajectory.xdmf + trajectory.h5: the mesh once, the displacement at every step (rank 0 only).
+
+    Every ``write`` appends the step's displacement to the HDF5 file at once;
+    the small XML index that ParaView (and meshio's TimeSeriesReader) reads is
+    written by ``close``. Open it in ParaView and press play; Warp By Vector on
+    ``displacement`` shows the motion. The cables are not in it (meshio 5.0's
+    time-series writer cannot mix line and volume cells); the GIF and
+    trajectory.csv have them.
+    """
+
+    def __init__(self, path: Path, snap: Snapshot):
+        import h5py
+        from meshio.xdmf.time_series import TimeSeriesWriter
+
+        path = Path(path)
+
+        class _Writer(TimeSeriesWriter):            # meshio 5.0 puts the .h5 in the working folder
+            def __enter__(self):
+                self.h5_filename = str(path.with_suffix(".h5"))
+                self.h5_file = h5py.File(self.h5_filename, "w")
+                return self
+
+        self.path = path
+        self.writer = _Writer(str(path), data_format="HDF").__enter__()
+        pts, blocks, _ = _body_arrays(snap)
+        self.writer.write_points_cells(pts, blocks)
+        self.region = [snap.regions.astype(float)]
+
+    def write(self, t: float, snap: Snapshot) -> None:
+        _, _, d = _body_arrays(snap)
+        self.writer.write_data(float(t), point_data={"displacement": d}, cell_data={"region": self.region})
+        self.writer.h5_file.flush()
+
+    def close(self) -> None:
+        self.writer.__exit__(None, None, None)
+
+
+def write_motion_gif(path: Path, frames: list, title: str = "", fps: int = 20) -> None:
+    """An animated GIF of 2D snapshots [(t, Snapshot)], axes fixed over the motion (Pillow writer)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.animation import FuncAnimation, PillowWriter
+
+    allpts = np.vstack([np.vstack([s.x + s.u, s.x]) for _, s in frames])
+    lo, hi = allpts.min(axis=0), allpts.max(axis=0)
+    pad = 0.06 * (hi - lo).max()
+    fig, ax = plt.subplots(figsize=(5, 5.5), dpi=80)
+
+    def draw(i):
+        ax.clear()
+        t, snap = frames[i]
+        plot_deformed(None, snap, f"{title}  t = {t:.4g} s", ax=ax)
+        if ax.get_legend() is not None:
+            ax.get_legend().remove()
+        ax.set_xlim(lo[0] - pad, hi[0] + pad)
+        ax.set_ylim(lo[1] - pad, hi[1] + pad)
+        return []
+
+    anim = FuncAnimation(fig, draw, frames=len(frames), blit=False)
+    atomic_write(path, lambda tmp: anim.save(tmp, writer=PillowWriter(fps=fps)))
+    plt.close(fig)

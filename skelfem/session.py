@@ -171,12 +171,24 @@ class Session:
             overrides = [f"{key}={_toml(value)}" for key, value in changes.items()]
             design = parse_design(self.design.raw, self.design.source, overrides)
         live = self.model.parameters()
-        if not all(key in live for key in changes):
+        if not all(key in live or self._run_setting(key, design) for key in changes):
             self.edit(design)
             return
         for key, value in changes.items():
-            self.model.set_parameter(key, value)
+            if key in live:
+                self.model.set_parameter(key, value)
         self.design = design
+
+    def _run_setting(self, key: str, design) -> bool:
+        """Whether key only changes how a run steps (dt, schedules...), not the compiled model."""
+        if not (key.startswith("dynamics.") or key.endswith(".schedule")):
+            return False
+        try:
+            inertia = self.model.term("dynamics")
+        except KeyError:
+            return False               # the model has no inertia term: re-mesh and build one
+        return design.dynamics is not None and \
+            inertia.stiffness_damping == (design.dynamics.damping_stiffness > 0.0)
 
     def edit(self, design, overrides=(), morph: bool = False) -> str:
         """Replace the design (a path, a dict or a Design); the last solution is the start.
@@ -277,6 +289,28 @@ class Session:
         timings["total"] = sum(timings.values())
         self.timings = {"mesh": 0.0, "compile": 0.0}          # paid once per mesh
         return Result(result_dict(self.design, self.model, report, timings), report)
+
+    def run(self, on_step=None, progress=None) -> Result:
+        """A run in time ([dynamics]): from rest, steps of dt to the duration (see skelfem.dynamics).
+
+        The Result holds result.json's keys (the final state's read-outs, and a
+        ``dynamics`` block with the energy history); ``result.report.trajectory``
+        has one row per accepted step (trajectory.csv).
+        """
+        from .dynamics import Dynamics, dynamics_summary
+        if self.design.dynamics is None:
+            raise DesignError(f"{self.design.source}: dynamics: missing (a run in time needs a [dynamics] section)")
+        t0 = time.perf_counter()
+        log.info("%s: %d DOFs, %s, dt %g s to %g s", self.design.name, self.dofs, self.design.dynamics.integrator,
+                 self.design.dynamics.dt, self.design.dynamics.duration)
+        report = Dynamics(self.model, self.solver, self.design).run(on_step, progress)
+        self.solved = False                                   # a moving state, not an equilibrium
+        timings = dict(self.timings, solve=time.perf_counter() - t0)
+        timings["total"] = sum(timings.values())
+        self.timings = {"mesh": 0.0, "compile": 0.0}
+        data = result_dict(self.design, self.model, report, timings)
+        data["dynamics"] = _plain(dynamics_summary(self.design, report))
+        return Result(data, report)
 
     # -- clean-up ------------------------------------------------------------------------------------
     def close(self) -> None:

@@ -514,6 +514,20 @@ class NewtonSolver:
                 v.destroy()
         return self._finish(report, t0)
 
+    def newton(self) -> SolveReport:
+        """One Newton solve from the model's current state at the current parameters (no load ramp,
+        no predictor, no retry): a time step. The state is left as Newton ended it, accepted
+        (``end_step``) by the caller only if converged."""
+        t0 = time.perf_counter()
+        self.model.changes.clear()
+        ok, status, its = self._newton()
+        if self._history:
+            self.reference_residual = max(self.reference_residual, self._history[0])
+        report = SolveReport(ok, status, its, int(ok), [self._history],
+                             [{"factor": self.model.factor, "iterations": int(its), "status": status}])
+        report.time = time.perf_counter() - t0
+        return report
+
     def _finish(self, report: SolveReport, t0: float) -> SolveReport:
         model = self.model
         report.energy = model.energy(model.u.vector)

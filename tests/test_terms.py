@@ -38,7 +38,9 @@ def _designs():
                    body={"outline": [[0, 0], [8, 0], [8, 30], [0, 30], [0, 16], [5, 15.5], [0, 15]],
                          "material": "soft"})
     contact["cables"] = [dict(base["cables"][0], path=[[7, 0], [7, 30]])]
-    return {"full": full, "spring": spring, "contact": contact}
+    dynamic = dict(base, dynamics={"dt": 0.01, "duration": 0.1, "integrator": "bdf2",
+                                   "damping": {"mass": 5.0, "stiffness": 0.01}})
+    return {"full": full, "spring": spring, "contact": contact, "dynamic": dynamic}
 
 
 def _perturbed_state(model, scale):
@@ -92,7 +94,7 @@ def _gradient(model, term, u, gform):
     return g
 
 
-@pytest.mark.parametrize("name", ["full", "spring", "contact"])
+@pytest.mark.parametrize("name", ["full", "spring", "contact", "dynamic"])
 def test_every_term_gradient_and_hessian_match_central_differences(name):
     import dolfinx.fem.petsc  # noqa: F401
     design = _designs()[name]
@@ -113,6 +115,12 @@ def test_every_term_gradient_and_hessian_match_central_differences(name):
         seen.add(type(term).__name__)
         if hasattr(term, "project"):
             term.project = False                      # the exact barrier Hessian (Newton uses its PSD projection)
+        if hasattr(term, "prepare"):                  # inertia: a BDF2 step from a moving state
+            term.start(0.3 * u0, v0=np.roll(u0, 3))
+            term.prepare(0.01)
+            model.u.x.array[:] = 0.6 * u0
+            term.end_step(model)
+            term.prepare(0.005)
         eform, gform, hform = _term_derivatives(model, term)
         if eform is None and term.gradient(u0) is None:
             continue                                  # a read-out only term (markers)
@@ -144,12 +152,14 @@ def test_every_term_gradient_and_hessian_match_central_differences(name):
         assert {"Elasticity", "Pin", "CableTerm", "PointLoad", "Ground", "Markers", "Gravity", "Traction"} <= seen
     if name == "contact":
         assert "SelfContact" in seen
+    if name == "dynamic":
+        assert "Inertia" in seen
 
 
 def test_every_builder_is_exercised():
     names = {b.__module__.rsplit(".", 1)[1] for b in BUILDERS}
     assert names == {"elasticity", "pins", "cables", "loads", "grounds", "contact", "markers", "gravity",
-                     "tractions"}
+                     "tractions", "inertia"}
 
 
 def test_woodbury_direction_equals_the_full_hessian_direction():

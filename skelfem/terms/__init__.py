@@ -4,7 +4,7 @@
 the model calls each on the design and sums what they return. Adding an
 ingredient is one new module and one line here.
 """
-from . import cables, contact, elasticity, gravity, grounds, loads, markers, pins, tractions
+from . import cables, contact, elasticity, gravity, grounds, inertia, loads, markers, pins, tractions
 from .base import Context, Term
 
 BUILDERS = [
@@ -17,6 +17,7 @@ BUILDERS = [
     markers.build,
     gravity.build,
     tractions.build,
+    inertia.build,
 ]
 
 __all__ = ["BUILDERS", "Context", "Term"]
