@@ -147,7 +147,8 @@ def test_drag_ik_target_reaches_it(page, editor, figures, picture):
     page.idle()
     info = page.wait("S.ik.info")
     target = np.array(page.js("S.ik.target"))
-    assert np.linalg.norm(target - goal) < 0.1                       # the pointer landed on the goal (0.01 mm snap)
+    pixel = 1.0 / page.js("S.view.k")                                 # mm per screen pixel
+    assert np.linalg.norm(target - goal) < 1.5 * pixel               # the pointer landed on the goal (to a pixel)
     assert info["reached"] and info["error"] < info["tol"]
     assert np.linalg.norm(page.tip() - target) < info["tol"]
     assert "reached" in page.js("document.getElementById('ik-status').textContent")
