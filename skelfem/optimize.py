@@ -109,12 +109,17 @@ def optimize_schedules(session, marker: str, targets, knots: int = 4, upper: dic
     counts = {"forward": 0, "adjoint": 0, "failed": 0, "evaluations": 0}
     history = []
 
-    def evaluate(x):
+    def schedules(x):
+        """Spend one evaluation of the budget: set the schedules of x; returns them as (m, K)."""
         if counts["evaluations"] >= max_evaluations:
             raise _Budget
         counts["evaluations"] += 1
         U = x.reshape(m, K)
         session.set(schedule_items(names, knot_times, U))
+        return U
+
+    def evaluate(x):
+        U = schedules(x)
         try:
             r = schedule_gradient(session, timed)
         except RuntimeError:                             # a forward run failed: a wall for L-BFGS-B
@@ -140,11 +145,7 @@ def optimize_schedules(session, marker: str, targets, knots: int = 4, upper: dic
         key = x.tobytes()
         if cache.get("key") == key:
             return cache["value"]
-        if counts["evaluations"] >= max_evaluations:
-            raise _Budget
-        counts["evaluations"] += 1
-        U = x.reshape(m, K)
-        session.set(schedule_items(names, knot_times, U))
+        U = schedules(x)
         try:
             r, Jac, _ = schedule_sensitivities(session, timed)
         except RuntimeError:

@@ -8,7 +8,11 @@ then, repeated `repeats` times and reported as medians:
   warm from the last one;
 * edit: one vertex of the first bone moves by `delta` mm in x (re-mesh,
   new model, the last solution carried over as the start) and is re-solved;
-* cold: the same edit solved from rest, for comparison.
+* moved nodes: the same edit with ``morph=True`` (the editor's drafts: the
+  mesh's nodes follow the bone, no meshing);
+* same mesh: the flexor's sketch end moves by `delta` mm in y (outlines
+  unchanged: the model is rebuilt on the same mesh);
+* cold: the same bone edit solved from rest, for comparison.
 
 Prints and returns Newton iterations and wall times; `python studies/session_speed.py`.
 """
@@ -50,6 +54,24 @@ def run(design="geometry/finger.toml", delta: float = 1.0, repeats: int = 5, ove
         s.edit(moved)
         r = s.solve()
         edits.append((time.perf_counter() - t0, r.newton_iterations, r.converged))
+    morphs, kept = [], []
+    for k in range(repeats):
+        d = copy.deepcopy(raw)
+        d["bones"][0]["outline"][0][0] += delta * (1 if k % 2 == 0 else 0)
+        t0 = time.perf_counter()
+        how = s.edit(d, morph=True)
+        r = s.solve()
+        morphs.append((time.perf_counter() - t0, r.newton_iterations, r.converged and how != "re-meshed"))
+    s.edit(raw)
+    s.solve()
+    cable = next(i for i, c in enumerate(raw["cables"]) if c["name"] == tendon)
+    for k in range(repeats):
+        d = copy.deepcopy(raw)
+        d["cables"][cable]["path"][-1][1] += delta * (1 if k % 2 == 0 else 0)
+        t0 = time.perf_counter()
+        how = s.edit(d)
+        r = s.solve()
+        kept.append((time.perf_counter() - t0, r.newton_iterations, r.converged and how == "same mesh"))
     cold = Session(raw)
     for k in range(min(repeats, 3)):
         moved = copy.deepcopy(raw)
@@ -70,6 +92,7 @@ def run(design="geometry/finger.toml", delta: float = 1.0, repeats: int = 5, ove
     return {"design": str(design), "dofs": first.dofs, "delta": delta, "repeats": repeats,
             "first_solve": {"newton_iterations": first.newton_iterations, "time": first.timings["total"]},
             "set_contraction": summary(sets), "edit_bone_vertex": summary(edits),
+            "edit_bone_vertex_moved_nodes": summary(morphs), "edit_cable_path_same_mesh": summary(kept),
             "edit_bone_vertex_cold": summary(colds)}
 
 
