@@ -43,7 +43,8 @@ R_MIN, R_MAX = 0.5, 2.0               # the observed rate is clipped to this ran
 R_TWO_LEVELS = 1.0                    # the rate assumed before three levels exist
 MARGIN = 2.0                          # met: MARGIN x estimate <= tol (the estimate may be low by 2x)
 AIM = 1.5                             # the size jump aims at tol / (MARGIN AIM)
-MAX_LEVELS = 7
+MAX_LEVELS = 8
+MAX_JUMP = 2.0                        # h_{k-1} / h_k is at most this
 
 
 @dataclass
@@ -98,10 +99,14 @@ def richardson(levels: list[Level]) -> tuple[float, float]:
 
 
 def next_size(level: Level, tol: float, dim: int) -> float:
-    """The size the error model e = C h^r predicts for tol / (MARGIN AIM), at least one ratio finer, at most 4x."""
+    """The size the error model e = C h^r predicts for tol / (MARGIN AIM), between one ratio and 2x finer.
+
+    (In 2D the ratio is 2: every level halves h. A larger jump would leave
+    the estimate with one pair of widely spaced meshes, and the last mesh
+    could be much finer than the tolerance needs.)"""
     h, r = level.size, level.rate
     want = h * (tol / (MARGIN * AIM * level.estimate)) ** (1.0 / r)
-    return float(min(max(want, h / 4.0), h / RATIO[dim]))
+    return float(min(max(want, h / MAX_JUMP), h / RATIO[dim]))
 
 
 def at_size(design, h: float):

@@ -44,10 +44,11 @@ def test_the_rate_is_clipped_and_differences_that_grow_give_the_smallest():
 
 def test_next_size_aims_below_the_tolerance_within_bounds():
     lv = Level(1.0, 0, 0, 0.0, np.zeros((1, 2)), change=0.1, rate=2.0, estimate=0.1)
-    h = accuracy.next_size(lv, 0.05, 2)
-    assert h == pytest.approx((0.05 / (accuracy.MARGIN * accuracy.AIM * 0.1)) ** 0.5)
-    assert accuracy.next_size(lv, 1e-9, 2) == 0.25                           # at most 4x finer
-    assert accuracy.next_size(lv, 0.099, 2) == 0.5                           # at least one ratio
+    h = accuracy.next_size(lv, 0.1, 3)                                       # 3D: between h/2 and h/sqrt 2
+    assert h == pytest.approx((0.1 / (accuracy.MARGIN * accuracy.AIM * 0.1)) ** 0.5)
+    assert accuracy.next_size(lv, 1e-9, 3) == 0.5                            # at most 2x finer
+    assert accuracy.next_size(lv, 0.29, 3) == pytest.approx(1 / np.sqrt(2))  # at least one ratio
+    assert accuracy.next_size(lv, 1e-9, 2) == accuracy.next_size(lv, 0.29, 2) == 0.5   # 2D: halving
 
 
 def _strip_file(tmp_path, **kw) -> Path:
