@@ -3,7 +3,7 @@
 One more user of :class:`skelfem.Session` (see ``shared/architecture.md``):
 
 * :mod:`.engine`  a Session driven by whole designs (dicts): live parameters change in place,
-  anything else re-meshes; drafts on a coarser mesh while dragging; Soft IK for a marker target.
+  outline edits re-mesh (drafts move the mesh's nodes while dragging); Soft IK for a marker target.
 * :mod:`.payload` what a solve sends to the page: result.json plus the deformed mesh.
 * :mod:`.worker`  one solver thread; a newer request replaces a waiting one (latest wins).
 * :mod:`.savefile` writing a design back into its TOML file, comments and layout kept.
