@@ -93,6 +93,27 @@ def test_live_parameter_is_set_geometry_is_edited(editor, design):
     assert not np.allclose(tip(a), tip(b), atol=1e-3)
 
 
+def test_drafts_move_the_nodes_and_the_release_re_meshes(design):
+    eng = engine_mod.Engine(copy.deepcopy(design), "finger.toml")
+    try:
+        cells = eng.first["cells"]
+        d = copy.deepcopy(design)
+        d["bones"][0]["outline"][0][0] += 0.3
+        draft = eng.solve(d, draft=True)
+        assert draft["editor"]["how"] == "edit (moved nodes)" and draft["editor"]["draft"] and draft["converged"]
+        assert draft["cells"] == cells and draft["mesh"] is not None
+        final = eng.solve(d)
+        assert final["editor"]["how"] == "edit (re-meshed)" and not final["editor"]["draft"]
+        motion = np.linalg.norm(tip(final) - final["markers"]["tip"]["reference"])
+        assert np.linalg.norm(tip(final) - tip(draft)) < 0.01 * motion     # the two meshes' discretisation error
+        e = copy.deepcopy(d)
+        e["markers"]["tip"][0] -= 1.0                       # outlines unchanged: the mesh is kept
+        kept = eng.solve(e)
+        assert kept["editor"]["how"] == "edit (same mesh)" and kept["cells"] == final["cells"]
+    finally:
+        eng.close()
+
+
 def test_bad_design_is_422_with_key_and_keeps_the_last_result(editor, design):
     status, good = solve(editor, design)
     bad = copy.deepcopy(design)

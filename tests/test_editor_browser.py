@@ -65,8 +65,10 @@ def test_drag_bone_vertex_changes_equilibrium(page):
     page.idle()
     editor = page.js("S.answer.editor")
     assert editor["how"] == "edit (re-meshed)" and not editor["draft"]           # the full solve follows the release
-    hows = page.js("S.server.map(x => x.how)")
-    assert "edit (moved nodes)" in hows                                    # drafts answered while dragging
+    drafts = page.js("S.server.filter(x => x.draft).map(x => x.how)")
+    assert drafts                                                          # drafts answered while dragging
+    # moved nodes, or a re-mesh where a large step would have spoilt the moved mesh
+    assert set(drafts) <= {"edit (moved nodes)", "edit (re-meshed)"}
     assert page.solves() >= solves0 + 2
     moved = page.js("S.design.bones[2].outline[0]")
     assert moved[0] < 6 - 0.5 and moved[1] < 74 - 0.2
@@ -131,14 +133,22 @@ def test_save_then_simulate_gives_the_same_tip(page, editor, tmp_path):
     assert np.allclose(result["markers"]["tip"]["position"], page.tip(), atol=1e-4)
 
 
+def _segment_distance(p, a, b) -> float:
+    t = np.clip(np.dot(p - a, b - a) / np.dot(b - a, b - a), 0.0, 1.0)
+    return float(np.linalg.norm(p - (a + t * (b - a))))
+
+
 def test_drag_ik_target_reaches_it(page, editor, figures, picture):
-    # one tendon: reachable targets lie on the tip's curve; take the tip at a contraction of 5 mm
+    # one tendon: reachable targets lie on the tip's curve; aim at the tip at a contraction of 5 mm
     design = json.loads(page.js("JSON.stringify(S.design)"))
-    design["cables"][0]["contraction"] = 5.0
     from skelfem.editor.engine import Engine
-    probe = Engine(design, "probe.toml")
-    goal = np.array(probe.first["markers"]["tip"]["position"])
-    probe.close()
+    curve = []
+    for u in (4.8, 5.0, 5.2):
+        design["cables"][0]["contraction"] = u
+        probe = Engine(design, "probe.toml")
+        curve.append(np.array(probe.first["markers"]["tip"]["position"]))
+        probe.close()
+    goal = curve[1]
     page.click("#ik-on")
     start = page.screen(page.tip() + np.array([0.0, 0.0]))
     end = page.screen(goal)
@@ -149,9 +159,16 @@ def test_drag_ik_target_reaches_it(page, editor, figures, picture):
     target = np.array(page.js("S.ik.target"))
     pixel = 1.0 / page.js("S.view.k")                                 # mm per screen pixel
     assert np.linalg.norm(target - goal) < 1.5 * pixel               # the pointer landed on the goal (to a pixel)
-    assert info["reached"] and info["error"] < info["tol"]
-    assert np.linalg.norm(page.tip() - target) < info["tol"]
-    assert "reached" in page.js("document.getElementById('ik-status').textContent")
+    # a pixel is about the IK tolerance (1e-3 of the finger): the target is reachable if it lies on the curve
+    off = min(_segment_distance(target, curve[0], curve[1]), _segment_distance(target, curve[1], curve[2]))
+    assert info["error"] == pytest.approx(off, abs=0.3 * info["tol"])  # IK found the closest pose
+    if off < 0.5 * info["tol"]:
+        assert info["reached"] and info["error"] < info["tol"]
+        assert np.linalg.norm(page.tip() - target) < info["tol"]
+    else:
+        assert not info["reached"]
+    status = page.js("document.getElementById('ik-status').textContent")
+    assert status.startswith("reached:" if info["reached"] else "unreachable:")
     assert abs(page.js("S.design.cables[0].contraction") - 5.0) < 0.2
     assert all("contraction" not in c for c in page.js("S.design.cables.slice(1)"))   # ligaments never actuated
     picture(page.screenshot(figures / "editor_ik.png"), 1000, 700)
