@@ -56,6 +56,7 @@ class Level:
     markers: np.ndarray = field(repr=False)     # (n_markers, dim) positions, mm
     change: float | None = None                 # d_k = max |x_k - x_{k-1}|, mm
     rate: float | None = None                   # r used for the estimate
+    observed: float | None = None               # the three-level rate before clipping (up to 10)
     estimate: float | None = None               # E_k, mm
 
     def to_dict(self) -> dict:
@@ -64,24 +65,24 @@ class Level:
         return d
 
 
-def observed_rate(h: tuple[float, float, float], d: tuple[float, float]) -> float:
+def observed_rate(h: tuple[float, float, float], d: tuple[float, float], lo: float = R_MIN,
+                  hi: float = R_MAX) -> float:
     """r with d_{k-1} / d_k = (h_{k-2}^r - h_{k-1}^r) / (h_{k-1}^r - h_k^r) for h = (h_{k-2}, h_{k-1}, h_k).
 
-    (e = C h^r gives d_k = C (h_{k-1}^r - h_k^r).) Clipped to [R_MIN, R_MAX];
-    R_MIN where the differences do not fall.
+    (e = C h^r gives d_k = C (h_{k-1}^r - h_k^r).) Clipped to [lo, hi]
+    (default [R_MIN, R_MAX]); lo where the differences do not fall.
     """
     h0, h1, h2 = h
     d1, d2 = d
     if not (d1 > 0 and d2 > 0):
-        return R_MAX if d2 == 0 and d1 > 0 else R_MIN
+        return hi if d2 == 0 and d1 > 0 else lo
 
     def f(r):
         return math.log((h0 ** r - h1 ** r) / (h1 ** r - h2 ** r)) - math.log(d1 / d2)
-    lo, hi = R_MIN, R_MAX
     if f(lo) >= 0:
-        return R_MIN
+        return lo
     if f(hi) <= 0:
-        return R_MAX
+        return hi
     for _ in range(60):                              # f increases with r: bisection
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if f(mid) < 0 else (lo, mid)
@@ -96,6 +97,24 @@ def richardson(levels: list[Level]) -> tuple[float, float]:
         (levels[-3].size, a.size, b.size), (levels[-2].change, d))
     rho = a.size / b.size
     return d / (rho ** r - 1.0), r
+
+
+def trusted(levels: list[Level]) -> bool:
+    """Whether the last level's estimate may end the ladder.
+
+    Three levels at least. A rate observed above R_MAX (differences falling
+    faster than P2 converges) right after differences that did not fall (a
+    rate below 1, or no earlier rate) is a pre-asymptotic drop: a feature
+    the meshes have only just resolved, after which the differences may grow
+    again. It is not trusted; the ladder refines once more.
+    """
+    if len(levels) < 3:
+        return False
+    last = levels[-1]
+    if last.observed is None or last.observed <= R_MAX:
+        return True
+    before = levels[-2].observed
+    return before is not None and before >= 1.0
 
 
 def next_size(level: Level, tol: float, dim: int) -> float:
@@ -151,13 +170,16 @@ def refine(session, tol: float, progress=None) -> tuple[object, dict]:
         if levels:
             level.estimate, level.rate = richardson(levels + [level])
             level.change = float(np.max(np.linalg.norm(level.markers - levels[-1].markers, axis=1)))
+            if len(levels) >= 2:
+                level.observed = observed_rate((levels[-2].size, levels[-1].size, level.size),
+                                               (levels[-1].change, level.change), R_MIN, 10.0)
         levels.append(level)
         if progress is not None:
             progress(level)
         log.info("--tol: h = %g mm, %d DOFs: change %s, estimate %s", level.size, level.dofs,
                  "-" if level.change is None else f"{level.change:.3g} mm",
                  "-" if level.estimate is None else f"{level.estimate:.3g} mm (r = {level.rate:.2f})")
-        if len(levels) >= 3 and MARGIN * level.estimate <= tol:
+        if trusted(levels) and MARGIN * level.estimate <= tol:
             break
         if len(levels) >= MAX_LEVELS:
             stop = f"{MAX_LEVELS} levels"
@@ -173,7 +195,7 @@ def refine(session, tol: float, progress=None) -> tuple[object, dict]:
     if not levels:
         return result, {"tol": tol, "met": False, "stop": stop, "levels": []}
     last = levels[-1]
-    met = bool(result.converged and len(levels) >= 3 and MARGIN * last.estimate <= tol)
+    met = bool(result.converged and trusted(levels) and MARGIN * last.estimate <= tol)
     accuracy = {"tol": tol, "degree": DEGREE, "size": last.size, "dofs": last.dofs,
                 "estimated_error": last.estimate, "rate": last.rate, "met": met,
                 "stop": stop, "levels": [lv.to_dict() for lv in levels],

@@ -1,6 +1,7 @@
 """Does ``skelfem simulate --tol`` meet its tolerance, and does its estimate know how far off it is?
 
     python studies/tol_check.py [--designs ...] [--tols 0.5 0.1 0.05] [--ref-size 0.25] [--ref-size-3d 0.5]
+                                [--reuse-references]
 
 For each design it solves a much finer reference (P2 at --ref-size, 3D
 designs at --ref-size-3d) and each tolerance with the command itself
@@ -49,15 +50,24 @@ def _dim(design: str) -> int:
     return int(tomllib.loads((ROOT / "geometry" / f"{design}.toml").read_text()).get("dim", 2))
 
 
+def _reference(design: str, out: Path, h_ref: float, reuse: bool) -> tuple[dict, float]:
+    """The P2 reference at h_ref: solved, or read back from an earlier run's folder (reuse)."""
+    folder = out / design / "reference"
+    if reuse and (folder / "result.json").exists():
+        ref = json.loads((folder / "result.json").read_text())
+        if ref.get("degree") == 2 and ref["converged"]:
+            return ref, float(ref["timings"]["total"])
+    return _simulate(design, folder, "--set", "mesh.degree=2", "--set", f"mesh.size={h_ref}", "--force")
+
+
 def run(designs=DESIGNS, tols=(0.5, 0.1, 0.05), ref_size: float = 0.25, ref_size_3d: float = 0.5,
-        out: Path | None = None) -> list[dict]:
+        out: Path | None = None, reuse: bool = False) -> list[dict]:
     """For each design a P2 reference (ref_size, or ref_size_3d for 3D designs) and one --tol run per tol."""
     out = Path(out or ROOT / "studies" / "output" / "tol_check")
     rows = []
     for design in designs:
         h_ref = ref_size_3d if _dim(design) == 3 else ref_size
-        ref, t_ref = _simulate(design, out / design / "reference", "--set", "mesh.degree=2",
-                               "--set", f"mesh.size={h_ref}", "--force")
+        ref, t_ref = _reference(design, out, h_ref, reuse)
         say(f"{design}: reference P2 h={h_ref} ({ref['dofs']} DOFs): {t_ref:.1f} s", flush=True)
         for tol in tols:
             res, t = _simulate(design, out / design / f"tol_{tol:g}", "--tol", str(tol))
@@ -83,8 +93,10 @@ def main(argv=None) -> int:
     p.add_argument("--ref-size", type=float, default=0.25, help="reference mesh size of 2D designs (P2)")
     p.add_argument("--ref-size-3d", type=float, default=0.5, help="reference mesh size of 3D designs (P2)")
     p.add_argument("--out", type=Path, default=ROOT / "studies" / "output" / "tol_check")
+    p.add_argument("--reuse-references", action="store_true",
+                   help="read each design's reference back from OUT/DESIGN/reference if it is there")
     a = p.parse_args(argv)
-    rows = run(a.designs, a.tols, a.ref_size, a.ref_size_3d, a.out)
+    rows = run(a.designs, a.tols, a.ref_size, a.ref_size_3d, a.out, a.reuse_references)
     a.out.mkdir(parents=True, exist_ok=True)
     write_csv(a.out / "tol_check.csv", list(rows[0]), rows)
     eff = [r["effectivity"] for r in rows]

@@ -95,3 +95,17 @@ def test_tol_needs_a_marker_and_a_positive_value(tmp_path, capsys):
     assert err[0].startswith("error: --tol: must be") and "> 0" in err[0] and err[0].endswith("got 0")
     assert "needs at least one marker" in err[1]
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_a_sudden_drop_after_stalled_differences_is_not_trusted():
+    def ladder(*observed):
+        out = [Level(4.0 / 2 ** k, 0, 0, 0.0, np.zeros((1, 2))) for k in range(2 + len(observed))]
+        for lv, r in zip(out[2:], observed):
+            lv.observed = r
+        return out
+    assert not accuracy.trusted(ladder()[:2])                     # two levels: no rate yet
+    assert accuracy.trusted(ladder(1.4))                          # a P2-like rate
+    assert accuracy.trusted(ladder(0.3))                          # slow: trusted (its estimate is large)
+    assert not accuracy.trusted(ladder(3.8))                      # a drop faster than P2, first rate
+    assert not accuracy.trusted(ladder(0.05, 3.8))                # ... right after a stall
+    assert accuracy.trusted(ladder(1.7, 2.3))                     # ... after convergence had begun

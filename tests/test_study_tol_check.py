@@ -17,6 +17,8 @@ def test_tol_check_tiny(tmp_path):
     assert r["dofs"] < r["reference_dofs"] and 0 < r["time"] and 0 < r["reference_time"]
     assert (tmp_path / "thumb" / "tol_1" / "result.json").exists()
     assert not (tmp_path / "thumb" / "tol_1" / "deformed.png").exists()     # --no-picture
+    again = study.run(designs=("thumb",), tols=(1.0,), ref_size=0.5, out=tmp_path, reuse=True)[0]
+    assert again["reference_time"] == r["reference_time"] and again["reference_dofs"] == r["reference_dofs"]
 
 
 def test_tol_check_main_writes_its_table(tmp_path, capsys):
