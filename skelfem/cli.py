@@ -18,6 +18,10 @@ from pathlib import Path
 log = logging.getLogger("skelfem")
 
 if __name__ == "skelfem.cli":                 # as early as possible: a Ctrl-C during start-up is clean too
+    import os as _os
+    # No PETSc signal handlers: PetscFinalize would put the default actions back while a finished
+    # command exits, and a SIGTERM then would kill it (status -15) after its result is complete.
+    _os.environ["PETSC_OPTIONS"] = (_os.environ.get("PETSC_OPTIONS", "") + " -no_signal_handler").strip()
     from . import interrupts as _interrupts
     _interrupts.install()
 
