@@ -143,7 +143,7 @@ def _positions(result) -> np.ndarray:
     return np.array([m["position"] for m in result.markers.values()], dtype=float)
 
 
-def refine(session, tol: float, progress=None) -> tuple[object, dict]:
+def refine(session, tol: float) -> tuple[object, dict]:
     """Solve session's design on the ladder of meshes until the estimate meets tol.
 
     session: a Session of the design at its first level (DEGREE, size h_0), not
@@ -174,8 +174,6 @@ def refine(session, tol: float, progress=None) -> tuple[object, dict]:
                 level.observed = observed_rate((levels[-2].size, levels[-1].size, level.size),
                                                (levels[-1].change, level.change), R_MIN, 10.0)
         levels.append(level)
-        if progress is not None:
-            progress(level)
         log.info("--tol: h = %g mm, %d DOFs: change %s, estimate %s", level.size, level.dofs,
                  "-" if level.change is None else f"{level.change:.3g} mm",
                  "-" if level.estimate is None else f"{level.estimate:.3g} mm (r = {level.rate:.2f})")

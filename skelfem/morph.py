@@ -80,11 +80,11 @@ class Morph:
         self.K_IB = K[self.free][:, self.bound]
         self._solve = spla.factorized(K[self.free][:, self.free].tocsc()) if len(self.free) else None
 
-    def _on_edges(self) -> tuple[np.ndarray, list, np.ndarray]:
+    def _on_edges(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The nodes lying on polygon edges: (node, (polygon, edge) of each, parameter t along it)."""
         X = self.X0
         tol = 1e-7 * (1.0 + float(np.abs(X).max()))
-        node = np.full(len(X), -1)
+        on_edge = np.zeros(len(X), dtype=bool)
         which = np.zeros((len(X), 2), dtype=int)
         t_of = np.zeros(len(X))
         for k, poly in enumerate(self.polys0):        # a loop over polygon edges, not over nodes
@@ -92,10 +92,10 @@ class Morph:
                 ab = b - a
                 t = np.clip((X - a) @ ab / max(float(ab @ ab), 1e-300), 0.0, 1.0)
                 on = np.linalg.norm(X - (a + t[:, None] * ab), axis=1) <= tol
-                node[on] = 1
+                on_edge |= on
                 which[on] = (k, i)
                 t_of[on] = t[on]
-        bound = np.flatnonzero(node > 0)
+        bound = np.flatnonzero(on_edge)
         return bound, which[bound], t_of[bound]
 
     def moved(self, design) -> np.ndarray | None:
@@ -129,7 +129,3 @@ class Morph:
         for cache in ("_skelfem_cell_tree", "_skelfem_facets"):
             if hasattr(self.mesh, cache):
                 delattr(self.mesh, cache)
-
-    def reset(self) -> None:
-        """Back to the mesh as generated."""
-        self.apply(self.X0)
