@@ -81,6 +81,7 @@ class Model:
         self._fixed_cache: dict = {}
         self._block_cache: dict = {}   # (term, block) -> its map into the matrix (see _term_blocks_at)
         self._csr_cache = None
+        self._packs = _Packs()
         self.changes: dict = {}      # {key: (value at the last solve, value now)} of live parameters
 
     # -- terms and parameters -------------------------------------------------------------------
@@ -195,7 +196,9 @@ class Model:
     def energy(self, x: PETSc.Vec) -> float:
         """Total energy Pi(x) in N mm."""
         u = self.sync(x)
-        e = self.comm.allreduce(fem.assemble_scalar(self.energy_form), op=MPI.SUM)
+        form = self.energy_form
+        e = self.comm.allreduce(_cpp.fem.assemble_scalar(form, _cpp.fem.pack_constants(form),
+                                                         self._packs(form)), op=MPI.SUM)
         return e + float(sum(term.energy(u) for term in self.terms))
 
     def term_gradient(self, u: np.ndarray) -> np.ndarray:
@@ -215,10 +218,10 @@ class Model:
     def gradient(self, x: PETSc.Vec, b: PETSc.Vec) -> None:
         """Full gradient of Pi, Dirichlet rows included (for reactions)."""
         u = self.sync(x)
+        form = self.residual_form
         with b.localForm() as b_local:
             b_local.set(0.0)
-        fem_petsc.assemble_vector(b, self.residual_form)
-        with b.localForm() as b_local:
+            _cpp.fem.assemble_vector(b_local.array_w, form, _cpp.fem.pack_constants(form), self._packs(form))
             b_local.array_w[:] += self.term_gradient(u)
         b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
 
@@ -364,7 +367,7 @@ class Model:
         """K = hess Pi without the rank-one parts, Dirichlet rows and columns replaced by the identity."""
         u = self.sync(x)
         A.zeroEntries()
-        _assemble_form(A, self.jacobian_form, self.bcs)      # adds; the terms add too
+        _assemble_form(A, self.jacobian_form, self.bcs, self._packs(self.jacobian_form))   # adds; so do the terms
         self._add_term_blocks(A, u)
         A.assemblyBegin(PETSc.Mat.AssemblyType.FLUSH)
         A.assemblyEnd(PETSc.Mat.AssemblyType.FLUSH)
@@ -403,6 +406,34 @@ class Model:
         return out
 
 
-def _assemble_form(A: PETSc.Mat, form, bcs) -> None:
-    _cpp.fem.petsc.assemble_matrix(A, form, _cpp.fem.pack_constants(form),
-                                   _cpp.fem.pack_coefficients(form), bcs)
+def _assemble_form(A: PETSc.Mat, form, bcs, coefficients=None) -> None:
+    coefficients = _cpp.fem.pack_coefficients(form) if coefficients is None else coefficients
+    _cpp.fem.petsc.assemble_matrix(A, form, _cpp.fem.pack_constants(form), coefficients, bcs)
+
+
+class _Packs:
+    """Packed coefficients of the compiled forms, shared while the coefficients are unchanged.
+
+    Pi, grad Pi and hess Pi have the same coefficients (u and the material
+    fields), and a Newton iteration evaluates them at the same state (the
+    accepted trial's energy, then the residual and the Jacobian there), so
+    one packing serves all three. A pack is reused only while every
+    coefficient array equals, entry by entry, the one it was packed from;
+    forms whose coefficients or integrals differ get their own pack.
+    """
+
+    def __init__(self):
+        self.packs: dict = {}      # form signature -> (copies of the coefficient arrays, packed coefficients)
+
+    @staticmethod
+    def _signature(form) -> tuple:
+        integrals = tuple((t, tuple(form.integral_ids(t))) for t in form.integral_types)
+        return tuple(id(c) for c in form.coefficients), integrals
+
+    def __call__(self, form) -> dict:
+        key = self._signature(form)
+        arrays = [c.x.array for c in form.coefficients]
+        held = self.packs.get(key)
+        if held is None or not all(np.array_equal(a, b) for a, b in zip(arrays, held[0])):
+            held = self.packs[key] = ([a.copy() for a in arrays], _cpp.fem.pack_coefficients(form))
+        return held[1]

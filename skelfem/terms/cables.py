@@ -281,12 +281,16 @@ class Cable:
         return self.k * s * g
 
     def _segment_blocks(self):
-        """Per segment i: B_i densely, zero-padded to the cable DOFs J_i it touches, and the COO indices.
+        """Per segment i: B_i densely on the cable DOFs J_i it touches, grouped by |J_i|, and the COO indices.
 
         Built once; the curvature part is then sum_i B_i^T W_i B_i evaluated
-        for all segments at once (batched matrix products), its COO row and
-        column arrays the same objects every call (the model caches their map
-        into the Newton matrix).
+        for all segments of a group at once (batched matrix products). An
+        anchored end touches every DOF of its anchor disk (tens) while a
+        plain segment touches a few, so segments are grouped by width rather
+        than padded to the widest. The COO row and column arrays are the same
+        objects every call (the model caches their map into the Newton matrix).
+        Returns (groups, rows, cols, J) with groups = [(segments, B_g, B_g^T)]
+        and J[i] the cable DOFs of segment i.
         """
         if getattr(self, "_blocks", None) is None:
             C = self.B.tocoo()
@@ -295,20 +299,25 @@ class Cable:
             seg, comp = C.row // gdim, C.row % gdim
             keys, inv = np.unique(seg.astype(np.int64) * m + C.col, return_inverse=True)
             useg, ucol = keys // m, keys % m                      # (segment, DOF) pairs, sorted
-            pos = np.arange(len(keys)) - np.searchsorted(useg, useg)   # the DOF's slot in its segment
-            width = int(pos.max()) + 1 if len(pos) else 0
-            J = np.zeros((nseg, width), dtype=np.int64)
-            Bd = np.zeros((nseg, gdim, width))
-            valid = np.zeros((nseg, width), dtype=bool)
-            J[useg, pos] = ucol
-            valid[useg, pos] = True
-            np.add.at(Bd, (seg, comp, pos[inv]), C.data)
-            pair = valid[:, :, None] & valid[:, None, :]
-            shape = (nseg, width, width)
-            at = np.flatnonzero(pair.ravel())
-            rows = np.broadcast_to(J[:, :, None], shape).ravel()[at].astype(np.int32)
-            cols_ = np.broadcast_to(J[:, None, :], shape).ravel()[at].astype(np.int32)
-            self._blocks = (J, Bd, np.ascontiguousarray(Bd.transpose(0, 2, 1)), pair, at, rows, cols_)
+            start = np.searchsorted(useg, np.arange(nseg))
+            pos = np.arange(len(keys)) - start[useg]              # the DOF's slot in its segment
+            width = np.bincount(useg, minlength=nseg)
+            J = np.split(ucol, start[1:])
+            groups, rows, cols = [], [], []
+            for w in np.unique(width[width > 0]):
+                members = np.flatnonzero(width == w)
+                slot = np.full(nseg, -1)
+                slot[members] = np.arange(len(members))
+                e = width[seg] == w                               # the entries of this group's segments
+                Bd = np.zeros((len(members), gdim, w))
+                np.add.at(Bd, (slot[seg[e]], comp[e], pos[inv[e]]), C.data[e])
+                Jg = np.stack([J[i] for i in members])            # once per cable, not per call
+                rows.append(np.broadcast_to(Jg[:, :, None], (len(members), w, w)).ravel())
+                cols.append(np.broadcast_to(Jg[:, None, :], (len(members), w, w)).ravel())
+                groups.append((members, Bd, np.ascontiguousarray(Bd.transpose(0, 2, 1))))
+            cat = (lambda a: np.concatenate(a).astype(np.int32)) if groups else \
+                (lambda a: np.zeros(0, dtype=np.int32))
+            self._blocks = (groups, cat(rows), cat(cols), J)
         return self._blocks
 
     def curvature(self, u: np.ndarray, L: float) -> sp.coo_matrix:
@@ -318,11 +327,12 @@ class Cable:
         m = len(self.dofs)
         if s <= 0.0:
             return sp.coo_matrix((m, m))
-        _, Bd, BdT, _, at, rows, cols = self._segment_blocks()
+        groups, rows, cols, _ = self._segment_blocks()
         gdim = d.shape[1]
         W = (np.eye(gdim)[None] - t[:, :, None] * t[:, None, :]) / norm[:, None, None]
-        blocks = np.matmul(BdT, np.matmul(W, Bd))
-        return sp.coo_matrix(((self.k * s) * blocks.ravel()[at], (rows, cols)), shape=(m, m))
+        data = [np.matmul(BdT, np.matmul(W[members], Bd)).ravel() for members, Bd, BdT in groups]
+        data = (self.k * s) * np.concatenate(data) if data else np.zeros(0)
+        return sp.coo_matrix((data, (rows, cols)), shape=(m, m))
 
     def length_gradient(self, u: np.ndarray) -> np.ndarray:
         """g = grad l = B^T t on self.dofs."""
@@ -336,8 +346,7 @@ class Cable:
 
     def segment_nodes(self, bs: int) -> list[np.ndarray]:
         """Global node numbers each segment's curvature block couples (one array per segment)."""
-        J, _, _, pair = self._segment_blocks()[:4]
-        return [np.unique(self.dofs[j[v]] // bs) for j, v in zip(J, pair[:, :, 0] | pair[:, 0, :])]
+        return [np.unique(self.dofs[j] // bs) for j in self._segment_blocks()[3]]
 
 
 class CableTerm(Term):

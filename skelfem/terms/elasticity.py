@@ -96,7 +96,12 @@ class Elasticity(Term):
         return ctx.thickness * psi(deformation_gradient(ctx.u), self.mu, self.lam) * ufl.dx
 
     def energy_scale(self) -> float:
-        return self.ctx.comm.allreduce(fem.assemble_scalar(self._scale_form), op=MPI.SUM)
+        """t int (mu + lam) dx, assembled again only when the materials or the nodes have moved."""
+        key = (tuple(map(tuple, self.materials.values())), float(self.ctx.mesh.geometry.x.sum()))
+        held = getattr(self, "_scale", (None,))[0]
+        if self.ctx.comm.allreduce(held != key, op=MPI.LOR):      # every rank assembles, or none
+            self._scale = (key, self.ctx.comm.allreduce(fem.assemble_scalar(self._scale_form), op=MPI.SUM))
+        return self._scale[1]
 
     # -- parameters: materials.NAME.E and .nu of the materials in use ---------------------------
     def parameters(self) -> dict:
