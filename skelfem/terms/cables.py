@@ -177,7 +177,10 @@ def _anchored_interpolation(V, X: np.ndarray, anchors: dict):
         cols += list(range(offset, offset + m))
         vals += [1.0 / m] * m
         offset += m
-    A = sp.kron(sp.csr_matrix((vals, (rows, cols)), shape=(n, offset)), sp.identity(gdim), format="csr")
+    c = np.arange(gdim)                                          # A (x) I_gdim, built directly
+    rows = (np.asarray(rows)[:, None] * gdim + c).ravel()
+    cols = (np.asarray(cols)[:, None] * gdim + c).ravel()
+    A = sp.csr_matrix((np.repeat(vals, gdim), (rows, cols)), shape=(n * gdim, offset * gdim))
     S_all, gather_all, owner = global_interpolation(V, np.vstack(points))
     S = (A @ S_all).tocsc()
     used = np.flatnonzero(np.diff(S.indptr) > 0)                # DOFs some via point still touches
@@ -231,12 +234,10 @@ class Cable:
         if np.any(owner == mesh.comm.size):
             raise ValueError(f"cable {spec.name!r} leaves the mesh")
         gdim = mesh.geometry.dim
-        n = len(X)
-        D = sp.kron(sp.diags([-np.ones(n - 1), np.ones(n - 1)], [0, 1], shape=(n - 1, n)),
-                    sp.identity(gdim), format="csr")
+        B = S[gdim:] - S[:-gdim]            # D S: segment i is via point i + 1 minus via point i
         d0 = np.diff(X, axis=0)
         return cls(spec.name, spec.kind, float(spec.stiffness), X, gather.dofs,
-                   S, (D @ S).tocsr(), d0, float(np.linalg.norm(d0, axis=1).sum()), gather,
+                   S, B.tocsr(), d0, float(np.linalg.norm(d0, axis=1).sum()), gather,
                    float(spec.contraction), float(spec.pretension))
 
     # -- state ---------------------------------------------------------------
