@@ -10,7 +10,8 @@ positions x_4, x_2, x_1: with d = max |x_1 - x_2|,
     E = d / (2^r - 1),   r observed from the three (d_{4,2} / d_{2,1}), clipped to [0.5, 2],
 
 is the estimated marker error of the answer (the M_1 solve), trusted by the
-same rule (accuracy.trusted). The first round is the uniform ladder's first
+rule of accuracy.trusted read per round (round_trusted: a rate above 2 only
+after a round whose rate was at least 1). The first round is the uniform ladder's first
 three meshes (2h, h, h/2 for the design's size h), so the two agree until
 the estimate asks for more.
 
@@ -40,8 +41,11 @@ T = 2^r tol / (MARGIN AIM) (the next M_2's error, so that the next M_1's
 estimate lands at tol / (MARGIN AIM)). rho_K is clipped to [1/SHRINK, GROW],
 the new size of K is h_K rho_K (h_K: the edge of an equilateral cell of K's
 area or volume) and never above half the design's [mesh] size (the first
-round's finest size: the rounds only refine). A vertex takes the smallest
-size of its cells.
+round's finest size: the rounds only refine) nor below the lattice spacing
+of the finite anchors (anchor_spacing: below it each lattice point is a
+point force again, a singularity of the model that refinement would chase;
+seen on the finger and the thumb before this floor). A vertex takes the
+smallest size of its cells.
 
 It stops as the uniform ladder does: when MARGIN E <= tol and the estimate is
 trusted (``met: true``), when the next round's finest mesh would pass the DOF
@@ -58,7 +62,7 @@ import time
 import numpy as np
 
 from . import accuracy
-from .accuracy import MARGIN, AIM, Level, observed_rate, richardson, trusted
+from .accuracy import AIM, MARGIN, Level, observed_rate, richardson
 
 log = logging.getLogger("skelfem")
 
@@ -191,6 +195,32 @@ def indicators(model, coarse_V, coarse_u: np.ndarray, z: np.ndarray | None) -> n
     return eta
 
 
+def anchor_spacing(model) -> float | None:
+    """The smallest lattice spacing of the model's finite anchors (radius / per_radius), or None.
+
+    An anchor's force acts on lattice points; on cells smaller than their
+    spacing each point is a point force again, whose 2D displacement is
+    log-singular: refining below it chases a singularity of the model, not an
+    error. The sizes of a round stay at or above it.
+    """
+    import inspect
+
+    from .terms.cables import anchor_samples
+    per_radius = inspect.signature(anchor_samples).parameters["per_radius"].default
+    radii = [float(r) for term in model.terms_in("cables") for r in (getattr(term, "anchors", None) or {}).values()
+             if r and r > 0]
+    return min(radii) / per_radius if radii else None
+
+
+def round_trusted(ladder: list[Level], before: float | None) -> bool:
+    """accuracy.trusted for a round of three meshes: its observed rate, or above R_MAX only after a round whose
+    rate (before) was at least 1 (a drop faster than the elements converge right at the start is not trusted)."""
+    last = ladder[-1] if len(ladder) >= 3 else None
+    if last is None or last.observed is None:
+        return False
+    return last.observed <= accuracy.R_MAX or (before is not None and before >= 1.0)
+
+
 # -- the loop ------------------------------------------------------------------------------------------
 def _design(design, h: float, degree: int):
     from .design import parse_design
@@ -210,14 +240,17 @@ def predicted_dofs(model, new_sizes: np.ndarray) -> float:
 
 
 def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted: bool = True,
-                    max_rounds: int = MAX_ROUNDS, on_level=None) -> tuple[object, dict]:
+                    max_rounds: int = MAX_ROUNDS, on_level=None, reduction: float | None = None
+                    ) -> tuple[object, dict]:
     """Rounds of three meshes of an adapted size field until the marker-error estimate meets tol.
 
     session: a Session of the design at the first size (2x its [mesh] size,
     uniform), not yet solved; degree: the element degree of every mesh.
     weighted: indicators weighted by the marker's adjoint (else strain
     differences alone). on_level(level_dict, session): called after each
-    solve (studies time and read it). Returns (the last Result, the
+    solve (studies time and read it). reduction: aim each round at this
+    fraction of the last estimate instead of at tol (a convergence curve for
+    studies; tol then only stops). Returns (the last Result, the
     ``accuracy`` dict of result.json); the session holds the last mesh.
     """
     from . import resources
@@ -232,6 +265,7 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
     dim = base.dim
     records, rounds = [], []
     field = None
+    before = before_last = None           # the observed rate of the round before
     stop = "estimate met the tolerance"
     result = None
     level = None
@@ -273,8 +307,10 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
                 on_level(dict(rec), session)
         else:
             rounds.append(ladder)
-            if trusted(ladder) and MARGIN * level.estimate <= tol:
+            before_last = before
+            if round_trusted(ladder, before) and MARGIN * level.estimate <= tol:
                 break
+            before = level.observed
             if rnd + 1 >= max_rounds:
                 stop = f"{max_rounds} rounds"
                 break
@@ -286,9 +322,11 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
             z = marker_adjoint(model, session.solver, g, i_max) if weighted else None
             eta = indicators(model, coarse[0], coarse[1], z)
             eta *= (level.change + level.estimate) / max(float(np.sum(eta)), 1e-300)
-            target = 2.0 ** level.rate * tol / (MARGIN * AIM)
+            goal = tol / (MARGIN * AIM) if reduction is None else reduction * level.estimate
+            target = 2.0 ** level.rate * goal
             h_cells = cell_sizes(model.mesh)
-            new = equidistribute(h_cells, eta, target, level.rate, dim, h_cap, 1e-3 * h_design)
+            floor = max(1e-3 * h_design, anchor_spacing(model) or 0.0)
+            new = equidistribute(h_cells, eta, target, level.rate, dim, h_cap, min(floor, h_cap))
             dofs = predicted_dofs(model, new)
             if dofs * 1.05 > resources.MAX_DOFS[dim] and not resources.FORCED:
                 stop = f"the next round's finest mesh (about {dofs:.3g} DOFs) would pass the DOF limit"
@@ -300,7 +338,7 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
     if not rounds:
         return result, {"tol": tol, "adaptive": True, "met": False, "stop": stop, "levels": records}
     last = rounds[-1][-1]
-    met = bool(result.converged and trusted(rounds[-1]) and MARGIN * last.estimate <= tol)
+    met = bool(result.converged and round_trusted(rounds[-1], before_last) and MARGIN * last.estimate <= tol)
     h_final = cell_sizes(session.model.mesh)
     accuracy_dict = {"tol": tol, "adaptive": True, "degree": degree, "dofs": last.dofs,
                      "min_size": float(h_final.min()), "max_size": float(h_final.max()),
