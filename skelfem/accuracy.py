@@ -143,13 +143,18 @@ def _positions(result) -> np.ndarray:
     return np.array([m["position"] for m in result.markers.values()], dtype=float)
 
 
-def refine(session, tol: float) -> tuple[object, dict]:
+def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
     """Solve session's design on the ladder of meshes until the estimate meets tol.
 
     session: a Session of the design at its first level (DEGREE, size h_0), not
     yet solved. Returns (the last level's Result, the ``accuracy`` dict of
     result.json). The session holds the last level afterwards.
+    adaptive: rounds of graded meshes from element indicators instead
+    (skelfem.adapt; serial runs only, the uniform ladder under MPI).
     """
+    if adaptive and session.comm.size == 1:
+        from .adapt import refine_adaptive
+        return refine_adaptive(session, tol, DEGREE)
     from . import resources
     from .design import DesignError
 

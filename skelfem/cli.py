@@ -96,6 +96,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="refine the mesh (P2, from twice [mesh] size) until the design's own marker error "
                         "estimate (Richardson over the meshes) is below ABS_MM mm; result.json reports it "
                         "under accuracy")
+    s.add_argument("--adaptive", action="store_true",
+                   help="with --tol: graded meshes refined where element indicators of the marker error are "
+                        "large, instead of uniform ones (serial runs)")
     s.set_defaults(handler=simulate)
     f = sub.add_parser("fabricate", help="printable bones (STL, STEP) and a two-part mould for casting the body",
                        description="Bones with cable channels and ligament anchor holes, and a two-part mould "
@@ -204,6 +207,8 @@ def simulate(args) -> int:
     if args.tol is not None and design.dynamics is not None:
         raise InputError(f"{args.design}: --tol chooses the mesh of a static run; a design with [dynamics] "
                          "sets [mesh] by hand")
+    if getattr(args, "adaptive", False) and args.tol is None:
+        raise InputError("--adaptive: refines for --tol; give --tol ABS_MM too")
     if args.tol is not None and not design.markers:
         raise InputError(f"{args.design}: --tol needs at least one marker (its error is what --tol bounds)")
     args.out = reserve_output(args, design)           # before any work: a bad --out is bad input
@@ -211,7 +216,7 @@ def simulate(args) -> int:
     if args.tol is not None:
         design, session = prepare_tol(args, design)
         with session:
-            solved, extra["accuracy"] = refine_to_tol(session, args.tol)
+            solved, extra["accuracy"] = refine_to_tol(session, args.tol, getattr(args, "adaptive", False))
             result = write_results(session, solved, args.out, t0, picture=not args.no_picture, extra=extra)
     else:
         design, session = prepare(args)
@@ -247,13 +252,13 @@ def prepare_tol(args, design):
         raise InputError(str(exc)) from None
 
 
-def refine_to_tol(session, tol: float):
+def refine_to_tol(session, tol: float, adaptive: bool = False):
     """skelfem.accuracy.refine, with mesh failures of a finer level as one-line input errors."""
     from . import accuracy
     from .design import DesignError
     from .geometry import MeshingError
     try:
-        return accuracy.refine(session, tol)
+        return accuracy.refine(session, tol, adaptive)
     except (DesignError, MeshingError) as exc:
         raise InputError(str(exc)) from None
 
@@ -347,7 +352,9 @@ def _summary(result: dict, out: Path) -> None:
     if "accuracy" in result:
         a = result["accuracy"]
         est = "-" if a.get("estimated_error") is None else f"{a['estimated_error']:.3g} mm"
-        print(f"  --tol {a['tol']:g} mm: P{a.get('degree', 2)}, h = {a.get('size', float('nan')):g} mm "
+        where = (f"h = {a['min_size']:.3g} .. {a['max_size']:.3g} mm (adaptive, {a['dofs']} DOFs)"
+                 if a.get("adaptive") and "min_size" in a else f"h = {a.get('size', float('nan')):g} mm")
+        print(f"  --tol {a['tol']:g} mm: P{a.get('degree', 2)}, {where} "
               f"after {len(a['levels'])} meshes, estimated marker error {est}"
               + ("" if a["met"] else f" (NOT met: {a['stop']})"))
     if hist:

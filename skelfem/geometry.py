@@ -166,8 +166,82 @@ def gmsh_model(name: str):
         gmsh.model.remove()
 
 
-def mesh_design(design, comm=MPI.COMM_WORLD, verbose: bool = False) -> TaggedMesh:
-    """Mesh the design's body and bones with Gmsh (rank 0) and return a TaggedMesh."""
+@dataclass
+class SizeField:
+    """A mesh size in mm, linear on each of a set of simplices (e.g. the cells of an earlier mesh).
+
+    corners: (n, dim + 1, dim) vertex coordinates of the simplices; values:
+    (n, dim + 1) the size at each vertex. Gmsh reads it as a background
+    mesh (a list-based post-processing view, ``ST`` or ``SS``, and a
+    ``PostView`` field), which it interpolates in C++: no Python call per
+    point. Where no simplex contains a point, Gmsh uses the design's size.
+    Only rank 0 needs it (only rank 0 meshes).
+    """
+
+    corners: np.ndarray
+    values: np.ndarray
+
+    @property
+    def smallest(self) -> float:
+        return float(np.min(self.values))
+
+    def scaled(self, factor: float) -> "SizeField":
+        """The same field times factor (a uniformly finer or coarser mesh of the same grading)."""
+        return SizeField(self.corners, self.values * float(factor))
+
+    def _view_data(self) -> tuple[str, int, list]:
+        n, k, dim = self.corners.shape
+        xyz = np.zeros((n, 3, k))
+        xyz[:, :dim, :] = np.transpose(self.corners, (0, 2, 1))      # x of every vertex, then y, then z
+        data = np.concatenate([xyz.reshape(n, 3 * k), self.values.reshape(n, k)], axis=1)
+        return ("ST" if dim == 2 else "SS"), n, data.ravel().tolist()
+
+
+def _apply_size(gmsh, size, h: float) -> tuple:
+    """Put a size field (SizeField, or a callable size(points (n, 3)) -> (n,)) into the current model.
+
+    The design's size h stays the upper bound (Mesh.MeshSizeMax); the lower
+    bound becomes the field's smallest size (or 0.1 h, whichever is smaller).
+    Returns what to undo after meshing.
+    """
+    if isinstance(size, SizeField):
+        low = size.smallest
+        view = gmsh.view.add("size")
+        kind, n, data = size._view_data()
+        gmsh.view.addListData(view, kind, n, data)
+        field = gmsh.model.mesh.field.add("PostView")
+        gmsh.model.mesh.field.setNumber(field, "ViewTag", view)
+        gmsh.model.mesh.field.setAsBackgroundMesh(field)
+        undo = ("view", view, field)
+    else:
+        def callback(dim, tag, x, y, z, *_):
+            return float(np.asarray(size(np.array([[x, y, z]])), dtype=float).ravel()[0])
+        low = float(np.min(np.asarray(size(np.zeros((1, 3))), dtype=float)))
+        gmsh.model.mesh.setSizeCallback(callback)
+        undo = ("callback",)
+    extend = gmsh.option.getNumber("Mesh.MeshSizeExtendFromBoundary")
+    gmsh.option.setNumber("Mesh.MeshSizeMin", max(min(0.1 * h, 0.5 * low), 1e-6 * h))
+    gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)      # the field alone sets the size inside
+    return undo + (extend,)
+
+
+def _remove_size(gmsh, undo: tuple) -> None:
+    gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", undo[-1])   # options are global to the process
+    if undo[0] == "view":
+        gmsh.model.mesh.field.remove(undo[2])
+        gmsh.view.remove(undo[1])
+    else:
+        gmsh.model.mesh.removeSizeCallback()
+
+
+def mesh_design(design, comm=MPI.COMM_WORLD, verbose: bool = False, size=None) -> TaggedMesh:
+    """Mesh the design's body and bones with Gmsh (rank 0) and return a TaggedMesh.
+
+    size: optional non-uniform mesh size in mm, a SizeField (fast: Gmsh
+    interpolates it) or a callable size(points (n, 3)) -> (n,) (called by
+    Gmsh once per point it places); the design's [mesh] size stays the upper
+    bound. Without it the mesh is the design's uniform one.
+    """
     import gmsh
     from dolfinx.io import gmshio
 
@@ -196,7 +270,12 @@ def mesh_design(design, comm=MPI.COMM_WORLD, verbose: bool = False) -> TaggedMes
             # (quality gamma >= 0.6 on the bundled designs), which costs half
             # of a 2D meshing's time: re-meshing after an edit must be quick.
             gmsh.option.setNumber("Mesh.Smoothing", 0)
-            gmsh.model.mesh.generate(dim)
+            undo = _apply_size(gmsh, size, h) if size is not None else None
+            try:
+                gmsh.model.mesh.generate(dim)
+            finally:
+                if undo is not None:
+                    _remove_size(gmsh, undo)
             error = None
         except Exception as exc:  # reported on every rank below
             error = str(exc) or type(exc).__name__

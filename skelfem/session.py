@@ -133,6 +133,7 @@ class Session:
         self.design = as_design(design, overrides)
         self.model = self.solver = None
         self.solved = False
+        self.size = None                # the SizeField the mesh was made with (skelfem.adapt), or None
         self.timings: dict = {}
         self._build()
 
@@ -146,7 +147,7 @@ class Session:
         t0 = time.perf_counter()
         fresh = tm is None
         if fresh:
-            tm = mesh_design(self.design, self.comm)
+            tm = mesh_design(self.design, self.comm, size=self.size)
         t1 = time.perf_counter()
         model = Model(self.design, tm)
         solver = NewtonSolver(model, self.design.solver)
@@ -190,7 +191,7 @@ class Session:
         return design.dynamics is not None and \
             inertia.stiffness_damping == (design.dynamics.damping_stiffness > 0.0)
 
-    def edit(self, design, overrides=(), morph: bool = False) -> str:
+    def edit(self, design, overrides=(), morph: bool = False, size=None) -> str:
         """Replace the design (a path, a dict or a Design); the last solution is the start.
 
         The design is re-meshed, unless its mesh would be the same: when the
@@ -199,10 +200,13 @@ class Session:
         morph=True (the editor's drafts while dragging) also keeps the mesh
         when only polygon vertices moved, moving its nodes with them
         (:mod:`skelfem.morph`), if the moved mesh stays good; otherwise it re-meshes.
+        size: a non-uniform mesh size (skelfem.geometry.SizeField) below the
+        design's [mesh] size: always re-meshes; the mesh of any later edit
+        without it is uniform again.
         Returns how: "re-meshed", "same mesh" or "moved nodes".
         """
         design = as_design(design, overrides)
-        x = self._same_mesh(design, morph)
+        x = self._same_mesh(design, morph) if size is None and self.size is None else None
         if x is not None:
             self._move_mesh(design, x)
             return "moved nodes" if morph and np.any(x != self._morph.X0) else "same mesh"
@@ -211,7 +215,7 @@ class Session:
         if old_solved and self.comm.size == 1:
             start = (old_model.V.tabulate_dof_coordinates()[:, :old_model.dim].copy(),
                      old_model.u.x.array.reshape(-1, old_model.bs).copy(), old_model)
-        self.design = design
+        self.design, self.size = design, size
         self._build()
         if start is not None:
             self._carry_over(*start)

@@ -1,0 +1,348 @@
+"""Adaptive meshes for --tol: element indicators of the marker error, and a refinement loop.
+
+A *round* solves the design on three meshes of one size field f (mm),
+scaled by 4, 2 and 1 (Gmsh's background mesh, skelfem.geometry.SizeField):
+M_4, M_2, M_1, each warm-started from the last. Scaling a field by 2 halves
+every local size, so the three meshes are a uniform-ratio family and the
+Richardson estimate of skelfem.accuracy applies unchanged to the marker
+positions x_4, x_2, x_1: with d = max |x_1 - x_2|,
+
+    E = d / (2^r - 1),   r observed from the three (d_{4,2} / d_{2,1}), clipped to [0.5, 2],
+
+is the estimated marker error of the answer (the M_1 solve), trusted by the
+rule of accuracy.trusted read per round (round_trusted: a rate above 2 only
+after a round whose rate was at least 1). The first round is the uniform ladder's first
+three meshes (2h, h, h/2 for the design's size h), so the two agree until
+the estimate asks for more.
+
+Indicators (two meshes, goal-weighted). On the cells K of M_1, with the
+coarse solution u_2 interpolated at M_1's nodes (I u_2) and the marker's
+adjoint z on M_1 (H z = S^T g: H the Hessian at the equilibrium, S the
+marker's interpolation rows, g the direction of the marker's change x_1 - x_2),
+
+    eta_K = ||E(u_1) - E(I u_2)||_{L2(K)} * ||sym(F_1^T grad w)||_{L2(K)},
+    w = z - I(I_2 z)   (the part of z that M_2 cannot represent),
+
+with E(u) = sym(grad u) + grad(u)^T grad(u) / 2 the Green-Lagrange strain
+and F_1 = I + grad u_1. For a linear problem J(u - u_2) = a(u - u_2, z - I z)
+(Galerkin orthogonality), so the product of the local norms of the two
+factors bounds the cell's share of the marker error up to the material
+constant; Green-Lagrange strains vanish for rigid motions, so turning bones
+carry no indicator. The indicators are scaled to sum to the estimated error
+of M_2, E_2 = d + E.
+
+New sizes (equidistribution). With the measured rate r, halving the size in
+K by rho_K multiplies its share by rho_K^r and its cells by rho_K^-dim.
+Minimising the cells subject to sum eta_K rho_K^r = T gives
+
+    rho_K = C eta_K^(-1 / (r + dim)),   C = (T / sum eta_K^(dim / (r + dim)))^(1 / r),
+
+T = 2^r tol / (MARGIN AIM) (the next M_2's error, so that the next M_1's
+estimate lands at tol / (MARGIN AIM)). rho_K is clipped to [1/SHRINK, GROW],
+the new size of K is h_K rho_K (h_K: the edge of an equilateral cell of K's
+area or volume) and never above half the design's [mesh] size (the first
+round's finest size: the rounds only refine) nor below the lattice spacing
+of the finite anchors (anchor_spacing: below it each lattice point is a
+point force again, a singularity of the model that refinement would chase;
+seen on the finger and the thumb before this floor). A vertex takes the
+smallest size of its cells.
+
+It stops as the uniform ladder does: when MARGIN E <= tol and the estimate is
+trusted (``met: true``), when the next round's finest mesh would pass the DOF
+limit (predicted from the field), or after MAX_ROUNDS rounds (``met: false``
+with the estimate of the last round). Serial only (the indicators gather
+nothing across ranks); under MPI, --tol uses the uniform ladder.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+
+import numpy as np
+
+from . import accuracy
+from .accuracy import AIM, MARGIN, Level, observed_rate, richardson
+
+log = logging.getLogger("skelfem")
+
+SHRINK = 4.0          # a cell's size falls by at most this per round
+GROW = 2.0            # ... and grows by at most this
+MAX_ROUNDS = 4        # rounds of three meshes (the uniform ladder allows 8 meshes)
+FACTORS = (4.0, 2.0, 1.0)
+
+
+# -- sizes ----------------------------------------------------------------------------------------------
+def cell_sizes(mesh) -> np.ndarray:
+    """Edge length h_K of the equilateral cell with each (local) cell's area (2D) or volume (3D), mm.
+
+    Area sqrt(3)/4 h^2, volume h^3 / (6 sqrt 2); affine cells.
+    """
+    dim = mesh.topology.dim
+    x = mesh.geometry.x[:, :mesh.geometry.dim]
+    nodes = mesh.geometry.dofmap.array.reshape(-1, dim + 1)
+    v0 = x[nodes[:, 0]]
+    J = np.stack([x[nodes[:, j + 1]] - v0 for j in range(dim)], axis=2)
+    vol = np.abs(np.linalg.det(J)) / math.factorial(dim)
+    return np.sqrt(4.0 * vol / math.sqrt(3.0)) if dim == 2 else np.cbrt(6.0 * math.sqrt(2.0) * vol)
+
+
+def size_field(mesh, sizes: np.ndarray):
+    """SizeField on the mesh's cells from one size per cell: each vertex takes the smallest of its cells'."""
+    from .geometry import SizeField
+    dim = mesh.topology.dim
+    x = mesh.geometry.x[:, :mesh.geometry.dim]
+    nodes = mesh.geometry.dofmap.array.reshape(-1, dim + 1)
+    sizes = np.asarray(sizes, dtype=float)
+    at_vertex = np.full(len(x), np.inf)
+    np.minimum.at(at_vertex, nodes.ravel(), np.repeat(sizes, dim + 1))
+    return SizeField(x[nodes].copy(), at_vertex[nodes])
+
+
+def equidistribute(h: np.ndarray, eta: np.ndarray, target: float, rate: float, dim: int,
+                   h_max: float, h_min: float) -> np.ndarray:
+    """New sizes h_K rho_K with rho_K = C eta_K^(-1/(r+dim)) so that sum eta_K rho_K^r = target (see above).
+
+    rho is clipped to [1/SHRINK, GROW] and the sizes to [h_min, h_max].
+    """
+    eta = np.maximum(np.asarray(eta, dtype=float), 1e-300)
+    q = 1.0 / (rate + dim)
+    C = (target / np.sum(eta ** (dim * q))) ** (1.0 / rate)
+    rho = np.clip(C * eta ** (-q), 1.0 / SHRINK, GROW)
+    return np.clip(h * rho, h_min, h_max)
+
+
+# -- fields between meshes ------------------------------------------------------------------------------
+def evaluate(V, values: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """(n, bs) values of the finite-element function (V, values) at points X; nearest DOF where no cell holds X.
+
+    (Points on a boundary that another mesh of the same polygons puts a
+    rounding error outside.)
+    """
+    from scipy.spatial import cKDTree
+
+    from .points import interpolation_matrix, locate_cells
+    bs = V.dofmap.index_map_bs
+    cells = locate_cells(V.mesh, X)
+    inside = cells >= 0
+    out = np.empty((len(X), bs))
+    if inside.any():
+        out[inside] = (interpolation_matrix(V, X[inside], cells[inside]) @ values).reshape(-1, bs)
+    if (~inside).any():
+        Xd = V.tabulate_dof_coordinates()[:, :X.shape[1]]
+        out[~inside] = values.reshape(-1, bs)[cKDTree(Xd).query(X[~inside])[1]]
+    return out
+
+
+def _dof_points(model) -> np.ndarray:
+    return model.V.tabulate_dof_coordinates()[:, :model.dim]
+
+
+def marker_adjoint(model, solver, direction: np.ndarray, index: int) -> np.ndarray:
+    """z with H z = S_i^T g at the model's equilibrium (H its Hessian, S_i marker index's rows), local array."""
+    from .sensitivity import Linearization, _global_vector, _local
+    lin = Linearization(model, solver)
+    try:
+        markers = model.term("markers")
+        d = model.dim
+        rhs = np.asarray(markers.S[index * d:(index + 1) * d].T @ direction).ravel()
+        v = _global_vector(model, markers, rhs)
+        free = lin._dirichlet_free(v)
+        z = lin.solve(free)
+        out = _local(z)
+        for vec in (v, free, z):
+            vec.destroy()
+        return out
+    finally:
+        lin.destroy()
+
+
+def indicators(model, coarse_V, coarse_u: np.ndarray, z: np.ndarray | None) -> np.ndarray:
+    """eta_K on model's (the fine mesh's) local cells; see the module docstring.
+
+    coarse_V, coarse_u: the coarse mesh's space and solution; z: the marker's
+    adjoint on the fine mesh (None: the strain factor alone).
+    """
+    import ufl
+    from dolfinx import fem
+
+    V = model.V
+    X = _dof_points(model)
+    uI = fem.Function(V)
+    uI.x.array[:] = evaluate(coarse_V, coarse_u, X).ravel()
+    u1 = model.u
+    Q = fem.FunctionSpace(model.mesh, ("DG", 0))
+    q = ufl.TestFunction(Q)
+    dx = ufl.dx(metadata={"quadrature_degree": 4})
+
+    def green(u):
+        G = ufl.grad(u)
+        return ufl.sym(G) + 0.5 * G.T * G
+
+    def per_cell(expr) -> np.ndarray:
+        vec = fem.assemble_vector(fem.form(ufl.inner(expr, expr) * q * dx))
+        n = model.mesh.topology.index_map(model.mesh.topology.dim).size_local
+        return np.sqrt(np.maximum(vec.array[:n], 0.0))
+
+    eta = per_cell(green(u1) - green(uI))
+    if z is not None:
+        zI = evaluate(coarse_V, np.ascontiguousarray(
+            evaluate(V, z, coarse_V.tabulate_dof_coordinates()[:, :model.dim]).ravel()), X).ravel()
+        w = fem.Function(V)
+        w.x.array[:] = z - zI
+        F1 = ufl.Identity(model.dim) + ufl.grad(u1)
+        eta = eta * per_cell(ufl.sym(F1.T * ufl.grad(w)))
+    return eta
+
+
+def anchor_spacing(model) -> float | None:
+    """The smallest lattice spacing of the model's finite anchors (radius / per_radius), or None.
+
+    An anchor's force acts on lattice points; on cells smaller than their
+    spacing each point is a point force again, whose 2D displacement is
+    log-singular: refining below it chases a singularity of the model, not an
+    error. The sizes of a round stay at or above it.
+    """
+    import inspect
+
+    from .terms.cables import anchor_samples
+    per_radius = inspect.signature(anchor_samples).parameters["per_radius"].default
+    radii = [float(r) for term in model.terms_in("cables") for r in (getattr(term, "anchors", None) or {}).values()
+             if r and r > 0]
+    return min(radii) / per_radius if radii else None
+
+
+def round_trusted(ladder: list[Level], before: float | None) -> bool:
+    """accuracy.trusted for a round of three meshes: its observed rate, or above R_MAX only after a round whose
+    rate (before) was at least 1 (a drop faster than the elements converge right at the start is not trusted)."""
+    last = ladder[-1] if len(ladder) >= 3 else None
+    if last is None or last.observed is None:
+        return False
+    return last.observed <= accuracy.R_MAX or (before is not None and before >= 1.0)
+
+
+# -- the loop ------------------------------------------------------------------------------------------
+def _design(design, h: float, degree: int):
+    from .design import parse_design
+    return parse_design(design.raw, design.source, [f"mesh.size={round(float(h), 9)!r}", f"mesh.degree={degree}"])
+
+
+def _positions(result) -> np.ndarray:
+    return np.array([m["position"] for m in result.markers.values()], dtype=float)
+
+
+def predicted_dofs(model, new_sizes: np.ndarray) -> float:
+    """DOFs of a mesh of the new sizes: today's DOFs times sum over cells (h_K / h_new,K)^dim / cells."""
+    dim = model.dim
+    h = cell_sizes(model.mesh)
+    dofs = model.V.dofmap.index_map.size_global * model.bs
+    return float(dofs * np.sum((h / new_sizes) ** dim) / len(h))
+
+
+def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted: bool = True,
+                    max_rounds: int = MAX_ROUNDS, on_level=None, reduction: float | None = None
+                    ) -> tuple[object, dict]:
+    """Rounds of three meshes of an adapted size field until the marker-error estimate meets tol.
+
+    session: a Session of the design at the first size (2x its [mesh] size,
+    uniform), not yet solved; degree: the element degree of every mesh.
+    weighted: indicators weighted by the marker's adjoint (else strain
+    differences alone). on_level(level_dict, session): called after each
+    solve (studies time and read it). reduction: aim each round at this
+    fraction of the last estimate instead of at tol (a convergence curve for
+    studies; tol then only stops). Returns (the last Result, the
+    ``accuracy`` dict of result.json); the session holds the last mesh.
+    """
+    from . import resources
+    from .design import DesignError
+
+    if session.comm.size != 1:
+        raise ValueError("adaptive refinement runs serially (use the uniform ladder under MPI)")
+    t0 = time.perf_counter()
+    base = session.design                     # at the first size, 2 h
+    h_design = 0.5 * float(base.mesh.size)
+    h_cap = 0.5 * h_design                    # the first round's finest size: rounds only refine
+    dim = base.dim
+    records, rounds = [], []
+    field = None
+    before = before_last = None           # the observed rate of the round before
+    stop = "estimate met the tolerance"
+    result = None
+    level = None
+    for rnd in range(max_rounds):
+        ladder: list[Level] = []
+        coarse = None
+        for i, factor in enumerate(FACTORS):
+            if rnd > 0 or i > 0:
+                design = _design(base, (h_cap if field is not None else h_design / 2) * factor, degree)
+                if i > 0:
+                    coarse = (session.model.V, session.model.u.x.array.copy(), session.model)
+                session.edit(design, size=None if field is None else field.scaled(factor))
+            t = time.perf_counter()
+            result = session.solve()
+            if not result.converged:
+                stop = f"the solve of round {rnd + 1}, mesh {i + 1} failed ({result.status})"
+                break
+            model = session.model
+            h_cells = cell_sizes(model.mesh)
+            level = Level(float(factor), int(result.dofs), int(result.newton_iterations),
+                          time.perf_counter() - t, _positions(result))
+            if ladder:
+                level.estimate, level.rate = richardson(ladder + [level])
+                level.change = float(np.max(np.linalg.norm(level.markers - ladder[-1].markers, axis=1)))
+                if len(ladder) >= 2:
+                    level.observed = observed_rate((ladder[-2].size, ladder[-1].size, level.size),
+                                                   (ladder[-1].change, level.change), accuracy.R_MIN, 10.0)
+            ladder.append(level)
+            rec = {"round": rnd + 1, "mesh": i + 1, "dofs": level.dofs, "cells": int(result.cells),
+                   "min_size": float(h_cells.min()), "max_size": float(h_cells.max()),
+                   "iterations": level.iterations, "seconds": round(level.seconds, 4),
+                   "change": level.change, "estimate": level.estimate, "rate": level.rate}
+            records.append(rec)
+            log.info("--tol (adaptive) round %d mesh %d: %d DOFs, h %.3g..%.3g mm: change %s, estimate %s",
+                     rnd + 1, i + 1, level.dofs, rec["min_size"], rec["max_size"],
+                     "-" if level.change is None else f"{level.change:.3g} mm",
+                     "-" if level.estimate is None else f"{level.estimate:.3g} mm (r = {level.rate:.2f})")
+            if on_level is not None:
+                on_level(dict(rec), session)
+        else:
+            rounds.append(ladder)
+            before_last = before
+            if round_trusted(ladder, before) and MARGIN * level.estimate <= tol:
+                break
+            before = level.observed
+            if rnd + 1 >= max_rounds:
+                stop = f"{max_rounds} rounds"
+                break
+            # indicators of M_2's error on M_1's cells, and the next field
+            model = session.model
+            i_max = int(np.argmax(np.linalg.norm(ladder[-1].markers - ladder[-2].markers, axis=1)))
+            g = ladder[-1].markers[i_max] - ladder[-2].markers[i_max]
+            g = g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else np.eye(dim)[0]
+            z = marker_adjoint(model, session.solver, g, i_max) if weighted else None
+            eta = indicators(model, coarse[0], coarse[1], z)
+            eta *= (level.change + level.estimate) / max(float(np.sum(eta)), 1e-300)
+            goal = tol / (MARGIN * AIM) if reduction is None else reduction * level.estimate
+            target = 2.0 ** level.rate * goal
+            h_cells = cell_sizes(model.mesh)
+            floor = max(1e-3 * h_design, anchor_spacing(model) or 0.0)
+            new = equidistribute(h_cells, eta, target, level.rate, dim, h_cap, min(floor, h_cap))
+            dofs = predicted_dofs(model, new)
+            if dofs * 1.05 > resources.MAX_DOFS[dim] and not resources.FORCED:
+                stop = f"the next round's finest mesh (about {dofs:.3g} DOFs) would pass the DOF limit"
+                break
+            field = size_field(model.mesh, new)
+            coarse = None
+            continue
+        break
+    if not rounds:
+        return result, {"tol": tol, "adaptive": True, "met": False, "stop": stop, "levels": records}
+    last = rounds[-1][-1]
+    met = bool(result.converged and round_trusted(rounds[-1], before_last) and MARGIN * last.estimate <= tol)
+    h_final = cell_sizes(session.model.mesh)
+    accuracy_dict = {"tol": tol, "adaptive": True, "degree": degree, "dofs": last.dofs,
+                     "min_size": float(h_final.min()), "max_size": float(h_final.max()),
+                     "size": float(h_final.max()), "rounds": len(rounds),
+                     "estimated_error": last.estimate, "rate": last.rate, "met": met, "stop": stop,
+                     "levels": records, "time": round(time.perf_counter() - t0, 4)}
+    return result, accuracy_dict

@@ -1,0 +1,289 @@
+"""Adaptive against uniform refinement: marker error against DOFs and wall time, P1 and P2.
+
+    python studies/adaptive.py [--designs finger thumb finger_tapered] [--ref-size 0.3] [--rounds 3]
+                               [--levels 4] [--out studies/output/adaptive] [--figures studies/figures]
+                               [--reuse-references]
+
+For each design (geometry/<name>.toml) a reference is solved with P2 on a
+much finer uniform mesh (--ref-size; kept in OUT/<design>/reference.json
+and read back with --reuse-references). Then, for P1 and P2:
+
+* ``uniform``: the --tol ladder's meshes, 2h, h, h/2, ... (h the design's
+  [mesh] size; --levels meshes for P2, one more for P1), each warm-started
+  from the last;
+* ``adaptive``: skelfem.adapt's rounds (three meshes of one size field
+  each, indicators, a new field), driven past any tolerance (tol 1e-9) for
+  --rounds rounds.
+
+Every mesh's tip error against the reference is recorded with its DOFs and
+the wall time the method had spent when that answer was there (all meshes
+before it, meshing, indicators and solves; the reference checks are not
+timed), and with the method's own estimate where it has one (the adaptive
+rounds' last mesh; the uniform ladder's from its third mesh on), so the
+estimate's effectivity (estimate / error) can be read too. Each adaptive
+round aims at REDUCTION times the last estimate (a curve, not a stop). Then
+``--tol`` itself (P2) for each of --tols, uniform and adaptive, as the
+command runs it: final DOFs, time, estimate, ``met`` and the true error.
+run(**params) returns the rows; main(argv) prints them and writes
+adaptive.json and adaptive.png into --out.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+from skelfem.output import say
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "studies" / "output" / "adaptive"
+DESIGNS = ("finger", "thumb", "finger_tapered")
+MARKER = "tip"
+REDUCTION = 0.25          # each adaptive round aims at a quarter of the last estimate (P2: one uniform halving)
+TOLS = (0.1, 0.05)        # --tol runs (P2): uniform ladder against adaptive rounds
+
+
+def _design(name: str, size: float, degree: int):
+    from skelfem.design import load_design
+    return load_design(ROOT / "geometry" / f"{name}.toml", [f"mesh.size={size!r}", f"mesh.degree={degree}"])
+
+
+def _first_size(name: str) -> float:
+    """The --tol ladder's first size: twice the design's own [mesh] size."""
+    from skelfem.design import load_design
+    return 2.0 * float(load_design(ROOT / "geometry" / f"{name}.toml").mesh.size)
+
+
+def _tip(result) -> np.ndarray:
+    return np.asarray(result.markers[MARKER]["position"], dtype=float)
+
+
+def reference(name: str, size: float, out: Path | None, reuse: bool) -> dict:
+    """The P2 tip at the reference size: solved, or read back from out/<name>/reference.json (reuse)."""
+    from skelfem import Session
+
+    path = None if out is None else Path(out) / name / "reference.json"
+    if reuse and path is not None and path.exists():
+        ref = json.loads(path.read_text())
+        if ref.get("size") == size:
+            say(f"{name}: reference read back from {path}", flush=True)
+            return ref
+    t = time.perf_counter()
+    with Session(_design(name, size, 2)) as s:
+        r = s.solve()
+        if not r.converged:
+            raise RuntimeError(f"{name}: the reference solve failed ({r.status})")
+        ref = {"design": name, "size": size, "dofs": int(r.dofs), "tip": _tip(r).tolist(),
+               "time": time.perf_counter() - t}
+    if path is not None:
+        from skelfem.output import write_json
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_json(path, ref)
+    return ref
+
+
+def uniform(name: str, degree: int, levels: int, tip_ref: np.ndarray) -> list[dict]:
+    """The uniform ladder 2h, h, h/2, ... (warm-started), one row per mesh."""
+    from skelfem import Session, accuracy
+
+    h0 = _first_size(name)
+    rows, ladder, spent = [], [], 0.0
+    t = time.perf_counter()
+    session = Session(_design(name, h0, degree))
+    try:
+        for k in range(levels):
+            if k:
+                t = time.perf_counter()
+                session.edit(_design(name, h0 / 2 ** k, degree))
+            r = session.solve()
+            spent += time.perf_counter() - t
+            if not r.converged:
+                break
+            lv = accuracy.Level(h0 / 2 ** k, int(r.dofs), int(r.newton_iterations), 0.0,
+                                np.array([m["position"] for m in r.markers.values()], float))
+            if ladder:
+                lv.estimate, lv.rate = accuracy.richardson(ladder + [lv])
+                lv.change = float(np.max(np.linalg.norm(lv.markers - ladder[-1].markers, axis=1)))
+            ladder.append(lv)
+            rows.append({"design": name, "method": "uniform", "degree": degree, "mesh": k + 1,
+                         "dofs": int(r.dofs), "min_size": h0 / 2 ** k, "max_size": h0 / 2 ** k,
+                         "time": spent, "error": float(np.linalg.norm(_tip(r) - tip_ref)),
+                         "estimate": lv.estimate if k >= 2 else None})
+    finally:
+        session.close()
+    return rows
+
+
+def adaptive(name: str, degree: int, rounds: int, tip_ref: np.ndarray) -> list[dict]:
+    """skelfem.adapt's rounds driven past any tolerance; one row per mesh."""
+    from skelfem import Session
+    from skelfem.adapt import refine_adaptive
+
+    h0 = _first_size(name)
+    rows = []
+    paused = [0.0]                         # time spent here, in the callback, is not the method's
+
+    def on_level(rec, session):
+        t = time.perf_counter()
+        r_tip = session.model.term("markers")
+        tip = r_tip.positions(session.model.u.x.array)[list(session.design.markers).index(MARKER)]
+        rows.append({"design": name, "method": "adaptive", "degree": degree,
+                     "mesh": 3 * (rec["round"] - 1) + rec["mesh"], "round": rec["round"],
+                     "dofs": rec["dofs"], "min_size": rec["min_size"], "max_size": rec["max_size"],
+                     "time": t - t0 - paused[0], "error": float(np.linalg.norm(tip - tip_ref)),
+                     "estimate": rec["estimate"] if rec["mesh"] == 3 else None})
+        paused[0] += time.perf_counter() - t
+
+    t0 = time.perf_counter()
+    session = Session(_design(name, h0, degree))
+    try:
+        refine_adaptive(session, 1e-9, degree=degree, max_rounds=rounds, on_level=on_level, reduction=REDUCTION)
+    finally:
+        session.close()
+    return rows
+
+
+def tol_runs(name: str, tols, tip_ref: np.ndarray) -> list[dict]:
+    """``--tol`` as the command runs it (P2), uniform ladder and adaptive rounds: one row per (tol, method)."""
+    from skelfem import Session, accuracy
+    from skelfem.design import load_design
+
+    rows = []
+    for tol in tols:
+        for method in ("uniform", "adaptive"):
+            t = time.perf_counter()
+            with Session(accuracy.first_level(load_design(ROOT / "geometry" / f"{name}.toml"))) as session:
+                result, a = accuracy.refine(session, tol, adaptive=method == "adaptive")
+                spent = time.perf_counter() - t
+            rows.append({"design": name, "method": method, "tol": tol, "dofs": int(a["dofs"]), "time": spent,
+                         "meshes": len(a["levels"]), "estimate": a["estimated_error"], "met": bool(a["met"]),
+                         "error": float(np.linalg.norm(_tip(result) - tip_ref)),
+                         "min_size": a.get("min_size", a["size"]), "max_size": a.get("max_size", a["size"])})
+            r = rows[-1]
+            say(f"  --tol {tol:g} {method:8s}: {r['dofs']:7d} DOFs ({r['meshes']} meshes, h {r['min_size']:.3g}.."
+                f"{r['max_size']:.3g}), {r['time']:6.2f} s, estimate {r['estimate']:.3g} mm "
+                f"({'met' if r['met'] else 'NOT met'}), error {r['error']:.3g} mm "
+                f"(effectivity {r['estimate'] / max(r['error'], 1e-12):.2f})", flush=True)
+    return rows
+
+
+def run(designs=DESIGNS, ref_size: float = 0.3, rounds: int = 3, levels: int = 4, degrees=(1, 2),
+        out: Path | None = None, reuse: bool = False, tols=TOLS) -> dict:
+    """Rows for every (design, method, degree, mesh), the --tol runs, and each design's reference."""
+    rows, refs, tol_rows = [], {}, []
+    for name in designs:
+        ref = refs[name] = reference(name, ref_size, out, reuse)
+        say(f"{name}: reference P2 h = {ref_size:g} ({ref['dofs']} DOFs, {ref['time']:.1f} s)", flush=True)
+        tip_ref = np.asarray(ref["tip"], float)
+        for degree in degrees:
+            uniform(name, degree, 1, tip_ref)             # compiles the forms: not timed below
+            for method in ("uniform", "adaptive"):
+                mine = uniform(name, degree, levels + (degree == 1), tip_ref) if method == "uniform" \
+                    else adaptive(name, degree, rounds, tip_ref)
+                rows += mine
+                for r in mine:
+                    est = "" if r["estimate"] is None else f", estimate {r['estimate']:.3g} mm"
+                    say(f"  P{degree} {method:8s} mesh {r['mesh']:2d}: {r['dofs']:7d} DOFs, h {r['min_size']:.3g}.."
+                        f"{r['max_size']:.3g} mm, {r['time']:6.2f} s, error {r['error']:.3g} mm{est}", flush=True)
+        tol_rows += tol_runs(name, tols, tip_ref)
+    result = {"rows": rows, "tol_runs": tol_rows, "references": refs, "ref_size": ref_size}
+    result["summary"] = summary(rows)
+    if out is not None:
+        write_outputs(Path(out), result)
+    return result
+
+
+def cheapest(rows: list[dict], tol: float) -> dict | None:
+    """The first answer of a method with error <= tol: its DOFs and the time spent to get there."""
+    ok = [r for r in rows if r["error"] <= tol]
+    return None if not ok else {"dofs": ok[0]["dofs"], "time": ok[0]["time"], "error": ok[0]["error"]}
+
+
+def summary(rows: list[dict]) -> dict:
+    """Per design and method: DOFs and time to reach 0.5, 0.1, 0.05, 0.02 mm, and the smallest error."""
+    out = {}
+    for key in sorted({(r["design"], r["method"], r["degree"]) for r in rows}):
+        mine = sorted((r for r in rows if (r["design"], r["method"], r["degree"]) == key), key=lambda r: r["time"])
+        out[f"{key[0]} {key[1]} P{key[2]}"] = {
+            "reach": {f"{tol:g}": cheapest(mine, tol) for tol in (0.5, 0.1, 0.05, 0.02)},
+            "best_error": min(r["error"] for r in mine),
+            "effectivity": [r["estimate"] / r["error"] for r in mine if r["estimate"] and r["error"] > 0]}
+    return out
+
+
+def write_outputs(out: Path, result: dict) -> None:
+    from skelfem.output import write_json
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / "adaptive.json", result)
+    plot(out / "adaptive.png", result)
+
+
+def plot(path: Path, result: dict) -> None:
+    """Per design: tip error against DOFs (top) and against wall time (bottom), four methods."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from skelfem.output import atomic_write
+
+    rows = result["rows"]
+    designs = list(dict.fromkeys(r["design"] for r in rows))
+    fig, axes = plt.subplots(2, len(designs), figsize=(4.6 * len(designs), 7.6), dpi=110, squeeze=False)
+    colour = {1: "#1f5fbf", 2: "#d9822b"}
+    for j, name in enumerate(designs):
+        for method, ls, mk in (("uniform", "--", "o"), ("adaptive", "-", "s")):
+            for degree in (1, 2):
+                mine = sorted((r for r in rows if (r["design"], r["method"], r["degree"]) == (name, method, degree)),
+                              key=lambda r: r["time"])
+                if method == "adaptive":          # each round's answer: its finest mesh
+                    mine = [r for r in mine if r["mesh"] % 3 == 0] or mine
+                if not mine:
+                    continue
+                for ax, key in ((axes[0, j], "dofs"), (axes[1, j], "time")):
+                    ax.loglog([r[key] for r in mine], [max(r["error"], 1e-6) for r in mine], ls=ls, marker=mk,
+                              color=colour[degree], ms=5, lw=1.2, label=f"{method} P{degree}")
+        ref = result["references"][name]
+        axes[0, j].set_title(f"{name}: reference P2 h = {result['ref_size']:g} ({ref['dofs']} DOFs)", fontsize=9)
+        axes[0, j].set_xlabel("DOFs of the answer")
+        axes[1, j].set_xlabel("wall time spent to get the answer [s]")
+        for ax in axes[:, j]:
+            ax.set_ylabel("tip error vs reference [mm]")
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend(fontsize=7)
+    fig.tight_layout()
+    atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--designs", nargs="+", default=list(DESIGNS))
+    p.add_argument("--ref-size", type=float, default=0.3, help="reference mesh size (P2, uniform), mm")
+    p.add_argument("--rounds", type=int, default=3, help="adaptive rounds (three meshes each)")
+    p.add_argument("--levels", type=int, default=4, help="uniform P2 meshes (P1: one more)")
+    p.add_argument("--degrees", nargs="+", type=int, default=[1, 2], choices=[1, 2])
+    p.add_argument("--tols", nargs="*", type=float, default=list(TOLS), help="--tol runs (P2), both methods")
+    p.add_argument("--out", type=Path, default=OUT)
+    p.add_argument("--figures", type=Path, default=None, help="also copy adaptive.png here (README)")
+    p.add_argument("--reuse-references", action="store_true",
+                   help="read each design's reference back from OUT/DESIGN/reference.json if it is there")
+    a = p.parse_args(argv)
+    res = run(a.designs, a.ref_size, a.rounds, a.levels, tuple(a.degrees), a.out, a.reuse_references, tuple(a.tols))
+    for key, s in res["summary"].items():
+        reach = ", ".join(f"{tol} mm: " + ("-" if v is None else f"{v['dofs']} DOFs {v['time']:.1f} s")
+                          for tol, v in s["reach"].items())
+        eff = s["effectivity"]
+        say(f"{key}: best {s['best_error']:.3g} mm; reaches {reach}"
+            + (f"; effectivity {min(eff):.2f}..{max(eff):.2f}" if eff else ""))
+    if a.figures is not None:
+        from skelfem.output import atomic_write
+        png = (a.out / "adaptive.png").read_bytes()
+        atomic_write(a.figures / "adaptive.png", lambda tmp: Path(tmp).write_bytes(png))
+    say(f"outputs in {a.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,169 @@
+"""skelfem.adapt: size fields reach Gmsh, indicators find the anchor, rounds lower the estimate, met is honest."""
+import numpy as np
+import pytest
+
+from skelfem import Session, accuracy, adapt
+from skelfem.design import parse_design
+from skelfem.geometry import SizeField, mesh_design
+
+from _designs import strip, variant
+
+
+def _strip(size=2.0, degree=2, **kw):
+    return parse_design(strip(length=40.0, width=8.0, size=size, degree=degree, contraction=1.0,
+                              tendon_offset=2.0, **kw), "strip.toml")
+
+
+def _anchored(size=2.0, degree=2):
+    """The strip with its tendon ending in the silicone at (6, 25): a finite anchor mid-body."""
+    d = variant(strip(length=40.0, width=8.0, size=size, degree=degree, contraction=1.0, tendon_offset=2.0),
+                **{"cables": [{"name": "flexor", "kind": "tendon", "path": [[6.0, 0.0], [6.0, 25.0]],
+                               "stiffness": 1.0, "contraction": 1.0}]})
+    return parse_design(d, "anchored.toml")
+
+
+def _sizes_where(tm, inside):
+    h = adapt.cell_sizes(tm.mesh)
+    x = tm.mesh.geometry.x[:, :2][tm.mesh.geometry.dofmap.array.reshape(-1, 3)].mean(axis=1)
+    mask = inside(x)
+    return h[mask], h[~mask]
+
+
+def _top(x):
+    return x[:, 1] > 30.0
+
+
+@pytest.mark.parametrize("kind", ["field", "callable"])
+def test_a_size_field_sets_the_local_mesh_size_and_the_design_size_bounds_it(kind):
+    design = _strip(size=2.0, degree=1)
+    if kind == "field":
+        tm0 = mesh_design(design)
+        centres = tm0.mesh.geometry.x[:, :2][tm0.mesh.geometry.dofmap.array.reshape(-1, 3)].mean(axis=1)
+        field = adapt.size_field(tm0.mesh, np.where(_top(centres), 0.25, 10.0))
+    else:
+        def field(p):
+            return np.where(p[:, 1] > 31.0, 0.25, 10.0)
+    tm = mesh_design(design, size=field)
+    fine, rest = _sizes_where(tm, lambda x: x[:, 1] > 32.0)
+    assert np.median(fine) < 0.4, np.median(fine)                 # asked for 0.25 there
+    far, _ = _sizes_where(tm, lambda x: x[:, 1] < 20.0)
+    assert np.median(far) > 1.4 and far.max() < 2.0 * 1.3         # 10 asked, the design's 2 mm bounds it
+    assert tm.mesh.topology.index_map(2).size_local > 2 * mesh_design(design).mesh.topology.index_map(2).size_local
+
+
+def test_the_uniform_mesh_is_the_same_before_and_after_a_graded_one():
+    design = _strip(size=2.0, degree=1)
+    before = mesh_design(design).mesh.geometry.x.copy()
+    mesh_design(design, size=lambda p: np.full(len(p), 0.5))
+    after = mesh_design(design).mesh.geometry.x
+    assert before.shape == after.shape and np.array_equal(before, after)
+
+
+def test_equidistribution_meets_its_target_and_shrinks_where_indicators_are_large():
+    rng = np.random.default_rng(0)
+    h, eta = np.ones(200), rng.uniform(0.1, 1.0, 200)
+    eta[:5] = 50.0
+    new = adapt.equidistribute(h, eta, target=0.5 * eta.sum(), rate=2.0, dim=2, h_max=1e9, h_min=1e-9)
+    rho = new / h
+    assert np.sum(eta * rho ** 2) == pytest.approx(0.5 * eta.sum(), rel=1e-9)   # no clipping needed here
+    assert rho[:5].max() < rho[5:].min()                                        # large indicators: smaller cells
+    tight = adapt.equidistribute(h, eta, target=1e-9, rate=2.0, dim=2, h_max=1e9, h_min=1e-9)
+    assert tight.min() == pytest.approx(1.0 / adapt.SHRINK)                     # shrink bounded per round
+
+
+@pytest.fixture(scope="module")
+def anchored_indicators():
+    coarse = Session(_anchored(size=2.0))
+    coarse.solve()
+    fine = Session(_anchored(size=1.0))
+    r = fine.solve()
+    assert r.converged
+    g = np.array([1.0, 0.0])
+    z = adapt.marker_adjoint(fine.model, fine.solver, g, 0)
+    eta_w = adapt.indicators(fine.model, coarse.model.V, coarse.model.u.x.array, z)
+    eta = adapt.indicators(fine.model, coarse.model.V, coarse.model.u.x.array, None)
+    mesh = fine.model.mesh
+    centres = mesh.geometry.x[:, :2][mesh.geometry.dofmap.array.reshape(-1, 3)].mean(axis=1)
+    yield centres, eta, eta_w
+    coarse.close()
+    fine.close()
+
+
+@pytest.mark.parametrize("weighted", [False, True])
+def test_indicators_are_larger_at_the_anchor_than_far_from_it(anchored_indicators, weighted):
+    centres, eta, eta_w = anchored_indicators
+    e = eta_w if weighted else eta
+    assert np.all(np.isfinite(e)) and np.all(e >= 0)
+    near = np.linalg.norm(centres - [6.0, 25.0], axis=1) < 2.0
+    far = (centres[:, 1] > 31.0) & (centres[:, 1] < 37.0)       # above the anchor, away from base and tip
+    assert near.sum() > 3 and far.sum() > 10
+    assert np.median(e[near]) > 5.0 * np.median(e[far]), (np.median(e[near]), np.median(e[far]))
+
+
+def test_a_round_of_adaptive_refinement_lowers_the_estimate_and_met_is_honest():
+    session = Session(accuracy.first_level(_strip(size=4.0)))
+    try:
+        result, a = adapt.refine_adaptive(session, 1e-6, max_rounds=2)
+    finally:
+        session.close()
+    finals = [lv for lv in a["levels"] if lv["mesh"] == 3]
+    assert len(finals) == 2 and result.converged
+    assert finals[1]["estimate"] < 0.5 * finals[0]["estimate"], finals
+    assert not a["met"] and a["estimated_error"] > 1e-6 and "2 rounds" in a["stop"]
+    assert a["dofs"] == finals[1]["dofs"] == result.dofs
+    assert a["min_size"] < a["max_size"] <= 4.0 / 4 * 1.3               # graded, below the first round's finest
+
+
+def _run(tol, **kw):
+    session = Session(accuracy.first_level(_strip(size=4.0)))
+    try:
+        return adapt.refine_adaptive(session, tol, **kw)
+    finally:
+        session.close()
+
+
+def test_met_only_when_the_final_estimate_says_so(monkeypatch):
+    _, a = _run(0.5, max_rounds=2)
+    assert a["met"] and accuracy.MARGIN * a["estimated_error"] <= 0.5
+    _, b = _run(1e-6, max_rounds=1)
+    assert not b["met"] and accuracy.MARGIN * b["estimated_error"] > 1e-6 and "1 rounds" in b["stop"]
+    monkeypatch.setattr(adapt, "round_trusted", lambda ladder, before: False)   # an estimate not trusted
+    _, c = _run(100.0, max_rounds=1)
+    assert not c["met"] and accuracy.MARGIN * c["estimated_error"] <= 100.0
+
+
+def test_the_dof_limit_stops_the_rounds_unmet(monkeypatch):
+    from skelfem import resources
+    session = Session(accuracy.first_level(_strip(size=4.0)))
+    monkeypatch.setitem(resources.MAX_DOFS, 2, 3000)
+    try:
+        _, a = adapt.refine_adaptive(session, 1e-6, max_rounds=3)
+    finally:
+        session.close()
+    assert not a["met"] and "DOF limit" in a["stop"]
+
+
+def test_the_anchor_floor_is_the_lattice_spacing():
+    s = Session(_anchored(size=4.0, degree=1))
+    try:
+        spacing = adapt.anchor_spacing(s.model)
+        term = s.model.terms_in("cables")[0]
+        assert spacing == pytest.approx(min(term.anchors.values()) / 4)
+    finally:
+        s.close()
+
+
+def test_cli_adaptive_writes_the_final_mesh_and_the_estimate(tmp_path):
+    import json
+
+    from skelfem.cli import main
+    from _designs import toml_text
+    p = tmp_path / "strip.toml"
+    p.write_text(toml_text(strip(length=40.0, width=8.0, size=4.0, contraction=1.0, tendon_offset=2.0)))
+    assert main(["simulate", str(p), "--out", str(tmp_path / "o"), "-q", "--no-picture", "--tol", "0.5",
+                 "--adaptive"]) == 0
+    res = json.loads((tmp_path / "o" / "result.json").read_text())
+    a = res["accuracy"]
+    assert a["adaptive"] and a["met"] and res["dofs"] == a["dofs"]
+    assert {"min_size", "max_size", "estimated_error", "stop", "levels"} <= set(a)
+    assert main(["simulate", str(p), "--out", str(tmp_path / "x"), "--adaptive"]) == 1
