@@ -56,13 +56,13 @@ nothing across ranks); under MPI, --tol uses the uniform ladder.
 from __future__ import annotations
 
 import logging
-import math
 import time
 
 import numpy as np
 
 from . import accuracy
 from .accuracy import AIM, MARGIN, Level, observed_rate, richardson
+from .points import cell_sizes  # noqa: F401 (used here and by tests)
 
 log = logging.getLogger("skelfem")
 
@@ -73,20 +73,6 @@ FACTORS = (4.0, 2.0, 1.0)
 
 
 # -- sizes ----------------------------------------------------------------------------------------------
-def cell_sizes(mesh) -> np.ndarray:
-    """Edge length h_K of the equilateral cell with each (local) cell's area (2D) or volume (3D), mm.
-
-    Area sqrt(3)/4 h^2, volume h^3 / (6 sqrt 2); affine cells.
-    """
-    dim = mesh.topology.dim
-    x = mesh.geometry.x[:, :mesh.geometry.dim]
-    nodes = mesh.geometry.dofmap.array.reshape(-1, dim + 1)
-    v0 = x[nodes[:, 0]]
-    J = np.stack([x[nodes[:, j + 1]] - v0 for j in range(dim)], axis=2)
-    vol = np.abs(np.linalg.det(J)) / math.factorial(dim)
-    return np.sqrt(4.0 * vol / math.sqrt(3.0)) if dim == 2 else np.cbrt(6.0 * math.sqrt(2.0) * vol)
-
-
 def size_field(mesh, sizes: np.ndarray):
     """SizeField on the mesh's cells from one size per cell: each vertex takes the smallest of its cells'."""
     from .geometry import SizeField
@@ -196,20 +182,19 @@ def indicators(model, coarse_V, coarse_u: np.ndarray, z: np.ndarray | None) -> n
 
 
 def anchor_spacing(model) -> float | None:
-    """The smallest lattice spacing of the model's finite anchors (radius / per_radius), or None.
+    """The finest lattice spacing the model's finite anchors can take (radius / MAX_PER_RADIUS), or None.
 
-    An anchor's force acts on lattice points; on cells smaller than their
-    spacing each point is a point force again, whose 2D displacement is
-    log-singular: refining below it chases a singularity of the model, not an
-    error. The sizes of a round stay at or above it.
+    An anchor's force acts on lattice points at least two per local cell
+    size (skelfem.terms.cables.lattice_density), so refining near an anchor
+    refines its lattice too, up to MAX_PER_RADIUS points per radius; on cells
+    smaller than that spacing each point would be a point force again, whose
+    2D displacement is log-singular: refining below it would chase a
+    singularity of the model, not an error. The sizes of a round stay at or above it.
     """
-    import inspect
-
-    from .terms.cables import anchor_samples
-    per_radius = inspect.signature(anchor_samples).parameters["per_radius"].default
+    from .terms.cables import MAX_PER_RADIUS
     radii = [float(r) for term in model.terms_in("cables") for r in (getattr(term, "anchors", None) or {}).values()
              if r and r > 0]
-    return min(radii) / per_radius if radii else None
+    return min(radii) / MAX_PER_RADIUS[model.dim] if radii else None
 
 
 def round_trusted(ladder: list[Level], before: float | None) -> bool:

@@ -8,6 +8,7 @@ operator that cables, point loads and markers share.
 from __future__ import annotations
 
 import functools
+import math
 
 import basix
 import numpy as np
@@ -184,3 +185,17 @@ def global_interpolation(V, points: np.ndarray):
     dofs, cols = np.unique(cols, return_inverse=True)
     S = sp.csr_matrix((vals, (rows, cols)), shape=(len(points) * bs, len(dofs)))
     return S, DofGather(V, dofs), owner
+
+
+def cell_sizes(mesh) -> np.ndarray:
+    """Edge length h_K of the equilateral cell with each (local) cell's area (2D) or volume (3D), mm.
+
+    Area sqrt(3)/4 h^2, volume h^3 / (6 sqrt 2); affine cells.
+    """
+    dim = mesh.topology.dim
+    x = mesh.geometry.x[:, :mesh.geometry.dim]
+    nodes = mesh.geometry.dofmap.array.reshape(-1, dim + 1)
+    v0 = x[nodes[:, 0]]
+    J = np.stack([x[nodes[:, j + 1]] - v0 for j in range(dim)], axis=2)
+    vol = np.abs(np.linalg.det(J)) / math.factorial(dim)
+    return np.sqrt(4.0 * vol / math.sqrt(3.0)) if dim == 2 else np.cbrt(6.0 * math.sqrt(2.0) * vol)

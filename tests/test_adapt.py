@@ -148,7 +148,8 @@ def test_the_anchor_floor_is_the_lattice_spacing():
     try:
         spacing = adapt.anchor_spacing(s.model)
         term = s.model.terms_in("cables")[0]
-        assert spacing == pytest.approx(min(term.anchors.values()) / 4)
+        from skelfem.terms.cables import MAX_PER_RADIUS
+        assert spacing == pytest.approx(min(term.anchors.values()) / MAX_PER_RADIUS[2])
     finally:
         s.close()
 

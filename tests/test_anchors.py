@@ -6,6 +6,7 @@ from skelfem import Session
 from skelfem.design import DesignError, load_design, parse_design
 from skelfem.terms.cables import anchor_samples
 
+from _designs import strip
 from conftest import GEOMETRY
 
 SOFT = GEOMETRY / "finger_soft.toml"
@@ -114,3 +115,43 @@ def test_cable_length_is_unchanged_by_a_rigid_rotation(radius):
             end = cable.X[-1]                               # the half disk's centroid, below the edge
             assert end[1] == pytest.approx(100.0 - 4 * radius / (3 * np.pi), abs=0.1 * radius)
             assert np.all(np.diff(cable.X[:, 1]) > 0)       # no via point beyond it: the cable never turns back
+
+
+@pytest.mark.slow
+def test_the_anchor_lattice_follows_the_mesh_so_the_anchor_converges_below_its_old_spacing(monkeypatch):
+    """A tendon ending inside a strip on a 2 mm anchor: P1 at h = 1, 0.5, 0.25, 0.125 mm.
+
+    With two lattice points per local cell size the anchored end (the disk's mean
+    displacement) converges (changes 0.0045, 0.0010, 0.00004 mm); with the lattice fixed at
+    radius / 4 = 0.5 mm, meshes finer than it see point forces and the end keeps moving
+    (0.0028, 0.0016, 0.0011 mm: the log singularity of each point).
+    """
+    from skelfem.terms import cables
+
+    def ends(limit):
+        monkeypatch.setitem(cables.MAX_PER_RADIUS, 2, limit)
+        out = []
+        for h in (1.0, 0.5, 0.25, 0.125):
+            d = strip(length=20.0, width=10.0, size=h, tendon_offset=0.0, contraction=2.0, k=20.0)
+            d["cables"][0].update(path=[[5.0, 0.0], [5.0, 14.0]], anchor_radius=2.0)
+            with Session(d) as s:
+                assert s.solve().converged
+                term = s.model.term("cables", "flexor")
+                out.append(term.cable.positions(s.model.u.x.array)[-1])
+        return [float(np.linalg.norm(b - a)) for a, b in zip(out[:-1], out[1:])]
+
+    following = ends(32)
+    fixed = ends(cables.PER_RADIUS)
+    assert following[2] < 0.3 * following[1] and following[1] < 0.5 * following[0]
+    assert fixed[2] > 0.5 * fixed[1]                     # no convergence: a point force per lattice point
+    assert following[2] < 0.2 * fixed[2]
+
+
+def test_the_lattice_density_is_two_points_per_local_cell_size_within_bounds():
+    from skelfem.terms.cables import MAX_PER_RADIUS, PER_RADIUS, lattice_density
+    centre = np.array([5.0, 10.0])
+    with Session(strip(length=20.0, width=10.0, size=4.0)) as s:
+        assert lattice_density(s.model.mesh, centre, 2.0) == PER_RADIUS         # 2 r / h = 1: the minimum
+    with Session(strip(length=20.0, width=10.0, size=0.5)) as s:
+        assert 8 <= lattice_density(s.model.mesh, centre, 2.0) <= 12             # 2 r / h_min near the disk
+        assert lattice_density(s.model.mesh, centre, 20.0) == MAX_PER_RADIUS[2]  # the cap

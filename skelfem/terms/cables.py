@@ -29,13 +29,14 @@ matrix a few entries per segment and the solve one extra back-substitution.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 from mpi4py import MPI
 
-from ..points import DofGather, global_interpolation, locate_cells, owner_ranks
+from ..points import DofGather, cell_sizes, global_interpolation, locate_cells, owner_ranks
 from .base import Context, Term
 
 _EPS = 1e-10
@@ -121,7 +122,34 @@ def via_points(mesh, path: np.ndarray) -> np.ndarray:
     return points[np.concatenate([[True], gap > 1e-12])]
 
 
-def anchor_samples(center: np.ndarray, radius: float, per_radius: int = 4) -> np.ndarray:
+PER_RADIUS = 4                  # lattice points per anchor radius, at least ...
+MAX_PER_RADIUS = {2: 32, 3: 8}  # ... and at most ((2n + 1)^dim lattice points)
+
+
+def lattice_density(mesh, center: np.ndarray, radius: float) -> int:
+    """Lattice points per radius for an anchor: two per size of the smallest cell near the disk (ball).
+
+    Equal weights on the lattice approximate the disk's mean displacement
+    (a bounded functional of u: a finite answer) only while every cell the
+    disk covers holds several lattice points; with a lattice fixed in mm, a
+    mesh finer than its spacing sees each point as a point force again, and
+    its 2D displacement is log-singular. Clipped to [PER_RADIUS, MAX_PER_RADIUS].
+    Collective under MPI (every rank gets the same number).
+    """
+    dim = mesh.topology.dim
+    n_owned = mesh.topology.index_map(dim).size_local
+    x = mesh.geometry.x[:, :mesh.geometry.dim]
+    nodes = mesh.geometry.dofmap.array.reshape(-1, dim + 1)[:n_owned]
+    h = cell_sizes(mesh)[:n_owned]
+    mid = x[nodes].mean(axis=1) if n_owned else np.zeros((0, dim))
+    near = np.linalg.norm(mid - center, axis=1) <= radius + h        # the cells the disk touches
+    h_min = mesh.comm.allreduce(float(h[near].min()) if near.any() else np.inf, op=MPI.MIN)
+    if not np.isfinite(h_min):
+        return PER_RADIUS
+    return int(np.clip(math.ceil(2.0 * radius / h_min), PER_RADIUS, MAX_PER_RADIUS[dim]))
+
+
+def anchor_samples(center: np.ndarray, radius: float, per_radius: int = PER_RADIUS) -> np.ndarray:
     """Points of a square (2D) or cubic (3D) lattice inside the disk/ball, spacing radius / per_radius.
 
     Equal weights on a uniform lattice spread the anchor's force evenly over
@@ -167,7 +195,7 @@ def _anchored_interpolation(V, X: np.ndarray, anchors: dict):
             rows.append(i), cols.append(i), vals.append(1.0)
     offset = n
     for i, r in anchored.items():
-        samples = anchor_samples(X[i], r)
+        samples = anchor_samples(X[i], r, lattice_density(mesh, X[i], r))
         inside = owner_ranks(mesh, samples)[0] < mesh.comm.size
         samples = samples[inside]
         X[i] = samples.mean(axis=0)
