@@ -278,6 +278,19 @@ class Model:
             rows = rows[(rows >= lo) & (rows < lo + self.n_owned)]
             yield rows.astype(PETSc.IntType), cols.astype(PETSc.IntType)
 
+    def _cell_pattern(self):
+        """The UFL Hessian's pattern from the cells its form integrates over only (DOLFINx's own
+        pattern takes every cell): the cells of rigid bodies add no entries."""
+        form, kind = self.jacobian_form, fem.IntegralType.cell
+        imap = self.V.dofmap.index_map
+        pattern = _cpp.la.SparsityPattern(self.comm, [imap, imap], [self.bs, self.bs])
+        cells = np.unique(np.concatenate([form.domains(kind, i) for i in form.integral_ids(kind)]))
+        dofmap = self.V.dofmap.list
+        for c in cells:
+            nodes = dofmap.links(c)
+            pattern.insert(nodes, nodes)
+        return pattern
+
     def create_matrix(self) -> PETSc.Mat:
         """The sparse Newton matrix K: the UFL Hessian's pattern plus every term's (sparse) blocks.
 
@@ -286,7 +299,7 @@ class Model:
         slots then); afterwards the pattern never changes (new entries
         raise), so MUMPS reuses its analysis across Newton iterations.
         """
-        pattern = fem.create_sparsity_pattern(self.jacobian_form)
+        pattern = self._cell_pattern() if self.rigid else fem.create_sparsity_pattern(self.jacobian_form)
         if self.comm.size == 1:        # serial: the term blocks go into DOLFINx's pattern
             for term in self.terms:
                 for rn, cn in term.pattern():

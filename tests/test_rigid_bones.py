@@ -1,6 +1,8 @@
 """Rigid bones (``bones.NAME.rigid = true``): the reduced derivatives, the limit of stiff elastic bones,
 exact rigid motions, and Newton on the finger."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -9,7 +11,10 @@ from skelfem.design import DesignError, parse_design
 from skelfem.terms.rigid import rotation
 
 from _designs import strip, variant
+
 from _taylor import taylor_orders
+
+GEOMETRY = Path(__file__).resolve().parents[1] / "geometry"
 
 
 def _rigid_strip(size=2.0, rigid=True, E_bone=None):
@@ -215,7 +220,7 @@ def test_rigid_bones_on_the_finger_converge_quadratically():
     bones = ("proximal", "middle", "distal")
     runs = {}
     for rigid in (False, True):
-        with Session("geometry/finger.toml", [f"bones.{b}.rigid={str(rigid).lower()}" for b in bones]) as s:
+        with Session(GEOMETRY / "finger.toml", [f"bones.{b}.rigid={str(rigid).lower()}" for b in bones]) as s:
             r = s.solve()
             assert r.converged
             runs[rigid] = (r, s.model.slaved.sum())
