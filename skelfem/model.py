@@ -82,6 +82,7 @@ class Model:
             self.slaved[body.dofs] = True
         self._slaved_rows = self.global_dofs[np.flatnonzero(self.slaved)].astype(PETSc.IntType)
         self.border = None            # the linear solver's Border at the last jacobian (rigid bodies)
+        self._last_gradient = None    # (state, grad Pi) of the last residual (rigid bodies)
 
         parts = [e for e in (term.ufl_energy(self.ctx) for term in self.terms) if e is not None]
         Pi = sum(parts[1:], parts[0])
@@ -123,12 +124,14 @@ class Model:
         if not owners:
             raise KeyError(key)
         old = self.changes.get(key, (np.array(owners[0].parameters()[key], dtype=float), None))[0]
+        self._last_gradient = None
         for term in owners:          # a key may belong to several terms (density: gravity and inertia)
             term.set_parameter(key, value)
         self.changes[key] = (old, np.array(owners[0].parameters()[key], dtype=float))
 
     def parameter_path(self, s: float) -> None:
         """Set every changed parameter to old + s (new - old): s = 0 the last solved state, 1 the new one."""
+        self._last_gradient = None
         for key, (old, new) in self.changes.items():
             value = old + s * (new - old)
             for term in self.terms:
@@ -145,6 +148,7 @@ class Model:
     def set_factor(self, a: float) -> None:
         """Ramp contractions, pretensions, loads and pin moves to a fraction a."""
         self.factor = float(a)
+        self._last_gradient = None
         for term in self.terms:
             term.set_factor(a)
 
@@ -253,6 +257,7 @@ class Model:
         fem_petsc.set_bc(b, self.bcs, x, -1.0)
         if self.rigid:
             u, r = self.u.x.array, b.array_r.copy()
+            self._last_gradient = (x.array_r.copy(), r.copy())       # for the border's d2u/dq2 term
             for body in self.rigid:
                 body.project(body.modes(u), r)
             b.array_w[:] = r
@@ -421,9 +426,15 @@ class Model:
         """The border of the rigid bodies from the assembled K (E = K T off their rows, C = T^T K T +
         sum R . d2u/dq2), then their rows and columns of K replaced by the identity."""
         u = self.u.x.array.copy()
-        b = x.duplicate()
-        self.gradient(x, b)
-        grad = b.array_r.copy()
+        last = self._last_gradient
+        if last is not None and np.array_equal(last[0], x.array_r):
+            grad = last[1]                  # SNES evaluated the residual at x just before
+        else:
+            b = x.duplicate()
+            self.gradient(x, b)
+            fem_petsc.set_bc(b, self.bcs, x, -1.0)
+            grad = b.array_r.copy()
+            b.destroy()
         blocks = [(body, body.modes(u)) for body in self.rigid]
         m = sum(body.m for body in self.rigid)
         T = np.zeros((self.n_owned, m))
@@ -431,14 +442,10 @@ class Model:
         for body, Tb in blocks:
             T[body.dofs.ravel(), j:j + body.m] = Tb.reshape(-1, body.m)
             j += body.m
-        KT = np.zeros_like(T)
-        v = x.duplicate()
-        for k in range(m):
-            v.array_w[:] = T[:, k]
-            A.mult(v, b)
-            KT[:, k] = b.array_r
-        for vec in (v, b):
-            vec.destroy()
+        n_global = self.V.dofmap.index_map.size_global * self.bs
+        B = PETSc.Mat().createDense([(self.n_owned, n_global), (None, m)], array=T, comm=self.comm)
+        KT = A.matMult(B).getDenseArray().copy()            # K T, one sparse-dense product
+        B.destroy()
         C = T.T @ KT
         C = C if self.comm.size == 1 else self.comm.allreduce(C)
         j = 0

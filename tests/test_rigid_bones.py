@@ -51,10 +51,10 @@ class Reduced:
         u[self.free] += z[:self.nv]
         j = self.nv
         for body in self.model.rigid:
-            q = z[j:j + body.m]
+            q, d = z[j:j + body.m], body.dim
             y0 = body.X + self.u0[body.dofs]
             c = y0.mean(axis=0)
-            u[body.dofs] = c + q[:2] + (y0 - c) @ rotation(q[2], 2).T - body.X
+            u[body.dofs] = c + q[:d] + (y0 - c) @ rotation(q[d:] if d == 3 else q[d], d).T - body.X
             j += body.m
         return u
 
@@ -97,9 +97,9 @@ def _perturbed(session, seed=3, scale=0.02, angle=0.01):
     u = scale * rng.standard_normal(model.n_owned)
     u[model.fixed[:model.n_owned]] = 0.0
     for body in model.rigid:
-        c = body.X.mean(axis=0)
-        R = rotation(angle * rng.standard_normal(), 2)
-        u[body.dofs] = c + rng.standard_normal(2) * scale + (body.X - c) @ R.T - body.X
+        c, d = body.X.mean(axis=0), body.dim
+        R = rotation(angle * rng.standard_normal(1 if d == 2 else 3).squeeze(), d)
+        u[body.dofs] = c + rng.standard_normal(d) * scale + (body.X - c) @ R.T - body.X
     model.u.x.array[:len(u)] = u
     model.u.vector.ghostUpdate()
     return u
@@ -184,13 +184,13 @@ def test_newton_direction_solves_the_reduced_system():
 
 
 def _rigid_deviation(model) -> float:
-    """max over rigid bones of |u_b - its closest rigid motion| (mm)."""
+    """max over rigid bones of |u_b - its closest rigid motion| (mm; this rank's nodes)."""
     u = model.u.x.array
     out = 0.0
     for body in model.rigid:
         v = u.copy()
         body.snap(v)
-        out = max(out, float(np.abs(v[body.dofs] - u[body.dofs]).max()))
+        out = max(out, float(np.abs(v[body.dofs] - u[body.dofs]).max(initial=0.0)))
     return out
 
 
@@ -243,3 +243,83 @@ def test_rigid_bones_are_refused_where_not_supported():
     d["solver"] = {"line_search": "residual"}
     with pytest.raises(ValueError, match="rigid"):
         Session(d)
+
+
+def test_sensitivities_with_rigid_bones_match_finite_differences():
+    """IK's marker Jacobian (forward and adjoint) through the bordered solve, a marker in silicone and one
+    in a rigid bone, against central differences of solves."""
+    from skelfem.sensitivity import Linearization
+    d = _rigid_strip()
+    d["markers"]["bone"] = [5.0, 40.0]
+    with Session(d) as s:
+        r = s.solve()
+        names = list(r.markers)
+        lin = Linearization(s.model, s.solver)
+        J = {n: (lin.marker_jacobian(i, "forward"), lin.marker_jacobian(i, "adjoint")) for i, n in enumerate(names)}
+        lin.destroy()
+        h, pos = 1e-4, {}
+        for sign in (1, -1):
+            s.set({"cables.flexor.contraction": 3.0 + sign * h})
+            pos[sign] = s.solve().markers
+    for n in names:
+        fd = (np.array(pos[1][n]["position"]) - np.array(pos[-1][n]["position"])) / (2 * h)
+        for Jn in J[n]:
+            assert np.allclose(Jn.ravel(), fd, rtol=1e-5, atol=1e-7), (n, Jn, fd)
+    assert np.linalg.norm(J["bone"][0]) > 0.1
+
+
+def test_dynamics_with_rigid_bones_approach_stiff_elastic_bones():
+    tips = []
+    for rigid, E in ((True, None), (False, 1e4), (False, 1e5)):
+        d = _rigid_strip(rigid=rigid, E_bone=E)
+        d["materials"]["soft"]["density"], d["materials"]["hard"]["density"] = 1100.0, 1200.0
+        d["dynamics"] = {"dt": 0.005, "duration": 0.03, "integrator": "bdf2"}
+        with Session(d) as s:
+            r = s.run()
+            assert r.converged
+            if rigid:
+                assert _rigid_deviation(s.model) <= 1e-12 * s.model.size
+            tips.append(np.array(r.markers["tip"]["position"]))
+    d4, d5 = (np.linalg.norm(t - tips[0]) for t in tips[1:])
+    assert 5 < d4 / d5 < 20                           # about 1/E_bone
+
+
+@pytest.mark.mpi
+def test_rigid_bones_serial_equals_two_ranks(tmp_path, mpirun):
+    import json
+    import sys
+    script = tmp_path / "run.py"
+    script.write_text(
+        "import json, sys\n"
+        f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+        "from mpi4py import MPI\nfrom skelfem import Session\nimport test_rigid_bones as t\n"
+        "with Session(t._rigid_strip()) as s:\n"
+        "    r = s.solve()\n"
+        "    dev = MPI.COMM_WORLD.allreduce(t._rigid_deviation(s.model), op=MPI.MAX)\n"
+        "    if MPI.COMM_WORLD.rank == 0:\n"
+        "        print(json.dumps([r.markers['tip']['position'], r.bones['b2']['rotation'], dev]))\n")
+    with Session(_rigid_strip()) as s:
+        r = s.solve()
+    proc = mpirun.run([sys.executable, script], ranks=2, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    tip, rot, dev = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert np.allclose(tip, r.markers["tip"]["position"], rtol=0, atol=1e-8)
+    assert rot == pytest.approx(r.bones["b2"]["rotation"], abs=1e-10)
+    assert dev <= 1e-12 * 100
+
+
+def test_rigid_bones_in_3d():
+    """6 rigid DOFs per bone: finger3d converges with exactly rigid bones, near its elastic-bone tip."""
+    bones = ("proximal", "middle", "distal")
+    tips = {}
+    for rigid in (False, True):
+        with Session(GEOMETRY / "finger3d.toml", ["mesh.size=6"] + [f"bones.{b}.rigid={str(rigid).lower()}"
+                                                                   for b in bones]) as s:
+            r = s.solve()
+            assert r.converged
+            tips[rigid] = np.array(r.markers["tip"]["position"])
+            if rigid:
+                assert all(b.m == 6 for b in s.model.rigid)
+                assert _rigid_deviation(s.model) <= 1e-12 * s.model.size
+                assert len(r.bones["distal"]["rotation"]) == 3
+    assert np.linalg.norm(tips[True] - tips[False]) < 0.05
