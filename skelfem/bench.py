@@ -221,10 +221,10 @@ class NewtonTimer(LinearTimer):
             model.jacobian(x, solver.A)
             self.parts = model.low_rank(x)
         super().__init__(assemble, solver.A, None)
-        self.solver = solver
+        self.solver, self.model = solver, model
 
     def _factor_solve(self) -> None:
-        self.solver.lin.update(self.parts)
+        self.solver.lin.update(self.parts, self.model.border)
         self.solver.lin.solve(self.b, self.y)
 
     def result(self) -> dict:

@@ -63,6 +63,7 @@ class Bone:
     material: str
     outline: np.ndarray | None = None
     solids: tuple = ()
+    rigid: bool = False   # a rigid body: its nodes follow 3 (2D) / 6 (3D) rigid DOFs, its cells carry no energy
 
 
 @dataclass(frozen=True, eq=False)
@@ -615,13 +616,14 @@ def _bones(top: _Table, dim: int, materials: dict, region, tol, body_t) -> tuple
     for t in _named_entries(top, "bones"):
         name = t.where.split(".", 1)[1]
         material = _material_ref(t, materials)
+        rigid = t.take("rigid", "bool", False)
         if dim == 3:
-            bones.append(Bone(name, material, solids=_solids(t, dim, tol)))
+            bones.append(Bone(name, material, solids=_solids(t, dim, tol), rigid=rigid))
             t.done()
             continue
         outline = _polygon(t, "outline", t.take("outline", "points", dim=2), tol)
         t.done()
-        bones.append(Bone(name, material, outline=outline))
+        bones.append(Bone(name, material, outline=outline, rigid=rigid))
         tables.append(t)
     if dim == 2:
         _layout_2d(body_t, region, tables, [b.outline for b in bones])

@@ -16,8 +16,30 @@ than the price of one: 12.9 ms for 4 columns against 10.1 ms for one at
 24k DOFs); later solves with the same factorisation (sensitivities) take
 one back-substitution each. Under MPI G and Z are distributed by rows and
 G^T x is an allreduce of m numbers, so nothing dense crosses ranks.
+
+A **border** adds a few unknowns z that some rows follow (rigid bones: the
+bone's node displacements are T z, z its rigid DOFs). Those rows of K are
+identity rows and columns; the full vector x keeps its size, with x_b = T z
+on the slaved rows. For a right-hand side b the reduced one is (b_f, T^T b),
+b_f = b with the slaved rows zeroed, and each g_i likewise (g_f, h_i =
+T^T g_i). With E = K_full T on the other rows (the coupling) and C the
+reduced m x m block, the system
+
+    [K    E] [x_f]              [b_f  ]
+    [E^T  C] [z  ] + G^ D G^^T = [T^T b]
+
+is solved from the same multi-right-hand-side solve Y = K^{-1} [G_f | E | b_f]:
+with w = D (G_f^T x_f + H^T z), x_f = y - Z_E z - Z_G w and (z, w) from the
+small symmetric system
+
+    [C - E^T Z_E      H - E^T Z_G       ] [z]   [T^T b - E^T y]
+    [H^T - G^T Z_E   -(D^-1 + G^T Z_G)  ] [w] = [-G^T y       ]
+
+(without a border this is the Woodbury formula above).
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from petsc4py import PETSc
@@ -32,6 +54,15 @@ def default_petsc_options() -> dict:
     per factorisation with the same iterates.
     """
     return {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "mumps"}
+
+
+@dataclass
+class Border:
+    """Border unknowns z of a linear solve (see the module docstring); arrays on owned rows."""
+    T: np.ndarray        # (n, m): the slaved rows' values per unit z (zero elsewhere)
+    rows: np.ndarray     # (n,) bool: the slaved rows (identity rows and columns of K)
+    E: np.ndarray        # (n, m): K_full T on the other rows (zero on slaved and Dirichlet rows)
+    C: np.ndarray        # (m, m): the reduced block T^T K T (+ second-order terms), same on every rank
 
 
 class LowRankSolver:
@@ -52,18 +83,24 @@ class LowRankSolver:
             del opts[f"{prefix}{key}"]
         self.c = np.zeros(0)
         self.G = self.Z = None
+        self.border = None
         self.C = np.zeros((0, 0))
         self._dense: dict = {}
         self.solves = 0                 # solve phases run (one multi-RHS solve counts once)
 
-    def update(self, parts: list[tuple[float, PETSc.Vec]]) -> None:
-        """Factorise K (as it is now) and take the rank-one parts [(c_i, g_i)], c_i > 0."""
+    def update(self, parts: list[tuple[float, PETSc.Vec]], border: Border | None = None) -> None:
+        """Factorise K (as it is now) and take the rank-one parts [(c_i, g_i)], c_i > 0, and a border."""
         self.ksp.setOperators(self.K)
         self.ksp.setUp()
         self._check()
         self.c = np.array([c for c, _ in parts], dtype=float)
         n = self.K.getLocalSize()[0]
         self.G = np.column_stack([g.array_r for _, g in parts]) if parts else np.zeros((n, 0))
+        self.border = border
+        self.H = np.zeros((0, len(self.c)))
+        if border is not None:
+            self.H = self._dots(border.T, self.G)          # h_i = T^T g_i
+            self.G = self.G * ~border.rows[:, None]
         self.Z = None
 
     def reset(self) -> None:
@@ -102,24 +139,47 @@ class LowRankSolver:
         return out if self.comm.size == 1 else self.comm.allreduce(out)
 
     def solve(self, b: PETSc.Vec, x: PETSc.Vec) -> None:
-        """x = (K + G D G^T)^{-1} b."""
-        m = len(self.c)
-        if m == 0:
+        """x = (K + G D G^T)^{-1} b, reduced to the border unknowns if there is a border."""
+        k, border = len(self.c), self.border
+        if k == 0 and border is None:
             self.ksp.solve(b, x)
             self.solves += 1
             self._check()
             return
-        if self.Z is None:                      # first solve: K^{-1} [G | b] in one go
-            Y = self._multi_solve(np.column_stack([self.G, b.array_r]))
-            self.Z, y = Y[:, :m], Y[:, m]
-            C = np.diag(1.0 / self.c) + self._dots(self.G, self.Z)
+        E = border.E if border is not None else np.zeros((len(self.G), 0))
+        m = E.shape[1]
+        bf = b.array_r if border is None else b.array_r * ~border.rows
+        if self.Z is None:                      # first solve: K^{-1} [G | E | b] in one go
+            Y = self._multi_solve(np.column_stack([self.G, E, bf]))
+            self.Z, y = Y[:, :k + m], Y[:, k + m]
+            ZG, ZE = self.Z[:, :k], self.Z[:, k:]
+            C = np.zeros((m + k, m + k))
+            C[:m, :m] = (border.C if m else 0.0) - self._dots(E, ZE)
+            C[:m, m:] = self.H - self._dots(E, ZG)
+            C[m:, :m] = C[:m, m:].T
+            C[m:, m:] = -(np.diag(1.0 / self.c) + self._dots(self.G, ZG))
             self.C = 0.5 * (C + C.T)
-        else:
+        elif border is None:
             self.ksp.solve(b, x)
             self.solves += 1
             y = x.array_r.copy()
-        w = self._dots(self.G, y[:, None])[:, 0]
-        x.array_w[:] = y - self.Z @ np.linalg.solve(self.C, w)
+        else:
+            bvec = b.copy()
+            bvec.array_w[:] = bf
+            self.ksp.solve(bvec, x)
+            bvec.destroy()
+            self.solves += 1
+            y = x.array_r.copy()
+        ZG, ZE = self.Z[:, :k], self.Z[:, k:]
+        rhs = np.concatenate([(self._dots(border.T, b.array_r[:, None])[:, 0] if m else np.zeros(0))
+                              - self._dots(E, y[:, None])[:, 0],
+                              -self._dots(self.G, y[:, None])[:, 0]])
+        zw = np.linalg.solve(self.C, rhs)
+        z, w = zw[:m], zw[m:]
+        out = y - ZE @ z - ZG @ w
+        if m:
+            out = out + border.T @ z
+        x.array_w[:] = out
 
     def as_pc(self, pc: PETSc.PC) -> None:
         """Make pc apply this solver (for SNES's KSP of type preonly)."""

@@ -11,6 +11,14 @@ rank-one parts c g g^T kept out of K), ``admissible``, ``max_step`` and
 
 Dirichlet DOFs (fixed pins) have identity rows and columns in K and carry no
 term entries, and their entries of every low-rank vector are zero.
+
+Rigid bodies (``Term.rigid_body``: rigid bones) are solved for their rigid
+DOFs q: their nodes' rows of K become identity rows and columns too, after
+K T (T = du_b/dq) has given the coupling E and the reduced block
+C = T^T K T + sum_i R_i . d2u_i/dq2 of the linear solver's border
+(:class:`skelfem.linear.Border`, ``border``); the residual on those rows is
+the projection of grad Pi onto the rigid modes, and ``apply_bcs`` puts every
+rigid body exactly on its closest rigid motion.
 """
 from __future__ import annotations
 
@@ -24,6 +32,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from . import jitcache
+from .linear import Border
 from .points import global_dof_numbers
 from .terms import BUILDERS, Context
 from .terms.elasticity import cell_values_min, min_jacobian_expression
@@ -63,6 +72,17 @@ class Model:
                 self.fixed[dofs] = True
         self.ctx.fixed = self.fixed
         self.global_dofs = global_dof_numbers(V).astype(PETSc.IntType)   # local -> global, unrolled
+        self.rigid = [b for b in (term.rigid_body() for term in self.terms) if b is not None]
+        self.slaved = np.zeros(self.n_owned, dtype=bool)      # owned DOFs that follow a rigid body
+        for body in self.rigid:
+            if self.comm.allreduce(bool(self.fixed[body.dofs].any()), op=MPI.LOR):
+                from .design import DesignError
+                raise DesignError(f"{design.source}: bones.{body.name}.rigid: a rigid bone cannot be held by a "
+                                  "fixed pin (make it elastic)")
+            self.slaved[body.dofs] = True
+        self._slaved_rows = self.global_dofs[np.flatnonzero(self.slaved)].astype(PETSc.IntType)
+        self.border = None            # the linear solver's Border at the last jacobian (rigid bodies)
+        self._last_gradient = None    # (state, grad Pi) of the last residual (rigid bodies)
 
         parts = [e for e in (term.ufl_energy(self.ctx) for term in self.terms) if e is not None]
         Pi = sum(parts[1:], parts[0])
@@ -105,12 +125,14 @@ class Model:
         if not owners:
             raise KeyError(key)
         old = self.changes.get(key, (np.array(owners[0].parameters()[key], dtype=float), None))[0]
+        self._last_gradient = None
         for term in owners:          # a key may belong to several terms (density: gravity and inertia)
             term.set_parameter(key, value)
         self.changes[key] = (old, np.array(owners[0].parameters()[key], dtype=float))
 
     def parameter_path(self, s: float) -> None:
         """Set every changed parameter to old + s (new - old): s = 0 the last solved state, 1 the new one."""
+        self._last_gradient = None
         for key, (old, new) in self.changes.items():
             value = old + s * (new - old)
             for term in self.terms:
@@ -127,6 +149,7 @@ class Model:
     def set_factor(self, a: float) -> None:
         """Ramp contractions, pretensions, loads and pin moves to a fraction a."""
         self.factor = float(a)
+        self._last_gradient = None
         for term in self.terms:
             term.set_factor(a)
 
@@ -143,8 +166,13 @@ class Model:
         return self.u.x.array
 
     def apply_bcs(self, x: PETSc.Vec) -> None:
-        """Write the prescribed pin displacements into x."""
+        """Write the prescribed pin displacements into x and put each rigid body on its closest rigid motion."""
         fem_petsc.set_bc(x, self.bcs)
+        if self.rigid:
+            u = x.array_r.copy()
+            for body in self.rigid:
+                body.snap(u)
+            x.array_w[:] = u
         x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
 
     def min_jacobian(self, x: PETSc.Vec | None = None) -> float:
@@ -226,9 +254,16 @@ class Model:
         b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
 
     def residual(self, x: PETSc.Vec, b: PETSc.Vec) -> None:
-        """grad Pi with Dirichlet rows replaced by x - g (zero when x satisfies the pins)."""
+        """grad Pi with Dirichlet rows replaced by x - g (zero when x satisfies the pins), and on a
+        rigid body's rows its projection onto the body's rigid modes (zero iff T^T grad Pi = 0)."""
         self.gradient(x, b)
         fem_petsc.set_bc(b, self.bcs, x, -1.0)
+        if self.rigid:
+            u, r = self.u.x.array, b.array_r.copy()
+            self._last_gradient = (x.array_r.copy(), r.copy())       # for the border's d2u/dq2 term
+            for body in self.rigid:
+                body.project(body.modes(u), r)
+            b.array_w[:] = r
 
     def full_gradient(self) -> np.ndarray:
         """grad Pi at the current state, owned entries, Dirichlet rows included."""
@@ -251,6 +286,19 @@ class Model:
             rows = rows[(rows >= lo) & (rows < lo + self.n_owned)]
             yield rows.astype(PETSc.IntType), cols.astype(PETSc.IntType)
 
+    def _cell_pattern(self):
+        """The UFL Hessian's pattern from the cells its form integrates over only (DOLFINx's own
+        pattern takes every cell): the cells of rigid bodies add no entries."""
+        form, kind = self.jacobian_form, fem.IntegralType.cell
+        imap = self.V.dofmap.index_map
+        pattern = _cpp.la.SparsityPattern(self.comm, [imap, imap], [self.bs, self.bs])
+        cells = np.unique(np.concatenate([form.domains(kind, i) for i in form.integral_ids(kind)]))
+        dofmap = self.V.dofmap.list
+        for c in cells:
+            nodes = dofmap.links(c)
+            pattern.insert(nodes, nodes)
+        return pattern
+
     def create_matrix(self) -> PETSc.Mat:
         """The sparse Newton matrix K: the UFL Hessian's pattern plus every term's (sparse) blocks.
 
@@ -259,7 +307,7 @@ class Model:
         slots then); afterwards the pattern never changes (new entries
         raise), so MUMPS reuses its analysis across Newton iterations.
         """
-        pattern = fem.create_sparsity_pattern(self.jacobian_form)
+        pattern = self._cell_pattern() if self.rigid else fem.create_sparsity_pattern(self.jacobian_form)
         if self.comm.size == 1:        # serial: the term blocks go into DOLFINx's pattern
             for term in self.terms:
                 for rn, cn in term.pattern():
@@ -290,6 +338,7 @@ class Model:
         A.assemble()
         A.zeroEntries()
         A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+        A.setOption(PETSc.Mat.Option.KEEP_NONZERO_PATTERN, True)     # identity rows of rigid bodies
         return A
 
     def _free(self, term, dofs) -> np.ndarray:
@@ -373,6 +422,43 @@ class Model:
         A.assemblyEnd(PETSc.Mat.AssemblyType.FLUSH)
         _cpp.fem.petsc.insert_diagonal(A, self.V._cpp_object, self.bcs, 1.0)
         A.assemble()
+        if self.rigid:
+            self._reduce_rigid(x, A)
+
+    def _reduce_rigid(self, x: PETSc.Vec, A: PETSc.Mat) -> None:
+        """The border of the rigid bodies from the assembled K (E = K T off their rows, C = T^T K T +
+        sum R . d2u/dq2), then their rows and columns of K replaced by the identity."""
+        u = self.u.x.array.copy()
+        last = self._last_gradient
+        if last is not None and np.array_equal(last[0], x.array_r):
+            grad = last[1]                  # SNES evaluated the residual at x just before
+        else:
+            b = x.duplicate()
+            self.gradient(x, b)
+            fem_petsc.set_bc(b, self.bcs, x, -1.0)
+            grad = b.array_r.copy()
+            b.destroy()
+        blocks = [(body, body.modes(u)) for body in self.rigid]
+        m = sum(body.m for body in self.rigid)
+        T = np.zeros((self.n_owned, m))
+        j = 0
+        for body, Tb in blocks:
+            T[body.dofs.ravel(), j:j + body.m] = Tb.reshape(-1, body.m)
+            j += body.m
+        n_global = self.V.dofmap.index_map.size_global * self.bs
+        B = PETSc.Mat().createDense([(self.n_owned, n_global), (None, m)], array=T, comm=self.comm)
+        KT = A.matMult(B).getDenseArray().copy()            # K T, one sparse-dense product
+        B.destroy()
+        C = T.T @ KT
+        C = C if self.comm.size == 1 else self.comm.allreduce(C)
+        j = 0
+        for body, _ in blocks:
+            C[j:j + body.m, j:j + body.m] += body.second_derivative(u, grad)
+            j += body.m
+        KT[self.slaved] = 0.0
+        A.zeroRowsColumns(self._slaved_rows, diag=1.0)
+        self.border = Border(T, self.slaved, KT, 0.5 * (C + C.T))
+        self.sync(x)
 
     def low_rank(self, x: PETSc.Vec | None = None) -> list[tuple[float, PETSc.Vec]]:
         """The rank-one parts c g g^T of hess Pi as (c, g) with g a PETSc vector, zero on Dirichlet DOFs.

@@ -97,7 +97,7 @@ class Linearization:
                        for i in self.kinked if stretch(self.tendons[i], u) <= 0.0]
         parts = parts + [(self.tendons[i].cable.k, v) for i, v in zip(
             [i for i in self.kinked if stretch(self.tendons[i], u) <= 0.0], self._extra)]
-        solver.lin.update(parts)               # the one numeric factorisation
+        solver.lin.update(parts, model.border)   # the one numeric factorisation (rigid bones: their border)
         self.dR_du = [self._dR_du(i) for i in range(len(self.tendons))]
 
     @property

@@ -101,6 +101,8 @@ class NewtonSolver:
         if self.strategy == "auto":
             self.strategy = resolve_strategy(model.design)
         self.energy_search = self.strategy in ("energy", "curved")
+        if not self.energy_search and model.rigid:
+            raise ValueError(f"line search {self.strategy!r} cannot keep rigid bones rigid; use 'energy'")
         if not self.energy_search and model.bounds_steps:
             raise ValueError(f"line search {self.strategy!r} cannot limit steps to the model's "
                              "admissible ones; use 'energy'")
@@ -131,7 +133,7 @@ class NewtonSolver:
     def jacobian(self, x: PETSc.Vec) -> None:
         """Assemble K at x and factorise it with the rank-one parts (what every Newton solve uses)."""
         self.model.jacobian(x, self.A)
-        self.lin.update(self.model.low_rank())
+        self.lin.update(self.model.low_rank(), self.model.border)
 
     def _create_snes(self, prefix: str) -> PETSc.SNES:
         snes = PETSc.SNES().create(self.model.comm)
@@ -402,12 +404,13 @@ class NewtonSolver:
     def _take(self, x, y, p, alpha) -> bool:
         """Set the SNES step to alpha p if x + alpha p is admissible (and alpha > 0), else to zero."""
         trial = x.copy()
-        trial.array_w[:] += alpha * p
+        step = self._step(x.array_r, p, None, alpha) if alpha > 0.0 else 0.0 * p
+        trial.array_w[:] += step
         ok = alpha > 0.0 and self.model.admissible(trial)
         trial.destroy()
         self.model.sync(x)
         if ok:
-            y.array_w[:] = -alpha * p
+            y.array_w[:] = -step
         else:
             y.set(0.0)
         return ok

@@ -55,3 +55,12 @@ def hessian_error(model, x, d, h=1e-5):
         grads.append(b.array[free].copy())
     fd = (grads[0] - grads[1]) / (2 * h)
     return float(np.linalg.norm(fd - Jd) / np.linalg.norm(Jd))
+
+
+def taylor_orders(energy, gradient, hess_d, z, d, hs):
+    """Observed orders of the two Taylor remainders of any smooth f(z) (e.g. a reduced energy):
+    f(z + h d) - f(z) - h g.d and |g(z + h d) - g(z) - h H d|, both O(h^2) when g and H d are exact."""
+    e0, g0, Hd = energy(z), gradient(z), hess_d(d)
+    r1 = [abs(energy(z + h * d) - e0 - h * (g0 @ d)) for h in hs]
+    r2 = [np.linalg.norm(gradient(z + h * d) - g0 - h * Hd) for h in hs]
+    return [np.log2(np.array(r[:-1]) / np.array(r[1:])) for r in (r1, r2)]

@@ -40,7 +40,8 @@ def _designs():
     contact["cables"] = [dict(base["cables"][0], path=[[7, 0], [7, 30]])]
     dynamic = dict(base, dynamics={"dt": 0.01, "duration": 0.1, "integrator": "bdf2",
                                    "damping": {"mass": 5.0, "stiffness": 0.01}})
-    return {"full": full, "spring": spring, "contact": contact, "dynamic": dynamic}
+    rigid = dict(full, bones=[dict(full["bones"][0], rigid=True)])
+    return {"full": full, "spring": spring, "contact": contact, "dynamic": dynamic, "rigid": rigid}
 
 
 def _perturbed_state(model, scale):
@@ -94,7 +95,7 @@ def _gradient(model, term, u, gform):
     return g
 
 
-@pytest.mark.parametrize("name", ["full", "spring", "contact", "dynamic"])
+@pytest.mark.parametrize("name", ["full", "spring", "contact", "dynamic", "rigid"])
 def test_every_term_gradient_and_hessian_match_central_differences(name):
     import dolfinx.fem.petsc  # noqa: F401
     design = _designs()[name]
@@ -154,12 +155,14 @@ def test_every_term_gradient_and_hessian_match_central_differences(name):
         assert "SelfContact" in seen
     if name == "dynamic":
         assert "Inertia" in seen
+    if name == "rigid":
+        assert "RigidBone" in seen
 
 
 def test_every_builder_is_exercised():
     names = {b.__module__.rsplit(".", 1)[1] for b in BUILDERS}
     assert names == {"elasticity", "pins", "cables", "loads", "grounds", "contact", "markers", "gravity",
-                     "tractions", "inertia"}
+                     "tractions", "inertia", "rigid"}
 
 
 def test_woodbury_direction_equals_the_full_hessian_direction():

@@ -4,7 +4,7 @@
 the model calls each on the design and sums what they return. Adding an
 ingredient is one new module and one line here.
 """
-from . import cables, contact, elasticity, gravity, grounds, inertia, loads, markers, pins, tractions
+from . import cables, contact, elasticity, gravity, grounds, inertia, loads, markers, pins, rigid, tractions
 from .base import Context, Term
 
 BUILDERS = [
@@ -18,6 +18,7 @@ BUILDERS = [
     gravity.build,
     tractions.build,
     inertia.build,
+    rigid.build,
 ]
 
 __all__ = ["BUILDERS", "Context", "Term"]

@@ -25,7 +25,7 @@ Besides the energy a term exposes its *parameters* (the ``--set`` keys it owns,
 changed live without re-meshing or recompiling), its *read-outs* (what goes
 into result.json under ``section``), step bounds and admissibility for the
 line search, an optional step correction (exact rigid rotations of bones),
-Dirichlet conditions, and a per-step hook for history-dependent ingredients.
+Dirichlet conditions, rigid bodies (node groups that follow a few rigid DOFs), and a per-step hook for history-dependent ingredients.
 """
 from __future__ import annotations
 
@@ -70,6 +70,14 @@ class Term:
     def pattern(self) -> list:
         """[(row nodes, column nodes)] blocks the sparse Hessian may fill (node = DOF // bs)."""
         return []
+
+    def rigid_body(self):
+        """A :class:`skelfem.terms.rigid.RigidBody` whose nodes this term makes move rigidly, or None.
+
+        The model then solves for the body's rigid DOFs instead of its nodes'
+        displacements (identity rows in the matrix, a border in the linear solve).
+        """
+        return None
 
     # -- line search ------------------------------------------------------------------------------
     def max_step(self, u0: np.ndarray, p: np.ndarray) -> float:

@@ -10,6 +10,9 @@ The bulk energy is Pi_el = t * int_Omega psi dx, with t the slab thickness in
 compiled form serves every material layout and ``materials.NAME.E`` / ``.nu``
 change live.
 
+The cells of rigid bones (``rigid = true``, :mod:`.rigid`) are left out of
+the form: their nodes follow a rigid motion, so their strain is zero.
+
 Bones are stiff: a Newton step linearises their rotation, which a stiff
 bone resists as stretch. ``step_correction`` turns the linearised rotation of
 each unpinned bone into the exact one (see :meth:`Elasticity.step_correction`).
@@ -55,6 +58,15 @@ def region_cells(ctx: Context, design) -> dict:
     return out
 
 
+def elastic_measure(ctx: Context, design):
+    """dx over the cells that strain: all of them, less the cells of rigid bones (their strain is zero)."""
+    if not any(b.rigid for b in design.bones):
+        return ufl.dx
+    tm = ctx.tagged
+    ids = (tm.tags[BODY],) + tuple(tm.tags[bone_tag_name(b.name)] for b in design.bones if not b.rigid)
+    return ufl.Measure("dx", domain=ctx.mesh, subdomain_data=tm.cell_tags)(ids)
+
+
 def min_jacobian_expression(u):
     """det F sampled at the nodes of a DG space rich enough for P1/P2 fields."""
     mesh = u.function_space.mesh
@@ -82,7 +94,8 @@ class Elasticity(Term):
         Q = fem.FunctionSpace(ctx.mesh, ("DG", 0))
         self.mu, self.lam = fem.Function(Q, name="mu"), fem.Function(Q, name="lam")
         self._update_fields()
-        self._scale_form = fem.form(ctx.thickness * (self.mu + self.lam) * ufl.dx)
+        self.dx = elastic_measure(ctx, design)
+        self._scale_form = fem.form(ctx.thickness * (self.mu + self.lam) * self.dx)
         self._groups = None
         self._fit = None
         self._corr = None             # (u0, p, alpha, correction) of the last call
@@ -94,7 +107,7 @@ class Elasticity(Term):
             self.lam.x.array[cells] = lam
 
     def ufl_energy(self, ctx: Context):
-        return ctx.thickness * psi(deformation_gradient(ctx.u), self.mu, self.lam) * ufl.dx
+        return ctx.thickness * psi(deformation_gradient(ctx.u), self.mu, self.lam) * self.dx
 
     def energy_scale(self) -> float:
         """t int (mu + lam) dx, assembled again only when the materials or the nodes have moved."""
