@@ -230,25 +230,29 @@ class Session:
                 or float(design.mesh.size) != float(meshed.mesh.size)
                 or int(design.mesh.degree) != int(self.design.mesh.degree)):
             return None
-        if self._morph is None:
-            self._morph = Morph(self.model.tm, meshed)
-        if not morph:
-            new, old = polygons(design), self._morph.polys0
+        if not morph:                   # the polygons as meshed, or a new mesh (no Morph needed to tell)
+            new, old = polygons(design), polygons(meshed)
             same = len(new) == len(old) and all(p.shape == q.shape and np.array_equal(p, q)
                                                 for p, q in zip(new, old))
-            return self._morph.X0 if same else None
+            if not same:
+                return None
+            return self._morph.X0 if self._morph is not None else self.model.mesh.geometry.x[:, :2].copy()
+        if self._morph is None:
+            self._morph = Morph(self.model.tm, meshed)
         return self._morph.moved(design)
 
     def _move_mesh(self, design, x: np.ndarray) -> None:
         """Rebuild the model for design on the current mesh with node coordinates x; u carries over as is."""
         old_design, old_x = self.design, self.model.mesh.geometry.x[:, :2].copy()
         u = self.model.u.x.array.copy() if self.solved else None
-        self._morph.apply(x)
+        if self._morph is not None:     # else the nodes are where Gmsh put them, and x is that
+            self._morph.apply(x)
         self.design = design
         try:
             self._build(self.model.tm)
         except BaseException:
-            self._morph.apply(old_x)
+            if self._morph is not None:
+                self._morph.apply(old_x)
             self.design = old_design
             raise
         if u is not None:

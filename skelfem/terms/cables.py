@@ -374,8 +374,10 @@ class Cable:
         return self.curvature(u, L).toarray() + (self.k * np.outer(g, g) if taut else 0.0)
 
     def segment_nodes(self, bs: int) -> list[np.ndarray]:
-        """Global node numbers each segment's curvature block couples (one array per segment)."""
-        return [np.unique(self.dofs[j] // bs) for j in self._segment_blocks()[3]]
+        """Global node numbers each segment's curvature block couples (one array per segment; a node
+        may repeat, once per component: the matrix pattern takes repeats)."""
+        nodes = self.dofs // bs
+        return [nodes[j] for j in self._segment_blocks()[3]]
 
 
 class CableTerm(Term):
