@@ -143,6 +143,19 @@ def _positions(result) -> np.ndarray:
     return np.array([m["position"] for m in result.markers.values()], dtype=float)
 
 
+def next_level(levels: list[Level], size: float, result, seconds: float) -> Level:
+    """The Level of a solve on a mesh of size h after ``levels`` (same family): its change d_k, its
+    Richardson estimate and rate, and the observed three-level rate, from the markers of result."""
+    level = Level(float(size), int(result.dofs), int(result.newton_iterations), seconds, _positions(result))
+    if levels:
+        level.estimate, level.rate = richardson(levels + [level])
+        level.change = float(np.max(np.linalg.norm(level.markers - levels[-1].markers, axis=1)))
+        if len(levels) >= 2:
+            level.observed = observed_rate((levels[-2].size, levels[-1].size, level.size),
+                                           (levels[-1].change, level.change), R_MIN, 10.0)
+    return level
+
+
 def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
     """Solve session's design on the ladder of meshes until the estimate meets tol.
 
@@ -170,14 +183,7 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
         if not result.converged:
             stop = f"the solve at h = {session.design.mesh.size:g} mm failed ({result.status})"
             break
-        level = Level(float(session.design.mesh.size), int(result.dofs), int(result.newton_iterations),
-                      time.perf_counter() - t, _positions(result))
-        if levels:
-            level.estimate, level.rate = richardson(levels + [level])
-            level.change = float(np.max(np.linalg.norm(level.markers - levels[-1].markers, axis=1)))
-            if len(levels) >= 2:
-                level.observed = observed_rate((levels[-2].size, levels[-1].size, level.size),
-                                               (levels[-1].change, level.change), R_MIN, 10.0)
+        level = next_level(levels, session.design.mesh.size, result, time.perf_counter() - t)
         levels.append(level)
         log.info("--tol: h = %g mm, %d DOFs: change %s, estimate %s", level.size, level.dofs,
                  "-" if level.change is None else f"{level.change:.3g} mm",

@@ -61,7 +61,7 @@ import time
 import numpy as np
 
 from . import accuracy
-from .accuracy import AIM, MARGIN, Level, observed_rate, richardson
+from .accuracy import AIM, MARGIN, Level
 from .points import cell_sizes  # noqa: F401 (used here and by tests)
 
 log = logging.getLogger("skelfem")
@@ -212,10 +212,6 @@ def _design(design, h: float, degree: int):
     return parse_design(design.raw, design.source, [f"mesh.size={round(float(h), 9)!r}", f"mesh.degree={degree}"])
 
 
-def _positions(result) -> np.ndarray:
-    return np.array([m["position"] for m in result.markers.values()], dtype=float)
-
-
 def predicted_dofs(model, new_sizes: np.ndarray) -> float:
     """DOFs of a mesh of the new sizes: today's DOFs times sum over cells (h_K / h_new,K)^dim / cells."""
     dim = model.dim
@@ -270,14 +266,7 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
                 break
             model = session.model
             h_cells = cell_sizes(model.mesh)
-            level = Level(float(factor), int(result.dofs), int(result.newton_iterations),
-                          time.perf_counter() - t, _positions(result))
-            if ladder:
-                level.estimate, level.rate = richardson(ladder + [level])
-                level.change = float(np.max(np.linalg.norm(level.markers - ladder[-1].markers, axis=1)))
-                if len(ladder) >= 2:
-                    level.observed = observed_rate((ladder[-2].size, ladder[-1].size, level.size),
-                                                   (ladder[-1].change, level.change), accuracy.R_MIN, 10.0)
+            level = accuracy.next_level(ladder, factor, result, time.perf_counter() - t)
             ladder.append(level)
             rec = {"round": rnd + 1, "mesh": i + 1, "dofs": level.dofs, "cells": int(result.cells),
                    "min_size": float(h_cells.min()), "max_size": float(h_cells.max()),

@@ -41,6 +41,13 @@ def atomic_write(path: Path, write) -> None:
             os.remove(tmp)
 
 
+def copy_figure(picture: Path, folder: Path | None) -> None:
+    """Copy a study's picture into folder (the README's figures), atomically; nothing if folder is None."""
+    if folder is not None:
+        data = Path(picture).read_bytes()
+        atomic_write(Path(folder) / Path(picture).name, lambda tmp: Path(tmp).write_bytes(data))
+
+
 def strict_json(value):
     """value with numpy types made plain and every non-finite float (NaN, +-Infinity) made None.
 

@@ -35,7 +35,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from skelfem.output import say
+from skelfem.output import copy_figure, say
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "studies" / "output" / "adaptive"
@@ -277,10 +277,7 @@ def main(argv=None) -> int:
         eff = s["effectivity"]
         say(f"{key}: best {s['best_error']:.3g} mm; reaches {reach}"
             + (f"; effectivity {min(eff):.2f}..{max(eff):.2f}" if eff else ""))
-    if a.figures is not None:
-        from skelfem.output import atomic_write
-        png = (a.out / "adaptive.png").read_bytes()
-        atomic_write(a.figures / "adaptive.png", lambda tmp: Path(tmp).write_bytes(png))
+    copy_figure(a.out / "adaptive.png", a.figures)
     say(f"outputs in {a.out}")
     return 0
 

@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
-from skelfem.output import say
+from skelfem.output import copy_figure, say
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "studies" / "output" / "peer_comparison"
@@ -403,10 +403,7 @@ def main(argv=None) -> int:
               f"{c['tip_difference']:.1e} mm; time {c['time_skelfem']:.2f} s vs {c['time_scikit_fem']:.2f} s "
               f"(scikit-fem / skelfem = {c['speedup']:.1f}; scikit-fem Jacobians {c['scikit_fem_jacobian_time']:.2f} s, "
               f"sparse LU {c['scikit_fem_linear_solve_time']:.2f} s)")
-    if a.figures is not None:
-        from skelfem.output import atomic_write
-        png = (a.out / "peer_comparison.png").read_bytes()
-        atomic_write(a.figures / "peer_comparison.png", lambda tmp: Path(tmp).write_bytes(png))
+    copy_figure(a.out / "peer_comparison.png", a.figures)
     say(f"outputs in {a.out}")
     return 0
 

@@ -41,7 +41,7 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
-from skelfem.output import say
+from skelfem.output import copy_figure, say
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "studies" / "output" / "speed_accuracy"
@@ -363,10 +363,7 @@ def main(argv=None) -> int:
                       f"time ~ {m['time']['C']:.3g} h^{m['time']['r']:.2f} s")
         say("  Pareto: " + ", ".join(f"P{q['degree']} h={q['size']:g} ({q['error']:.2g} mm, {q['time']:.2f} s)"
                                        for q in s["pareto"]))
-    if a.figures is not None:
-        from skelfem.output import atomic_write
-        png = (a.out / "speed_accuracy.png").read_bytes()
-        atomic_write(a.figures / "speed_accuracy.png", lambda tmp: Path(tmp).write_bytes(png))
+    copy_figure(a.out / "speed_accuracy.png", a.figures)
     say(f"outputs in {a.out}")
     return 0
 

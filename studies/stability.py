@@ -46,7 +46,7 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
-from skelfem.output import say
+from skelfem.output import copy_figure, say
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "studies" / "output" / "stability"
@@ -368,10 +368,7 @@ def main(argv=None) -> int:
         say(f"slender {name:12s} {p['successes']}/{p['cases']} converged, {p['total_time']:.1f} s: {p['iterations']}")
     say(f"picked: {s['picked']} (default: {s['default']}); energy converges over all ratios at "
           f"u = {DEMO_CONTRACTION:g} mm: {s['energy_converges_over_all_ratios_at_demo_contraction']}")
-    if a.figures is not None:
-        from skelfem.output import atomic_write
-        png = (a.out / "stability.png").read_bytes()
-        atomic_write(a.figures / "stability.png", lambda tmp: Path(tmp).write_bytes(png))
+    copy_figure(a.out / "stability.png", a.figures)
     say(f"outputs in {a.out}")
     return 0
 
