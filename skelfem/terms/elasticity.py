@@ -26,6 +26,7 @@ from mpi4py import MPI
 
 from ..geometry import BODY, bone_tag_name
 from .base import Context, Term
+from .rigid import closest_rigid_motion
 
 
 def lame(E: float, nu: float) -> tuple[float, float]:
@@ -188,16 +189,8 @@ class Elasticity(Term):
         if self._groups is None:
             self._groups = self._bone_groups()
         for dofs, X in self._groups:
-            n = self._sum(len(X))
-            y = X + u[dofs]
-            cx, cy = self._sum(X.sum(axis=0)) / n, self._sum(y.sum(axis=0)) / n
-            r = X - cx
-            H = self._sum(r.T @ (y - cy))                       # sum r (y - c_y)^T
-            U, _, Vt = np.linalg.svd(H)
-            D = np.eye(len(H))
-            D[-1, -1] = np.sign(np.linalg.det(Vt.T @ U.T))      # a rotation, not a reflection
-            R = Vt.T @ D @ U.T
-            u[dofs] = cy + r @ R.T - X
+            cx, cy, R = closest_rigid_motion(X, X + u[dofs], self._sum)
+            u[dofs] = cy + (X - cx) @ R.T - X
 
     def step_correction(self, u0: np.ndarray, p: np.ndarray, alpha: float):
         """Second-order correction that makes each bone follow an exact rotation.

@@ -66,6 +66,20 @@ def rotation(w: np.ndarray | float, dim: int) -> np.ndarray:
     return np.eye(3) + np.sin(angle) * Kx + (1 - np.cos(angle)) * Kx @ Kx
 
 
+def closest_rigid_motion(X: np.ndarray, y: np.ndarray, total=lambda a: a):
+    """(c_X, c_y, R): the rigid motion y ~ c_y + R (X - c_X) closest to y in least squares (Kabsch).
+
+    total sums over ranks (identity in serial); R is a rotation, not a reflection.
+    """
+    n = total(len(X))
+    cx, cy = total(X.sum(axis=0)) / n, total(y.sum(axis=0)) / n
+    H = total((X - cx).T @ (y - cy))                    # sum (X - c_X) (y - c_y)^T
+    U, _, Vt = np.linalg.svd(H)
+    D = np.eye(len(H))
+    D[-1, -1] = np.sign(np.linalg.det(Vt.T @ U.T))
+    return cx, cy, Vt.T @ D @ U.T
+
+
 class RigidBody:
     """The kinematics of one rigid node group: modes, reduced gradient, projection, second derivatives.
 
@@ -124,13 +138,8 @@ class RigidBody:
 
     def fit(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(translation of the centroid, rotation matrix) of the rigid motion closest to u (Kabsch)."""
-        y = self.X + u[self.dofs]
-        cy = self._sum(y.sum(axis=0)) / self.count
-        H = self._sum((self.X - self.c0).T @ (y - cy))
-        U, _, Vt = np.linalg.svd(H)
-        D = np.eye(self.dim)
-        D[-1, -1] = np.sign(np.linalg.det(Vt.T @ U.T))
-        return cy - self.c0, Vt.T @ D @ U.T
+        _, cy, R = closest_rigid_motion(self.X, self.X + u[self.dofs], self._sum)
+        return cy - self.c0, R
 
     def snap(self, u: np.ndarray) -> None:
         """Make the bone's displacement in u (in place) exactly its closest rigid motion."""
