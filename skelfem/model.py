@@ -75,6 +75,7 @@ class Model:
         self.rigid = [b for b in (term.rigid_body() for term in self.terms) if b is not None]
         self.slaved = np.zeros(self.n_owned, dtype=bool)      # owned DOFs that follow a rigid body
         for body in self.rigid:
+            # a guard: pins hold the body's boundary and bones lie strictly inside it (design.py)
             if self.comm.allreduce(bool(self.fixed[body.dofs].any()), op=MPI.LOR):
                 from .design import DesignError
                 raise DesignError(f"{design.source}: bones.{body.name}.rigid: a rigid bone cannot be held by a "

@@ -35,7 +35,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from .design import LINE_SEARCHES as STRATEGIES
+from .design import ENERGY_LINE_SEARCHES, LINE_SEARCHES as STRATEGIES
 from .linear import LowRankSolver, default_petsc_options  # noqa: F401 (re-exported)
 
 log = logging.getLogger("skelfem")
@@ -100,8 +100,8 @@ class NewtonSolver:
             raise ValueError(f"unknown line search {self.strategy!r}")
         if self.strategy == "auto":
             self.strategy = resolve_strategy(model.design)
-        self.energy_search = self.strategy in ("energy", "curved")
-        if not self.energy_search and model.rigid:
+        self.energy_search = self.strategy in ENERGY_LINE_SEARCHES
+        if not self.energy_search and model.rigid:     # a design's own spec is refused when it is read
             raise ValueError(f"line search {self.strategy!r} cannot keep rigid bones rigid; use 'energy'")
         if not self.energy_search and model.bounds_steps:
             raise ValueError(f"line search {self.strategy!r} cannot limit steps to the model's "

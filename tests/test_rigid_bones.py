@@ -6,11 +6,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skelfem import Session
-from skelfem.design import DesignError, parse_design
+from skelfem import Session, geometry
+from skelfem.cli import main
+from skelfem.design import DesignError, SolverSpec, parse_design
+from skelfem.solver import NewtonSolver
 from skelfem.terms.rigid import rotation
 
-from _designs import strip, variant
+from _designs import strip, toml_text, variant
 
 from _taylor import taylor_orders
 
@@ -239,10 +241,47 @@ def test_rigid_bones_on_the_finger_converge_quadratically():
 
 
 def test_rigid_bones_are_refused_where_not_supported():
+    """A design is refused when it is read; the solver still refuses a spec given to it directly."""
     d = _rigid_strip()
-    d["solver"] = {"line_search": "residual"}
-    with pytest.raises(ValueError, match="rigid"):
-        Session(d)
+    with pytest.raises(DesignError, match=r"^<design>: solver\.line_search: 'residual' cannot keep rigid bones"):
+        Session(variant(d, **{"solver.line_search": "residual"}))
+    with Session(d) as s:
+        with pytest.raises(ValueError, match="rigid"):
+            NewtonSolver(s.model, SolverSpec(line_search="residual"))
+
+
+@pytest.mark.parametrize("line_search", ["residual", "none", "trust_region"])
+def test_simulate_refuses_line_searches_that_cannot_keep_bones_rigid(line_search, tmp_path, monkeypatch, capsys):
+    """One error line naming the key and the rigid bones, exit 1, before meshing and before the output folder."""
+    def never(*args, **kwargs):
+        raise AssertionError("the design was meshed")
+    monkeypatch.setattr(geometry, "mesh_design", never)
+    path = tmp_path / "rigid.toml"
+    path.write_text(toml_text(variant(_rigid_strip(), **{"solver.line_search": line_search})))
+    out = tmp_path / "out"
+    assert main(["simulate", str(path), "--out", str(out), "-q"]) == 1
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {path}: solver.line_search: '{line_search}' "), err
+    assert "rigid: b1, b2" in lines[0] and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_line_searches_on_the_energy_keep_rigid_designs_valid():
+    for line_search in ("auto", "energy", "curved"):
+        d = parse_design(variant(_rigid_strip(), **{"solver.line_search": line_search}))
+        assert d.solver.line_search == line_search and all(b.rigid for b in d.bones)
+    assert parse_design(variant(_rigid_strip(rigid=False), **{"solver.line_search": "residual"})).bones
+
+
+def test_a_fixed_pin_box_over_a_rigid_bone_holds_only_the_body_boundary():
+    """Pins hold the body's boundary in their box and bones lie strictly inside the body, so a fixed pin's
+    box may cover a rigid bone (b1) or touch one (b2): the design is valid and no bone node is pinned."""
+    d = variant(_rigid_strip(size=3.0), pins=[{"name": "base", "region": [[-1, -1], [11, 30]], "kind": "fixed"}])
+    with Session(d) as s:
+        model = s.model
+        assert model.slaved.sum() > 0 and model.fixed.sum() > 0
+        assert not np.any(model.fixed[:model.n_owned] & model.slaved)
 
 
 def test_sensitivities_with_rigid_bones_match_finite_differences():
