@@ -197,8 +197,56 @@ class SizeField:
         return ("ST" if dim == 2 else "SS"), n, data.ravel().tolist()
 
 
+@dataclass
+class ZoneField:
+    """A mesh of size `outer` with finer zones: size `inner` within `radii` of each of `centers`, growing
+    linearly to `outer` over `thickness` beyond (Gmsh Ball fields, evaluated in C++).
+
+    scaled(f) multiplies the sizes and keeps the zones' extent, so the meshes of
+    zones.scaled(f) for f = 1, 1/2, 1/4 are one family of meshes whose every
+    local size halves (what Richardson extrapolation needs).
+    """
+
+    centers: np.ndarray      # (n, dim) mm
+    radii: np.ndarray        # (n,) mm: the fine zones
+    inner: np.ndarray        # (n,) mm: the size inside them
+    outer: float             # mm: the size far from them
+    thickness: float         # mm: the width of the transition
+
+    @classmethod
+    def around(cls, centers, radii, inner, outer: float, grading: float = 0.3) -> "ZoneField":
+        """Zones whose size grows from inner to outer by `grading` mm per mm beyond their radii."""
+        inner = np.minimum(np.asarray(inner, dtype=float), outer)
+        return cls(np.asarray(centers, dtype=float).reshape(len(inner), -1), np.asarray(radii, dtype=float),
+                   inner, float(outer), float((outer - inner.min()) / grading))
+
+    @property
+    def smallest(self) -> float:
+        return float(min(self.inner.min(), self.outer))
+
+    def scaled(self, factor: float) -> "ZoneField":
+        f = float(factor)
+        return ZoneField(self.centers, self.radii, self.inner * f, self.outer * f, self.thickness)
+
+
+def _apply_zones(gmsh, zones: ZoneField) -> list[int]:
+    balls = []
+    for c, radius, inner in zip(zones.centers, zones.radii, zones.inner):
+        ball = gmsh.model.mesh.field.add("Ball")
+        xyz = np.zeros(3)
+        xyz[:len(c)] = c
+        for key, value in (("Radius", radius), ("Thickness", zones.thickness), ("VIn", inner),
+                           ("VOut", zones.outer), ("XCenter", xyz[0]), ("YCenter", xyz[1]), ("ZCenter", xyz[2])):
+            gmsh.model.mesh.field.setNumber(ball, key, float(value))
+        balls.append(ball)
+    low = gmsh.model.mesh.field.add("Min")
+    gmsh.model.mesh.field.setNumbers(low, "FieldsList", balls)
+    gmsh.model.mesh.field.setAsBackgroundMesh(low)
+    return balls + [low]
+
+
 def _apply_size(gmsh, size, h: float) -> tuple:
-    """Put a size field (SizeField, or a callable size(points (n, 3)) -> (n,)) into the current model.
+    """Put a size field (SizeField, ZoneField, or a callable size(points (n, 3)) -> (n,)) into the current model.
 
     The design's size h stays the upper bound (Mesh.MeshSizeMax); the lower
     bound becomes the field's smallest size (or 0.1 h, whichever is smaller).
@@ -213,6 +261,9 @@ def _apply_size(gmsh, size, h: float) -> tuple:
         gmsh.model.mesh.field.setNumber(field, "ViewTag", view)
         gmsh.model.mesh.field.setAsBackgroundMesh(field)
         undo = ("view", view, field)
+    elif isinstance(size, ZoneField):
+        low = size.smallest
+        undo = ("fields", _apply_zones(gmsh, size))
     else:
         def callback(dim, tag, x, y, z, *_):
             return float(np.asarray(size(np.array([[x, y, z]])), dtype=float).ravel()[0])
@@ -230,6 +281,9 @@ def _remove_size(gmsh, undo: tuple) -> None:
     if undo[0] == "view":
         gmsh.model.mesh.field.remove(undo[2])
         gmsh.view.remove(undo[1])
+    elif undo[0] == "fields":
+        for field in undo[1]:
+            gmsh.model.mesh.field.remove(field)
     else:
         gmsh.model.mesh.removeSizeCallback()
 
@@ -238,7 +292,7 @@ def mesh_design(design, comm=MPI.COMM_WORLD, verbose: bool = False, size=None) -
     """Mesh the design's body and bones with Gmsh (rank 0) and return a TaggedMesh.
 
     size: optional non-uniform mesh size in mm, a SizeField (fast: Gmsh
-    interpolates it) or a callable size(points (n, 3)) -> (n,) (called by
+    interpolates it), a ZoneField (finer zones around points) or a callable size(points (n, 3)) -> (n,) (called by
     Gmsh once per point it places); the design's [mesh] size stays the upper
     bound. Without it the mesh is the design's uniform one.
     """

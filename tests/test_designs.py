@@ -37,7 +37,8 @@ def test_demo_converges_quadratically_and_curls_toward_the_tendon():
     report = result.report
     assert report.converged and report.min_jacobian > 0
     orders = _orders(report.residual_history[-1])
-    assert orders and orders[-1] > 1.8, report.residual_history[-1]
+    # the best of the last two steps: one of them may start near the round-off floor (1e-4 -> 4e-7 -> 3e-9)
+    assert orders and max(orders[-2:]) > 1.8, report.residual_history[-1]
     tip = np.asarray(result.markers["tip"]["displacement"])
     assert tip[0] < -20.0          # the flexor runs at x = 3 < 10: the finger curls to -x
     model = session.model
