@@ -4,7 +4,8 @@
                                 [--reuse-references]
 
 For each design it solves a much finer reference (P2 at --ref-size, 3D
-designs at --ref-size-3d) and each tolerance with the command itself
+designs at --ref-size-3d, graded at finite anchors as the --tol ladder's
+meshes are: skelfem.accuracy.anchor_zones) and each tolerance with the command itself
 (``python -m skelfem simulate``, one process per run, as a user runs it),
 then reports the final mesh, the estimate, the marker error against the
 reference, the effectivity (estimate / error), and wall times (each run's
@@ -29,16 +30,21 @@ DESIGNS = ("finger_bones", "thumb", "finger_tapered", "pillar3d")     # bundled;
                                                                       # a tapered body; 3D
 
 
+def _run(cmd: list, what: str, out: Path) -> tuple[dict, float]:
+    """Run cmd in its own process (one thread for BLAS); (out's result.json, the run's total time in s)."""
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    res = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    if res.returncode != 0:
+        raise RuntimeError(f"{what}: exit {res.returncode}: {res.stderr.strip()[-2000:]}")
+    result = json.loads((out / "result.json").read_text())
+    return result, float(result["timings"]["total"])
+
+
 def _simulate(design: str, out: Path, *extra: str) -> tuple[dict, float]:
     """`skelfem simulate` in its own process; (result.json, the run's total time in s)."""
     cmd = [sys.executable, "-m", "skelfem", "simulate", str(ROOT / "geometry" / f"{design}.toml"), "--out", str(out),
            "-q", "--no-picture", *extra]
-    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
-    res = subprocess.run(cmd, capture_output=True, text=True, env=env)
-    if res.returncode != 0:
-        raise RuntimeError(f"{design} {extra}: exit {res.returncode}: {res.stderr.strip()}")
-    result = json.loads((out / "result.json").read_text())
-    return result, float(result["timings"]["total"])
+    return _run(cmd, f"{design} {extra}", out)
 
 
 def _markers(res: dict) -> np.ndarray:
@@ -58,13 +64,8 @@ def _reference(design: str, out: Path, h_ref: float, reuse: bool) -> tuple[dict,
         if ref.get("degree") == 2 and ref["converged"]:
             say(f"{design}: reference read back from {folder}", flush=True)
             return ref, float(ref["timings"]["total"])
-    cmd = [sys.executable, __file__, "--reference", design, str(h_ref), str(folder)]
-    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
-    res = subprocess.run(cmd, capture_output=True, text=True, env=env)
-    if res.returncode != 0:
-        raise RuntimeError(f"{design} reference: exit {res.returncode}: {res.stderr.strip()[-2000:]}")
-    ref = json.loads((folder / "result.json").read_text())
-    return ref, float(ref["timings"]["total"])
+    return _run([sys.executable, __file__, "--reference", design, str(h_ref), str(folder)], f"{design} reference",
+                folder)
 
 
 def solve_reference(design: str, h_ref: float, folder: Path) -> None:
