@@ -180,7 +180,7 @@ def test_a_wide_anchor_segment_is_rank_one_parts_not_a_dense_block_and_the_hessi
         d = strip(length=20.0, width=10.0, size=0.5, degree=2, tendon_offset=0.0, contraction=1.0, k=20.0)
         d["cables"][0].update(path=[[5.0, 0.0], [5.0, 10.0], [6.0, 16.0]], anchor_radius=1.5)
     else:
-        d = load_design(GEOMETRY / "pillar3d.toml", ["cables.flexor.anchor_radius=3.0"]).raw
+        d = load_design(GEOMETRY / "pillar3d.toml", ["cables.flexor.anchor_radius=3.0", "mesh.size=1.0"]).raw
     with Session(d) as s:
         assert s.solve().converged
         model, term = s.model, s.model.term("cables", "flexor")

@@ -232,7 +232,7 @@ def _anchored_interpolation(V, X: np.ndarray, anchors: dict):
     return X, S[:, used].tocsr(), gather, owner[:n]
 
 
-WIDE = 64     # DOFs: a segment coupling more (an anchor disk's) has its curvature as rank-one parts
+WIDE = 256    # DOFs: a segment coupling more (an anchor disk's) has its curvature as rank-one parts
 
 
 def _normals(t: np.ndarray) -> np.ndarray:
