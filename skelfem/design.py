@@ -24,7 +24,7 @@ MAX_COORDINATE = 1e7      # mm: geometry beyond +-10 km is a typo, and overflows
 MAX_STEPS = 10_000        # load steps and Newton iterations: a cap against runaway runs
 MAX_NAME = 100            # bytes in a design, entry or marker name
 LINE_SEARCHES = ("auto", "energy", "curved", "residual", "none", "trust_region")
-ENERGY_LINE_SEARCHES = ("energy", "curved")   # line searches on Pi: the only ones rigid bones allow
+ENERGY_LINE_SEARCHES = ("energy", "curved")   # line searches on Pi: the only ones rigid bones and self-contact allow
 INTEGRATORS = ("euler", "bdf2")
 MAX_TIME_STEPS = 1_000_000   # duration / dt: a cap against runaway runs
 SECTIONS_BY_NAME = ("bones", "cables", "pins", "loads", "grounds", "tractions")
@@ -949,13 +949,20 @@ def _solver(top: _Table) -> SolverSpec:
     return SolverSpec(steps, its, ls, rtol, atol)
 
 
-def _rigid_line_search(top: _Table, solver: SolverSpec, bones: tuple) -> None:
-    """Rigid bones move along their exact rigid motion only in the energy line searches
-    (skelfem.solver refuses the others); "auto" resolves to "energy" when there are bones."""
+def _energy_line_search(top: _Table, solver: SolverSpec, bones: tuple, contact: ContactSpec) -> None:
+    """Rigid bones move along their exact rigid motion, and self-contact's steps are bounded to
+    collision-free ones, only in the energy line searches (skelfem.solver and skelfem.terms.contact
+    refuse the others); "auto" resolves to one of them ("energy" with bones, else "curved")."""
     rigid = [b.name for b in bones if b.rigid]
-    if rigid and solver.line_search not in ("auto", *ENERGY_LINE_SEARCHES):
-        top.fail("solver.line_search", f"{solver.line_search!r} cannot keep rigid bones rigid "
-                                       f"(rigid: {', '.join(rigid)}); use \"energy\" or \"curved\"")
+    if solver.line_search in ("auto", *ENERGY_LINE_SEARCHES) or not (rigid or contact.self_contact):
+        return
+    reasons = []
+    if rigid:
+        reasons.append(f"keep rigid bones rigid (rigid: {', '.join(rigid)})")
+    if contact.self_contact:
+        reasons.append("bound steps to collision-free ones for self-contact (contact.self = true)")
+    top.fail("solver.line_search", f"{solver.line_search!r} cannot {' nor '.join(reasons)}; "
+                                   "use \"energy\" or \"curved\"")
 
 
 # -- entry points -----------------------------------------------------------------------------------------
@@ -994,7 +1001,7 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     contact = _contact(top)
     markers = _markers(top, dim, region)
     solver = _solver(top)
-    _rigid_line_search(top, solver, bones)
+    _energy_line_search(top, solver, bones, contact)
     gravity = _gravity(top, dim, materials, [body.material] + [b.material for b in bones])
     tractions = _tractions(top, dim)
     fabrication = _fabrication(top, dim, thickness, body)

@@ -1,16 +1,19 @@
 """Self-contact: boundary polygon, FD checks of the IPC barrier's derivatives, step bound, knuckles."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from dolfinx import fem
 from dolfinx import mesh as dmesh
 from mpi4py import MPI
 
-from _designs import variant
+from _designs import strip, toml_text, variant
 from _studies import load_study
 from _taylor import hessian_error, taylor_rates
-from skelfem import Session
-from skelfem.design import DesignError
+from skelfem import Session, geometry
+from skelfem.cli import main
+from skelfem.design import DesignError, SolverSpec, parse_design
 from skelfem.terms.contact import SelfContact, boundary_polygon, crossing_edges, oriented_edges, overlap_area
 
 SLOT = [[2.0, 2.6], [8.0, 2.6], [8.0, 3.4], [2.0, 3.4]]      # a 0.8 mm slot in a 10 x 6 block
@@ -141,10 +144,51 @@ def test_step_bound_stops_the_faces_before_they_cross():
 
 
 def test_designs_contact_cannot_honour_are_refused():
+    """dhat against the mesh's rest distances; the line search when the design is read, and the term
+    still refuses a Design whose line search was changed after reading."""
     with pytest.raises(DesignError, match="contact.dhat"):
         _model(_slot_design(1, dhat=0.9))                    # the slot is 0.8 mm wide at rest
-    with pytest.raises(DesignError, match="line_search"):
-        _model(variant(_slot_design(1), **{"solver.line_search": "residual"}))
+    with pytest.raises(DesignError, match=r"^<design>: solver\.line_search: 'residual' cannot bound steps"):
+        parse_design(variant(_slot_design(1), **{"solver.line_search": "residual"}))
+    d = dataclasses.replace(parse_design(_slot_design(1)), solver=SolverSpec(line_search="residual"))
+    with pytest.raises(DesignError, match=r"^<design>: contact\.self: .*solver\.line_search"):
+        Session(d)
+
+
+@pytest.mark.parametrize("line_search", ["residual", "none", "trust_region"])
+def test_simulate_refuses_line_searches_that_cannot_bound_contact_steps(line_search, tmp_path, monkeypatch, capsys):
+    """One error line naming the key and self-contact, exit 1, before meshing and before the output folder."""
+    def never(*args, **kwargs):
+        raise AssertionError("the design was meshed")
+    monkeypatch.setattr(geometry, "mesh_design", never)
+    path = tmp_path / "slot.toml"
+    path.write_text(toml_text(variant(_slot_design(1), **{"solver.line_search": line_search})))
+    out = tmp_path / "out"
+    assert main(["simulate", str(path), "--out", str(out), "-q"]) == 1
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {path}: solver.line_search: '{line_search}' "), err
+    assert "for self-contact (contact.self = true)" in lines[0] and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_line_searches_on_the_energy_keep_contact_designs_valid():
+    for line_search in ("auto", "energy", "curved"):
+        d = parse_design(variant(_slot_design(1), **{"solver.line_search": line_search}))
+        assert d.solver.line_search == line_search and d.contact.self_contact
+    assert not parse_design(variant(_slot_design(1, self_contact=False), **{"solver.line_search": "residual"})
+                            ).contact.self_contact
+
+
+def test_a_line_search_refused_for_rigid_bones_and_self_contact_names_both():
+    d = strip(bones=True)
+    for b in d["bones"]:
+        b["rigid"] = True
+    d = variant(d, **{"contact.self": True, "solver.line_search": "none"})
+    with pytest.raises(DesignError, match=r"^<design>: solver\.line_search: 'none' cannot keep rigid bones rigid "
+                                          r"\(rigid: b1, b2\) nor bound steps to collision-free ones for "
+                                          r"self-contact \(contact\.self = true\); use \"energy\" or \"curved\"$"):
+        parse_design(d)
 
 
 def test_overlap_measures_count_a_body_passing_through_itself():

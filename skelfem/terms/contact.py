@@ -169,7 +169,7 @@ class SelfContact(Term):
 
 def build(ctx: Context) -> list[Term]:
     """The self-contact term if the design asks for it; refuses designs it cannot honour."""
-    from ..design import DesignError
+    from ..design import ENERGY_LINE_SEARCHES, DesignError
     d = ctx.design
     if not d.contact.self_contact:
         return []
@@ -178,7 +178,7 @@ def build(ctx: Context) -> list[Term]:
         raise DesignError(f"{where}: self-contact is implemented for dim = 2 only")
     if ctx.comm.size > 1:
         raise DesignError(f"{where}: self-contact runs on one MPI process (got {ctx.comm.size})")
-    if d.solver.line_search not in ("auto", "energy", "curved"):
+    if d.solver.line_search not in ("auto", *ENERGY_LINE_SEARCHES):   # a guard: design.py refuses it when read
         raise DesignError(f"{where}: self-contact needs solver.line_search = \"energy\" or \"curved\" "
                           f"(got {d.solver.line_search!r}): only it limits steps to collision-free ones")
     contact = SelfContact(ctx.V, d.contact.dhat, d.materials[d.body.material].E, float(d.thickness))
