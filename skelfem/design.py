@@ -924,9 +924,11 @@ def _markers(top: _Table, dim: int, region) -> dict:
     return out
 
 
-def _contact(top: _Table) -> ContactSpec:
+def _contact(top: _Table, dim: int) -> ContactSpec:
     t = _Table(top.take("contact", "table", {}), "contact", top.source)
     spec = ContactSpec(t.take("self", "bool", False), _positive(t, "dhat", t.take("dhat", "number", 0.3)))
+    if spec.self_contact and dim != 2:
+        t.fail("self", "self-contact is implemented for dim = 2 only")
     t.done()
     return spec
 
@@ -998,7 +1000,7 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     pins = _pins(top, dim)
     loads = _loads(top, dim, region)
     grounds = _grounds(top, dim, body, tol)
-    contact = _contact(top)
+    contact = _contact(top, dim)
     markers = _markers(top, dim, region)
     solver = _solver(top)
     _energy_line_search(top, solver, bones, contact)

@@ -172,6 +172,14 @@ def test_simulate_refuses_line_searches_that_cannot_bound_contact_steps(line_sea
     assert not out.exists()
 
 
+def test_self_contact_in_3d_is_refused_when_the_design_is_read():
+    from conftest import GEOMETRY
+
+    from skelfem.design import load_design
+    with pytest.raises(DesignError, match=r"pillar3d\.toml: contact\.self: self-contact is implemented for dim = 2 only"):
+        load_design(GEOMETRY / "pillar3d.toml", ["contact.self=true"])
+
+
 def test_line_searches_on_the_energy_keep_contact_designs_valid():
     for line_search in ("auto", "energy", "curved"):
         d = parse_design(variant(_slot_design(1), **{"solver.line_search": line_search}))

@@ -174,7 +174,7 @@ def build(ctx: Context) -> list[Term]:
     if not d.contact.self_contact:
         return []
     where = f"{d.source}: contact.self"
-    if d.dim != 2:
+    if d.dim != 2:                     # a guard: design.py refuses it when read
         raise DesignError(f"{where}: self-contact is implemented for dim = 2 only")
     if ctx.comm.size > 1:
         raise DesignError(f"{where}: self-contact runs on one MPI process (got {ctx.comm.size})")
