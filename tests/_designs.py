@@ -59,3 +59,23 @@ def toml_text(d: dict) -> str:
     text = "\n".join(lines) + "\n\n" + "\n\n".join(tables) + "\n"
     tomllib.loads(text)
     return text
+
+
+def simulate_refused_before_meshing(d: dict, tmp_path, monkeypatch, capsys) -> str:
+    """`skelfem simulate` on design d: exit 1 with one `error: PATH: ...` line (returned), no traceback,
+    no output folder, and the design never meshed."""
+    from skelfem import geometry
+    from skelfem.cli import main
+
+    def never(*args, **kwargs):
+        raise AssertionError("the design was meshed")
+    monkeypatch.setattr(geometry, "mesh_design", never)
+    path = tmp_path / "design.toml"
+    path.write_text(toml_text(d))
+    out = tmp_path / "out"
+    assert main(["simulate", str(path), "--out", str(out), "-q"]) == 1
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {path}: ") and "Traceback" not in err, err
+    assert not out.exists()
+    return lines[0][len(f"error: {path}: "):]
