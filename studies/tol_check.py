@@ -61,7 +61,7 @@ def _reference(design: str, out: Path, h_ref: float, reuse: bool) -> tuple[dict,
     folder = out / design / "reference"
     if reuse and (folder / "result.json").exists():
         ref = json.loads((folder / "result.json").read_text())
-        if ref.get("degree") == 2 and ref["converged"]:
+        if ref.get("degree") == 2 and ref["converged"] and "reference" in ref:    # solved by solve_reference
             say(f"{design}: reference read back from {folder}", flush=True)
             return ref, float(ref["timings"]["total"])
     return _run([sys.executable, __file__, "--reference", design, str(h_ref), str(folder)], f"{design} reference",

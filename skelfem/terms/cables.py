@@ -26,6 +26,8 @@ every facet). The rank-one part k g g^T couples every DOF along the cable;
 it never enters the Newton matrix (``low_rank``: the linear solver adds it
 with the Sherman-Morrison-Woodbury formula), so a taut cable costs the
 matrix a few entries per segment and the solve one extra back-substitution.
+A segment at a finite anchor couples every DOF of its disk; above WIDE DOFs
+its curvature block, of rank gdim - 1, joins the low-rank parts too.
 """
 from __future__ import annotations
 
@@ -212,7 +214,8 @@ def _anchored_interpolation(V, X: np.ndarray, anchors: dict):
     for i, r in anchored.items():
         samples = anchor_samples(X[i], r, lattice_density(mesh, X[i], r))
         w = anchor_weights(samples, X[i], r)
-        inside = (owner_ranks(mesh, samples)[0] < mesh.comm.size) & (w > 0.0)
+        samples, w = samples[w > 0.0], w[w > 0.0]                # the rim carries nothing
+        inside = owner_ranks(mesh, samples)[0] < mesh.comm.size
         samples, w = samples[inside], w[inside] / w[inside].sum()
         X[i] = w @ samples
         points.append(samples)
@@ -403,20 +406,26 @@ class Cable:
         parts per wide segment instead of a dense block over its disk's DOFs
         in the Newton matrix (whose factorisation fills in with it).
         """
+        _, norm, t, _ = self._t_and_g(u)
+        return self._wide(t, norm, norm.sum() - L)
+
+    def _wide(self, t: np.ndarray, norm: np.ndarray, s: float) -> list[tuple[float, np.ndarray]]:
         wide = self._segment_blocks()[4]
-        if not len(wide):
+        if s <= 0.0 or not len(wide):
             return []
-        d, norm, t, _ = self._t_and_g(u)
-        s = norm.sum() - L
-        if s <= 0.0:
-            return []
-        gdim = d.shape[1]
+        gdim = t.shape[1]
         out = []
         for i in wide:                                   # a few per cable: its anchored ends and bends
             Bi = self.B[i * gdim:(i + 1) * gdim]
             for n in _normals(t[i]):
                 out.append((self.k * s / norm[i], np.asarray(Bi.T @ n).ravel()))
         return out
+
+    def low_rank_parts(self, u: np.ndarray, L: float) -> list[tuple[float, np.ndarray]]:
+        """[(c, g)] on self.dofs: k g g^T (g = B^T t) and the wide segments' curvature, when taut."""
+        _, norm, t, g = self._t_and_g(u)
+        s = norm.sum() - L
+        return [(self.k, g)] + self._wide(t, norm, s) if s > 0.0 else []
 
     def length_gradient(self, u: np.ndarray) -> np.ndarray:
         """g = grad l = B^T t on self.dofs."""
@@ -480,10 +489,7 @@ class CableTerm(Term):
         return [(self.cable.dofs, self.cable.curvature(u, self.rest_length))]
 
     def low_rank(self, u):
-        c, L = self.cable, self.rest_length
-        if c.length(u) <= L:
-            return []
-        return [(c.k, c.dofs, c.length_gradient(u))] + [(ci, c.dofs, g) for ci, g in c.wide_parts(u, L)]
+        return [(c, self.cable.dofs, g) for c, g in self.cable.low_rank_parts(u, self.rest_length)]
 
     def pattern(self):
         return [(n, n) for n in self.cable.segment_nodes(self.bs)]
