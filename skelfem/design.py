@@ -1066,3 +1066,21 @@ def load_design(path, overrides=()) -> Design:
     data = read_toml(path)
     data.setdefault("name", path.stem)
     return parse_design(data, str(path), overrides)
+
+
+def flatten(raw: dict, prefix: str = "") -> dict:
+    """{dotted key: value}: the --set keys of a design dict; named entries by name (order kept as a key)."""
+    out = {}
+    for key, value in raw.items():
+        path = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(flatten(value, path + "."))
+        elif (not prefix and key in SECTIONS_BY_NAME and isinstance(value, list)
+              and all(isinstance(e, dict) and isinstance(e.get("name"), str) for e in value)
+              and len({e["name"] for e in value}) == len(value)):
+            out[f"{path}.#order"] = tuple(e["name"] for e in value)
+            for e in value:
+                out.update(flatten(e, f"{path}.{e['name']}."))
+        else:
+            out[path] = value
+    return out

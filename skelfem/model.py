@@ -19,6 +19,10 @@ C = T^T K T + sum_i R_i . d2u_i/dq2 of the linear solver's border
 (:class:`skelfem.linear.Border`, ``border``); the residual on those rows is
 the projection of grad Pi onto the rigid modes, and ``apply_bcs`` puts every
 rigid body exactly on its closest rigid motion.
+
+``refresh`` makes the model follow an edit that keeps the mesh (moved nodes,
+cables, markers, pins...) without compiling anything again: terms follow in
+place or are built anew, and the Newton matrix is kept while its pattern holds.
 """
 from __future__ import annotations
 
@@ -62,28 +66,15 @@ class Model:
                                               op=MPI.MAX))   # bounding-box diagonal, mm
         t = fem.Constant(mesh, PETSc.ScalarType(self.thickness))
         self.ctx = Context(design, tagged_mesh, V, self.u, t)
-        self.terms = [term for build in (builders or BUILDERS) for term in build(self.ctx)]
+        self._built = [(build, build(self.ctx)) for build in (builders or BUILDERS)]   # who built which terms
+        self.terms = [term for _, terms in self._built for term in terms]
         self.ctx.finalise()
-
-        self.bcs = [bc for term in self.terms for bc, _ in term.dirichlet()]
-        self.fixed = np.zeros(self.n_local, dtype=bool)
-        for term in self.terms:
-            for _, dofs in term.dirichlet():
-                self.fixed[dofs] = True
-        self.ctx.fixed = self.fixed
         self.global_dofs = global_dof_numbers(V).astype(PETSc.IntType)   # local -> global, unrolled
-        self.rigid = [b for b in (term.rigid_body() for term in self.terms) if b is not None]
-        self.slaved = np.zeros(self.n_owned, dtype=bool)      # owned DOFs that follow a rigid body
-        for body in self.rigid:
-            # a guard: pins hold the body's boundary and bones lie strictly inside it (design.py)
-            if self.comm.allreduce(bool(self.fixed[body.dofs].any()), op=MPI.LOR):
-                from .design import DesignError
-                raise DesignError(f"{design.source}: bones.{body.name}.rigid: a rigid bone cannot be held by a "
-                                  "fixed pin (make it elastic)")
-            self.slaved[body.dofs] = True
-        self._slaved_rows = self.global_dofs[np.flatnonzero(self.slaved)].astype(PETSc.IntType)
+        self._constraints()
         self.border = None            # the linear solver's Border at the last jacobian (rigid bodies)
         self._last_gradient = None    # (state, grad Pi) of the last residual (rigid bodies)
+        self._pattern_keys = None     # node pairs (row * nodes + column) of the last matrix made (serial)
+        self._extra_blocks: list = []  # pattern blocks of terms replaced by refresh, kept in new matrices
 
         parts = [e for e in (term.ufl_energy(self.ctx) for term in self.terms) if e is not None]
         Pi = sum(parts[1:], parts[0])
@@ -104,6 +95,104 @@ class Model:
         self._csr_cache = None
         self._packs = _Packs()
         self.changes: dict = {}      # {key: (value at the last solve, value now)} of live parameters
+
+    def _constraints(self, terms=None) -> None:
+        """Dirichlet conditions and rigid bodies of the terms (default: the model's own)."""
+        terms = self.terms if terms is None else terms
+        fixed = np.zeros(self.n_local, dtype=bool)
+        for term in terms:
+            for _, dofs in term.dirichlet():
+                fixed[dofs] = True
+        rigid = [b for b in (term.rigid_body() for term in terms) if b is not None]
+        slaved = np.zeros(self.n_owned, dtype=bool)      # owned DOFs that follow a rigid body
+        for body in rigid:
+            # a guard: pins hold the body's boundary and bones lie strictly inside it (design.py)
+            if self.comm.allreduce(bool(fixed[body.dofs].any()), op=MPI.LOR):
+                from .design import DesignError
+                raise DesignError(f"{self.design.source}: bones.{body.name}.rigid: a rigid bone cannot be held "
+                                  "by a fixed pin (make it elastic)")
+            slaved[body.dofs] = True
+        self.bcs = [bc for term in terms for bc, _ in term.dirichlet()]
+        self.fixed = self.ctx.fixed = fixed
+        self.rigid, self.slaved = rigid, slaved
+        self._slaved_rows = self.global_dofs[np.flatnonzero(slaved)].astype(PETSc.IntType)
+
+    # -- following a design on the same mesh -------------------------------------------------------
+    def refresh(self, design, changed) -> str | None:
+        """Follow design on this mesh, whose nodes may have moved, keeping the compiled forms.
+
+        changed: the dotted design keys that differ from the model's design
+        (skelfem.design.flatten). Each ingredient whose terms can follow in
+        place does (Term.follow); the others are built anew, which is allowed
+        only if none of their terms, old or new, has a UFL energy. Live
+        parameters among the changes are set as ``set_parameter`` would.
+        Returns None when the model cannot follow (nothing was changed: build a
+        new model), "same matrix" when the Newton matrix's pattern still holds
+        every term's blocks, and "new matrix" when the caller must make a new one
+        (``create_matrix``). Serial only.
+        """
+        live = self.parameters()
+        changed = set(changed)
+        if self.comm.size != 1 or any(k.split(".", 1)[0] in MODEL_KEYS for k in changed):
+            return None
+        values = {}
+        for key in changed & live.keys():
+            try:
+                values[key] = _raw_value(design.raw, key)
+            except (KeyError, StopIteration, TypeError):      # dropped for its default: build anew
+                pass
+        structural = changed - values.keys()
+        ctx = Context(design, self.tm, self.V, self.u, self.ctx.thickness)
+        old_design, self.ctx.design = self.ctx.design, design      # kept terms read the new design
+        built, rebuilt, replaced = [], [], []
+        try:
+            for build, terms in self._built:
+                if terms and all(term.follow(self.ctx, structural) for term in terms):
+                    built.append((build, terms))
+                    continue
+                new = build(ctx)
+                if any(t.has_ufl_energy() for t in terms + new):
+                    raise _CannotFollow
+                built.append((build, new))
+                rebuilt += new
+                replaced += terms
+            terms = [term for _, ts in built for term in ts]
+            self._constraints(terms)
+        except _CannotFollow:
+            self.ctx.design = old_design
+            return None
+        except BaseException:
+            self.ctx.design = old_design
+            raise
+        ctx.fixed = self.fixed
+        self.design, self._built, self.terms = design, built, terms
+        for key, value in values.items():
+            if key in self.parameters():
+                self.set_parameter(key, value)
+        x = self.mesh.geometry.x[:, :self.dim]
+        self.size = float(np.linalg.norm(x.max(axis=0) - x.min(axis=0)))
+        self._fixed_cache.clear()
+        self._block_cache.clear()
+        self._csr_cache = None
+        self._last_gradient = self.border = None
+        if self._within_pattern(rebuilt):
+            return "same matrix"
+        # the new matrix keeps the replaced terms' blocks too: while a drag moves via points from
+        # cell to cell, the pattern grows a few times and then holds
+        self._extra_blocks += [block for term in replaced for block in term.pattern()]
+        return "new matrix"
+
+    def _within_pattern(self, terms) -> bool:
+        """Whether every pattern block of the terms is inside the last matrix made (serial)."""
+        if self._pattern_keys is None:
+            return False
+        keys = _block_keys([block for term in terms for block in term.pattern()], self.n_local // self.bs)
+        if not len(keys):
+            return True
+        if not len(self._pattern_keys):
+            return False
+        at = np.minimum(np.searchsorted(self._pattern_keys, keys), len(self._pattern_keys) - 1)
+        return bool(np.array_equal(self._pattern_keys[at], keys))
 
     # -- terms and parameters -------------------------------------------------------------------
     def term(self, section: str, name: str | None = None):
@@ -310,15 +399,16 @@ class Model:
         """
         pattern = self._cell_pattern() if self.rigid else fem.create_sparsity_pattern(self.jacobian_form)
         if self.comm.size == 1:        # serial: the term blocks go into DOLFINx's pattern
-            for term in self.terms:
-                for rn, cn in term.pattern():
-                    pattern.insert(np.asarray(rn, np.int32), np.asarray(cn, np.int32))
+            for rn, cn in [block for term in self.terms for block in term.pattern()] + self._extra_blocks:
+                pattern.insert(np.asarray(rn, np.int32), np.asarray(cn, np.int32))
         pattern.assemble()
         A = _cpp.la.petsc.create_matrix(self.comm, pattern)
         if self.comm.size == 1:
             graph = pattern.graph
             n_owned = pattern.index_map(0).size_local
             offsets = graph.offsets[:n_owned + 1]
+            rows = np.repeat(np.arange(n_owned, dtype=np.int64), np.diff(offsets))
+            self._pattern_keys = np.sort(rows * (self.n_local // self.bs) + graph.array[:offsets[-1]])
             zeros = np.zeros(offsets[-1] * self.bs * self.bs, dtype=PETSc.ScalarType)
             A.setValuesBlockedLocalCSR(offsets.astype(PETSc.IntType),
                                        graph.array[:offsets[-1]].astype(PETSc.IntType),
@@ -496,6 +586,37 @@ class Model:
 def _assemble_form(A: PETSc.Mat, form, bcs, coefficients=None) -> None:
     coefficients = _cpp.fem.pack_coefficients(form) if coefficients is None else coefficients
     _cpp.fem.petsc.assemble_matrix(A, form, _cpp.fem.pack_constants(form), coefficients, bcs)
+
+
+def _block_keys(blocks, n: int) -> np.ndarray:
+    """Sorted unique node pairs row * n + column of pattern blocks [(row nodes, column nodes)]; blocks
+    of one shape are stacked, so the work is a few array operations per shape, not per block."""
+    by_shape: dict = {}
+    for rn, cn in blocks:
+        by_shape.setdefault((len(rn), len(cn)), ([], []))
+        by_shape[len(rn), len(cn)][0].append(rn)
+        by_shape[len(rn), len(cn)][1].append(cn)
+    keys = [(np.asarray(R, np.int64)[:, :, None] * n + np.asarray(C, np.int64)[:, None, :]).ravel()
+            for R, C in by_shape.values()]
+    return np.unique(np.concatenate(keys)) if keys else np.zeros(0, np.int64)
+
+
+MODEL_KEYS = ("format", "dim", "thickness", "mesh")   # design keys no term follows: a new model
+
+
+class _CannotFollow(Exception):
+    """An ingredient with a UFL energy would have to be built anew (Model.refresh)."""
+
+
+def _raw_value(raw: dict, key: str):
+    """The value of a dotted design key (named entries by name) in a design's raw dict."""
+    node = raw
+    for part in key.split("."):
+        if isinstance(node, list):
+            node = next(e for e in node if isinstance(e, dict) and e.get("name") == part)
+        else:
+            node = node[part]
+    return node
 
 
 class _Packs:

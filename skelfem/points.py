@@ -85,7 +85,7 @@ def interpolation_matrix(V, points: np.ndarray, cells: np.ndarray | None = None)
     rows = (np.arange(len(points))[:, None, None] * bs + np.arange(bs)[None, None, :])
     cols = cell_dofs[:, :, None] * bs + np.arange(bs)[None, None, :]
     rows = np.broadcast_to(rows, cols.shape)
-    phi = np.where(np.abs(phi) < 1e-14, 0.0, phi)   # exact zeros on edges/faces
+    phi = np.where(np.abs(phi) < 1e-10, 0.0, phi)   # exact zeros on edges/faces (and at vertices)
     vals = np.broadcast_to(phi[:, :, None], cols.shape)
     S = sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(len(points) * bs, n_local))
     S.eliminate_zeros()

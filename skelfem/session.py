@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .design import FORMAT, Design, DesignError, load_design, parse_design
+from .design import FORMAT, Design, DesignError, flatten, load_design, parse_design
 
 log = logging.getLogger("skelfem")
 
@@ -72,6 +72,9 @@ def _plain(value):
     if isinstance(value, (float, np.floating)):
         return float(value) if math.isfinite(value) else None
     return value
+
+
+_MISSING = object()
 
 
 class Result:
@@ -200,6 +203,8 @@ class Session:
         morph=True (the editor's drafts while dragging) also keeps the mesh
         when only polygon vertices moved, moving its nodes with them
         (:mod:`skelfem.morph`), if the moved mesh stays good; otherwise it re-meshes.
+        On a kept mesh the model follows in place where it can (Model.refresh:
+        no form compiled, matrix and solver kept).
         size: a non-uniform mesh size (skelfem.geometry.SizeField) below the
         design's [mesh] size: always re-meshes; the mesh of any later edit
         without it is uniform again.
@@ -242,14 +247,19 @@ class Session:
         return self._morph.moved(design)
 
     def _move_mesh(self, design, x: np.ndarray) -> None:
-        """Rebuild the model for design on the current mesh with node coordinates x; u carries over as is."""
+        """The model for design on the current mesh with node coordinates x; u carries over as is.
+
+        The model follows in place when it can (Model.refresh: compiled forms,
+        matrix and factorisation kept); otherwise it is built anew on the mesh.
+        """
         old_design, old_x = self.design, self.model.mesh.geometry.x[:, :2].copy()
         u = self.model.u.x.array.copy() if self.solved else None
         if self._morph is not None:     # else the nodes are where Gmsh put them, and x is that
             self._morph.apply(x)
         self.design = design
         try:
-            self._build(self.model.tm)
+            if not self._refresh(design):
+                self._build(self.model.tm)
         except BaseException:
             if self._morph is not None:
                 self._morph.apply(old_x)
@@ -261,6 +271,22 @@ class Session:
             self.model.carry_over(self.model.u.vector)         # bones: their best rigid motion
             self.model.apply_bcs(self.model.u.vector)
             self.solved = True
+
+    def _refresh(self, design) -> bool:
+        """Let the model follow design in place (a new matrix if its pattern grew); False if it cannot."""
+        t0 = time.perf_counter()
+        old, new = flatten(self.model.design.raw), flatten(design.raw)
+        changed = {k for k in old.keys() | new.keys() if old.get(k, _MISSING) != new.get(k, _MISSING)}
+        if any(k.startswith("solver.") for k in changed):
+            return False
+        how = self.model.refresh(design, changed)
+        if how is None:
+            return False
+        if how == "new matrix":
+            self.solver.new_matrix()
+        self.solver.forget()
+        self.timings = {"mesh": 0.0, "compile": time.perf_counter() - t0}
+        return True
 
     def _carry_over(self, X_old: np.ndarray, u_old: np.ndarray, old_model) -> None:
         """Start from the old displacement: interpolated where the new nodes lie in the old mesh, else nearest."""

@@ -162,6 +162,20 @@ class NewtonSolver:
         self.lin.as_pc(ksp.getPC())
         return snes
 
+    def new_matrix(self) -> None:
+        """A new Newton matrix from the model (its terms' pattern grew: Model.refresh)."""
+        A = self.model.create_matrix()
+        self.snes.setJacobian(lambda s, x, A_, P: self.jacobian(x), A)
+        self.A.destroy()
+        self.A = self.lin.K = A
+        self.lin.reset()
+
+    def forget(self) -> None:
+        """Drop what was computed for the model before it changed (Model.refresh): factorisation, trials."""
+        self._factorised = False
+        self._last_trial = None
+        self._watch, self._watch_allowed = None, True
+
     def destroy(self) -> None:
         self.snes.destroy()
         self.lin.destroy()

@@ -106,6 +106,7 @@ def test_an_edit_that_keeps_the_outlines_keeps_the_mesh_and_gives_the_fresh_answ
 
 def test_a_failed_rebuild_on_moved_nodes_leaves_the_session_as_it_was(monkeypatch):
     import skelfem.model
+    import skelfem.terms.cables
     raw = _raw()
     d = copy.deepcopy(raw)
     d["bones"][0]["outline"][0][0] += 0.5
@@ -115,7 +116,8 @@ def test_a_failed_rebuild_on_moved_nodes_leaves_the_session_as_it_was(monkeypatc
 
         def fail(*a, **k):
             raise RuntimeError("boom")
-        monkeypatch.setattr(skelfem.model.Model, "__init__", fail)
+        monkeypatch.setattr(skelfem.model.Model, "__init__", fail)       # a model built anew fails, ...
+        monkeypatch.setattr(skelfem.terms.cables.CableTerm, "__init__", fail)   # ... and so does following
         with pytest.raises(RuntimeError):
             s.edit(d, morph=True)
         monkeypatch.undo()
@@ -123,3 +125,82 @@ def test_a_failed_rebuild_on_moved_nodes_leaves_the_session_as_it_was(monkeypatc
         again = s.solve()
         assert again.converged and again.newton_iterations <= 1
         assert np.allclose(again.markers["tip"]["position"], before.markers["tip"]["position"], atol=1e-8)
+
+
+def _rich(raw: dict) -> dict:
+    """finger.toml with every kind of ingredient: spring pin, point load, ground, gravity, traction,
+    a rigid bone and a tendon bend anchored in silicone."""
+    d = copy.deepcopy(raw)
+    d["pins"].append({"name": "side", "region": [[19.99, 10], [21, 20]], "kind": "spring", "stiffness": 5.0})
+    d["loads"] = [{"name": "push", "at": [10, 99], "force": [0.3, -0.2]}]
+    d["grounds"] = [{"name": "floor", "point": [-6, 0], "normal": [1, 0], "stiffness": 5.0}]
+    d["gravity"] = {"acceleration": [0.0, -9.81]}
+    d["tractions"] = [{"name": "pad", "region": [[-1, 50], [0.01, 60]], "traction": [0.002, 0.0]}]
+    d["bones"][1]["rigid"] = True
+    return d
+
+
+def _drag(raw: dict, bone: int, by) -> dict:
+    d = copy.deepcopy(raw)
+    d["bones"][bone]["outline"][0] = (np.asarray(d["bones"][bone]["outline"][0], float) + by).tolist()
+    return d
+
+
+def _same_answers(a, b, atol=1e-6):
+    assert a.converged and b.converged and a.dofs == b.dofs
+    for name, m in a.markers.items():
+        assert np.allclose(m["position"], b.markers[name]["position"], atol=atol), name
+    for name, c in a.cables.items():
+        assert c["tension"] == pytest.approx(b.cables[name]["tension"], rel=1e-6, abs=1e-9), name
+    for name, p in a.pins.items():
+        assert np.allclose(p["reaction"], b.pins[name]["reaction"], rtol=1e-5, atol=1e-7), name
+
+
+@pytest.mark.parametrize("rich", [False, True], ids=["finger", "every-ingredient"])
+def test_a_draft_follows_in_place_and_equals_a_model_built_anew_on_the_same_nodes(rich, monkeypatch):
+    """Model.refresh keeps the compiled forms, the matrix and the solver, and gives the answer a model built
+    anew on the moved nodes gives, over a drag (pattern growth included) and a live change within it."""
+    import skelfem.model
+    raw = _rich(_raw()) if rich else _raw()
+    steps = [_drag(raw, 2, [0.1 * k, 0.05 * k]) for k in range(1, 6)]
+    steps.append(_drag(raw, 0, [-0.3, 0.2]))                        # a bone, then another
+    live = copy.deepcopy(steps[-1])
+    live["cables"][0]["contraction"] = 6.5                           # a live change in the same edit
+    steps.append(live)
+    with Session(raw) as s:
+        s.solve()
+        model, form = s.model, s.model.jacobian_form
+        followed = []
+        for d in steps:
+            assert s.edit(d, morph=True) == "moved nodes"
+            followed.append(s.solve())
+            assert s.model is model and s.model.jacobian_form is form       # nothing rebuilt or recompiled
+            assert s.model._within_pattern(s.model.terms)                  # every block has its entries
+        assert s.model.term("cables", raw["cables"][0]["name"]).cable.contraction == 6.5
+    monkeypatch.setattr(skelfem.model.Model, "refresh", lambda self, design, changed: None)
+    with Session(raw) as s:
+        s.solve()
+        for d, kept in zip(steps, followed):
+            model = s.model
+            assert s.edit(d, morph=True) == "moved nodes"
+            assert s.model is not model                                    # built anew on the same nodes
+            _same_answers(kept, s.solve())
+
+
+def test_a_draft_that_changes_a_compiled_ingredient_builds_the_model_anew():
+    """A ground's normal is in the compiled energy (not a live parameter): the model cannot follow."""
+    raw = _rich(_raw())
+    d = _drag(raw, 2, [0.3, 0.0])
+    d["grounds"][0]["normal"] = [1.0, 0.1]
+    with Session(raw) as s:
+        s.solve()
+        model = s.model
+        assert s.edit(d, morph=True) == "moved nodes"
+        assert s.model is not model
+        moved = s.solve()
+        x = s.model.mesh.geometry.x.copy()
+    with Session(raw) as fresh:                                         # the same nodes, a new model
+        fresh.solve()
+        fresh.edit(d, morph=True)
+        assert np.array_equal(fresh.model.mesh.geometry.x, x)
+        _same_answers(moved, fresh.solve())

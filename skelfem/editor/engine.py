@@ -14,8 +14,9 @@ Session holds and takes the cheapest way there:
 
 ``draft=True`` (the page sends it while a vertex is being dragged) keeps the
 mesh and moves its nodes with the dragged outline (``Session.edit(...,
-morph=True)``, :mod:`skelfem.morph`): no meshing, no new DOF numbering, the
-last equilibrium as the exact start. Where the moved mesh would be poor it
+morph=True)``, :mod:`skelfem.morph`): no meshing, no new DOF numbering, no
+form compiled (``Model.refresh``: only the cables, markers and other
+hand-written terms are built again), the last equilibrium as the start. Where the moved mesh would be poor it
 re-meshes. The page sends the same design without ``draft`` on release,
 which re-meshes, so the answer is the one ``skelfem simulate`` gives. ``Engine.ik`` runs Soft IK (skelfem.control.SoftIK, the
 same as ``skelfem ik``) for a marker target from the current equilibrium;
@@ -36,7 +37,7 @@ import time
 
 import numpy as np
 
-from ..design import SECTIONS_BY_NAME, DesignError, parse_design
+from ..design import DesignError, flatten, parse_design
 from .payload import mesh_payload
 
 log = logging.getLogger("skelfem")
@@ -67,24 +68,6 @@ def error_key(message: str, source: str) -> str:
     key = rest.split(": ", 1)[0] if ": " in rest else ""
     top = re.split(r"[.\[]", key, maxsplit=1)[0]
     return key if top in TOP_KEYS else ""
-
-
-def flatten(raw: dict, prefix: str = "") -> dict:
-    """{dotted key: value}: the --set keys of a design dict; named entries by name (order kept as a key)."""
-    out = {}
-    for key, value in raw.items():
-        path = f"{prefix}{key}"
-        if isinstance(value, dict):
-            out.update(flatten(value, path + "."))
-        elif (not prefix and key in SECTIONS_BY_NAME and isinstance(value, list)
-              and all(isinstance(e, dict) and isinstance(e.get("name"), str) for e in value)
-              and len({e["name"] for e in value}) == len(value)):
-            out[f"{path}.#order"] = tuple(e["name"] for e in value)
-            for e in value:
-                out.update(flatten(e, f"{path}.{e['name']}."))
-        else:
-            out[path] = value
-    return out
 
 
 def live_changes(old: dict, new: dict, live) -> dict | None:

@@ -26,6 +26,11 @@ changed live without re-meshing or recompiling), its *read-outs* (what goes
 into result.json under ``section``), step bounds and admissibility for the
 line search, an optional step correction (exact rigid rotations of bones),
 Dirichlet conditions, rigid bodies (node groups that follow a few rigid DOFs), and a per-step hook for history-dependent ingredients.
+
+When an edit keeps the mesh (its nodes may move: the editor's drafts), a term
+may ``follow`` the new design in place; the model builds anew the ingredients
+whose terms cannot, and keeps its compiled forms only if none of those has a
+UFL energy (:meth:`skelfem.model.Model.refresh`).
 """
 from __future__ import annotations
 
@@ -50,6 +55,10 @@ class Term:
     def ufl_energy(self, ctx: "Context"):
         """UFL integral of this term's energy, or None (called once, after all terms are built)."""
         return None
+
+    def has_ufl_energy(self) -> bool:
+        """Whether ufl_energy gives an integral (answered before the context is finalised)."""
+        return type(self).ufl_energy is not Term.ufl_energy
 
     def energy(self, u: np.ndarray) -> float:
         """Hand-written part of the energy at the local DOF array u, N mm."""
@@ -109,6 +118,17 @@ class Term:
     def set_factor(self, a: float) -> None:
         """Apply the load factor a in [0, 1] to whatever this term ramps."""
 
+    # -- following a design on the same mesh ----------------------------------------------------------
+    def follow(self, ctx: "Context", changed: set) -> bool:
+        """Become, in place, the term ctx.design would build on this mesh, whose nodes may have moved.
+
+        changed: the design's dotted keys (``pins.base.region``, ``bones.distal.outline``...) that
+        differ from the design this term was built for, live parameters aside (the model sets
+        those). True if done (node-position caches dropped, compiled UFL energy still valid);
+        False if the term must be built anew. The default is False: built anew.
+        """
+        return False
+
     # -- constraints, read-outs, history ------------------------------------------------------------
     def dirichlet(self) -> list:
         """[(DirichletBC, unrolled local DOFs)] this term imposes."""
@@ -120,6 +140,11 @@ class Term:
 
     def end_step(self, model) -> None:
         """Called after every accepted load or time step (history: friction, inertia)."""
+
+
+def touched(changed: set, *prefixes: str) -> bool:
+    """Whether any dotted key in changed is one of prefixes, lies under one or holds one."""
+    return any(k == p or k.startswith(p + ".") or p.startswith(k + ".") for k in changed for p in prefixes)
 
 
 def constant(mesh, value) -> fem.Constant:
@@ -177,15 +202,18 @@ class Context:
 
     def boundary(self, region) -> tuple[int, np.ndarray]:
         """Register a box; returns (its id, the local boundary facets inside it)."""
-        mesh = self.mesh
-        fdim = mesh.topology.dim - 1
-        mesh.topology.create_connectivity(fdim, mesh.topology.dim)
-        x = mesh.geometry.x
-        tol = 1e-8 * float(np.abs(x).max() + 1.0)
-        facets = dmesh.locate_entities_boundary(mesh, fdim, _box_marker(np.asarray(region, float), tol))
+        facets = self.boundary_facets(region)
         self._boxes.append(np.asarray(region, float))
         self._facets.append(facets)
         return len(self._boxes) - 1, facets
+
+    def boundary_facets(self, region) -> np.ndarray:
+        """The local boundary facets inside a box (not registered)."""
+        mesh = self.mesh
+        fdim = mesh.topology.dim - 1
+        mesh.topology.create_connectivity(fdim, mesh.topology.dim)
+        tol = 1e-8 * float(np.abs(mesh.geometry.x).max() + 1.0)
+        return dmesh.locate_entities_boundary(mesh, fdim, _box_marker(np.asarray(region, float), tol))
 
     def finalise(self) -> None:
         """Tag each facet with the bit set of the boxes containing it (code 1 + sum 2^box)."""

@@ -25,7 +25,7 @@ from dolfinx import fem
 from mpi4py import MPI
 
 from ..geometry import BODY, bone_tag_name
-from .base import Context, Term
+from .base import Context, Term, touched
 from .rigid import closest_rigid_motion
 
 
@@ -117,6 +117,14 @@ class Elasticity(Term):
         if self.ctx.comm.allreduce(held != key, op=MPI.LOR):      # every rank assembles, or none
             self._scale = (key, self.ctx.comm.allreduce(fem.assemble_scalar(self._scale_form), op=MPI.SUM))
         return self._scale[1]
+
+    def follow(self, ctx: Context, changed: set) -> bool:
+        """Same materials and regions (the mesh's tags): keep the fields; drop the bones' node positions."""
+        if touched(changed, "materials", "body.material") or any(
+                k.startswith("bones.") and k.rsplit(".", 1)[1] in ("material", "rigid") for k in changed):
+            return False
+        self._groups = self._fit = self._corr = None
+        return True
 
     # -- parameters: materials.NAME.E and .nu of the materials in use ---------------------------
     def parameters(self) -> dict:

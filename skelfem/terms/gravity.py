@@ -17,7 +17,7 @@ import ufl
 from dolfinx import fem
 from mpi4py import MPI
 
-from .base import Context, Term, constant
+from .base import Context, Term, constant, touched
 from .elasticity import region_cells
 
 KG_PER_M3_TIMES_M_PER_S2 = 1e-9     # N/mm^3
@@ -44,6 +44,11 @@ class Gravity(Term):
 
     def ufl_energy(self, ctx: Context):
         return -KG_PER_M3_TIMES_M_PER_S2 * ctx.thickness * self.rho * ufl.dot(self._ga, ctx.u) * ufl.dx
+
+    def follow(self, ctx: Context, changed: set) -> bool:
+        """The same regions' materials (densities and the acceleration are live)."""
+        return not (touched(changed, "gravity", "materials", "body.material")
+                    or any(k.startswith("bones.") and k.endswith(".material") for k in changed))
 
     def set_factor(self, a: float) -> None:
         self.factor = float(a)

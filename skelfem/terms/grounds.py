@@ -35,7 +35,7 @@ import ufl
 from dolfinx import fem
 from mpi4py import MPI
 
-from .base import Context, Term, constant
+from .base import Context, Term, constant, touched
 
 
 def nodal_ds(u):
@@ -64,6 +64,10 @@ class Ground(Term):
 
     def ufl_energy(self, ctx: Context):
         return self._energy
+
+    def follow(self, ctx: Context, changed: set) -> bool:
+        """The plane is in the compiled energy (its point and stiffness are live): the same normal."""
+        return not touched(changed, f"grounds.{self.name}", "grounds.#order")
 
     def move_to(self, point) -> None:
         """Place the plane through a new point (same normal); the compiled forms follow."""

@@ -18,7 +18,7 @@ from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 from petsc4py import PETSc
 
-from .base import Context, Term, constant
+from .base import Context, Term, constant, touched
 
 
 class Pin(Term):
@@ -27,6 +27,7 @@ class Pin(Term):
     def __init__(self, ctx: Context, spec):
         self.ctx, self.spec, self.name, self.kind = ctx, spec, spec.name, spec.kind
         self.box, facets = ctx.boundary(spec.region)
+        self.facets = np.sort(facets)
         if ctx.comm.allreduce(len(facets)) == 0:
             from ..design import DesignError
             raise DesignError(f"{ctx.design.source}: pins.{spec.name}.region: "
@@ -47,6 +48,15 @@ class Pin(Term):
         d = ctx.u - self.move
         self._energy = 0.5 * self.k * ctx.thickness * ufl.inner(d, d) * ctx.ds(self.box)
         return self._energy
+
+    def follow(self, ctx: Context, changed: set) -> bool:
+        """The same box and kind, and the same boundary facets in it after the nodes moved."""
+        if touched(changed, f"pins.{self.name}", "pins.#order"):
+            return False
+        return np.array_equal(np.sort(ctx.boundary_facets(self.spec.region)), self.facets)
+
+    def has_ufl_energy(self) -> bool:
+        return self.kind == "spring"
 
     def dirichlet(self) -> list:
         return [(self.bc, self.dofs)] if self.bc is not None else []

@@ -16,7 +16,7 @@ import ufl
 from dolfinx import fem
 from mpi4py import MPI
 
-from .base import Context, Term, constant
+from .base import Context, Term, constant, touched
 
 
 class Traction(Term):
@@ -24,7 +24,9 @@ class Traction(Term):
 
     def __init__(self, ctx: Context, spec):
         self.ctx, self.name = ctx, spec.name
+        self.region = np.asarray(spec.region, dtype=float)
         self.box, facets = ctx.boundary(spec.region)
+        self.facets = np.sort(facets)
         if ctx.comm.allreduce(len(facets)) == 0:
             from ..design import DesignError
             raise DesignError(f"{ctx.design.source}: tractions.{spec.name}.region: "
@@ -38,6 +40,12 @@ class Traction(Term):
         ds = ctx.ds(self.box)
         self._area_form = fem.form(ctx.thickness * ds)
         return -ctx.thickness * ufl.dot(self._at, ctx.u) * ds
+
+    def follow(self, ctx: Context, changed: set) -> bool:
+        """The same box, and the same boundary facets in it after the nodes moved."""
+        if touched(changed, f"tractions.{self.name}", "tractions.#order"):
+            return False
+        return np.array_equal(np.sort(ctx.boundary_facets(self.region)), self.facets)
 
     def set_factor(self, a: float) -> None:
         self.factor = float(a)
