@@ -68,6 +68,15 @@ def reference_coordinates(mesh, points: np.ndarray, cells: np.ndarray) -> np.nda
 
 def interpolation_matrix(V, points: np.ndarray, cells: np.ndarray | None = None) -> sp.csr_matrix:
     """Sparse S of shape (n_points*bs, n_local_dofs*bs) with (S u)[p*bs + c] = u_c(X_p)."""
+    bs = V.dofmap.index_map_bs
+    n_local = (V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts) * bs
+    rows, cols, vals = interpolation_entries(V, points, cells)
+    n = len(np.asarray(points, dtype=float).reshape(-1, V.mesh.geometry.dim))
+    return sp.csr_matrix((vals, (rows, cols)), shape=(n * bs, n_local))
+
+
+def interpolation_entries(V, points: np.ndarray, cells: np.ndarray | None = None) -> tuple:
+    """The nonzero entries (rows, local DOF columns, values) of interpolation_matrix."""
     mesh = V.mesh
     bs = V.dofmap.index_map_bs
     points = np.asarray(points, dtype=float).reshape(-1, mesh.geometry.dim)
@@ -75,21 +84,17 @@ def interpolation_matrix(V, points: np.ndarray, cells: np.ndarray | None = None)
         cells = locate_cells(mesh, points)
     if np.any(cells < 0):
         raise ValueError("point outside the mesh")
-    n_local = (V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts) * bs
     if len(points) == 0:
-        return sp.csr_matrix((0, n_local))
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
     element = _lagrange(mesh.topology.cell_type.name, V.ufl_element().degree())
     xi = reference_coordinates(mesh, points, cells)
     phi = element.tabulate(0, xi)[0, :, :, 0]                    # (n_points, n_cell_dofs)
     cell_dofs = V.dofmap.list.array.reshape(-1, phi.shape[1])[cells]  # (n_points, n_cell_dofs)
-    rows = (np.arange(len(points))[:, None, None] * bs + np.arange(bs)[None, None, :])
-    cols = cell_dofs[:, :, None] * bs + np.arange(bs)[None, None, :]
-    rows = np.broadcast_to(rows, cols.shape)
-    phi = np.where(np.abs(phi) < 1e-10, 0.0, phi)   # exact zeros on edges/faces (and at vertices)
-    vals = np.broadcast_to(phi[:, :, None], cols.shape)
-    S = sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(len(points) * bs, n_local))
-    S.eliminate_zeros()
-    return S
+    point, k = np.nonzero(np.abs(phi) >= 1e-10)                  # exact zeros on edges/faces (and at vertices)
+    c = np.arange(bs)
+    rows = ((point * bs)[:, None] + c).ravel()
+    cols = ((cell_dofs[point, k].astype(np.int64) * bs)[:, None] + c).ravel()
+    return rows, cols, np.repeat(phi[point, k], bs)
 
 
 # -- material points under MPI ------------------------------------------------------------------
@@ -176,10 +181,9 @@ def global_interpolation(V, points: np.ndarray):
     points = np.asarray(points, dtype=float).reshape(-1, V.mesh.geometry.dim)
     owner, cells = owner_ranks(V.mesh, points)
     mine = np.flatnonzero(owner == comm.rank)
-    S = interpolation_matrix(V, points[mine], cells[mine]).tocoo()
-    rows = (mine[S.row // bs] * bs + S.row % bs).astype(np.int64)
-    cols = global_dof_numbers(V)[S.col]
-    vals = S.data
+    rows, cols, vals = interpolation_entries(V, points[mine], cells[mine])
+    rows = mine[rows // bs] * bs + rows % bs
+    cols = global_dof_numbers(V)[cols]
     if comm.size > 1:
         rows, cols, vals = (np.concatenate(comm.allgather(a)) for a in (rows, cols, vals))
     dofs, cols = np.unique(cols, return_inverse=True)

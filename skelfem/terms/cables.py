@@ -235,6 +235,18 @@ def _anchored_interpolation(V, X: np.ndarray, anchors: dict):
     return X, S[:, used].tocsr(), gather, owner[:n]
 
 
+def _differences(S: sp.csr_matrix, gdim: int) -> sp.csr_matrix:
+    """B = D S: row block i (segment i) is S's row block i + 1 (via point i + 1) minus block i."""
+    C = S.tocoo()
+    n = S.shape[0] - gdim
+    later, earlier = C.row >= gdim, C.row < n
+    rows = np.concatenate([C.row[later] - gdim, C.row[earlier]])
+    B = sp.csr_matrix((np.concatenate([C.data[later], -C.data[earlier]]),
+                       (rows, np.concatenate([C.col[later], C.col[earlier]]))), shape=(n, S.shape[1]))
+    B.eliminate_zeros()
+    return B
+
+
 WIDE = 256    # DOFs: a segment coupling more (an anchor disk's) has its curvature as rank-one parts
 
 
@@ -293,11 +305,9 @@ class Cable:
         X, S, gather, owner = _anchored_interpolation(V, X, at)
         if np.any(owner == mesh.comm.size):
             raise ValueError(f"cable {spec.name!r} leaves the mesh")
-        gdim = mesh.geometry.dim
-        B = S[gdim:] - S[:-gdim]            # D S: segment i is via point i + 1 minus via point i
         d0 = np.diff(X, axis=0)
         return cls(spec.name, spec.kind, float(spec.stiffness), X, gather.dofs,
-                   S, B.tocsr(), d0, float(np.linalg.norm(d0, axis=1).sum()), gather,
+                   S, _differences(S, mesh.geometry.dim), d0, float(np.linalg.norm(d0, axis=1).sum()), gather,
                    float(spec.contraction), float(spec.pretension))
 
     # -- state ---------------------------------------------------------------
