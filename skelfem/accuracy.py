@@ -10,6 +10,13 @@ the design itself, not on curves fitted to another design:
     rho_k = h_{k-1} / h_k, and the rate r is observed from the last three
     levels (d_{k-1} / d_k = rho^r for equal ratios), clipped to [R_MIN, R_MAX].
 
+The sizes h_k in these formulas are measured on the meshes, by their DOFs
+N_k: h_k = h_{k-1} (N_{k-1} / N_k)^(1/dim), h_0 the first level's [mesh]
+size. Gmsh honours the size it is asked for only on bodies much larger than
+it: on a small 3D body, h = 4 and 2.83 gave the same mesh and h = 2 one
+with 1.46x the DOFs (a ratio of 1.13, not 1.41). A level whose mesh is the
+last one's again replaces it.
+
 Near finite anchors (cable ends and bends in silicone) every mesh of the
 ladder is finer, by one graded field scaled with h (``anchor_zones``), so that
 even the first level resolves the anchor's load.
@@ -60,6 +67,7 @@ class Level:
     iterations: int
     seconds: float
     markers: np.ndarray = field(repr=False)     # (n_markers, dim) positions, mm
+    h: float | None = None                      # the size measured by the DOFs (None: the size asked for)
     change: float | None = None                 # d_k = max |x_k - x_{k-1}|, mm
     rate: float | None = None                   # r used for the estimate
     observed: float | None = None               # the three-level rate before clipping (up to 10)
@@ -95,13 +103,17 @@ def observed_rate(h: tuple[float, float, float], d: tuple[float, float], lo: flo
     return 0.5 * (lo + hi)
 
 
+def _h(level: Level) -> float:
+    return level.size if level.h is None else level.h
+
+
 def richardson(levels: list[Level]) -> tuple[float, float]:
     """(E_k, r) for the last of at least two levels."""
     a, b = levels[-2], levels[-1]
     d = float(np.max(np.linalg.norm(b.markers - a.markers, axis=1)))
     r = R_TWO_LEVELS if len(levels) < 3 else observed_rate(
-        (levels[-3].size, a.size, b.size), (levels[-2].change, d))
-    rho = a.size / b.size
+        (_h(levels[-3]), _h(a), _h(b)), (levels[-2].change, d))
+    rho = _h(a) / _h(b)
     return d / (rho ** r - 1.0), r
 
 
@@ -129,9 +141,8 @@ def next_size(level: Level, tol: float, dim: int) -> float:
     (In 2D the ratio is 2: every level halves h. A larger jump would leave
     the estimate with one pair of widely spaced meshes, and the last mesh
     could be much finer than the tolerance needs.)"""
-    h, r = level.size, level.rate
-    want = h * (tol / (MARGIN * AIM * level.estimate)) ** (1.0 / r)
-    return float(min(max(want, h / MAX_JUMP), h / RATIO[dim]))
+    ratio = (tol / (MARGIN * AIM * level.estimate)) ** (1.0 / level.rate)    # of the measured size
+    return float(level.size * min(max(ratio, 1.0 / MAX_JUMP), 1.0 / RATIO[dim]))
 
 
 def anchor_zones(model, h0: float):
@@ -171,15 +182,19 @@ def _positions(result) -> np.ndarray:
 
 
 def next_level(levels: list[Level], size: float, result, seconds: float) -> Level:
-    """The Level of a solve on a mesh of size h after ``levels`` (same family): its change d_k, its
-    Richardson estimate and rate, and the observed three-level rate, from the markers of result."""
+    """The Level of a solve on a mesh of size h after ``levels`` (same family): its measured size, its
+    change d_k, its Richardson estimate and rate, and the observed three-level rate, from result."""
     level = Level(float(size), int(result.dofs), int(result.newton_iterations), seconds, _positions(result))
+    level.h = level.size
     if levels:
+        last = levels[-1]
+        level.h = _h(last) * ((last.dofs / level.dofs) ** (1.0 / level.markers.shape[1])
+                              if level.dofs != last.dofs and last.dofs > 0 else level.size / last.size)
         level.estimate, level.rate = richardson(levels + [level])
-        level.change = float(np.max(np.linalg.norm(level.markers - levels[-1].markers, axis=1)))
+        level.change = float(np.max(np.linalg.norm(level.markers - last.markers, axis=1)))
         if len(levels) >= 2:
-            level.observed = observed_rate((levels[-2].size, levels[-1].size, level.size),
-                                           (levels[-1].change, level.change), R_MIN, 10.0)
+            level.observed = observed_rate((_h(levels[-2]), _h(last), level.h),
+                                           (last.change, level.change), R_MIN, 10.0)
     return level
 
 
@@ -214,6 +229,10 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
         if not result.converged:
             stop = f"the solve at h = {session.design.mesh.size:g} mm failed ({result.status})"
             break
+        if levels and result.dofs == levels[-1].dofs:       # Gmsh made the same mesh: no new level
+            log.info("--tol: h = %g mm gives the mesh of h = %g mm again", session.design.mesh.size,
+                     levels[-1].size)
+            levels.pop()
         level = next_level(levels, session.design.mesh.size, result, time.perf_counter() - t)
         levels.append(level)
         log.info("--tol: h = %g mm, %d DOFs: change %s, estimate %s", level.size, level.dofs,
