@@ -51,6 +51,56 @@ def test_next_size_aims_below_the_tolerance_within_bounds():
     assert accuracy.next_size(lv, 1e-9, 2) == accuracy.next_size(lv, 0.29, 2) == 0.5   # 2D: halving
 
 
+class _Solved:
+    """What next_level reads of a Result."""
+
+    def __init__(self, dofs, positions):
+        self.dofs, self.newton_iterations = dofs, 3
+        self.markers = {"tip": {"position": positions}}
+
+
+def test_a_levels_size_is_measured_by_its_dofs_not_the_size_asked_for():
+    """Gmsh may make a mesh finer (or the same) than asked: h_k = h_{k-1} (N_{k-1} / N_k)^(1/dim)."""
+    a = accuracy.next_level([], 2.83, _Solved(5391, [0.0, 0.0, 0.0]), 0.0)
+    assert a.h == 2.83
+    b = accuracy.next_level([a], 2.0, _Solved(7869, [0.01, 0.0, 0.0]), 0.0)
+    assert b.h == pytest.approx(2.83 * (5391 / 7869) ** (1 / 3))             # 2.49, not 2.0
+    assert b.estimate == pytest.approx(0.01 / (2.83 / b.h - 1.0))            # r = 1 with two levels
+    flat = accuracy.next_level([], 2.0, _Solved(1000, [0.0, 0.0]), 0.0)
+    twice = accuracy.next_level([flat], 1.0, _Solved(4000, [0.01, 0.0]), 0.0)
+    assert twice.h == pytest.approx(1.0)                                     # 2D: 4x the DOFs, half h
+    lv = Level(1.0, 0, 0, 0.0, np.zeros((1, 2)), h=0.8, change=0.1, rate=2.0, estimate=0.1)
+    assert accuracy.next_size(lv, 1e-9, 3) == 0.5                            # the jump scales what is asked
+
+
+def test_a_repeated_mesh_replaces_the_last_level(monkeypatch):
+    """On a body barely larger than h, h = 4 and 2.83 give one mesh: it is one level (labelled 2.83)."""
+    class Session:
+        comm = type("C", (), {"size": 1})()
+
+        def __init__(self):
+            self.design = accuracy.at_size(_design(), 4.0)
+            self.model, self.k = None, 0
+
+        def edit(self, design, size=None):
+            self.design = design
+
+        def solve(self):
+            h = float(self.design.mesh.size)
+            dofs = 1000 if h > 2.5 else int(1000 * (2.83 / h) ** 3)
+            return type("R", (), {"converged": True, "dofs": dofs, "newton_iterations": 2,
+                                  "markers": {"tip": {"position": [0.01 * h ** 2, 0.0, 0.0]}}})()
+
+    def _design():
+        from skelfem.design import load_design
+        return load_design(GEOMETRY / "pillar3d.toml")
+    monkeypatch.setattr(accuracy, "anchor_zones", lambda model, h0: None)
+    _, acc = accuracy.refine(Session(), tol=1e-3)
+    sizes = [lv["size"] for lv in acc["levels"]]
+    assert sizes[0] == pytest.approx(2.828427) and 4.0 not in sizes
+    assert all(b["dofs"] > a["dofs"] for a, b in zip(acc["levels"], acc["levels"][1:]))
+
+
 def _strip_file(tmp_path, **kw) -> Path:
     p = tmp_path / "strip.toml"
     p.write_text(toml_text(strip(length=40.0, width=8.0, size=2.0, contraction=1.0, tendon_offset=2.0, **kw)))
