@@ -27,3 +27,21 @@ def test_tol_check_main_writes_its_table(tmp_path, capsys):
     lines = (tmp_path / "tol_check.csv").read_text().splitlines()
     assert lines[0].startswith("design,tol,degree,size,estimated_error,error_vs_reference,effectivity") and len(lines) == 2
     assert "1/1 tolerances met" in capsys.readouterr().out
+
+
+def test_a_3d_reference_is_extrapolated_from_three_meshes(tmp_path):
+    """3D: P2 at 2, sqrt 2 and 1 x h_ref, the markers extrapolated by Richardson (sizes measured by DOFs)."""
+    import json
+
+    import numpy as np
+    study = load_study("tol_check")
+    study.solve_reference("post3d", 1.414, tmp_path)
+    r = json.loads((tmp_path / "result.json").read_text())
+    ref = r["reference"]
+    dofs = ref["extrapolated_from"]
+    assert len(dofs) == 3 and dofs[0] < dofs[1] < dofs[2] == r["dofs"] and r["degree"] == 2
+    assert 0.5 <= ref["rate"] <= 2.0 and ref["estimate"] > 0
+    tip = r["markers"]["tip"]
+    assert np.allclose(np.asarray(tip["position"]) - tip["reference"], tip["displacement"])
+    moved = np.linalg.norm(np.asarray(tip["position"]) - ref["finest"][0])   # extrapolated from the finest
+    assert moved == pytest.approx(ref["estimate"], rel=1e-9) and moved > 0      # by its own estimate

@@ -65,9 +65,9 @@ def elastic_measure(ctx: Context, design):
     Quadrature of degree 2p for P_p displacements. FFCx's own estimate for
     psi(F) (logarithms of a P_{p-1} det F) asks for 729 points per
     tetrahedron with P2; degree 4 has the same convergence order (and is
-    exact for P1, whose F is constant per cell). Measured on a 3D post at P2
-    h = 1.41 (18k DOFs): the solve took 4.0 s instead of 28.5 s with the tip
-    unchanged to 1e-6 mm; on finger.toml at P2 h = 1, 0.97 s instead of 1.30 s
+    exact for P1, whose F is constant per cell). Measured on post3d.toml at P2
+    h = 1.41 (17k DOFs): the solve took 2.5 s instead of 17.1 s with the tip
+    unchanged to 1e-6 mm; on finger.toml at P2 h = 1, 0.93 s instead of 1.30 s
     with the tip 1e-4 mm away (its discretisation error is about 1e-2 mm).
     """
     degree = 2 * ctx.V.ufl_element().degree()
