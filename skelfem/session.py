@@ -277,7 +277,7 @@ class Session:
         t0 = time.perf_counter()
         old, new = flatten(self.model.design.raw), flatten(design.raw)
         changed = {k for k in old.keys() | new.keys() if old.get(k, _MISSING) != new.get(k, _MISSING)}
-        if any(k.startswith("solver.") for k in changed):
+        if any(k.startswith(("solver.", "contact.")) for k in changed):    # the solver was set up for them
             return False
         how = self.model.refresh(design, changed)
         if how is None:
