@@ -1084,3 +1084,9 @@ def flatten(raw: dict, prefix: str = "") -> dict:
         else:
             out[path] = value
     return out
+
+
+def changed_keys(old: dict, new: dict) -> set:
+    """The keys whose values differ between two flattened designs (present in one only included)."""
+    missing = object()
+    return {k for k in old.keys() | new.keys() if old.get(k, missing) != new.get(k, missing)}

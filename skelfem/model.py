@@ -74,7 +74,7 @@ class Model:
         self.border = None            # the linear solver's Border at the last jacobian (rigid bodies)
         self._last_gradient = None    # (state, grad Pi) of the last residual (rigid bodies)
         self._pattern_keys = None     # node pairs (row * nodes + column) of the last matrix made (serial)
-        self._extra_blocks: list = []  # pattern blocks of terms replaced by refresh, kept in new matrices
+        self._extra_keys = np.zeros(0, np.int64)  # node pairs of terms replaced by refresh, kept in new matrices
 
         parts = [e for e in (term.ufl_energy(self.ctx) for term in self.terms) if e is not None]
         Pi = sum(parts[1:], parts[0])
@@ -179,8 +179,17 @@ class Model:
             return "same matrix"
         # the new matrix keeps the replaced terms' blocks too: while a drag moves via points from
         # cell to cell, the pattern grows a few times and then holds
-        self._extra_blocks += [block for term in replaced for block in term.pattern()]
+        n = self.n_local // self.bs
+        self._extra_keys = np.union1d(self._extra_keys,
+                                      _block_keys([b for term in replaced for b in term.pattern()], n))
         return "new matrix"
+
+    def _extra_rows(self) -> list:
+        """The kept node pairs (_extra_keys) as one pattern block per row node."""
+        n = self.n_local // self.bs
+        rows, cols = np.divmod(self._extra_keys, n)
+        starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]]) if len(rows) else np.zeros(0, int)
+        return [(rows[i:i + 1], c) for i, c in zip(starts, np.split(cols, starts[1:]))]
 
     def _within_pattern(self, terms) -> bool:
         """Whether every pattern block of the terms is inside the last matrix made (serial)."""
@@ -399,7 +408,7 @@ class Model:
         """
         pattern = self._cell_pattern() if self.rigid else fem.create_sparsity_pattern(self.jacobian_form)
         if self.comm.size == 1:        # serial: the term blocks go into DOLFINx's pattern
-            for rn, cn in [block for term in self.terms for block in term.pattern()] + self._extra_blocks:
+            for rn, cn in [block for term in self.terms for block in term.pattern()] + self._extra_rows():
                 pattern.insert(np.asarray(rn, np.int32), np.asarray(cn, np.int32))
         pattern.assemble()
         A = _cpp.la.petsc.create_matrix(self.comm, pattern)

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .design import FORMAT, Design, DesignError, flatten, load_design, parse_design
+from .design import FORMAT, Design, DesignError, changed_keys, flatten, load_design, parse_design
 
 log = logging.getLogger("skelfem")
 
@@ -72,9 +72,6 @@ def _plain(value):
     if isinstance(value, (float, np.floating)):
         return float(value) if math.isfinite(value) else None
     return value
-
-
-_MISSING = object()
 
 
 class Result:
@@ -275,8 +272,7 @@ class Session:
     def _refresh(self, design) -> bool:
         """Let the model follow design in place (a new matrix if its pattern grew); False if it cannot."""
         t0 = time.perf_counter()
-        old, new = flatten(self.model.design.raw), flatten(design.raw)
-        changed = {k for k in old.keys() | new.keys() if old.get(k, _MISSING) != new.get(k, _MISSING)}
+        changed = changed_keys(flatten(self.model.design.raw), flatten(design.raw))
         if any(k.startswith(("solver.", "contact.")) for k in changed):    # the solver was set up for them
             return False
         how = self.model.refresh(design, changed)

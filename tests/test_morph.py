@@ -164,8 +164,13 @@ def test_a_draft_follows_in_place_and_equals_a_model_built_anew_on_the_same_node
     raw = _rich(_raw()) if rich else _raw()
     steps = [_drag(raw, 2, [0.1 * k, 0.05 * k]) for k in range(1, 6)]
     steps.append(_drag(raw, 0, [-0.3, 0.2]))                        # a bone, then another
+    lifted = copy.deepcopy(steps[-1])
+    lifted["body"]["outline"][1][1] = 0.05                          # the base's nodes leave the pin's box
+    lifted["cables"][0]["path"][0][1] = 0.05                        # (the tendon's start stays inside)
+    steps.append(lifted)
     live = copy.deepcopy(steps[-1])
-    live["cables"][0]["contraction"] = 6.5                           # a live change in the same edit
+    live["cables"][0]["contraction"] = 6.5                           # live changes in the same edit: of a
+    live["materials"]["ecoflex"]["E"] = 0.12                         # term built anew and of a kept one
     steps.append(live)
     with Session(raw) as s:
         s.solve()
@@ -174,6 +179,9 @@ def test_a_draft_follows_in_place_and_equals_a_model_built_anew_on_the_same_node
         for d in steps:
             assert s.edit(d, morph=True) == "moved nodes"
             followed.append(s.solve())
+            if rich and d is lifted:        # the base pin's facets changed and the pins include a spring
+                assert s.model is not model                                # pin (a UFL energy): built anew
+                model, form = s.model, s.model.jacobian_form
             assert s.model is model and s.model.jacobian_form is form       # nothing rebuilt or recompiled
             assert s.model._within_pattern(s.model.terms)                  # every block has its entries
         assert s.model.term("cables", raw["cables"][0]["name"]).cable.contraction == 6.5
@@ -204,3 +212,20 @@ def test_a_draft_that_changes_a_compiled_ingredient_builds_the_model_anew():
         fresh.edit(d, morph=True)
         assert np.array_equal(fresh.model.mesh.geometry.x, x)
         _same_answers(moved, fresh.solve())
+
+
+def test_a_drag_back_and_forth_grows_the_matrix_pattern_once_and_then_keeps_it(monkeypatch):
+    """A via point moving into another cell needs new entries: the new matrix keeps the old ones too
+    (the union of the patterns so far), so moving among places seen before makes no further matrices."""
+    import skelfem.solver
+    made = []
+    new_matrix = skelfem.solver.NewtonSolver.new_matrix
+    monkeypatch.setattr(skelfem.solver.NewtonSolver, "new_matrix", lambda self: (made.append(1), new_matrix(self)))
+    raw = _raw()
+    places = [_drag(raw, 2, [0.3 * k, 0.15 * k]) for k in (1, -1, 2)]
+    with Session(raw) as s:
+        s.solve()
+        for d in places * 4:
+            assert s.edit(d, morph=True) == "moved nodes" and s.solve().converged
+            assert s.model._within_pattern(s.model.terms)
+    assert 1 <= len(made) <= 3

@@ -37,7 +37,7 @@ import time
 
 import numpy as np
 
-from ..design import DesignError, flatten, parse_design
+from ..design import DesignError, changed_keys, flatten, parse_design
 from .payload import mesh_payload
 
 log = logging.getLogger("skelfem")
@@ -72,13 +72,10 @@ def error_key(message: str, source: str) -> str:
 
 def live_changes(old: dict, new: dict, live) -> dict | None:
     """{key: value} taking flat design old to new if only live parameters differ; None if not."""
-    changed = {k for k in old.keys() | new.keys() if old.get(k, _MISSING) != new.get(k, _MISSING)}
+    changed = changed_keys(old, new)
     if any(k not in new or k not in live for k in changed):
         return None
     return {k: new[k] for k in changed}
-
-
-_MISSING = object()
 
 
 class Engine:
