@@ -146,8 +146,9 @@ def _neo_hookean_forms():
     return energy, residual, tangent
 
 
-def _via_points(points, edges, path) -> np.ndarray:
-    """Sketch vertices plus every crossing with a mesh edge, in order along the path."""
+def _via_points(points, edges, path, pieces: int = 1) -> np.ndarray:
+    """Sketch vertices plus every crossing with a mesh edge, in order along the path; each piece
+    between them cut into `pieces` equal chords (skelfem's P2 cables take 4 per cell)."""
     out = []
     a, b = points[edges[0]], points[edges[1]]
     for p, q in zip(path[:-1], path[1:]):
@@ -159,7 +160,8 @@ def _via_points(points, edges, path) -> np.ndarray:
             t = (ap[:, 0] * e[:, 1] - ap[:, 1] * e[:, 0]) / den
             s = (ap[:, 0] * r[1] - ap[:, 1] * r[0]) / den
         hit = ok & (t > -1e-10) & (t < 1 + 1e-10) & (s > -1e-10) & (s < 1 + 1e-10)
-        ts = np.unique(np.round(np.clip(np.concatenate([[0.0], t[hit]]), 0, 1), 12))
+        ts = np.unique(np.round(np.clip(np.concatenate([[0.0], t[hit], [1.0]]), 0, 1), 12))
+        ts = np.concatenate([np.linspace(t0, t1, pieces, endpoint=False) for t0, t1 in zip(ts[:-1], ts[1:])])
         out.append(p + ts[:, None] * r)
     pts = np.vstack(out + [path[-1:]])
     keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-9])
@@ -249,7 +251,8 @@ def skfem_solve(problem: dict, max_iterations: int = 50, line_search: str = "non
         consts[name] = {"mu": dg0.interpolate(problem["mu"]), "lam": dg0.interpolate(problem["lam"]),
                         "t": problem["thickness"]}
     fixed = basis_r.get_dofs(lambda x: x[1] <= problem["pinned_y"]).all()
-    cable = PeerTendon(basis_r, _via_points(mesh.p.T, mesh.facets, problem["path"]), problem["k"],
+    cable = PeerTendon(basis_r, _via_points(mesh.p.T, mesh.facets, problem["path"], 4 if degree == 2 else 1),
+                       problem["k"],
                        problem["contraction"])
     marker = basis_r.probes(problem["marker"][:, None]).tocsr()
     energy_form, residual_form, tangent_form = _neo_hookean_forms()

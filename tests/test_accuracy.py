@@ -42,6 +42,29 @@ def test_the_rate_is_clipped_and_differences_that_grow_give_the_smallest():
     assert two.rate == accuracy.R_TWO_LEVELS                                  # two levels: a rate is assumed
 
 
+def test_an_oscillating_ladder_is_bounded_by_half_its_spread():
+    """Answers that overshoot (e = C_k h^r with C_k changing sign) fool Richardson: its estimate from the
+    last change is below the true error; half the spread of the last three answers is not."""
+    levels = []
+    for h, x in zip((4.0, 2.0, 1.0), (-0.1, 0.03, 0.02)):   # the limit is 0: the finest is 0.02 off
+        levels.append(Level(h, 0, 0, 0.0, np.array([[x, 0.0]])))
+        if len(levels) > 1:
+            levels[-1].change = float(np.linalg.norm(levels[-1].markers - levels[-2].markers))
+    true_error = 0.02
+    x = [lv.markers[0, 0] for lv in levels]
+    assert accuracy.oscillation(levels) == pytest.approx(0.5 * (max(x) - min(x)))
+    estimate, _ = richardson(levels)
+    assert estimate == pytest.approx(0.5 * (max(x) - min(x)))
+    assert estimate >= true_error
+    d = abs(x[2] - x[1])
+    assert d / (2.0 ** accuracy.R_MAX - 1.0) < true_error   # what Richardson alone would have said
+    monotone = _levels((4.0, 2.0, 1.0))
+    assert accuracy.oscillation(monotone) == 0.0         # answers from one side: Richardson alone
+    two_markers = [Level(lv.size, 0, 0, 0.0, np.vstack([lv.markers, m.markers]))
+                   for lv, m in zip(levels, monotone)]
+    assert accuracy.oscillation(two_markers) == accuracy.oscillation(levels)   # the reversing marker's spread
+
+
 def test_next_size_aims_below_the_tolerance_within_bounds():
     lv = Level(1.0, 0, 0, 0.0, np.zeros((1, 2)), change=0.1, rate=2.0, estimate=0.1)
     h = accuracy.next_size(lv, 0.1, 3)                                       # 3D: between h/2 and h/sqrt 2

@@ -105,3 +105,24 @@ def test_rest_length_follows_contraction_and_pretension(rect):
     lig = Cable.build(V, SimpleNamespace(name="l", kind="ligament", path=np.array([[3, 0], [3, 96]]),
                                          stiffness=1.0, contraction=0.0, pretension=2.0))
     assert np.isclose(lig.rest_length(1.0), 94.0)
+
+
+def test_p2_cables_follow_the_bent_cells_not_their_chords(rect, monkeypatch):
+    """With P2 a straight sketch bends into a parabola inside each cell: the cable's length is the bent
+    curve's (four chords per cell: error / 16), not one chord's per cell, which cuts its corners."""
+    import skelfem.terms.cables as cables
+    a, lam = 2.0, 6.0                                  # x = X + a sin(Y / lam): a wavy line
+    V = fem.VectorFunctionSpace(rect, ("Lagrange", 2))
+    u = fem.Function(V)
+    u.interpolate(lambda x: np.vstack([a * np.sin(x[1] / lam), 0.0 * x[1]]))
+    Y = np.linspace(0.0, 90.0, 200001)
+    exact = np.trapz(np.sqrt(1.0 + (a / lam * np.cos(Y / lam)) ** 2), Y)
+    errors = {}
+    for pieces in (1, 4):
+        monkeypatch.setitem(cables.PIECES, 2, pieces)
+        cable = Cable.build(V, _spec([[3, 0], [3, 90]]))
+        errors[pieces] = abs(cable.length(u.x.array) - exact)
+    assert errors[1] > 2e-4 * exact                    # one chord per cell: 0.04 mm short over 92 mm
+    assert errors[4] < errors[1] / 10.0
+    assert len(via_points(rect, np.array([[3.0, 0.0], [3.0, 90.0]]), 4)) == \
+        4 * (len(via_points(rect, np.array([[3.0, 0.0], [3.0, 90.0]]))) - 1) + 1

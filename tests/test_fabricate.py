@@ -216,7 +216,10 @@ def admesh(path) -> dict:
     if exe is None:
         pytest.fail("admesh is not installed: `make setup` installs it (Makefile APT_PACKAGES), "
                     "or `apt-get install admesh`")
-    text = subprocess.run([exe, str(path)], capture_output=True, text=True, timeout=120, check=True).stdout
+    # admesh prints the 80-byte header without its end, and whatever bytes follow it in memory (not
+    # always UTF-8) with it
+    text = subprocess.run([exe, str(path)], capture_output=True, timeout=120, check=True).stdout.decode(
+        "utf-8", "replace")
     out = {}
     for key, pattern in ADMESH_FIELDS.items():
         m = re.search(pattern, text)

@@ -96,11 +96,18 @@ def _crossings_3d(p, q, facets) -> np.ndarray:
     return t[hit]
 
 
-def via_points(mesh, path: np.ndarray) -> np.ndarray:
-    """Sketch vertices plus every crossing with a mesh facet, in order along the path.
+def via_points(mesh, path: np.ndarray, pieces: int = 1) -> np.ndarray:
+    """Sketch vertices plus every crossing with a mesh facet, in order along the path, and the
+    piece inside each cell cut into `pieces` equal parts.
 
     Each rank cuts the sketch with its own facets; the cuts are gathered, so
-    every rank gets the same via points as a serial run.
+    every rank gets the same via points as a serial run. With P1 a straight
+    piece of the sketch stays straight inside its cell (the map is affine);
+    with P2 it bends into a parabola, and a chord across the whole cell cuts
+    its corner by kappa s^2 / 8 (kappa its curvature, s its length): the
+    cable's length and its lever arm about a joint are then off by an amount
+    that changes from mesh to mesh (0.02 mm at the tip of a tapered finger).
+    `pieces` chords per cell cut that by pieces^2 (``PIECES``).
     """
     path = np.asarray(path, dtype=float)
     facets, lo_f, hi_f = _mesh_facets(mesh)
@@ -118,10 +125,23 @@ def via_points(mesh, path: np.ndarray) -> np.ndarray:
         t = np.unique(np.concatenate([[0.0], t]))
         seg_len = np.linalg.norm(q - p)
         keep = np.concatenate([[True], np.diff(t) * seg_len > 1e-9 * max(seg_len, 1.0)])
-        out.append(p + t[keep, None] * (q - p))
+        t = _subdivide(np.append(t[keep], 1.0), pieces)[:-1]
+        out.append(p + t[:, None] * (q - p))
     points = np.vstack(out + [path[-1:]])
     gap = np.linalg.norm(np.diff(points, axis=0), axis=1)
     return points[np.concatenate([[True], gap > 1e-12])]
+
+
+PIECES = {1: 1, 2: 4}          # chords per cell along a cable, by the displacement's degree
+
+
+def _subdivide(t: np.ndarray, pieces: int) -> np.ndarray:
+    """The increasing parameters t with every interval cut into `pieces` equal parts."""
+    if pieces <= 1 or len(t) < 2:
+        return t
+    f = np.arange(pieces) / pieces
+    inner = (t[:-1, None] + f * np.diff(t)[:, None]).ravel()
+    return np.append(inner, t[-1])
 
 
 PER_RADIUS = {2: 8, 3: 6}       # lattice points per anchor radius, at least ...
@@ -295,7 +315,7 @@ class Cable:
         (an end, or a bend) act on the mean displacement of a disk (2D) or ball (3D) of that radius
         (a finite anchor: the cable runs through the disk's material centroid) instead of a material point."""
         mesh = V.mesh
-        X = via_points(mesh, spec.path)
+        X = via_points(mesh, spec.path, PIECES.get(V.ufl_element().degree(), 4))
         path = np.asarray(spec.path, dtype=float)
         at = {}
         for k, r in (anchors or {}).items():       # sketch vertex -> its via point (the sketch's own vertex)
