@@ -106,7 +106,8 @@ def via_points(mesh, path: np.ndarray, pieces: int = 1) -> np.ndarray:
     with P2 it bends into a parabola, and a chord across the whole cell cuts
     its corner by kappa s^2 / 8 (kappa its curvature, s its length): the
     cable's length and its lever arm about a joint are then off by an amount
-    that changes from mesh to mesh (0.02 mm at the tip of a tapered finger).
+    that changes from mesh to mesh (0.015 mm at the tip of a tapered finger,
+    0.04 mm on finger.toml, P2 at h = 1).
     `pieces` chords per cell cut that by pieces^2 (``PIECES``).
     """
     path = np.asarray(path, dtype=float)
