@@ -159,6 +159,7 @@ def tol_runs(name: str, tols, tip_ref: np.ndarray) -> list[dict]:
                 spent = time.perf_counter() - t
             rows.append({"design": name, "method": method, "tol": tol, "dofs": int(a["dofs"]), "time": spent,
                          "meshes": len(a["levels"]), "estimate": a["estimated_error"], "met": bool(a["met"]),
+                         "ladder_dofs": [lv["dofs"] for lv in a["levels"] if not lv.get("twin")],
                          "error": float(np.linalg.norm(_tip(result) - tip_ref)),
                          "min_size": a.get("min_size", a["size"]), "max_size": a.get("max_size", a["size"])})
             r = rows[-1]

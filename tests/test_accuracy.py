@@ -96,32 +96,71 @@ def test_a_levels_size_is_measured_by_its_dofs_not_the_size_asked_for():
     assert accuracy.next_size(lv, 1e-9, 3) == 0.5                            # the jump scales what is asked
 
 
+class _FakeSession:
+    """A session whose solve on a mesh of size h has (3D) DOFs dofs(h) and a tip at position(h, k),
+    k the solve's number; no mesh is made."""
+    comm = type("C", (), {"size": 1})()
+
+    def __init__(self, dofs, position):
+        from skelfem.design import load_design
+        self.design = accuracy.at_size(load_design(GEOMETRY / "pillar3d.toml"), 4.0)
+        self.model, self.sizes, self.dofs, self.position = None, [], dofs, position
+
+    def edit(self, design, size=None):
+        self.design = design
+
+    def solve(self):
+        h = float(self.design.mesh.size)
+        self.sizes.append(h)
+        return type("R", (), {"converged": True, "dofs": self.dofs(h), "newton_iterations": 2,
+                              "markers": {"tip": {"position": self.position(h, len(self.sizes) - 1)}}})()
+
+
 def test_a_repeated_mesh_replaces_the_last_level(monkeypatch):
     """On a body barely larger than h, h = 4 and 2.83 give one mesh: it is one level (labelled 2.83)."""
-    class Session:
-        comm = type("C", (), {"size": 1})()
-
-        def __init__(self):
-            self.design = accuracy.at_size(_design(), 4.0)
-            self.model, self.k = None, 0
-
-        def edit(self, design, size=None):
-            self.design = design
-
-        def solve(self):
-            h = float(self.design.mesh.size)
-            dofs = 1000 if h > 2.5 else int(1000 * (2.83 / h) ** 3)
-            return type("R", (), {"converged": True, "dofs": dofs, "newton_iterations": 2,
-                                  "markers": {"tip": {"position": [0.01 * h ** 2, 0.0, 0.0]}}})()
-
-    def _design():
-        from skelfem.design import load_design
-        return load_design(GEOMETRY / "pillar3d.toml")
     monkeypatch.setattr(accuracy, "anchor_zones", lambda model, h0: None)
-    _, acc = accuracy.refine(Session(), tol=1e-3)
-    sizes = [lv["size"] for lv in acc["levels"]]
+    session = _FakeSession(lambda h: 1000 if h > 2.5 else int(1000 * (2.83 / h) ** 3),
+                           lambda h, k: [0.01 * h ** 2, 0.0, 0.0])
+    _, acc = accuracy.refine(session, tol=1e-3)
+    sizes = [lv["size"] for lv in acc["levels"] if not lv["twin"]]
     assert sizes[0] == pytest.approx(2.828427) and 4.0 not in sizes
     assert all(b["dofs"] > a["dofs"] for a, b in zip(acc["levels"], acc["levels"][1:]))
+
+
+def test_a_twin_mesh_measures_the_scatter_richardson_cannot_see(monkeypatch):
+    """Answers e = C h^1.8 plus a mesh-to-mesh scatter: the ladder alone would stop (and be wrong); the twin
+    (a mesh of 0.95 h) sees the scatter, the ladder goes on, and the answer's estimate covers its error."""
+    monkeypatch.setattr(accuracy, "anchor_zones", lambda model, h0: None)
+    session = _FakeSession(lambda h: int(1000 * (4.0 / h) ** 3), None)
+
+    def position(h, k):                          # the ladder's meshes converge cleanly, every twin is off
+        twin = k > 0 and h == pytest.approx(accuracy.TWIN * session.sizes[k - 1])
+        return [1e-4 * h ** 1.8 + (0.004 * h if twin else 0.0), 0.0, 0.0]
+    session.position = position
+    _, acc = accuracy.refine(session, tol=0.01)
+    levels = acc["levels"]
+    twins = [i for i, lv in enumerate(levels) if lv["twin"]]
+    assert levels[-1]["twin"] and len(twins) == 2                      # the first twin failed, the ladder went on
+    first = levels[twins[0]]
+    assert first["size"] == pytest.approx(accuracy.TWIN * levels[twins[0] - 1]["size"])
+    assert accuracy.MARGIN * levels[twins[0] - 1]["estimate"] <= 0.01      # Richardson alone would have stopped
+    assert accuracy.MARGIN * first["estimate"] > 0.01                       # the twin did not
+    for i in twins:
+        lv, ladder = levels[i], levels[i - 1]
+        assert lv["estimate"] == pytest.approx(max(ladder["estimate"], lv["scatter"]))
+    h = acc["size"]
+    assert acc["met"] and accuracy.MARGIN * acc["estimated_error"] >= 1e-4 * h ** 1.8 + 0.004 * h   # its error
+    assert acc["scatter"] == levels[-1]["scatter"] and session.sizes[-1] == h      # the answer is the twin
+
+
+def test_twin_level_takes_the_larger_of_richardson_and_the_scatter():
+    level = Level(1.0, 8000, 3, 0.1, np.array([[1.0, 2.0]]), h=1.0, rate=1.5, estimate=0.01)
+    res = type("R", (), {"dofs": 9000, "newton_iterations": 2, "markers": {"m": {"position": [1.0, 2.03]}}})()
+    twin = accuracy.twin_level(level, 0.95, res, 0.2)
+    assert twin.twin and twin.scatter == pytest.approx(0.03) and twin.estimate == pytest.approx(0.03)
+    assert twin.h == pytest.approx((8000 / 9000) ** 0.5)                     # measured by its DOFs
+    res.markers["m"]["position"] = [1.0, 2.001]
+    assert accuracy.twin_level(level, 0.95, res, 0.2).estimate == pytest.approx(0.01)
 
 
 def _strip_file(tmp_path, **kw) -> Path:

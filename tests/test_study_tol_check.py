@@ -1,4 +1,6 @@
 """studies/tol_check.py on one design and one tolerance: the command meets it against a finer reference."""
+import json
+
 import pytest
 from _studies import load_study
 
@@ -15,6 +17,10 @@ def test_tol_check_tiny(tmp_path):
     assert 0 < r["estimated_error"] <= 1.0 / 2                 # met: twice the estimate within the tolerance
     assert r["effectivity"] == pytest.approx(r["estimated_error"] / r["error_vs_reference"])
     assert r["dofs"] < r["reference_dofs"] and 0 < r["time"] and 0 < r["reference_time"]
+    assert 0 <= r["reference_uncertainty"] < r["estimated_error"]       # the reference's twin: its own scatter
+    assert r["measurable"] == (r["error_vs_reference"] > 2 * r["reference_uncertainty"])
+    levels = json.loads((tmp_path / "thumb" / "tol_1" / "result.json").read_text())["accuracy"]["levels"]
+    assert levels[-1]["twin"] and levels[-1]["scatter"] >= 0 and r["size"] == levels[-1]["size"]
     assert (tmp_path / "thumb" / "tol_1" / "result.json").exists()
     assert not (tmp_path / "thumb" / "tol_1" / "deformed.png").exists()     # --no-picture
     again = study.run(designs=("thumb",), tols=(1.0,), ref_size=0.5, out=tmp_path, reuse=True)[0]
@@ -31,8 +37,6 @@ def test_tol_check_main_writes_its_table(tmp_path, capsys):
 
 def test_a_3d_reference_is_extrapolated_from_three_meshes(tmp_path):
     """3D: P2 at 2, sqrt 2 and 1 x h_ref, the markers extrapolated by Richardson (sizes measured by DOFs)."""
-    import json
-
     import numpy as np
     study = load_study("tol_check")
     study.solve_reference("post3d", 1.414, tmp_path)
