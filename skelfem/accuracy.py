@@ -36,7 +36,7 @@ if the estimate is low by up to a factor MARGIN); else the ladder goes on from
 level k with that estimate, or it stops when the next mesh would pass the DOF limit
 of skelfem.resources or MAX_LEVELS (``met: false``: the estimate on the
 finest mesh is reported, never a promise it does not keep). The answer is the
-last level's solve itself.
+last solve itself: the twin where the tolerance is met.
 
 What it assumes: the finest levels are in the asymptotic range, where the
 marker error falls like h^r. Where the continuum answer does not exist (a
@@ -249,8 +249,9 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
     """Solve session's design on the ladder of meshes until the estimate meets tol.
 
     session: a Session of the design at its first level (DEGREE, size h_0), not
-    yet solved. Returns (the last level's Result, the ``accuracy`` dict of
-    result.json). The session holds the last level afterwards.
+    yet solved. Returns (the last solve's Result, the ``accuracy`` dict of
+    result.json; its ``levels`` are every solve in order, twins included). The
+    session holds the last solve afterwards.
     adaptive: rounds of graded meshes from element indicators instead
     (skelfem.adapt; serial runs only, the uniform ladder under MPI).
     """
@@ -300,6 +301,9 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
             if not result.converged:
                 stop = f"the twin solve at h = {session.design.mesh.size:g} mm failed ({result.status})"
                 break
+            if result.dofs == level.dofs:
+                log.warning("--tol: h = %g ... %g mm give one mesh: the scatter is not measured", level.size,
+                            session.design.mesh.size)
             answer = twin_level(level, session.design.mesh.size, result, time.perf_counter() - t)
             history.append(answer)
             log.info("--tol: twin h = %g mm, %d DOFs: scatter %.3g mm, estimate %.3g mm", answer.size,
