@@ -36,6 +36,12 @@ small symmetric system
     [H^T - G^T Z_E   -(D^-1 + G^T Z_G)  ] [w] = [-G^T y       ]
 
 (without a border this is the Woodbury formula above).
+
+In serial the model writes the border into K itself (``Border.hosts``): z
+takes the rows and columns of a few slaved DOFs, which then hold E^T and C
+instead of identity rows. The system above is then a plain (K + G D G^T)
+solve with b -> (b_f, T^T b on the hosts) and g_i -> (g_f, h_i on the
+hosts), and x = x_f + T z: one factorisation and no extra right-hand sides.
 """
 from __future__ import annotations
 
@@ -63,6 +69,17 @@ class Border:
     rows: np.ndarray     # (n,) bool: the slaved rows (identity rows and columns of K)
     E: np.ndarray        # (n, m): K_full T on the other rows (zero on slaved and Dirichlet rows)
     C: np.ndarray        # (m, m): the reduced block T^T K T (+ second-order terms), same on every rank
+    hosts: np.ndarray | None = None   # (m,): slaved rows of K that hold z (E and C already in K), serial
+
+    def embed(self, v: np.ndarray) -> np.ndarray:
+        """(v_f, T^T v on the hosts) of a full vector v (or of the columns of a block)."""
+        out = v * (~self.rows if v.ndim == 1 else ~self.rows[:, None])
+        out[self.hosts] = self.T.T @ v
+        return out
+
+    def expand(self, y: np.ndarray) -> np.ndarray:
+        """x = y_f + T z of a solution y of the embedded system, z = y on the hosts."""
+        return y * ~self.rows + self.T @ y[self.hosts]
 
 
 class LowRankSolver:
@@ -86,6 +103,7 @@ class LowRankSolver:
         self.border = None
         self.C = np.zeros((0, 0))
         self._dense: dict = {}
+        self._work = None               # the embedded right-hand side (Border.hosts)
         self.solves = 0                 # solve phases run (one multi-RHS solve counts once)
 
     def update(self, parts: list[tuple[float, PETSc.Vec]], border: Border | None = None) -> None:
@@ -98,7 +116,9 @@ class LowRankSolver:
         self.G = np.column_stack([g.array_r for _, g in parts]) if parts else np.zeros((n, 0))
         self.border = border
         self.H = np.zeros((0, len(self.c)))
-        if border is not None:
+        if border is not None and border.hosts is not None:
+            self.G = border.embed(self.G)                   # (g_f, h_i on the hosts)
+        elif border is not None:
             self.H = self._dots(border.T, self.G)          # h_i = T^T g_i
             self.G = self.G * ~border.rows[:, None]
         self.Z = None
@@ -140,7 +160,19 @@ class LowRankSolver:
 
     def solve(self, b: PETSc.Vec, x: PETSc.Vec) -> None:
         """x = (K + G D G^T)^{-1} b, reduced to the border unknowns if there is a border."""
-        k, border = len(self.c), self.border
+        border = self.border
+        if border is None or border.hosts is None:
+            self._solve(b, x, border)
+            return
+        if self._work is None:
+            self._work = b.duplicate()
+        self._work.array_w[:] = border.embed(b.array_r)
+        self._solve(self._work, x, None)
+        x.array_w[:] = border.expand(x.array_r)
+
+    def _solve(self, b: PETSc.Vec, x: PETSc.Vec, border: Border | None) -> None:
+        """solve() with the border (if any) outside K."""
+        k = len(self.c)
         if k == 0 and border is None:
             self.ksp.solve(b, x)
             self.solves += 1
@@ -192,6 +224,9 @@ class LowRankSolver:
             B.destroy()
             X.destroy()
         self._dense = {}
+        if self._work is not None:
+            self._work.destroy()
+            self._work = None
 
 
 class _ApplyPC:

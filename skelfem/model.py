@@ -16,9 +16,12 @@ Rigid bodies (``Term.rigid_body``: rigid bones) are solved for their rigid
 DOFs q: their nodes' rows of K become identity rows and columns too, after
 K T (T = du_b/dq) has given the coupling E and the reduced block
 C = T^T K T + sum_i R_i . d2u_i/dq2 of the linear solver's border
-(:class:`skelfem.linear.Border`, ``border``); the residual on those rows is
-the projection of grad Pi onto the rigid modes, and ``apply_bcs`` puts every
-rigid body exactly on its closest rigid motion.
+(:class:`skelfem.linear.Border`, ``border``). In serial the border lives in
+K itself: each body's q takes the rows and columns of the first DOFs of its
+first nodes (its *hosts*), which hold E and C, so one factorisation covers
+it; under MPI the linear solver adds it from K^{-1} E. The residual on those
+rows is the projection of grad Pi onto the rigid modes, and ``apply_bcs``
+puts every rigid body exactly on its closest rigid motion.
 
 ``refresh`` makes the model follow an edit that keeps the mesh (moved nodes,
 cables, markers, pins...) without compiling anything again: terms follow in
@@ -75,6 +78,7 @@ class Model:
         self._last_gradient = None    # (state, grad Pi) of the last residual (rigid bodies)
         self._pattern_keys = None     # node pairs (row * nodes + column) of the last matrix made (serial)
         self._extra_keys = np.zeros(0, np.int64)  # node pairs of terms replaced by refresh, kept in new matrices
+        self._hosts = None            # serial rigid bodies: [(host DOFs, coupled DOFs)] per body (_border_pattern)
 
         parts = [e for e in (term.ufl_energy(self.ctx) for term in self.terms) if e is not None]
         Pi = sum(parts[1:], parts[0])
@@ -175,7 +179,8 @@ class Model:
         self._block_cache.clear()
         self._csr_cache = None
         self._last_gradient = self.border = None
-        if self._within_pattern(rebuilt):
+        border_blocks, self._hosts = self._border_pattern([b for term in terms for b in term.pattern()])
+        if self._within_pattern([b for term in rebuilt for b in term.pattern()] + border_blocks):
             return "same matrix"
         # the new matrix keeps the replaced terms' blocks too: while a drag moves via points from
         # cell to cell, the pattern grows a few times and then holds
@@ -191,11 +196,11 @@ class Model:
         starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]]) if len(rows) else np.zeros(0, int)
         return [(rows[i:i + 1], c) for i, c in zip(starts, np.split(cols, starts[1:]))]
 
-    def _within_pattern(self, terms) -> bool:
-        """Whether every pattern block of the terms is inside the last matrix made (serial)."""
+    def _within_pattern(self, blocks) -> bool:
+        """Whether every pattern block (row nodes, column nodes) is inside the last matrix made (serial)."""
         if self._pattern_keys is None:
             return False
-        keys = _block_keys([block for term in terms for block in term.pattern()], self.n_local // self.bs)
+        keys = _block_keys(blocks, self.n_local // self.bs)
         if not len(keys):
             return True
         if not len(self._pattern_keys):
@@ -385,18 +390,56 @@ class Model:
             rows = rows[(rows >= lo) & (rows < lo + self.n_owned)]
             yield rows.astype(PETSc.IntType), cols.astype(PETSc.IntType)
 
+    def _form_cells(self) -> np.ndarray:
+        """The cells the Hessian's form integrates over (rigid bodies' cells are not among them)."""
+        form, kind = self.jacobian_form, fem.IntegralType.cell
+        return np.unique(np.concatenate([form.domains(kind, i) for i in form.integral_ids(kind)]))
+
     def _cell_pattern(self):
         """The UFL Hessian's pattern from the cells its form integrates over only (DOLFINx's own
         pattern takes every cell): the cells of rigid bodies add no entries."""
-        form, kind = self.jacobian_form, fem.IntegralType.cell
         imap = self.V.dofmap.index_map
         pattern = _cpp.la.SparsityPattern(self.comm, [imap, imap], [self.bs, self.bs])
-        cells = np.unique(np.concatenate([form.domains(kind, i) for i in form.integral_ids(kind)]))
         dofmap = self.V.dofmap.list
-        for c in cells:
+        for c in self._form_cells():
             nodes = dofmap.links(c)
             pattern.insert(nodes, nodes)
         return pattern
+
+    def _border_pattern(self, blocks) -> tuple[list, list | None]:
+        """Serial rigid bodies: the pattern blocks that put the border into K, and the host map.
+
+        Body j's q_j takes the rows and columns of the first m_j DOFs of its
+        first ceil(m_j / bs) nodes (its hosts; m_j = 3 in 2D, 6 in 3D). Its
+        coupling E_j = (K T)_j is non-zero on the rows of K that reach the
+        body: the nodes of every assembled cell or term block (``blocks``:
+        (row nodes, column nodes)) that touches one of its nodes. Returns
+        ([(rows, cols)] node blocks: hosts x coupled, coupled x hosts, hosts x
+        hosts), [(host DOFs, coupled DOFs)] per body); ([], None) under MPI or
+        without rigid bodies.
+        """
+        if self.comm.size != 1 or not self.rigid:
+            return [], None
+        bs, n = self.bs, self.n_local // self.bs
+        npc = self.V.dofmap.dof_layout.num_dofs
+        cell_nodes = self.V.dofmap.list.array.reshape(-1, npc)[self._form_cells()]
+        out, hosts = [], []
+        for body in self.rigid:
+            nodes = np.unique(body.dofs[:, 0] // bs)
+            inside = np.zeros(n, dtype=bool)
+            inside[nodes] = True
+            near = [cell_nodes[inside[cell_nodes].any(axis=1)].ravel()]
+            near += [np.asarray(r) for r, c in blocks if inside[np.asarray(c)].any()]
+            near += [np.asarray(c) for r, c in blocks if inside[np.asarray(r)].any()]
+            near = np.unique(np.concatenate(near).astype(np.int64))
+            near = near[~inside[near]]
+            host_nodes = body.dofs[:-(-body.m // bs), 0] // bs
+            out += [(host_nodes, near), (near, host_nodes)]
+            hosts.append((body.dofs[:-(-body.m // bs)].ravel()[:body.m],
+                          (near[:, None] * bs + np.arange(bs)).ravel()))
+        every = np.concatenate([h for h, _ in hosts]) // bs
+        out.append((every, every))
+        return out, hosts
 
     def create_matrix(self) -> PETSc.Mat:
         """The sparse Newton matrix K: the UFL Hessian's pattern plus every term's (sparse) blocks.
@@ -407,8 +450,10 @@ class Model:
         raise), so MUMPS reuses its analysis across Newton iterations.
         """
         pattern = self._cell_pattern() if self.rigid else fem.create_sparsity_pattern(self.jacobian_form)
-        if self.comm.size == 1:        # serial: the term blocks go into DOLFINx's pattern
-            for rn, cn in [block for term in self.terms for block in term.pattern()] + self._extra_rows():
+        if self.comm.size == 1:        # serial: the term blocks (and the rigid border) go into DOLFINx's pattern
+            blocks = [block for term in self.terms for block in term.pattern()] + self._extra_rows()
+            border_blocks, self._hosts = self._border_pattern(blocks)
+            for rn, cn in blocks + border_blocks:
                 pattern.insert(np.asarray(rn, np.int32), np.asarray(cn, np.int32))
         pattern.assemble()
         A = _cpp.la.petsc.create_matrix(self.comm, pattern)
@@ -556,9 +601,24 @@ class Model:
             C[j:j + body.m, j:j + body.m] += body.second_derivative(u, grad)
             j += body.m
         KT[self.slaved] = 0.0
+        C = 0.5 * (C + C.T)
         A.zeroRowsColumns(self._slaved_rows, diag=1.0)
-        self.border = Border(T, self.slaved, KT, 0.5 * (C + C.T))
+        hosts = None if self._hosts is None else self._embed_border(A, KT, C)
+        self.border = Border(T, self.slaved, KT, C, hosts)
         self.sync(x)
+
+    def _embed_border(self, A: PETSc.Mat, KT: np.ndarray, C: np.ndarray) -> np.ndarray:
+        """Write E = K T and C into the hosts' rows and columns of A (serial); the host DOFs in q's order."""
+        g, j, insert = self.global_dofs, 0, PETSc.InsertMode.INSERT_VALUES
+        for host, near in self._hosts:
+            E = KT[near, j:j + len(host)]
+            A.setValues(g[near], g[host], E, addv=insert)
+            A.setValues(g[host], g[near], E.T.copy(), addv=insert)
+            j += len(host)
+        hosts = np.concatenate([h for h, _ in self._hosts])
+        A.setValues(g[hosts], g[hosts], C, addv=insert)
+        A.assemble()
+        return hosts
 
     def low_rank(self, x: PETSc.Vec | None = None) -> list[tuple[float, PETSc.Vec]]:
         """The rank-one parts c g g^T of hess Pi as (c, g) with g a PETSc vector, zero on Dirichlet DOFs.

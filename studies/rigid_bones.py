@@ -11,7 +11,9 @@ strain is what separates them), the Newton unknowns (DOFs; with rigid bones
 the free DOFs plus 3 per bone in 2D, 6 in 3D), the Newton matrix's nonzeros,
 the cells the elastic form integrates over, Newton iterations and the
 median wall time of a cold solve (from rest; mesh and compilation excluded)
-over ``repeats``. run(**params) returns the numbers; main(argv) prints them
+over ``repeats``, that time per iteration, and the median time (and
+iterations) of warm re-solves after each tendon's contraction changes by 5 %
+(the editor's live edit). run(**params) returns the numbers; main(argv) prints them
 and writes rigid_bones.json.
 """
 from __future__ import annotations
@@ -27,6 +29,22 @@ ROOT = Path(__file__).resolve().parents[1]
 FINGER = ROOT / "geometry" / "finger.toml"
 
 
+def _warm(s, repeats: int) -> tuple[list, list]:
+    """Times and Newton iterations of re-solves after each tendon's contraction changes by 5 %
+    (up, then back down: the editor's live edit), warm-started from the last solution."""
+    live = {k: v for k, v in s.model.parameters().items() if k.endswith(".contraction") and v}
+    times, iterations = [], []
+    for i in range(2 * max(repeats, 1)):
+        s.set({k: v * (1.05 if i % 2 == 0 else 1.0) for k, v in live.items()})
+        t0 = time.perf_counter()
+        r = s.solve()
+        times.append(time.perf_counter() - t0)
+        iterations.append(int(r.newton_iterations))
+        if not r.converged:
+            raise RuntimeError(f"a warm re-solve failed ({r.status})")
+    return times, iterations
+
+
 def _solve(design, overrides, repeats: int) -> dict:
     from skelfem import Session
     from skelfem.design import load_design
@@ -37,6 +55,7 @@ def _solve(design, overrides, repeats: int) -> dict:
             t0 = time.perf_counter()
             r = s.solve()
             times.append(time.perf_counter() - t0)
+        warm, warm_its = _warm(s, repeats)
         model = s.model
         cells = model.mesh.topology.index_map(model.mesh.topology.dim).size_local
         rigid_cells = sum(len(model.tm.cell_tags.find(model.tm.tags[f"bone:{b.name}"]))
@@ -48,6 +67,8 @@ def _solve(design, overrides, repeats: int) -> dict:
                 "nnz": int(s.solver.A.getInfo()["nz_used"]),
                 "assembled_cells": int(cells - rigid_cells),
                 "time": float(np.median(times)), "times": times,
+                "per_iteration": float(np.median(times)) / max(int(r.newton_iterations), 1),
+                "warm_time": float(np.median(warm)), "warm_iterations": warm_its,
                 "residual_tail": [float(x) for x in r.residual_history[-1][-4:]],
                 "bones": r.to_dict().get("bones")}
 
@@ -85,10 +106,13 @@ def main(argv=None) -> int:
     rg = r["rigid"]
     print(f"{r['design']} h = {r['size']}: rigid bones: {rg['unknowns']} unknowns ({rg['dofs']} DOFs), "
           f"nnz {rg['nnz']}, {rg['assembled_cells']} cells assembled, {rg['iterations']} iterations, "
-          f"{rg['time']:.3f} s; residual tail {rg['residual_tail']}")
+          f"{rg['time']:.3f} s ({1e3 * rg['per_iteration']:.1f} ms per iteration), warm re-solve "
+          f"{rg['warm_time']:.3f} s ({rg['warm_iterations']} iterations); residual tail {rg['residual_tail']}")
     for e in r["elastic"]:
         print(f"  elastic E_bone = {e['E_bone']}: {e['unknowns']} unknowns, nnz {e['nnz']}, "
-              f"{e['assembled_cells']} cells, {e['iterations']} iterations, {e['time']:.3f} s, "
+              f"{e['assembled_cells']} cells, {e['iterations']} iterations, {e['time']:.3f} s "
+              f"({1e3 * e['per_iteration']:.1f} ms per iteration), warm re-solve {e['warm_time']:.3f} s "
+              f"({e['warm_iterations']} iterations), "
               f"marker difference {e['marker_difference']:.3e} mm")
     if "slope" in r:
         print(f"  slope of log(difference) against log(E_bone): {r['slope']:.3f}")

@@ -8,6 +8,7 @@ import pytest
 
 from skelfem import Session
 from skelfem.design import DesignError, SolverSpec, parse_design
+from skelfem.model import Model
 from skelfem.solver import NewtonSolver
 from skelfem.terms.rigid import rotation
 
@@ -75,13 +76,21 @@ class Reduced:
         return np.concatenate([g[self.free]] + [body.reduce(body.modes(u), g) for body in model.rigid])
 
     def hessian_times(self, d):
-        """The model's reduced Hessian at z = 0 times d: K, the border (E, C) and the low-rank parts."""
+        """The model's reduced Hessian at z = 0 times d: K, the border (E, C) and the low-rank parts.
+
+        With the border in K (serial: Border.hosts) q sits on the host rows of K and of the g_i."""
         model, lin, A = self.model, self.s.solver.lin, self.s.solver.A
         self.s.solver.jacobian(self._vec(np.zeros(self.size)))
         border = model.border
         dq = d[self.nv:]
         xf = np.zeros(model.n_owned)
         xf[self.free] = d[:self.nv]
+        if border.hosts is not None:
+            xf[border.hosts] = dq
+            self.x.array_w[:] = xf
+            A.mult(self.x, self.b)
+            out = self.b.array_r + lin.G @ (lin.c * (lin.G.T @ xf))
+            return np.concatenate([out[self.free], out[border.hosts]])
         self.x.array_w[:] = xf
         A.mult(self.x, self.b)
         w = lin.c * (lin.G.T @ xf + lin.H.T @ dq)
@@ -117,8 +126,12 @@ def test_design_rigid_key():
         parse_design(bad)
 
 
-def test_reduced_gradient_and_hessian_match_central_differences():
+@pytest.mark.parametrize("embedded", [True, False], ids=["border in K", "border outside K"])
+def test_reduced_gradient_and_hessian_match_central_differences(embedded, monkeypatch):
+    if not embedded:                    # the MPI path, in serial: the border from K^-1 E
+        monkeypatch.setattr(Model, "_border_pattern", lambda self, blocks: ([], None))
     with Session(_rigid_strip()) as s:
+        assert (s.model._hosts is not None) == embedded
         u0 = _perturbed(s)
         red = Reduced(s, u0)
         assert len(s.model.rigid) == 2 and red.size == red.nv + 6
