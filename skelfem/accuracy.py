@@ -38,6 +38,14 @@ of skelfem.resources or MAX_LEVELS (``met: false``: the estimate on the
 finest mesh is reported, never a promise it does not keep). The answer is the
 last solve itself: the twin where the tolerance is met.
 
+Bones: where the design has elastic bones, the first level is solved again
+with every bone rigid (``rigid_variant``; skelfem.terms.rigid: fewer
+unknowns and cells). Their difference b = max_markers |x_rigid - x_elastic|
+is what the bones' own strain does to the markers (it falls like 1/E_bone).
+If MARGIN b <= RIGID_SHARE tol the ladder goes on with rigid bones and b is
+added to every estimate it reports and checks; else with elastic bones
+(``accuracy.bones`` in result.json says which, and b).
+
 What it assumes: the finest levels are in the asymptotic range, where the
 marker error falls like h^r. Where the continuum answer does not exist (a
 point force in 2D: a cable *bending* inside silicone, see the README), the
@@ -66,6 +74,7 @@ MAX_LEVELS = 8
 MAX_JUMP = 2.0                        # h_{k-1} / h_k is at most this
 ZONE_SIZE = 0.5                       # the first level's size near a finite anchor, in anchor radii ...
 ZONE_RADIUS = 1.5                     # ... within this many anchor radii of its centre
+RIGID_SHARE = 0.1                     # rigid bones when MARGIN x their difference from elastic ones <= this x tol
 TWIN = 0.95                           # the twin mesh's size, in the level's it checks (0.95^2, 0.95^3
                                       # where Gmsh makes the same mesh again)
 
@@ -245,6 +254,40 @@ def twin_level(level: Level, size: float, result, seconds: float) -> Level:
     return twin
 
 
+def rigid_variant(design):
+    """design with every elastic bone ``rigid = true``; None if it has none or refuses rigid bones."""
+    from .design import DesignError, parse_design
+    names = [b.name for b in design.bones if not b.rigid]
+    if not names:
+        return None
+    try:
+        return parse_design(design.raw, design.source, [f"bones.{n}.rigid=true" for n in names])
+    except DesignError:
+        return None
+
+
+def _try_rigid(session, rigid, level: Level, size) -> tuple[Level, float] | None:
+    """The first level again with rigid bones: (its Level, max |x_rigid - x_elastic|), or None if the model
+    refuses them or the solve fails (the session then holds the elastic design again)."""
+    from .design import DesignError
+    t = time.perf_counter()
+    elastic = session.design
+    try:
+        session.edit(at_size(rigid, level.size), size=size)
+        result = session.solve()
+    except DesignError as exc:                   # e.g. a fixed pin holds a bone
+        log.info("--tol: rigid bones refused (%s)", exc)
+        session.edit(elastic, size=size)
+        return None
+    if not result.converged:
+        log.info("--tol: the solve with rigid bones failed (%s); elastic bones", result.status)
+        session.edit(elastic, size=size)
+        return None
+    probe = Level(level.size, int(result.dofs), int(result.newton_iterations), time.perf_counter() - t,
+                  _positions(result), h=level.h)
+    return probe, float(np.max(np.linalg.norm(probe.markers - level.markers, axis=1)))
+
+
 def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
     """Solve session's design on the ladder of meshes until the estimate meets tol.
 
@@ -270,6 +313,8 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
     levels: list[Level] = []           # the ladder (Richardson's)
     history: list[Level] = []          # every solve in order: the ladder's and the twins
     answer = None                      # the Level of the last solve
+    bones, b = None, 0.0               # accuracy.bones; b: the rigid bones' difference (added to estimates)
+    stale = False                      # the session holds a rigid-bone probe that was not chosen
     t0 = time.perf_counter()
     stop = "estimate met the tolerance"
     result = None
@@ -290,7 +335,20 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
                  "-" if level.estimate is None else f"{level.estimate:.3g} mm (r = {level.rate:.2f})")
         answer = level
         history.append(level)
-        if trusted(levels) and MARGIN * level.estimate <= tol:
+        rigid = rigid_variant(design) if len(history) == 1 else None
+        if rigid is not None:
+            probe = _try_rigid(session, rigid, level, None if zones is None else zones.scaled(level.size / h0))
+            if probe is not None:
+                use = MARGIN * probe[1] <= RIGID_SHARE * tol
+                bones = {"rigid": use, "difference": probe[1], "elastic_seconds": level.seconds,
+                         "rigid_seconds": probe[0].seconds}
+                log.info("--tol: rigid bones move the markers by %.3g mm: %s bones", probe[1],
+                         "rigid" if use else "elastic")
+                if use:
+                    design, b = rigid, probe[1]
+                    levels[-1] = history[-1] = answer = probe[0]
+                stale = not use
+        if trusted(levels) and MARGIN * (level.estimate + b) <= tol:
             t = time.perf_counter()
             for f in TWIN ** np.arange(1, 4):                  # a size Gmsh meshes differently
                 session.edit(at_size(design, f * level.size),
@@ -308,7 +366,7 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
             history.append(answer)
             log.info("--tol: twin h = %g mm, %d DOFs: scatter %.3g mm, estimate %.3g mm", answer.size,
                      answer.dofs, answer.scatter, answer.estimate)
-            if MARGIN * answer.estimate <= tol:
+            if MARGIN * (answer.estimate + b) <= tol:
                 break
             level = replace(level, estimate=answer.estimate)     # go on with what the twin measured
         if len(levels) >= MAX_LEVELS:
@@ -322,12 +380,18 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
             stop = f"the next mesh (h = {h:.3g} mm) would pass the DOF limit"
             break
         session.edit(finer, size=None if zones is None else zones.scaled(h / h0))
+        stale = False
+    if stale:                          # the ladder ended on its first level: the answer is its elastic solve
+        session.edit(at_size(design, answer.size), size=None if zones is None else zones.scaled(answer.size / h0))
+        result = session.solve()
     if not levels:
         return result, {"tol": tol, "met": False, "stop": stop, "levels": []}
     last = answer
-    met = bool(result.converged and last.twin and trusted(levels) and MARGIN * last.estimate <= tol)
+    estimate = None if last.estimate is None else last.estimate + b
+    met = bool(result.converged and last.twin and trusted(levels) and MARGIN * estimate <= tol)
     accuracy = {"tol": tol, "degree": DEGREE, "size": last.size, "dofs": last.dofs,
-                "estimated_error": last.estimate, "rate": last.rate, "scatter": last.scatter, "met": met,
+                "estimated_error": estimate, "rate": last.rate, "scatter": last.scatter, "met": met,
+                "bones": bones,
                 "stop": stop, "levels": [lv.to_dict() for lv in history],
                 "time": round(time.perf_counter() - t0, 4)}
     return result, accuracy

@@ -354,6 +354,10 @@ def _summary(result: dict, out: Path) -> None:
         est = "-" if a.get("estimated_error") is None else f"{a['estimated_error']:.3g} mm"
         where = (f"h = {a['min_size']:.3g} .. {a['max_size']:.3g} mm (adaptive, {a['dofs']} DOFs)"
                  if a.get("adaptive") and "min_size" in a else f"h = {a.get('size', float('nan')):g} mm")
+        bones = a.get("bones")
+        if bones:
+            where += (f", {'rigid' if bones['rigid'] else 'elastic'} bones (rigid ones move the markers by "
+                      f"{bones['difference']:.2g} mm)")
         print(f"  --tol {a['tol']:g} mm: P{a.get('degree', 2)}, {where} "
               f"after {len(a['levels'])} meshes, estimated marker error {est}"
               + ("" if a["met"] else f" (NOT met: {a['stop']})"))

@@ -189,6 +189,41 @@ def test_tol_run_meets_the_tolerance_it_reports_against_a_much_finer_reference(t
     assert err <= tol
 
 
+@pytest.mark.parametrize("E_bone, tol, rigid", [(1000.0, 0.5, True), (1000.0, 0.05, False), (3.0, 0.5, False)])
+def test_tol_makes_bones_rigid_where_their_difference_is_well_below_it(tmp_path, capsys, E_bone, tol, rigid):
+    """The first level with rigid bones moves the tip by b; rigid bones (b added to the estimate) only where
+    MARGIN b <= RIGID_SHARE tol: not for a stricter tolerance, nor for bones barely stiffer than the body."""
+    design = tmp_path / "strip.toml"
+    design.write_text(toml_text(strip(length=60.0, width=10.0, size=2.0, contraction=1.0, tendon_offset=2.0,
+                                      bones=True)))
+    assert main(["simulate", str(design), "--out", str(tmp_path / "o"), "--no-picture", "--tol", str(tol),
+                 "--set", f"materials.hard.E={E_bone}"]) == 0
+    res = json.loads((tmp_path / "o" / "result.json").read_text())
+    a, b = res["accuracy"], res["accuracy"]["bones"]
+    assert a["met"] and b["rigid"] == rigid and b["difference"] > 0
+    assert (accuracy.MARGIN * b["difference"] <= accuracy.RIGID_SHARE * tol) == rigid
+    assert all(bone.get("rigid", False) == rigid for bone in (res.get("bones") or {"b1": {}}).values())
+    if rigid:                              # the bones' difference is part of the estimate it reports
+        assert a["estimated_error"] == pytest.approx(a["levels"][-1]["estimate"] + b["difference"])
+    assert ("rigid bones" if rigid else "elastic bones") in capsys.readouterr().out
+
+
+def test_a_ladder_that_ends_on_its_first_level_answers_with_the_bones_it_chose(tmp_path, monkeypatch):
+    """Elastic bones chosen, then the DOF limit stops the ladder at once: the session holds the elastic
+    solve it answers with (result.json and solution.xdmf), not the rigid probe it solved last."""
+    from skelfem import Session
+    from skelfem.design import parse_design
+    d = parse_design(strip(length=60.0, width=10.0, size=2.0, contraction=1.0, tendon_offset=2.0, bones=True),
+                     overrides=["materials.hard.E=3.0"])
+    monkeypatch.setitem(resources.MAX_DOFS, 2, 1500)
+    with Session(accuracy.first_level(d)) as s:
+        result, a = accuracy.refine(s, 0.5)
+        assert not a["met"] and "DOF limit" in a["stop"] and not a["bones"]["rigid"] and len(a["levels"]) == 1
+        assert not s.model.rigid and not any(b.rigid for b in s.design.bones)
+        tip = s.model.readouts()["markers"]["tip"]["position"]
+        assert np.allclose(tip, result.markers["tip"]["position"], atol=1e-9)
+
+
 def test_a_tolerance_beyond_the_dof_limit_is_reported_not_met(tmp_path, monkeypatch, capsys):
     design = _strip_file(tmp_path)
     monkeypatch.setitem(resources.MAX_DOFS, 2, 4000)
