@@ -149,12 +149,15 @@ def run(designs=DESIGNS, tols=(0.5, 0.1, 0.05), ref_size: float = 0.25, ref_size
                          "effectivity": est / err if err > 0 else float("inf"),
                          "reported_met": bool(a["met"]), "met": err <= tol, "meshes": len(a["levels"]),
                          "reference_uncertainty": u_ref, "measurable": err > 2.0 * u_ref,
-                         "time": t, "reference_time": t_ref, "dofs": res["dofs"], "reference_dofs": ref["dofs"]})
+                         "time": t, "reference_time": t_ref, "dofs": res["dofs"], "reference_dofs": ref["dofs"],
+                         "bones": None if not a.get("bones") else "rigid" if a["bones"]["rigid"] else "elastic",
+                         "bones_difference": (a.get("bones") or {}).get("difference")})
             r = rows[-1]
             say(f"  tol {tol:g} mm: P{r['degree']} h={r['size']:g} ({r['dofs']} DOFs, {r['meshes']} meshes), "
                 f"estimated {est:.3g} mm ({'met' if r['reported_met'] else 'NOT met'}), actual {err:.3g} mm "
                 f"(reference +- {u_ref:.2g}), effectivity {r['effectivity']:.2f}"
                 f"{'' if r['measurable'] else ' (error below twice the reference uncertainty)'}, "
+                f"{r['bones'] or 'no'} bones, "
                 f"{t:.1f} s ({t / t_ref:.2f} of the reference)", flush=True)
     return rows
 

@@ -21,6 +21,7 @@ def test_tol_check_tiny(tmp_path):
     assert r["measurable"] == (r["error_vs_reference"] > 2 * r["reference_uncertainty"])
     levels = json.loads((tmp_path / "thumb" / "tol_1" / "result.json").read_text())["accuracy"]["levels"]
     assert levels[-1]["twin"] and levels[-1]["scatter"] >= 0 and r["size"] == levels[-1]["size"]
+    assert r["bones"] == "rigid" and 0 < r["bones_difference"] <= 0.1 * 1.0 / 2   # PLA in silicone: rigid
     assert (tmp_path / "thumb" / "tol_1" / "result.json").exists()
     assert not (tmp_path / "thumb" / "tol_1" / "deformed.png").exists()     # --no-picture
     again = study.run(designs=("thumb",), tols=(1.0,), ref_size=0.5, out=tmp_path, reuse=True)[0]
