@@ -48,7 +48,11 @@ seen on the finger and the thumb before this floor). A vertex takes the
 smallest size of its cells.
 
 It stops as the uniform ladder does: when MARGIN E <= tol and the estimate is
-trusted (``met: true``), when the next round's finest mesh would pass the DOF
+trusted, it solves a twin of M_1 (the same field scaled by accuracy.TWIN,
+TWIN^2, TWIN^3 where Gmsh makes M_1 again), whose estimate is max(E, s),
+s = max |x_twin - x_1|, the scatter a round of three meshes cannot see
+(accuracy.twin_level); the twin is the answer, and ``met: true`` when
+MARGIN max(E, s) <= tol, else the rounds go on with that estimate; when the next round's finest mesh would pass the DOF
 limit (predicted from the field), or after MAX_ROUNDS rounds (``met: false``
 with the estimate of the last round). Serial only (the indicators gather
 nothing across ranks); under MPI, --tol uses the uniform ladder.
@@ -57,11 +61,12 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from . import accuracy
-from .accuracy import AIM, MARGIN, Level
+from .accuracy import AIM, MARGIN, TWIN, Level
 from .points import cell_sizes  # noqa: F401 (used here and by tests)
 
 log = logging.getLogger("skelfem")
@@ -220,6 +225,31 @@ def predicted_dofs(model, new_sizes: np.ndarray) -> float:
     return float(dofs * np.sum((h / new_sizes) ** dim) / len(h))
 
 
+def _record(rnd: int, mesh, level: Level, result, session) -> dict:
+    """One solve's row of ``accuracy.levels`` (mesh: 1, 2, 3 or "twin")."""
+    h_cells = cell_sizes(session.model.mesh)
+    return {"round": rnd, "mesh": mesh, "dofs": level.dofs, "cells": int(result.cells),
+            "min_size": float(h_cells.min()), "max_size": float(h_cells.max()),
+            "iterations": level.iterations, "seconds": round(level.seconds, 4),
+            "change": level.change, "estimate": level.estimate, "rate": level.rate, "twin": level.twin}
+
+
+def _twin(session, base, degree: int, level: Level, h: float, size, scale: float):
+    """Solve M_1's twin: its design size h and its field (a SizeField, ZoneField or None) scaled by TWIN,
+    TWIN^2, TWIN^3 until Gmsh makes another mesh. (its Level or None if the solve failed, the Result)."""
+    t = time.perf_counter()
+    for f in TWIN ** np.arange(1, 4):
+        session.edit(_design(base, f * h, degree), size=None if size is None else size.scaled(f * scale))
+        result = session.solve()
+        if not result.converged:
+            return None, result
+        if result.dofs != level.dofs:
+            break
+    else:
+        log.warning("--tol (adaptive): the twin sizes give M_1's mesh: the scatter is not measured")
+    return accuracy.twin_level(level, f, result, time.perf_counter() - t), result
+
+
 def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted: bool = True,
                     max_rounds: int = MAX_ROUNDS, on_level=None, reduction: float | None = None
                     ) -> tuple[object, dict]:
@@ -266,14 +296,9 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
             if not result.converged:
                 stop = f"the solve of round {rnd + 1}, mesh {i + 1} failed ({result.status})"
                 break
-            model = session.model
-            h_cells = cell_sizes(model.mesh)
             level = accuracy.next_level(ladder, factor, result, time.perf_counter() - t)
             ladder.append(level)
-            rec = {"round": rnd + 1, "mesh": i + 1, "dofs": level.dofs, "cells": int(result.cells),
-                   "min_size": float(h_cells.min()), "max_size": float(h_cells.max()),
-                   "iterations": level.iterations, "seconds": round(level.seconds, 4),
-                   "change": level.change, "estimate": level.estimate, "rate": level.rate}
+            rec = _record(rnd + 1, i + 1, level, result, session)
             records.append(rec)
             log.info("--tol (adaptive) round %d mesh %d: %d DOFs, h %.3g..%.3g mm: change %s, estimate %s",
                      rnd + 1, i + 1, level.dofs, rec["min_size"], rec["max_size"],
@@ -285,15 +310,31 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
             rounds.append(ladder)
             before_last = before
             if round_trusted(ladder, before) and MARGIN * level.estimate <= tol:
-                break
+                size = field if field is not None else zones
+                h_last = h_cap if field is not None else h_design / 2
+                twin, result = _twin(session, base, degree, level, h_last, size,
+                                     1.0 if field is not None else 1.0 / FACTORS[0])
+                if twin is None:
+                    stop = f"the twin solve of round {rnd + 1} failed ({result.status})"
+                    break
+                rec = _record(rnd + 1, "twin", twin, result, session)
+                rec["scatter"] = twin.scatter
+                records.append(rec)
+                log.info("--tol (adaptive) round %d twin: %d DOFs: scatter %.3g mm, estimate %.3g mm", rnd + 1,
+                         twin.dofs, twin.scatter, twin.estimate)
+                ladder.append(twin)
+                if MARGIN * twin.estimate <= tol:
+                    break
+                level = ladder[-2] = replace(level, estimate=twin.estimate)   # go on with what the twin saw
             before = level.observed
             if rnd + 1 >= max_rounds:
                 stop = f"{max_rounds} rounds"
                 break
             # indicators of M_2's error on M_1's cells, and the next field
             model = session.model
-            i_max = int(np.argmax(np.linalg.norm(ladder[-1].markers - ladder[-2].markers, axis=1)))
-            g = ladder[-1].markers[i_max] - ladder[-2].markers[i_max]
+            m1, m2 = [lv for lv in ladder if not lv.twin][-2:][::-1]
+            i_max = int(np.argmax(np.linalg.norm(m1.markers - m2.markers, axis=1)))
+            g = m1.markers[i_max] - m2.markers[i_max]
             g = g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else np.eye(dim)[0]
             z = marker_adjoint(model, session.solver, g, i_max) if weighted else None
             eta = indicators(model, coarse[0], coarse[1], z)
@@ -314,11 +355,13 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
     if not rounds:
         return result, {"tol": tol, "adaptive": True, "met": False, "stop": stop, "levels": records}
     last = rounds[-1][-1]
-    met = bool(result.converged and round_trusted(rounds[-1], before_last) and MARGIN * last.estimate <= tol)
+    three = [lv for lv in rounds[-1] if not lv.twin]
+    met = bool(result.converged and last.twin and round_trusted(three, before_last)
+               and MARGIN * last.estimate <= tol)
     h_final = cell_sizes(session.model.mesh)
     accuracy_dict = {"tol": tol, "adaptive": True, "degree": degree, "dofs": last.dofs,
                      "min_size": float(h_final.min()), "max_size": float(h_final.max()),
                      "size": float(h_final.max()), "rounds": len(rounds),
-                     "estimated_error": last.estimate, "rate": last.rate, "met": met, "stop": stop,
-                     "levels": records, "time": round(time.perf_counter() - t0, 4)}
+                     "estimated_error": last.estimate, "rate": last.rate, "scatter": last.scatter,
+                     "met": met, "stop": stop, "levels": records, "time": round(time.perf_counter() - t0, 4)}
     return result, accuracy_dict

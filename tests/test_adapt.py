@@ -132,6 +132,29 @@ def test_met_only_when_the_final_estimate_says_so(monkeypatch):
     assert not c["met"] and accuracy.MARGIN * c["estimated_error"] <= 100.0
 
 
+def test_a_met_round_is_checked_by_a_twin_whose_scatter_can_send_it_on(monkeypatch):
+    """Met: the answer is M_1's twin (0.95 of its field), its estimate max(E, scatter). A twin whose scatter is
+    too large (faked, first time only) sends the rounds on; the next round's twin then decides."""
+    _, a = _run(0.5, max_rounds=2)
+    last, m1 = a["levels"][-1], a["levels"][-2]
+    assert a["met"] and last["twin"] and last["mesh"] == "twin" and m1["mesh"] == 3
+    assert last["dofs"] != m1["dofs"] and a["dofs"] == last["dofs"] and a["scatter"] == last["scatter"]
+    assert a["estimated_error"] == pytest.approx(max(m1["estimate"], last["scatter"]))
+    real, calls = accuracy.twin_level, []
+
+    def twin_level(level, size, result, seconds):
+        twin = real(level, size, result, seconds)
+        calls.append(twin)
+        if len(calls) == 1:
+            twin.scatter = twin.estimate = 10.0                  # as if this mesh landed 10 mm away
+        return twin
+    monkeypatch.setattr(accuracy, "twin_level", twin_level)
+    _, b = _run(0.5, max_rounds=3)
+    twins = [lv for lv in b["levels"] if lv["twin"]]
+    assert len(calls) == 2 and len(twins) == 2 and twins[0]["estimate"] == 10.0 and b["rounds"] == 2
+    assert b["met"] and b["levels"][-1]["twin"] and b["estimated_error"] < 0.25
+
+
 def test_the_dof_limit_stops_the_rounds_unmet(monkeypatch):
     from skelfem import resources
     session = Session(accuracy.first_level(_strip(size=4.0)))
