@@ -21,6 +21,11 @@ Problems (2D, plane strain):
   every refinement and the tension drifts by a constant amount per halving
   of h: no convergence rate, no Richardson.
 
+Every problem with bones (the finger's three, the strips' cap) is solved
+twice per mesh: with its bones elastic, as written, and with every bone
+``rigid = true`` (skelfem.terms.rigid), so rigid against elastic bones can
+be read on one chart; the reference is always the elastic finest P2.
+
 Error of a case: |x_marker - x_ref| (mm), x_ref from the finest P2 mesh; the
 reference's own error is estimated by Richardson extrapolation from the
 three finest P2 meshes (observed order p from their differences). Wall time
@@ -122,12 +127,15 @@ def strip_beam_check(model, nu: float) -> dict:
     return {"tension": T, "kappa": circle_curvature(x), "kappa_beam": kappa_beam}
 
 
-def solve_case(problem: str, degree: int, size: float) -> dict:
-    """Mesh, set up and solve one case; returns its numbers and wall times."""
+def solve_case(problem: str, degree: int, size: float, rigid: bool = False) -> dict:
+    """Mesh, set up and solve one case (rigid: every bone rigid); returns its numbers and wall times."""
     from skelfem import Session
     from skelfem.design import parse_design
 
-    design = parse_design(PROBLEMS[problem](size, degree), f"{problem}.toml")
+    d = PROBLEMS[problem](size, degree)
+    for bone in d.get("bones", []) if rigid else []:
+        bone["rigid"] = True
+    design = parse_design(d, f"{problem}.toml")
     t0 = time.perf_counter()
     session = Session(design)                 # mesh, then model and Newton solver ("compile")
     setup = dict(session.timings)
@@ -136,6 +144,7 @@ def solve_case(problem: str, degree: int, size: float) -> dict:
     t3 = time.perf_counter()
     session.close()
     row = {"problem": problem, "degree": degree, "size": size, "dofs": session.dofs,
+           "bones": ("rigid" if rigid else "elastic") if d.get("bones") else None,
            "converged": bool(result.converged), "status": result.status,
            "newton_iterations": result.newton_iterations,
            "time_mesh": setup["mesh"], "time_setup": setup["compile"], "time_solve": t3 - t2,
@@ -211,7 +220,8 @@ def pareto_front(rows, floor: float = 0.0) -> list[int]:
 
 def analyse(problem: str, rows: list[dict]) -> dict:
     """Reference, errors, error and time models per degree, Pareto front, cheapest case per target."""
-    p2 = sorted((r for r in rows if r["degree"] == 2 and r["converged"]), key=lambda r: -r["size"])
+    p2 = sorted((r for r in rows if r["degree"] == 2 and r["converged"] and r.get("bones") != "rigid"),
+                key=lambda r: -r["size"])
     if not p2:
         raise RuntimeError(f"{problem}: no converged P2 case for the reference")
     ref = p2[-1]
@@ -224,12 +234,15 @@ def analyse(problem: str, rows: list[dict]) -> dict:
             if r["converged"] and r is not ref else float("nan")
         r["relative_error"] = r["error"] / ref["displacement"] if ref["displacement"] > 0 else float("nan")
     ref_err = rich["error"] if np.isfinite(rich["error"]) else 0.0
-    models = {}
+    models, rigid_models = {}, {}
     for p in (1, 2):
-        mine = [r for r in rows if r["degree"] == p and r["converged"]]
-        resolved = [r for r in mine if np.isfinite(r["error"]) and r["error"] > 2 * ref_err]
-        models[p] = {"error": fit_power([r["size"] for r in resolved], [r["error"] for r in resolved]),
-                     "time": fit_power([r["size"] for r in mine], [r["time"] for r in mine])}
+        for kind, out in (("elastic", models), ("rigid", rigid_models)):
+            mine = [r for r in rows if r["degree"] == p and r["converged"]
+                    and (r.get("bones") == "rigid") == (kind == "rigid")]
+            resolved = [r for r in mine if np.isfinite(r["error"]) and r["error"] > 2 * ref_err]
+            if mine:
+                out[p] = {"error": fit_power([r["size"] for r in resolved], [r["error"] for r in resolved]),
+                          "time": fit_power([r["size"] for r in mine], [r["time"] for r in mine])}
     front = pareto_front(rows, ref_err)
     targets = {}
     for rel in (0.01, 0.003, 0.001):
@@ -237,12 +250,14 @@ def analyse(problem: str, rows: list[dict]) -> dict:
               and r["error"] > 0]
         best = min(ok, key=lambda r: r["time"]) if ok else None
         targets[f"{rel:g}"] = None if best is None else {
-            "degree": best["degree"], "size": best["size"], "error": best["error"], "time": best["time"]}
+            "degree": best["degree"], "size": best["size"], "error": best["error"], "time": best["time"],
+            "bones": best.get("bones")}
     return {"reference": {"degree": 2, "size": ref["size"], "x": ref["x"], "y": ref["y"],
                           "displacement": ref["displacement"], "dofs": ref["dofs"], "time": ref["time"]},
-            "reference_error": rich, "models": models,
+            "reference_error": rich, "models": models, "rigid_models": rigid_models,
             "pareto": [{"degree": rows[i]["degree"], "size": rows[i]["size"], "error": rows[i]["error"],
-                        "time": rows[i]["time"], "dofs": rows[i]["dofs"]} for i in front],
+                        "time": rows[i]["time"], "dofs": rows[i]["dofs"], "bones": rows[i].get("bones")}
+                       for i in front],
             "cheapest_for_relative_error": targets}
 
 
@@ -257,22 +272,25 @@ def tol_rule(summary: dict, problem: str = "finger") -> dict:
 
 # -- driver --------------------------------------------------------------------------------------------------------
 def run(problems=("finger", "strip", "strip_nu0.499"), sizes: dict | None = None, out: Path | None = None,
-        progress=print) -> dict:
-    """Solve every (problem, degree, size); returns {"cases": [...], "summary": {problem: ...}}."""
+        progress=print, rigid: bool = True) -> dict:
+    """Solve every (problem, degree, size), and with rigid bones too where the problem has bones (rigid);
+    returns {"cases": [...], "summary": {problem: ...}}."""
     sizes = sizes or DEFAULT_SIZES
     cases, summary = [], {}
     for problem in problems:
         grid = sizes.get(problem, DEFAULT_SIZES.get(problem))
         rows = []
+        kinds = (False, True) if rigid and PROBLEMS[problem](1.0, 1).get("bones") else (False,)
         for degree in (1, 2):
-            solve_case(problem, degree, max(grid[degree]))          # warm-up: FFCx cache, imports
-            for h in sorted(grid[degree], reverse=True):
-                row = solve_case(problem, degree, h)
-                rows.append(row)
-                if progress:
-                    where = f"tip ({row['x']:.4f}, {row['y']:.4f})" if row["converged"] else row["status"]
-                    progress(f"{problem:14s} P{degree} h={h:<5g} {row['dofs']:7d} DOFs  {row['time']:7.2f} s  "
-                             f"{row['newton_iterations']:3d} its  {where}")
+            for kind in kinds:
+                solve_case(problem, degree, max(grid[degree]), kind)          # warm-up: FFCx cache, imports
+                for h in sorted(grid[degree], reverse=True):
+                    row = solve_case(problem, degree, h, kind)
+                    rows.append(row)
+                    if progress:
+                        where = f"tip ({row['x']:.4f}, {row['y']:.4f})" if row["converged"] else row["status"]
+                        progress(f"{problem:14s} P{degree} {'rigid ' if kind else ''}h={h:<5g} {row['dofs']:7d} DOFs"
+                                 f"  {row['time']:7.2f} s  {row['newton_iterations']:3d} its  {where}")
         summary[problem] = analyse(problem, rows)
         cases += rows
     result = {"cases": cases, "summary": summary}
@@ -283,7 +301,7 @@ def run(problems=("finger", "strip", "strip_nu0.499"), sizes: dict | None = None
     return result
 
 
-CSV_FIELDS = ("problem", "degree", "size", "dofs", "converged", "status", "newton_iterations", "time",
+CSV_FIELDS = ("problem", "degree", "bones", "size", "dofs", "converged", "status", "newton_iterations", "time",
               "time_mesh", "time_setup", "time_solve", "x", "y", "displacement", "tension", "error",
               "relative_error", "reference", "kappa", "kappa_beam", "kappa_ratio")
 
@@ -319,12 +337,18 @@ def plot(path: Path, result: dict) -> None:
         rows = [r for r in result["cases"] if r["problem"] == problem and np.isfinite(r.get("error", np.nan))]
         s = result["summary"][problem]
         for p in (1, 2):
-            mine = sorted((r for r in rows if r["degree"] == p), key=lambda r: r["time"])
-            ax.loglog([r["time"] for r in mine], [r["error"] for r in mine], ls="-", lw=0.8, ms=5,
-                      label=f"P{p}", **style[p])
-            for r in mine:
-                ax.annotate(f"{r['size']:g}", (r["time"], r["error"]), textcoords="offset points",
-                            xytext=(4, 3), fontsize=7, color=style[p]["color"])
+            for kind in ("elastic", "rigid"):
+                mine = sorted((r for r in rows if r["degree"] == p and (r.get("bones") == "rigid") == (kind == "rigid")),
+                              key=lambda r: r["time"])
+                if not mine:
+                    continue
+                rigid = kind == "rigid"
+                ax.loglog([r["time"] for r in mine], [r["error"] for r in mine], ls="--" if rigid else "-", lw=0.8,
+                          ms=5, label=f"P{p}" + (" rigid bones" if rigid else ""),
+                          **{**style[p], **({"mfc": "none"} if rigid else {})})
+                for r in mine:
+                    ax.annotate(f"{r['size']:g}", (r["time"], r["error"]), textcoords="offset points",
+                                xytext=(4, -9 if rigid else 3), fontsize=7, color=style[p]["color"])
         front = s["pareto"]
         ax.step([q["time"] for q in front], [q["error"] for q in front], where="post", color="k", lw=1.6,
                 alpha=0.5, label="Pareto front")
@@ -357,11 +381,13 @@ def main(argv=None) -> int:
     for problem, s in res["summary"].items():
         say(f"{problem}: reference P2 h={s['reference']['size']:g}, tip moves {s['reference']['displacement']:.3f} mm, "
               f"reference error {s['reference_error']['error']:.2g} mm ({s['reference_error']['method']})")
-        for p, m in s["models"].items():
-            if m["error"]:
-                say(f"  P{p}: error ~ {m['error']['C']:.3g} h^{m['error']['r']:.2f} mm, "
-                      f"time ~ {m['time']['C']:.3g} h^{m['time']['r']:.2f} s")
-        say("  Pareto: " + ", ".join(f"P{q['degree']} h={q['size']:g} ({q['error']:.2g} mm, {q['time']:.2f} s)"
+        for kind, models in (("", s["models"]), (" rigid bones", s["rigid_models"])):
+            for p, m in models.items():
+                if m["error"]:
+                    say(f"  P{p}{kind}: error ~ {m['error']['C']:.3g} h^{m['error']['r']:.2f} mm, "
+                        f"time ~ {m['time']['C']:.3g} h^{m['time']['r']:.2f} s")
+        say("  Pareto: " + ", ".join(f"P{q['degree']}{' rigid' if q['bones'] == 'rigid' else ''} h={q['size']:g} "
+                                       f"({q['error']:.2g} mm, {q['time']:.2f} s)"
                                        for q in s["pareto"]))
     copy_figure(a.out / "speed_accuracy.png", a.figures)
     say(f"outputs in {a.out}")

@@ -23,8 +23,9 @@ def tiny(study, tmp_path_factory):
     return study.run(("strip", "strip_nu0.499"), {"strip": grid, "strip_nu0.499": grid}, out, progress=None), out
 
 
-def _case(res, problem, degree, size):
-    return next(r for r in res["cases"] if (r["problem"], r["degree"], r["size"]) == (problem, degree, size))
+def _case(res, problem, degree, size, bones="elastic"):
+    return next(r for r in res["cases"]
+                if (r["problem"], r["degree"], r["size"], r["bones"]) == (problem, degree, size, bones))
 
 
 def test_p2_is_more_accurate_than_p1_at_equal_size(tiny):
@@ -56,6 +57,22 @@ def test_reference_agrees_with_beam_theory_and_has_an_error_estimate(tiny):
         assert front and front[0]["time"] == min(r["time"] for r in res["cases"]
                                                  if r["problem"] == problem and np.isfinite(r["error"]))
         assert all(a["error"] > b["error"] for a, b in zip(front, front[1:]))
+
+
+def test_rigid_bones_are_compared_against_the_elastic_reference(tiny):
+    """The strips' cap as a rigid bone: every mesh solved again; its error is against the elastic finest P2,
+    within the cap's own strain (E_cap = 1000 E) of the elastic case's on the same mesh."""
+    res, _ = tiny
+    for problem in ("strip", "strip_nu0.499"):
+        s = res["summary"][problem]
+        assert not _case(res, problem, 2, s["reference"]["size"], "rigid")["reference"]
+        for p, h in ((1, 4.0), (1, 2.0), (2, 4.0), (2, 2.0)):
+            e, r = _case(res, problem, p, h), _case(res, problem, p, h, "rigid")
+            assert r["converged"] and r["dofs"] == e["dofs"] and r["time"] > 0
+            moved = np.hypot(r["x"] - e["x"], r["y"] - e["y"])
+            assert 0 < moved < 0.01 * e["displacement"], (problem, p, h, moved)
+            assert abs(r["error"] - e["error"]) <= moved + 1e-12
+        assert set(s["rigid_models"]) == {1, 2}
 
 
 def test_outputs_written(tiny, picture):
