@@ -26,8 +26,8 @@ import numpy as np
 from skelfem.output import say, write_csv
 
 ROOT = Path(__file__).resolve().parents[1]
-DESIGNS = ("finger_bones", "thumb", "finger_tapered_fillet", "post3d")   # bundled; a tendon ending in silicone;
-                                                                          # a tapered body, filleted bones; 3D
+DESIGNS = ("finger_bones", "thumb", "finger_tapered_fillet", "post3d", "finger_soft")
+# bundled; a tendon ending in silicone; a tapered body, filleted bones; 3D; bundled, no bones (an anchored bend)
 
 
 def _run(cmd: list, what: str, out: Path) -> tuple[dict, float]:
