@@ -423,15 +423,14 @@ class Model:
         bs, n = self.bs, self.n_local // self.bs
         npc = self.V.dofmap.dof_layout.num_dofs
         cell_nodes = self.V.dofmap.list.array.reshape(-1, npc)[self._form_cells()]
+        rows, cols = np.divmod(_block_keys(blocks, n), n)          # every node pair of the blocks
         out, hosts = [], []
         for body in self.rigid:
             nodes = np.unique(body.dofs[:, 0] // bs)
             inside = np.zeros(n, dtype=bool)
             inside[nodes] = True
-            near = [cell_nodes[inside[cell_nodes].any(axis=1)].ravel()]
-            near += [np.asarray(r) for r, c in blocks if inside[np.asarray(c)].any()]
-            near += [np.asarray(c) for r, c in blocks if inside[np.asarray(r)].any()]
-            near = np.unique(np.concatenate(near).astype(np.int64))
+            near = np.unique(np.concatenate([cell_nodes[inside[cell_nodes].any(axis=1)].ravel(),
+                                             rows[inside[cols]], cols[inside[rows]]]).astype(np.int64))
             near = near[~inside[near]]
             host_nodes = body.dofs[:-(-body.m // bs), 0] // bs
             out += [(host_nodes, near), (near, host_nodes)]
