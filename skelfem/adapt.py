@@ -47,13 +47,14 @@ point force again, a singularity of the model that refinement would chase;
 seen on the finger and the thumb before this floor). A vertex takes the
 smallest size of its cells.
 
-It stops as the uniform ladder does: when MARGIN E <= tol and the estimate is
-trusted, it solves a twin of M_1 (the same field scaled by accuracy.TWIN,
-TWIN^2, TWIN^3 where Gmsh makes M_1 again), whose estimate is max(E, s),
-s = max |x_twin - x_1|, the scatter a round of three meshes cannot see
-(accuracy.twin_level); the twin is the answer, and ``met: true`` when
-MARGIN max(E, s) <= tol, else the rounds go on with that estimate; when the next round's finest mesh would pass the DOF
-limit (predicted from the field), or after MAX_ROUNDS rounds (``met: false``
+It stops as the uniform ladder does. When MARGIN E <= tol and the estimate
+is trusted, it solves a twin of M_1 (the same field scaled by
+accuracy.TWIN, TWIN^2, TWIN^3 where Gmsh makes M_1 again), whose estimate
+is max(E, s), s = max |x_twin - x_1|, the scatter a round of three meshes
+cannot see (accuracy.twin_level); the twin is the answer, ``met: true``
+when MARGIN max(E, s) <= tol, else the rounds go on with that estimate.
+It also stops when the next round's finest mesh would pass the DOF limit
+(predicted from the field) or after MAX_ROUNDS rounds (``met: false``
 with the estimate of the last round). Serial only (the indicators gather
 nothing across ranks); under MPI, --tol uses the uniform ladder.
 """
