@@ -254,6 +254,24 @@ def twin_level(level: Level, size: float, result, seconds: float) -> Level:
     return twin
 
 
+def solve_twin(session, level: Level, edit) -> tuple[Level | None, object]:
+    """Solve the twin of ``level``: edit(f) puts the session on the level's mesh family at f times its
+    size, for f = TWIN, TWIN^2, TWIN^3 until Gmsh makes another mesh. (the twin's Level, or None if its
+    solve failed; the Result)."""
+    t = time.perf_counter()
+    for f in TWIN ** np.arange(1, 4):
+        edit(float(f))
+        result = session.solve()
+        if not result.converged:
+            return None, result
+        if result.dofs != level.dofs:
+            break
+    else:
+        log.warning("--tol: %g ... %g times the size of %d DOFs give one mesh: the scatter is not measured",
+                    TWIN, f, level.dofs)
+    return twin_level(level, level.size * f, result, time.perf_counter() - t), result
+
+
 def rigid_variant(design):
     """design with every elastic bone ``rigid = true``; None if it has none or refuses rigid bones."""
     from .design import DesignError, parse_design
@@ -268,20 +286,17 @@ def rigid_variant(design):
 
 def _try_rigid(session, rigid, level: Level, size) -> tuple[Level, float] | None:
     """The first level again with rigid bones: (its Level, max |x_rigid - x_elastic|), or None if the model
-    refuses them or the solve fails (the session then holds the elastic design again)."""
+    refuses them or the solve fails. Either way the session no longer holds the elastic solve."""
     from .design import DesignError
     t = time.perf_counter()
-    elastic = session.design
     try:
         session.edit(at_size(rigid, level.size), size=size)
         result = session.solve()
     except DesignError as exc:                   # e.g. a fixed pin holds a bone
         log.info("--tol: rigid bones refused (%s)", exc)
-        session.edit(elastic, size=size)
         return None
     if not result.converged:
         log.info("--tol: the solve with rigid bones failed (%s); elastic bones", result.status)
-        session.edit(elastic, size=size)
         return None
     probe = Level(level.size, int(result.dofs), int(result.newton_iterations), time.perf_counter() - t,
                   _positions(result), h=level.h)
@@ -314,7 +329,7 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
     history: list[Level] = []          # every solve in order: the ladder's and the twins
     answer = None                      # the Level of the last solve
     bones, b = None, 0.0               # accuracy.bones; b: the rigid bones' difference (added to estimates)
-    stale = False                      # the session holds a rigid-bone probe that was not chosen
+    stale = False                      # the session does not hold the first level's elastic solve
     t0 = time.perf_counter()
     stop = "estimate met the tolerance"
     result = None
@@ -338,31 +353,24 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
         rigid = rigid_variant(design) if len(history) == 1 else None
         if rigid is not None:
             probe = _try_rigid(session, rigid, level, None if zones is None else zones.scaled(level.size / h0))
+            use = probe is not None and MARGIN * probe[1] <= RIGID_SHARE * tol
             if probe is not None:
-                use = MARGIN * probe[1] <= RIGID_SHARE * tol
                 bones = {"rigid": use, "difference": probe[1], "elastic_seconds": level.seconds,
                          "rigid_seconds": probe[0].seconds}
                 log.info("--tol: rigid bones move the markers by %.3g mm: %s bones", probe[1],
                          "rigid" if use else "elastic")
-                if use:
-                    design, b = rigid, probe[1]
-                    levels[-1] = history[-1] = answer = probe[0]
-                stale = not use
+            if use:
+                design, b = rigid, probe[1]
+                levels[-1] = history[-1] = answer = probe[0]
+            stale = not use            # the session holds the probe (or nothing solved) until the next edit
         if trusted(levels) and MARGIN * (level.estimate + b) <= tol:
-            t = time.perf_counter()
-            for f in TWIN ** np.arange(1, 4):                  # a size Gmsh meshes differently
-                session.edit(at_size(design, f * level.size),
-                             size=None if zones is None else zones.scaled(f * level.size / h0))
-                result = session.solve()
-                if not result.converged or result.dofs != level.dofs:
-                    break
-            if not result.converged:
+            def edit(f, h=level.size):
+                session.edit(at_size(design, f * h), size=None if zones is None else zones.scaled(f * h / h0))
+            twin, result = solve_twin(session, level, edit)
+            if twin is None:
                 stop = f"the twin solve at h = {session.design.mesh.size:g} mm failed ({result.status})"
                 break
-            if result.dofs == level.dofs:
-                log.warning("--tol: h = %g ... %g mm give one mesh: the scatter is not measured", level.size,
-                            session.design.mesh.size)
-            answer = twin_level(level, session.design.mesh.size, result, time.perf_counter() - t)
+            answer = twin
             history.append(answer)
             log.info("--tol: twin h = %g mm, %d DOFs: scatter %.3g mm, estimate %.3g mm", answer.size,
                      answer.dofs, answer.scatter, answer.estimate)
@@ -381,7 +389,7 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
             break
         session.edit(finer, size=None if zones is None else zones.scaled(h / h0))
         stale = False
-    if stale:                          # the ladder ended on its first level: the answer is its elastic solve
+    if stale:                          # the ladder ended on its first level: solve its elastic answer again
         session.edit(at_size(design, answer.size), size=None if zones is None else zones.scaled(answer.size / h0))
         result = session.solve()
     if not levels:

@@ -67,7 +67,7 @@ from dataclasses import replace
 import numpy as np
 
 from . import accuracy
-from .accuracy import AIM, MARGIN, TWIN, Level
+from .accuracy import AIM, MARGIN, Level
 from .points import cell_sizes  # noqa: F401 (used here and by tests)
 
 log = logging.getLogger("skelfem")
@@ -235,22 +235,6 @@ def _record(rnd: int, mesh, level: Level, result, session) -> dict:
             "change": level.change, "estimate": level.estimate, "rate": level.rate, "twin": level.twin}
 
 
-def _twin(session, base, degree: int, level: Level, h: float, size, scale: float):
-    """Solve M_1's twin: its design size h and its field (a SizeField, ZoneField or None) scaled by TWIN,
-    TWIN^2, TWIN^3 until Gmsh makes another mesh. (its Level or None if the solve failed, the Result)."""
-    t = time.perf_counter()
-    for f in TWIN ** np.arange(1, 4):
-        session.edit(_design(base, f * h, degree), size=None if size is None else size.scaled(f * scale))
-        result = session.solve()
-        if not result.converged:
-            return None, result
-        if result.dofs != level.dofs:
-            break
-    else:
-        log.warning("--tol (adaptive): the twin sizes give M_1's mesh: the scatter is not measured")
-    return accuracy.twin_level(level, f, result, time.perf_counter() - t), result
-
-
 def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted: bool = True,
                     max_rounds: int = MAX_ROUNDS, on_level=None, reduction: float | None = None
                     ) -> tuple[object, dict]:
@@ -312,9 +296,12 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
             before_last = before
             if round_trusted(ladder, before) and MARGIN * level.estimate <= tol:
                 size = field if field is not None else zones
-                h_last = h_cap if field is not None else h_design / 2
-                twin, result = _twin(session, base, degree, level, h_last, size,
-                                     1.0 if field is not None else 1.0 / FACTORS[0])
+                h_last, scale = (h_cap, 1.0) if field is not None else (h_design / 2, 1.0 / FACTORS[0])
+
+                def edit(f):
+                    session.edit(_design(base, f * h_last, degree),
+                                 size=None if size is None else size.scaled(f * scale))
+                twin, result = accuracy.solve_twin(session, level, edit)
                 if twin is None:
                     stop = f"the twin solve of round {rnd + 1} failed ({result.status})"
                     break

@@ -109,8 +109,9 @@ def main(argv=None) -> int:
     res = run(a.design, a.sizes, a.fraction, a.radius, a.answers)
     print(f"{res['design']}: {res['corners']} bone corners graded to {a.fraction:g} h within {a.radius:g} mm")
     for row in res["rows"]:
+        where = ", ".join(f"{k} {np.round(v, 5).tolist()}" for k, v in row["markers"].items())
         print(f"  h = {row['size']:g} mm: {row['dofs']} DOFs, {row['iterations']} iterations, "
-              f"{row['seconds']:.0f} s: " + ", ".join(f"{k} {np.round(v, 5).tolist()}" for k, v in row["markers"].items()))
+              f"{row['seconds']:.0f} s: {where}")
     if res["scatter"] is not None:
         print(f"  scatter between the first two: {res['scatter']:.3g} mm")
     for c in res["answers"]:
