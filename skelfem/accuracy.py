@@ -17,9 +17,13 @@ it: on a small 3D body, h = 4 and 2.83 gave the same mesh and h = 2 one
 with 1.46x the DOFs (a ratio of 1.13, not 1.41). A level whose mesh is the
 last one's again replaces it.
 
-Near finite anchors (cable ends and bends in silicone) every mesh of the
-ladder is finer, by one graded field scaled with h (``anchor_zones``), so that
-even the first level resolves the anchor's load.
+Near finite anchors (cable ends and bends in silicone) and at the 2D
+clamped corners (where a fixed pin's stretch of boundary meets the free
+boundary: a displacement singularity) every mesh of the ladder is finer, by
+one graded field scaled with h (``ladder_zones``: ``anchor_zones``,
+``corner_zones``), so that even the first level resolves the anchor's load,
+and the corner's error, which on uniform meshes depends on how each mesh
+happens to lie there, is small on every level.
 
 It starts from h_0 = 2x the design's [mesh] size, halves h twice (three levels:
 the rate needs them; in 3D the ratio is sqrt 2), and then, while
@@ -74,6 +78,9 @@ MAX_LEVELS = 8
 MAX_JUMP = 2.0                        # h_{k-1} / h_k is at most this
 ZONE_SIZE = 0.5                       # the first level's size near a finite anchor, in anchor radii ...
 ZONE_RADIUS = 1.5                     # ... within this many anchor radii of its centre
+CORNER_RADIUS = 0.25                  # a clamped corner's zone: within this x h_0 of it ...
+CORNER_SIZE = 0.125                   # ... the size is this x h (h/8) ...
+CORNER_GRADING = 1.0                  # ... growing to h by this many mm per mm beyond
 RIGID_SHARE = 0.1                     # rigid bones when MARGIN x their difference from elastic ones <= this x tol
 TWIN = 0.95                           # the twin mesh's size, in the level's it checks (0.95^2, 0.95^3
                                       # where Gmsh makes the same mesh again)
@@ -211,6 +218,74 @@ def anchor_zones(model, h0: float):
                             [ZONE_SIZE * r for _, r in disks], h0)
 
 
+def clamp_corners(design) -> np.ndarray:
+    """(n, 2) points where a fixed pin's box cuts the 2D body's outline (or a hole's): the ends of every
+    clamped stretch of boundary, where it meets the free boundary. (0, 2) in 3D or without fixed pins.
+
+    There the displacement is singular, u ~ r^lambda with lambda < 1 (a
+    clamped edge meeting a free one): on uniform meshes the error there
+    pollutes the whole solution and depends on how each mesh happens to lie
+    at the corner (on finger_tapered_fillet, P2 at h = 0.59, 0.5 and 0.42:
+    tip x = -4.0150, -3.9936, -4.0171 mm; with ``corner_zones``
+    -4.0297, -4.0234, -4.0235 mm, for about the same DOFs).
+    """
+    if design.dim != 2:
+        return np.zeros((0, 2))
+    rings = [np.asarray(design.body.outline, dtype=float)] + [np.asarray(h, dtype=float) for h in design.body.holes]
+    points = []
+    for pin in design.pins:
+        if pin.kind != "fixed":
+            continue
+        lo, hi = np.asarray(pin.region, dtype=float)
+        for ring in rings:
+            p, q = ring, np.roll(ring, -1, axis=0)
+            for t in _box_crossings(p, q, lo, hi):
+                points.append(t)
+    if not points:
+        return np.zeros((0, 2))
+    points = np.array(points)
+    keep = [i for i in range(len(points)) if not np.any(np.linalg.norm(points[:i] - points[i], axis=1) < 1e-6)]
+    return points[keep]
+
+
+def _box_crossings(p: np.ndarray, q: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> list:
+    """Where segments p_i -> q_i enter or leave the box [lo, hi] strictly between their ends (clipping)."""
+    r = q - p
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a, b = (lo - p) / r, (hi - p) / r                     # the slabs' parameters, per axis
+    flat = r == 0.0
+    inside = np.all(~flat | ((p >= lo) & (p <= hi)), axis=1)   # a segment parallel to a slab lies within it
+    t_in = np.max(np.where(flat, -np.inf, np.minimum(a, b)), axis=1)
+    t_out = np.min(np.where(flat, np.inf, np.maximum(a, b)), axis=1)
+    out = []
+    for i in np.flatnonzero(inside & (t_in < t_out) & (t_out > 0.0) & (t_in < 1.0)):
+        for t in (t_in[i], t_out[i]):
+            if 0.0 < t < 1.0:
+                out.append(p[i] + t * r[i])
+    return out
+
+
+def corner_zones(design, h0: float):
+    """A ZoneField of size h0 with zones of CORNER_SIZE h0 within CORNER_RADIUS h0 of every clamped
+    corner (``clamp_corners``); None if there is none. Scaled with h, as the anchor zones are."""
+    from .geometry import ZoneField
+    c = clamp_corners(design)
+    if not len(c):
+        return None
+    inner = CORNER_SIZE * h0
+    return ZoneField(c, np.full(len(c), CORNER_RADIUS * h0), np.full(len(c), inner), float(h0),
+                     (h0 - inner) / CORNER_GRADING)
+
+
+def ladder_zones(model, design, h0: float):
+    """The graded field of the ladder's first level (size h0): anchor zones and clamped-corner zones
+    (``anchor_zones``, ``corner_zones``); None if there is neither."""
+    anchors, corners = anchor_zones(model, h0), corner_zones(design, h0)
+    if anchors is None:
+        return corners
+    return anchors.merged(corners)
+
+
 def at_size(design, h: float):
     """The design meshed at size h with P2 (validated as any --set)."""
     from .design import parse_design
@@ -322,7 +397,7 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
     design = session.design
     dim = design.dim
     h0 = float(design.mesh.size)
-    zones = anchor_zones(session.model, h0)
+    zones = ladder_zones(session.model, design, h0)
     if zones is not None:
         session.edit(design, size=zones)
     levels: list[Level] = []           # the ladder (Richardson's)

@@ -12,8 +12,8 @@ positions x_4, x_2, x_1: with d = max |x_1 - x_2|,
 is the estimated marker error of the answer (the M_1 solve), trusted by the
 rule of accuracy.trusted read per round (round_trusted: a rate above 2 only
 after a round whose rate was at least 1). The first round is the uniform ladder's first
-three meshes (2h, h, h/2 for the design's size h, graded near finite anchors as
-accuracy.anchor_zones says), so the two agree until the estimate asks for more.
+three meshes (2h, h, h/2 for the design's size h, graded near finite anchors and clamped corners as
+accuracy.ladder_zones says), so the two agree until the estimate asks for more.
 
 Indicators (two meshes, goal-weighted). On the cells K of M_1, with the
 coarse solution u_2 interpolated at M_1's nodes (I u_2) and the marker's
@@ -259,7 +259,7 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
     h_design = 0.5 * float(base.mesh.size)
     h_cap = 0.5 * h_design                    # the first round's finest size: rounds only refine
     dim = base.dim
-    zones = accuracy.anchor_zones(session.model, float(base.mesh.size))   # the first round's grading
+    zones = accuracy.ladder_zones(session.model, base, float(base.mesh.size))   # the first round's grading
     records, rounds = [], []
     field = None
     before = before_last = None           # the observed rate of the round before

@@ -211,7 +211,7 @@ class ZoneField:
     radii: np.ndarray        # (n,) mm: the fine zones
     inner: np.ndarray        # (n,) mm: the size inside them
     outer: float             # mm: the size far from them
-    thickness: float         # mm: the width of the transition
+    thickness: float | np.ndarray   # mm: the width of the transition (one, or one per zone)
 
     @classmethod
     def around(cls, centers, radii, inner, outer: float, grading: float = 0.3) -> "ZoneField":
@@ -228,14 +228,24 @@ class ZoneField:
         f = float(factor)
         return ZoneField(self.centers, self.radii, self.inner * f, self.outer * f, self.thickness)
 
+    def merged(self, other: "ZoneField | None") -> "ZoneField":
+        """The zones of both fields (same outer size), each with its own transition width."""
+        if other is None:
+            return self
+        n, m = len(self.radii), len(other.radii)
+        return ZoneField(np.vstack([self.centers, other.centers]), np.concatenate([self.radii, other.radii]),
+                         np.concatenate([self.inner, other.inner]), self.outer,
+                         np.concatenate([np.broadcast_to(self.thickness, (n,)), np.broadcast_to(other.thickness, (m,))]))
+
 
 def _apply_zones(gmsh, zones: ZoneField) -> list[int]:
     balls = []
-    for c, radius, inner in zip(zones.centers, zones.radii, zones.inner):
+    thickness = np.broadcast_to(np.asarray(zones.thickness, dtype=float), zones.radii.shape)
+    for c, radius, inner, width in zip(zones.centers, zones.radii, zones.inner, thickness):
         ball = gmsh.model.mesh.field.add("Ball")
         xyz = np.zeros(3)
         xyz[:len(c)] = c
-        for key, value in (("Radius", radius), ("Thickness", zones.thickness), ("VIn", inner),
+        for key, value in (("Radius", radius), ("Thickness", width), ("VIn", inner),
                            ("VOut", zones.outer), ("XCenter", xyz[0]), ("YCenter", xyz[1]), ("ZCenter", xyz[2])):
             gmsh.model.mesh.field.setNumber(ball, key, float(value))
         balls.append(ball)

@@ -4,8 +4,8 @@
                                        [--fraction 0.25] [--radius 1.0] [--answer RESULT_JSON ...]
                                        [--out studies/output/corner_reference]
 
-P2 on each size h, graded at finite anchors as the --tol ladder grades
-(skelfem.accuracy.anchor_zones of its first level, scaled to h) and at every
+P2 on each size h, graded at finite anchors and clamped corners as the --tol ladder grades
+(skelfem.accuracy.ladder_zones of its first level, scaled to h) and at every
 corner of a bone outline that turns by more than MIN_TURN degrees: size
 fraction x h within ``radius`` mm of the corner (Gmsh Ball fields, growing
 0.3 mm per mm beyond). Silicone squeezed against a bone's corner has a
@@ -45,18 +45,14 @@ def corners(design, min_turn: float = MIN_TURN) -> np.ndarray:
 
 
 def zones(design, model, fraction: float, radius: float):
-    """The ZoneField of the ladder's first level: its anchor zones plus a zone at every bone corner."""
-    from skelfem.accuracy import anchor_zones, first_level
+    """The ZoneField of the ladder's first level (its anchor and clamped-corner zones) plus a zone at every
+    bone corner."""
+    from skelfem.accuracy import first_level, ladder_zones
     from skelfem.geometry import ZoneField
     h0 = float(first_level(design).mesh.size)
     C = corners(design)
-    centres, radii, inner = [C], [np.full(len(C), radius)], [np.full(len(C), fraction * h0)]
-    anchors = anchor_zones(model, h0)
-    if anchors is not None:
-        centres.append(anchors.centers)
-        radii.append(anchors.radii)
-        inner.append(anchors.inner)
-    return ZoneField.around(np.concatenate(centres), np.concatenate(radii), np.concatenate(inner), h0), h0
+    bones = ZoneField.around(C, np.full(len(C), radius), np.full(len(C), fraction * h0), h0)
+    return bones.merged(ladder_zones(model, design, h0)), h0
 
 
 def _markers(result: dict) -> np.ndarray:

@@ -4,8 +4,8 @@
                               [--set KEY=VALUE ...] [--out studies/output/scatter]
 
 The design is solved with P2 on graded meshes of the given sizes, graded at
-its finite anchors as the --tol ladder grades them (skelfem.accuracy:
-anchor_zones of the ladder's first level, scaled to each size), each solve
+its finite anchors and clamped corners as the --tol ladder grades them (skelfem.accuracy:
+ladder_zones of the ladder's first level, scaled to each size), each solve
 warm-started from the last. Sizes this close give meshes of nearly one
 resolution but a different triangulation each, so the spread of the markers
 is the scatter that Richardson's e = C h^r cannot see and the --tol twin
@@ -26,13 +26,13 @@ SIZES = tuple(round(0.80 + 0.01 * k, 2) for k in range(9))
 
 def run(design=ROOT / "geometry" / "finger_bones.toml", sizes=SIZES, sets=()) -> dict:
     from skelfem import Session
-    from skelfem.accuracy import anchor_zones, at_size, first_level
+    from skelfem.accuracy import at_size, first_level, ladder_zones
     from skelfem.design import load_design
     d = load_design(design, list(sets))
     h0 = float(first_level(d).mesh.size)
     rows = []
     with Session(at_size(d, h0)) as s:
-        zones = anchor_zones(s.model, h0)
+        zones = ladder_zones(s.model, d, h0)
         for h in sizes:
             s.edit(at_size(d, h), size=None if zones is None else zones.scaled(h / h0))
             r = s.solve()

@@ -5,7 +5,7 @@
 
 For each design it solves a much finer reference (P2 at --ref-size, 3D
 designs at --ref-size-3d, graded at finite anchors as the --tol ladder's
-meshes are: skelfem.accuracy.anchor_zones) and each tolerance with the command itself
+meshes are: skelfem.accuracy.ladder_zones) and each tolerance with the command itself
 (``python -m skelfem simulate``, one process per run, as a user runs it),
 then reports the final mesh, the estimate, the marker error against the
 reference, the effectivity (estimate / error), and wall times (each run's
@@ -75,8 +75,8 @@ def _uncertainty(ref: dict) -> float | None:
 
 
 def solve_reference(design: str, h_ref: float, folder: Path) -> None:
-    """P2 at h_ref, graded near finite anchors as the --tol ladder's meshes are (accuracy.anchor_zones of its
-    first level, scaled to h_ref): result.json in folder (its own process, run by _reference).
+    """P2 at h_ref, graded near finite anchors and clamped corners as the --tol ladder's meshes are
+    (accuracy.ladder_zones of its first level, scaled to h_ref): result.json in folder (its own process, run by _reference).
 
     3D designs: a mesh much finer than the ladder's last does not fit this machine, so the reference
     is extrapolated: P2 at 2 h_ref, sqrt 2 h_ref and h_ref (warm), and Richardson's extrapolation of
@@ -88,7 +88,7 @@ def solve_reference(design: str, h_ref: float, folder: Path) -> None:
     import time
 
     from skelfem import Session, resources
-    from skelfem.accuracy import TWIN, anchor_zones, first_level, next_level
+    from skelfem.accuracy import TWIN, first_level, ladder_zones, next_level
     from skelfem.design import load_design
 
     t0 = time.perf_counter()
@@ -98,7 +98,7 @@ def solve_reference(design: str, h_ref: float, folder: Path) -> None:
     sizes = [2.0 * h_ref, 2.0 ** 0.5 * h_ref, h_ref] if d.dim == 3 else [h_ref]
     levels = []
     with Session(d, ["mesh.degree=2", f"mesh.size={sizes[0]}"]) as s:
-        zones = anchor_zones(s.model, h0)
+        zones = ladder_zones(s.model, d, h0)
         for h in sizes:
             s.edit(load_design(ROOT / "geometry" / f"{design}.toml", ["mesh.degree=2", f"mesh.size={h}"]),
                    size=None if zones is None else zones.scaled(h / h0))

@@ -118,7 +118,7 @@ class _FakeSession:
 
 def test_a_repeated_mesh_replaces_the_last_level(monkeypatch):
     """On a body barely larger than h, h = 4 and 2.83 give one mesh: it is one level (labelled 2.83)."""
-    monkeypatch.setattr(accuracy, "anchor_zones", lambda model, h0: None)
+    monkeypatch.setattr(accuracy, "ladder_zones", lambda model, design, h0: None)
     session = _FakeSession(lambda h: 1000 if h > 2.5 else int(1000 * (2.83 / h) ** 3),
                            lambda h, k: [0.01 * h ** 2, 0.0, 0.0])
     _, acc = accuracy.refine(session, tol=1e-3)
@@ -130,7 +130,7 @@ def test_a_repeated_mesh_replaces_the_last_level(monkeypatch):
 def test_a_twin_mesh_measures_the_scatter_richardson_cannot_see(monkeypatch):
     """Answers e = C h^1.8 plus a mesh-to-mesh scatter: the ladder alone would stop (and be wrong); the twin
     (a mesh of 0.95 h) sees the scatter, the ladder goes on, and the answer's estimate covers its error."""
-    monkeypatch.setattr(accuracy, "anchor_zones", lambda model, h0: None)
+    monkeypatch.setattr(accuracy, "ladder_zones", lambda model, design, h0: None)
     session = _FakeSession(lambda h: int(1000 * (4.0 / h) ** 3), None)
 
     def position(h, k):                          # the ladder's meshes converge cleanly, every twin is off
@@ -269,3 +269,57 @@ def test_a_sudden_drop_after_stalled_differences_is_not_trusted():
     assert not accuracy.trusted(ladder(3.8))                      # a drop faster than P2, first rate
     assert not accuracy.trusted(ladder(0.05, 3.8))                # ... right after a stall
     assert accuracy.trusted(ladder(1.7, 2.3))                     # ... after convergence had begun
+
+
+def _strip_design(tmp_path, *sets):
+    from skelfem.design import load_design
+    path = tmp_path / "strip.toml"
+    path.write_text(toml_text(strip(length=60.0, width=10.0, size=2.0)))
+    return load_design(path, list(sets))
+
+
+@pytest.mark.parametrize("region, expected", [
+    ("[[-1, -1], [11, 1e-6]]", [[10.0, 0.0], [0.0, 0.0]]),          # the base edge: its two corners
+    ("[[-1, -1], [4, 1e-6]]", [[4.0, 0.0], [0.0, 0.0]]),            # part of it: where the box cuts it
+    ("[[-1, 20], [1e-6, 30]]", [[0.0, 30.0], [0.0, 20.0]]),         # a stretch of the left side
+])
+def test_clamped_corners_are_where_a_fixed_pins_box_cuts_the_outline(tmp_path, region, expected):
+    d = _strip_design(tmp_path, f"pins.base.region={region}")
+    got = accuracy.clamp_corners(d)
+    assert got.shape == (2, 2)
+    assert np.allclose(sorted(got.tolist()), sorted(expected), atol=1e-5)
+
+
+def test_spring_pins_and_3d_bodies_have_no_clamped_corner_zones(tmp_path):
+    d = _strip_design(tmp_path, "pins.base.kind=\"spring\"", "pins.base.stiffness=10.0")
+    assert accuracy.clamp_corners(d).shape == (0, 2) and accuracy.corner_zones(d, 4.0) is None
+    from skelfem.design import load_design
+    assert accuracy.clamp_corners(load_design(GEOMETRY / "post3d.toml")).shape == (0, 2)
+
+
+def test_the_ladders_meshes_are_graded_at_clamped_corners_and_at_anchors(tmp_path):
+    """Zones of CORNER_SIZE h within CORNER_RADIUS h_0 of each clamped corner, merged with the anchor zones;
+    scaled with h they stay one family (the zones keep their extent in mm)."""
+    from skelfem import Session
+    from skelfem.design import load_design
+    from skelfem.points import cell_sizes
+    d = load_design(GEOMETRY / "thumb.toml")
+    h0 = float(accuracy.first_level(d).mesh.size)
+    with Session(accuracy.first_level(d)) as s:
+        z = accuracy.ladder_zones(s.model, s.design, h0)
+        anchors = accuracy.anchor_zones(s.model, h0)
+        assert len(z.radii) == len(anchors.radii) + 2
+        corners = z.centers[len(anchors.radii):]
+        assert np.allclose(sorted(corners.tolist()), [[0.0, 0.01], [16.0, 0.01]], atol=1e-6)
+        assert np.allclose(z.inner[-2:], accuracy.CORNER_SIZE * h0) and np.allclose(z.radii[-2:], 0.25 * h0)
+        half = z.scaled(0.5)
+        assert np.allclose(half.inner, 0.5 * z.inner) and np.array_equal(half.radii, z.radii)
+        assert np.array_equal(np.broadcast_to(half.thickness, (len(z.radii),)),
+                              np.broadcast_to(z.thickness, (len(z.radii),)))
+        s.edit(accuracy.at_size(d, h0), size=z)
+        mesh = s.model.mesh
+        h = cell_sizes(mesh)
+        x = mesh.geometry.x[mesh.geometry.dofmap.array.reshape(-1, 3)][:, :, :2].mean(axis=1)
+        at_corner = np.linalg.norm(x - [0.0, 0.0], axis=1) < accuracy.CORNER_RADIUS * h0
+        far = np.linalg.norm(x - [8.0, 35.0], axis=1) < 5.0
+        assert h[at_corner].max() < 0.35 * h0 and h[far].min() > 0.5 * h0

@@ -151,7 +151,7 @@ def test_a_met_round_is_checked_by_a_twin_whose_scatter_can_send_it_on(monkeypat
     monkeypatch.setattr(accuracy, "twin_level", twin_level)
     _, b = _run(0.5, max_rounds=3)
     twins = [lv for lv in b["levels"] if lv["twin"]]
-    assert len(calls) == 2 and len(twins) == 2 and twins[0]["estimate"] == 10.0 and b["rounds"] == 2
+    assert len(calls) == 2 and len(twins) == 2 and twins[0]["estimate"] == 10.0 and b["rounds"] > a["rounds"]
     assert b["met"] and b["levels"][-1]["twin"] and b["estimated_error"] < 0.25
 
 
