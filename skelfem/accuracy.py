@@ -227,7 +227,7 @@ def clamp_corners(design) -> np.ndarray:
     pollutes the whole solution and depends on how each mesh happens to lie
     at the corner (on finger_tapered_fillet, P2 at h = 0.59, 0.5 and 0.42:
     tip x = -4.0150, -3.9936, -4.0171 mm; with ``corner_zones``
-    -4.0297, -4.0234, -4.0235 mm, for about the same DOFs).
+    -4.0292, -4.0233, -4.0235 mm, for 2-6 % more DOFs).
     """
     if design.dim != 2:
         return np.zeros((0, 2))

@@ -74,6 +74,13 @@ def _uncertainty(ref: dict) -> float | None:
     return r.get("scatter", r.get("estimate"))
 
 
+def _converged(res, design: str, h: float):
+    """res, or a RuntimeError saying which reference solve failed and why."""
+    if not res.converged:
+        raise RuntimeError(f"{design}: the reference solve at h = {h:g} mm failed ({res.status})")
+    return res
+
+
 def solve_reference(design: str, h_ref: float, folder: Path) -> None:
     """P2 at h_ref, graded near finite anchors and clamped corners as the --tol ladder's meshes are
     (accuracy.ladder_zones of its first level, scaled to h_ref): result.json in folder (its own process, run by _reference).
@@ -102,14 +109,14 @@ def solve_reference(design: str, h_ref: float, folder: Path) -> None:
         for h in sizes:
             s.edit(load_design(ROOT / "geometry" / f"{design}.toml", ["mesh.degree=2", f"mesh.size={h}"]),
                    size=None if zones is None else zones.scaled(h / h0))
-            res = s.solve()
+            res = _converged(s.solve(), design, h)
             levels.append(next_level(levels, h, res, 0.0))
         result = res.to_dict()
         if d.dim == 2:
             h = TWIN * h_ref
             s.edit(load_design(ROOT / "geometry" / f"{design}.toml", ["mesh.degree=2", f"mesh.size={h}"]),
                    size=None if zones is None else zones.scaled(h / h0))
-            twin = np.array([m["position"] for m in s.solve().markers.values()])
+            twin = np.array([m["position"] for m in _converged(s.solve(), design, h).markers.values()])
     result["timings"]["total"] = time.perf_counter() - t0
     result["reference"] = {"size": h_ref, "graded": zones is not None}
     if d.dim == 2:
