@@ -233,9 +233,9 @@ class ZoneField:
         if other is None:
             return self
         n, m = len(self.radii), len(other.radii)
+        widths = [np.broadcast_to(self.thickness, (n,)), np.broadcast_to(other.thickness, (m,))]
         return ZoneField(np.vstack([self.centers, other.centers]), np.concatenate([self.radii, other.radii]),
-                         np.concatenate([self.inner, other.inner]), self.outer,
-                         np.concatenate([np.broadcast_to(self.thickness, (n,)), np.broadcast_to(other.thickness, (m,))]))
+                         np.concatenate([self.inner, other.inner]), self.outer, np.concatenate(widths))
 
 
 def _apply_zones(gmsh, zones: ZoneField) -> list[int]:

@@ -4,8 +4,8 @@
                                 [--reuse-references]
 
 For each design it solves a much finer reference (P2 at --ref-size, 3D
-designs at --ref-size-3d, graded at finite anchors as the --tol ladder's
-meshes are: skelfem.accuracy.ladder_zones) and each tolerance with the command itself
+designs at --ref-size-3d, graded at finite anchors and clamped corners as
+the --tol ladder's meshes are: skelfem.accuracy.ladder_zones) and each tolerance with the command itself
 (``python -m skelfem simulate``, one process per run, as a user runs it),
 then reports the final mesh, the estimate, the marker error against the
 reference, the effectivity (estimate / error), and wall times (each run's
@@ -83,7 +83,8 @@ def _converged(res, design: str, h: float):
 
 def solve_reference(design: str, h_ref: float, folder: Path) -> None:
     """P2 at h_ref, graded near finite anchors and clamped corners as the --tol ladder's meshes are
-    (accuracy.ladder_zones of its first level, scaled to h_ref): result.json in folder (its own process, run by _reference).
+    (accuracy.ladder_zones of its first level, scaled to h_ref): result.json in folder (its own process,
+    run by _reference).
 
     3D designs: a mesh much finer than the ladder's last does not fit this machine, so the reference
     is extrapolated: P2 at 2 h_ref, sqrt 2 h_ref and h_ref (warm), and Richardson's extrapolation of
