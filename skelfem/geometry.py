@@ -228,6 +228,15 @@ class ZoneField:
         f = float(factor)
         return ZoneField(self.centers, self.radii, self.inner * f, self.outer * f, self.thickness)
 
+    def at(self, points) -> np.ndarray:
+        """The size at points (n, >= dim) mm, as Gmsh evaluates it: the smallest of the Ball fields (inner
+        within a zone's radius, growing linearly to outer over its transition width, outer beyond)."""
+        x = np.asarray(points, dtype=float)[:, :self.centers.shape[1]]
+        dist = np.linalg.norm(x[:, None, :] - self.centers[None, :, :], axis=2)            # (n, zones)
+        width = np.broadcast_to(np.asarray(self.thickness, dtype=float), self.radii.shape)
+        t = np.clip((dist - self.radii) / np.maximum(width, 1e-300), 0.0, 1.0)
+        return np.min(self.inner + t * (self.outer - self.inner), axis=1, initial=self.outer)
+
     def merged(self, other: "ZoneField | None") -> "ZoneField":
         """The zones of both fields (same outer size), each with its own transition width."""
         if other is None:

@@ -191,6 +191,13 @@ def global_interpolation(V, points: np.ndarray):
     return S, DofGather(V, dofs), owner
 
 
+def cell_centroids(mesh) -> np.ndarray:
+    """The centroid of each (local) cell's vertices, (cells, gdim) mm."""
+    dim = mesh.topology.dim
+    x = mesh.geometry.x[:, :mesh.geometry.dim]
+    return x[mesh.geometry.dofmap.array.reshape(-1, dim + 1)].mean(axis=1)
+
+
 def cell_sizes(mesh) -> np.ndarray:
     """Edge length h_K of the equilateral cell with each (local) cell's area (2D) or volume (3D), mm.
 

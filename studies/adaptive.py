@@ -1,16 +1,20 @@
 """Adaptive against uniform refinement: marker error against DOFs and wall time, P1 and P2.
 
-    python studies/adaptive.py [--designs finger thumb finger_tapered] [--ref-size 0.3] [--rounds 3]
-                               [--levels 4] [--out studies/output/adaptive] [--figures studies/figures]
-                               [--reuse-references]
+    python studies/adaptive.py [--designs finger thumb finger_tapered_fillet] [--tol-designs ...]
+                               [--ref-size 0.3] [--rounds 3] [--levels 4] [--out studies/output/adaptive]
+                               [--figures studies/figures] [--reuse-references]
 
 For each design (geometry/<name>.toml) a reference is solved with P2 on a
-much finer uniform mesh (--ref-size; kept in OUT/<design>/reference.json
-and read back with --reuse-references). Then, for P1 and P2:
+much finer mesh (--ref-size, graded at finite anchors and clamped corners as
+the --tol ladder's meshes are), with a twin at 0.95 of its size whose
+difference is the reference's own scatter (kept in
+OUT/<design>/reference.json and read back with --reuse-references). Then,
+for P1 and P2:
 
 * ``uniform``: the --tol ladder's meshes, 2h, h, h/2, ... (h the design's
-  [mesh] size; --levels meshes for P2, one more for P1), each warm-started
-  from the last;
+  [mesh] size; --levels meshes for P2, one more for P1; uniform h with the
+  ladder's fixed zones at anchors and clamped corners scaled with it), each
+  warm-started from the last;
 * ``adaptive``: skelfem.adapt's rounds (three meshes of one size field
   each, indicators, a new field), driven past any tolerance (tol 1e-9) for
   --rounds rounds.
@@ -22,8 +26,9 @@ timed), and with the method's own estimate where it has one (the adaptive
 rounds' last mesh; the uniform ladder's from its third mesh on), so the
 estimate's effectivity (estimate / error) can be read too. Each adaptive
 round aims at REDUCTION times the last estimate (a curve, not a stop). Then
-``--tol`` itself (P2) for each of --tols, uniform and adaptive, as the
-command runs it: final DOFs, time, estimate, ``met`` and the true error.
+``--tol`` itself (P2) for each of --tols on each of --tol-designs, uniform
+and adaptive, as the command runs it: final DOFs, time, estimate, ``met``
+and the true error.
 run(**params) returns the rows; main(argv) prints them and writes
 adaptive.json and adaptive.png into --out.
 """
@@ -39,10 +44,11 @@ from skelfem.output import copy_figure, say
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "studies" / "output" / "adaptive"
-DESIGNS = ("finger", "thumb", "finger_tapered")
+DESIGNS = ("finger", "thumb", "finger_tapered_fillet")
 MARKER = "tip"
 REDUCTION = 0.25          # each adaptive round aims at a quarter of the last estimate (P2: one uniform halving)
 TOLS = (0.1, 0.05)        # --tol runs (P2): uniform ladder against adaptive rounds
+TOL_DESIGNS = DESIGNS
 
 
 def _design(name: str, size: float, degree: int):
@@ -60,23 +66,46 @@ def _tip(result) -> np.ndarray:
     return np.asarray(result.markers[MARKER]["position"], dtype=float)
 
 
+def _graded(session, name: str, h0: float):
+    """The --tol ladder's fixed zones for the design (accuracy.ladder_zones at its first size h0), or None."""
+    from skelfem.accuracy import ladder_zones
+    return ladder_zones(session.model, session.design, h0)
+
+
+def _edit(session, name: str, h: float, degree: int, zones, h0: float) -> None:
+    """Mesh the design at size h, graded as the ladder grades it (the zones scaled by h / h0)."""
+    session.edit(_design(name, h, degree), size=None if zones is None else zones.scaled(h / h0))
+
+
 def reference(name: str, size: float, out: Path | None, reuse: bool) -> dict:
-    """The P2 tip at the reference size: solved, or read back from out/<name>/reference.json (reuse)."""
+    """The P2 tip at the reference size, graded as the ladder's meshes are (zones scaled to size), and its
+    twin at accuracy.TWIN * size: ``scatter`` = |tip_twin - tip| is the reference's own mesh-to-mesh
+    scatter. Solved, or read back from out/<name>/reference.json (reuse)."""
     from skelfem import Session
+    from skelfem.accuracy import TWIN
 
     path = None if out is None else Path(out) / name / "reference.json"
     if reuse and path is not None and path.exists():
         ref = json.loads(path.read_text())
-        if ref.get("size") == size:
+        if ref.get("size") == size and "scatter" in ref:
             say(f"{name}: reference read back from {path}", flush=True)
             return ref
     t = time.perf_counter()
-    with Session(_design(name, size, 2)) as s:
+    h0 = _first_size(name)
+
+    def solved(s, h):
+        _edit(s, name, h, 2, zones, h0)
         r = s.solve()
         if not r.converged:
-            raise RuntimeError(f"{name}: the reference solve failed ({r.status})")
+            raise RuntimeError(f"{name}: the reference solve at h = {h:g} mm failed ({r.status})")
+        return r
+
+    with Session(_design(name, h0, 2)) as s:
+        zones = _graded(s, name, h0)
+        r = solved(s, size)
         ref = {"design": name, "size": size, "dofs": int(r.dofs), "tip": _tip(r).tolist(),
-               "time": time.perf_counter() - t}
+               "time": time.perf_counter() - t, "graded": zones is not None}
+        ref["scatter"] = float(np.linalg.norm(_tip(solved(s, TWIN * size)) - _tip(r)))
     if path is not None:
         from skelfem.output import write_json
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -85,7 +114,8 @@ def reference(name: str, size: float, out: Path | None, reuse: bool) -> dict:
 
 
 def uniform(name: str, degree: int, levels: int, tip_ref: np.ndarray) -> list[dict]:
-    """The uniform ladder 2h, h, h/2, ... (warm-started), one row per mesh."""
+    """The --tol ladder 2h, h, h/2, ... (uniform h, graded by the ladder's fixed zones, warm-started),
+    one row per mesh."""
     from skelfem import Session, accuracy
 
     h0 = _first_size(name)
@@ -93,10 +123,12 @@ def uniform(name: str, degree: int, levels: int, tip_ref: np.ndarray) -> list[di
     t = time.perf_counter()
     session = Session(_design(name, h0, degree))
     try:
+        zones = _graded(session, name, h0)
         for k in range(levels):
             if k:
                 t = time.perf_counter()
-                session.edit(_design(name, h0 / 2 ** k, degree))
+            if k or zones is not None:
+                _edit(session, name, h0 / 2 ** k, degree, zones, h0)
             r = session.solve()
             spent += time.perf_counter() - t
             if not r.converged:
@@ -108,7 +140,8 @@ def uniform(name: str, degree: int, levels: int, tip_ref: np.ndarray) -> list[di
                 lv.change = float(np.max(np.linalg.norm(lv.markers - ladder[-1].markers, axis=1)))
             ladder.append(lv)
             rows.append({"design": name, "method": "uniform", "degree": degree, "mesh": k + 1,
-                         "dofs": int(r.dofs), "min_size": h0 / 2 ** k, "max_size": h0 / 2 ** k,
+                         "dofs": int(r.dofs), "max_size": h0 / 2 ** k,
+                         "min_size": h0 / 2 ** k if zones is None else zones.scaled(2.0 ** -k).smallest,
                          "time": spent, "error": float(np.linalg.norm(_tip(r) - tip_ref)),
                          "estimate": lv.estimate if k >= 2 else None})
     finally:
@@ -171,12 +204,13 @@ def tol_runs(name: str, tols, tip_ref: np.ndarray) -> list[dict]:
 
 
 def run(designs=DESIGNS, ref_size: float = 0.3, rounds: int = 3, levels: int = 4, degrees=(1, 2),
-        out: Path | None = None, reuse: bool = False, tols=TOLS) -> dict:
+        out: Path | None = None, reuse: bool = False, tols=TOLS, tol_designs=TOL_DESIGNS) -> dict:
     """Rows for every (design, method, degree, mesh), the --tol runs, and each design's reference."""
     rows, refs, tol_rows = [], {}, []
     for name in designs:
         ref = refs[name] = reference(name, ref_size, out, reuse)
-        say(f"{name}: reference P2 h = {ref_size:g} ({ref['dofs']} DOFs, {ref['time']:.1f} s)", flush=True)
+        say(f"{name}: reference P2 h = {ref_size:g} ({ref['dofs']} DOFs, {ref['time']:.1f} s), "
+            f"its own scatter {ref['scatter']:.2g} mm", flush=True)
         tip_ref = np.asarray(ref["tip"], float)
         for degree in degrees:
             uniform(name, degree, 1, tip_ref)             # compiles the forms: not timed below
@@ -188,7 +222,8 @@ def run(designs=DESIGNS, ref_size: float = 0.3, rounds: int = 3, levels: int = 4
                     est = "" if r["estimate"] is None else f", estimate {r['estimate']:.3g} mm"
                     say(f"  P{degree} {method:8s} mesh {r['mesh']:2d}: {r['dofs']:7d} DOFs, h {r['min_size']:.3g}.."
                         f"{r['max_size']:.3g} mm, {r['time']:6.2f} s, error {r['error']:.3g} mm{est}", flush=True)
-        tol_rows += tol_runs(name, tols, tip_ref)
+        if name in tol_designs:
+            tol_rows += tol_runs(name, tols, tip_ref)
     result = {"rows": rows, "tol_runs": tol_rows, "references": refs, "ref_size": ref_size}
     result["summary"] = summary(rows)
     if out is not None:
@@ -247,6 +282,9 @@ def plot(path: Path, result: dict) -> None:
                               color=colour[degree], ms=5, lw=1.2, label=f"{method} P{degree}")
         ref = result["references"][name]
         axes[0, j].set_title(f"{name}: reference P2 h = {result['ref_size']:g} ({ref['dofs']} DOFs)", fontsize=9)
+        for ax in axes[:, j]:               # errors below twice the reference's own scatter are not measured
+            ax.axhspan(1e-6, 2.0 * max(ref["scatter"], 1e-6), color="0.85", zorder=0,
+                       label="not measurable (2x reference scatter)")
         axes[0, j].set_xlabel("DOFs of the answer")
         axes[1, j].set_xlabel("wall time spent to get the answer [s]")
         for ax in axes[:, j]:
@@ -261,17 +299,19 @@ def plot(path: Path, result: dict) -> None:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--designs", nargs="+", default=list(DESIGNS))
-    p.add_argument("--ref-size", type=float, default=0.3, help="reference mesh size (P2, uniform), mm")
+    p.add_argument("--ref-size", type=float, default=0.3, help="reference mesh size (P2, graded as the ladder), mm")
     p.add_argument("--rounds", type=int, default=3, help="adaptive rounds (three meshes each)")
     p.add_argument("--levels", type=int, default=4, help="uniform P2 meshes (P1: one more)")
     p.add_argument("--degrees", nargs="+", type=int, default=[1, 2], choices=[1, 2])
     p.add_argument("--tols", nargs="*", type=float, default=list(TOLS), help="--tol runs (P2), both methods")
+    p.add_argument("--tol-designs", nargs="*", default=list(TOL_DESIGNS), help="the designs of the --tol runs")
     p.add_argument("--out", type=Path, default=OUT)
     p.add_argument("--figures", type=Path, default=None, help="also copy adaptive.png here (README)")
     p.add_argument("--reuse-references", action="store_true",
                    help="read each design's reference back from OUT/DESIGN/reference.json if it is there")
     a = p.parse_args(argv)
-    res = run(a.designs, a.ref_size, a.rounds, a.levels, tuple(a.degrees), a.out, a.reuse_references, tuple(a.tols))
+    res = run(a.designs, a.ref_size, a.rounds, a.levels, tuple(a.degrees), a.out, a.reuse_references, tuple(a.tols),
+              tuple(a.tol_designs))
     for key, s in res["summary"].items():
         reach = ", ".join(f"{tol} mm: " + ("-" if v is None else f"{v['dofs']} DOFs {v['time']:.1f} s")
                           for tol, v in s["reach"].items())

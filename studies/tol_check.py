@@ -1,7 +1,7 @@
 """Does ``skelfem simulate --tol`` meet its tolerance, and does its estimate know how far off it is?
 
     python studies/tol_check.py [--designs ...] [--tols 0.5 0.1 0.05] [--ref-size 0.25] [--ref-size-3d 0.5]
-                                [--reuse-references]
+                                [--reuse-references] [--adaptive]
 
 For each design it solves a much finer reference (P2 at --ref-size, 3D
 designs at --ref-size-3d, graded at finite anchors and clamped corners as
@@ -11,7 +11,9 @@ then reports the final mesh, the estimate, the marker error against the
 reference, the effectivity (estimate / error), and wall times (each run's
 own ``timings.total`` from result.json: for --tol every mesh of its ladder,
 not the interpreter's start-up).
-run(**params) returns the rows; main(argv) prints them and writes tol_check.csv.
+With --adaptive each tolerance runs ``--tol TOL --adaptive`` instead (rows
+in tol_check_adaptive.csv). run(**params) returns the rows; main(argv)
+prints them and writes tol_check.csv.
 """
 from __future__ import annotations
 
@@ -137,8 +139,9 @@ def solve_reference(design: str, h_ref: float, folder: Path) -> None:
 
 
 def run(designs=DESIGNS, tols=(0.5, 0.1, 0.05), ref_size: float = 0.25, ref_size_3d: float = 0.5,
-        out: Path | None = None, reuse: bool = False) -> list[dict]:
-    """For each design a P2 reference (ref_size, or ref_size_3d for 3D designs) and one --tol run per tol."""
+        out: Path | None = None, reuse: bool = False, adaptive: bool = False) -> list[dict]:
+    """For each design a P2 reference (ref_size, or ref_size_3d for 3D designs) and one --tol run per tol
+    (``--tol TOL --adaptive`` with adaptive)."""
     out = Path(out or ROOT / "studies" / "output" / "tol_check")
     rows = []
     for design in designs:
@@ -148,7 +151,8 @@ def run(designs=DESIGNS, tols=(0.5, 0.1, 0.05), ref_size: float = 0.25, ref_size
         say(f"{design}: reference P2 ({ref['dofs']} DOFs): {t_ref:.1f} s, its own error about {u_ref:.2g} mm",
             flush=True)
         for tol in tols:
-            res, t = _simulate(design, out / design / f"tol_{tol:g}", "--tol", str(tol))
+            res, t = _simulate(design, out / design / f"tol_{tol:g}{'_adaptive' * adaptive}", "--tol", str(tol),
+                               *(["--adaptive"] if adaptive else []))
             err = float(np.linalg.norm(_markers(res) - _markers(ref), axis=1).max())
             a = res["accuracy"]
             est = a["estimated_error"]
@@ -159,9 +163,12 @@ def run(designs=DESIGNS, tols=(0.5, 0.1, 0.05), ref_size: float = 0.25, ref_size
                          "reference_uncertainty": u_ref, "measurable": err > 2.0 * u_ref,
                          "time": t, "reference_time": t_ref, "dofs": res["dofs"], "reference_dofs": ref["dofs"],
                          "bones": None if not a.get("bones") else "rigid" if a["bones"]["rigid"] else "elastic",
-                         "bones_difference": (a.get("bones") or {}).get("difference")})
+                         "bones_difference": (a.get("bones") or {}).get("difference"),
+                         "method": "adaptive" if adaptive else "uniform"})
             r = rows[-1]
-            say(f"  tol {tol:g} mm: P{r['degree']} h={r['size']:g} ({r['dofs']} DOFs, {r['meshes']} meshes), "
+            where = (f"h={a['min_size']:.3g}..{a['max_size']:.3g}" if adaptive and "min_size" in a
+                     else f"h={r['size']:g}")
+            say(f"  tol {tol:g} mm{' adaptive' * adaptive}: P{r['degree']} {where} ({r['dofs']} DOFs, {r['meshes']} meshes), "
                 f"estimated {est:.3g} mm ({'met' if r['reported_met'] else 'NOT met'}), actual {err:.3g} mm "
                 f"(reference +- {u_ref:.2g}), effectivity {r['effectivity']:.2f}"
                 f"{'' if r['measurable'] else ' (error below twice the reference uncertainty)'}, "
@@ -183,10 +190,11 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path, default=ROOT / "studies" / "output" / "tol_check")
     p.add_argument("--reuse-references", action="store_true",
                    help="read each design's reference back from OUT/DESIGN/reference if it is there")
+    p.add_argument("--adaptive", action="store_true", help="run --tol --adaptive (tol_check_adaptive.csv)")
     a = p.parse_args(argv)
-    rows = run(a.designs, a.tols, a.ref_size, a.ref_size_3d, a.out, a.reuse_references)
+    rows = run(a.designs, a.tols, a.ref_size, a.ref_size_3d, a.out, a.reuse_references, a.adaptive)
     a.out.mkdir(parents=True, exist_ok=True)
-    write_csv(a.out / "tol_check.csv", list(rows[0]), rows)
+    write_csv(a.out / f"tol_check{'_adaptive' * a.adaptive}.csv", list(rows[0]), rows)
     eff = [r["effectivity"] for r in rows]
     say(f"{sum(r['met'] for r in rows)}/{len(rows)} tolerances met ({sum(r['reported_met'] for r in rows)} "
         f"reported met); effectivity {min(eff):.2f} to {max(eff):.2f}; table in {a.out / 'tol_check.csv'}")

@@ -155,6 +155,69 @@ def test_a_met_round_is_checked_by_a_twin_whose_scatter_can_send_it_on(monkeypat
     assert b["met"] and b["levels"][-1]["twin"] and b["estimated_error"] < 0.25
 
 
+def test_a_zone_field_is_evaluated_as_gmsh_reads_its_balls():
+    from skelfem.geometry import ZoneField
+    z = ZoneField(np.array([[0.0, 0.0], [10.0, 0.0]]), np.array([1.0, 2.0]), np.array([0.5, 0.2]), 4.0,
+                  np.array([3.5, 1.9]))
+    x = np.array([[0.5, 0.0], [2.75, 0.0], [0.0, 9.0], [10.0, 1.5], [10.0, 2.95], [5.0, 0.0]])
+    assert np.allclose(z.at(x), [0.5, 0.5 + 0.5 * 3.5, 4.0, 0.2, 0.2 + 0.5 * 3.8, 4.0])
+
+
+def test_no_round_coarsens_the_first_rounds_zones(monkeypatch):
+    """Indicators that ask every cell to grow (faked: equal, aimed far above the estimate) leave the first
+    round's finest sizes: h_design / 2 away from the clamped corners, the corner zones' size at them
+    (without first_sizes they grow: 0.41 against 0.25 mm)."""
+    monkeypatch.setattr(adapt, "indicators", lambda model, V, u, z: np.ones(model.mesh.topology.index_map(
+        model.mesh.topology.dim).size_local))
+    design = accuracy.first_level(_strip(size=4.0))
+    zones = accuracy.corner_zones(design, design.mesh.size)
+    corner = zones.scaled(0.25).inner.max()                            # the first round's M_1 at the corners
+    h_cap = design.mesh.size / 4
+    session = Session(design)
+    try:
+        _, a = adapt.refine_adaptive(session, 1e-6, max_rounds=2, reduction=1e6)
+        h, x = adapt.cell_sizes(session.model.mesh), adapt.cell_centroids(session.model.mesh)
+    finally:
+        session.close()
+    assert a["rounds"] == 2
+    at_corners = np.min([np.linalg.norm(x - c, axis=1) for c in zones.centers], axis=0) < 0.4
+    assert at_corners.sum() >= 4 and h[at_corners].max() < 1.3 * corner, (h[at_corners].max(), corner)
+    mid = (x[:, 1] > 15.0) & (x[:, 1] < 25.0)                          # away from the corners and the tip
+    assert np.median(h[mid]) > 0.6 * h_cap, np.median(h[mid])            # grown to h_design / 2
+
+
+def test_the_last_rounds_answer_bounds_the_estimate():
+    """Richardson between two rounds' finest meshes (sizes from DOFs); meshes of about one size: their
+    difference itself (a twin's scatter)."""
+    Level = accuracy.Level
+    prev = [Level(4.0, 100, 3, 0.0, np.array([[0.0, 0.0], [1.0, 1.0]])),
+            Level(1.0, 1000, 3, 0.0, np.array([[0.3, 0.0], [1.0, 1.0]])),
+            Level(0.95, 1100, 3, 0.0, np.array([[9.0, 9.0], [9.0, 9.0]]), twin=True)]     # twins are not it
+    finer = Level(1.0, 4000, 3, 0.0, np.array([[0.0, 0.0], [1.0, 1.0]]), rate=2.0)      # rho = 2 in 2D
+    assert adapt.cross_round(prev, finer, 2) == pytest.approx(0.3 / 3.0)
+    same = Level(1.0, 1050, 3, 0.0, np.array([[0.3, 0.4], [1.0, 1.0]]), rate=2.0)
+    assert adapt.cross_round(prev, same, 2) == pytest.approx(0.4)
+    coarser = Level(1.0, 500, 3, 0.0, np.array([[0.3, 0.0], [1.0, 0.5]]), rate=1.0)
+    assert adapt.cross_round(prev, coarser, 2) == pytest.approx(0.5)
+
+
+def test_a_round_far_from_the_last_one_is_not_met(monkeypatch):
+    """Round 2's three meshes may agree while its answer is far from round 1's: the estimate is then at
+    least what cross_round says (faked: 10 mm), reported, and not met."""
+    calls = []
+
+    def far(previous, level, dim):
+        calls.append(level.dofs)
+        return 10.0
+    monkeypatch.setattr(adapt, "cross_round", far)
+    _, a = _run(0.5, max_rounds=1)
+    assert a["met"] and not calls                                     # round 1 has no round before it
+    _, b = _run(1e-6, max_rounds=2)
+    finals = [lv for lv in b["levels"] if lv["mesh"] == 3]
+    assert len(calls) == 1 and finals[1]["estimate"] == 10.0
+    assert b["estimated_error"] == 10.0 and not b["met"]
+
+
 def test_the_dof_limit_stops_the_rounds_unmet(monkeypatch):
     from skelfem import resources
     session = Session(accuracy.first_level(_strip(size=4.0)))

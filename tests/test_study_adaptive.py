@@ -25,12 +25,13 @@ def test_every_method_and_degree_has_its_meshes_and_errors(tiny):
         assert all(b > a for a, b in zip(times, times[1:]))            # time spent only grows
         assert all(np.isfinite(r["error"]) and r["error"] >= 0 for r in mine)
     uni = [r for r in rows if (r["method"], r["degree"]) == ("uniform", 2)]
-    assert uni[-1]["error"] < 1e-6                                   # the reference is uniform P2 at h = 1
+    assert uni[-1]["error"] < 1e-6                       # the reference is the ladder's P2 mesh at h = 1
     ada = [r for r in rows if (r["method"], r["degree"]) == ("adaptive", 2)]
     ladder = [r for r in res["tol_runs"] if r["method"] == "uniform"][0]
     assert ladder["meshes"] == 4 and len(ladder["ladder_dofs"]) == 3     # three meshes and the twin
     assert ada[2]["dofs"] == ladder["ladder_dofs"][-1]                   # round 1 is the --tol ladder (graded
-    assert ada[0]["dofs"] > uni[0]["dofs"]                               # near the thumb's anchor, unlike uni)
+    assert ada[0]["dofs"] == uni[0]["dofs"]                              # at the thumb's anchor, as uni is)
+    assert uni[0]["min_size"] < uni[0]["max_size"]                       # the ladder's zones grade uni too
     assert ada[-1]["min_size"] < ada[-1]["max_size"]                  # round 2 is graded
 
 
@@ -47,6 +48,8 @@ def test_outputs_written(tiny, picture):
     data = json.loads((out / "adaptive.json").read_text())
     assert len(data["rows"]) == len(res["rows"]) and "summary" in data
     assert (out / "thumb" / "reference.json").exists()
+    ref = res["references"]["thumb"]
+    assert ref["graded"] and 0.0 < ref["scatter"] < 0.5                  # the twin is another mesh
     picture(out / "adaptive.png", 400, 600)
     again = study.reference("thumb", 1.0, out, reuse=True)           # read back, not solved
     assert again["tip"] == res["references"]["thumb"]["tip"]

@@ -36,6 +36,17 @@ def test_tol_check_main_writes_its_table(tmp_path, capsys):
     assert "1/1 tolerances met" in capsys.readouterr().out
 
 
+def test_tol_check_adaptive_runs_the_command_with_adaptive(tmp_path, capsys):
+    study = load_study("tol_check")
+    assert study.main(["--designs", "thumb", "--tols", "2", "--ref-size", "0.7", "--out", str(tmp_path),
+                       "--adaptive"]) == 0
+    lines = (tmp_path / "tol_check_adaptive.csv").read_text().splitlines()
+    assert lines[0].endswith(",method") and lines[1].endswith(",adaptive") and len(lines) == 2
+    assert not (tmp_path / "tol_check.csv").exists()
+    a = json.loads((tmp_path / "thumb" / "tol_2_adaptive" / "result.json").read_text())["accuracy"]
+    assert a["adaptive"] and a["met"] and "1/1 tolerances met" in capsys.readouterr().out
+
+
 def test_a_3d_reference_is_extrapolated_from_three_meshes(tmp_path):
     """3D: P2 at 2, sqrt 2 and 1 x h_ref, the markers extrapolated by Richardson (sizes measured by DOFs)."""
     import numpy as np
