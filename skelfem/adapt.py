@@ -1,19 +1,23 @@
 """Adaptive meshes for --tol: element indicators of the marker error, and a refinement loop.
 
 A *round* solves the design on three meshes of one size field f (mm),
-scaled by 4, 2 and 1 (Gmsh's background mesh, skelfem.geometry.SizeField):
-M_4, M_2, M_1, each warm-started from the last. Scaling a field by 2 halves
-every local size, so the three meshes are a uniform-ratio family and the
-Richardson estimate of skelfem.accuracy applies unchanged to the marker
-positions x_4, x_2, x_1: with d = max |x_1 - x_2|,
+scaled by 4, 2 and 1 in 2D, by 2, sqrt 2 and 1 in 3D (FACTORS: the uniform
+ladder's ratio q, accuracy.RATIO; Gmsh's background mesh,
+skelfem.geometry.SizeField): M_4, M_2, M_1 (named by the 2D factors), each
+warm-started from the last. Scaling a field by q divides every local size
+by q, so the three meshes are a uniform-ratio family and the Richardson
+estimate of skelfem.accuracy applies unchanged to the marker positions x_4,
+x_2, x_1: with d = max |x_1 - x_2|,
 
-    E = d / (2^r - 1),   r observed from the three (d_{4,2} / d_{2,1}), clipped to [0.5, 2],
+    E = d / (q^r - 1),   r observed from the three (d_{4,2} / d_{2,1}), clipped to [0.5, 2],
 
 is the estimated marker error of the answer (the M_1 solve), trusted by the
 rule of accuracy.trusted read per round (round_trusted: a rate above 2 only
 after a round whose rate was at least 1). The first round is the uniform ladder's first
-three meshes (2h, h, h/2 for the design's size h, graded near finite anchors and clamped corners as
-accuracy.ladder_zones says), so the two agree until the estimate asks for more.
+three meshes (2h, h, h/2 for the design's size h; 2h, sqrt 2 h, h in 3D; graded near finite anchors
+and clamped corners as accuracy.ladder_zones says), so the two agree until the estimate asks for more.
+(In 3D a factor of 2 per mesh would make each M_1 about 8 times M_2: post3d's second round asked
+for 630k DOFs of P2 tetrahedra after 89k.)
 
 Indicators (two meshes, goal-weighted). On the cells K of M_1, with the
 coarse solution u_2 interpolated at M_1's nodes (I u_2) and the marker's
@@ -37,11 +41,11 @@ Minimising the cells subject to sum eta_K rho_K^r = T gives
 
     rho_K = C eta_K^(-1 / (r + dim)),   C = (T / sum eta_K^(dim / (r + dim)))^(1 / r),
 
-T = 2^r tol / (MARGIN AIM) (the next M_2's error, so that the next M_1's
+T = q^r tol / (MARGIN AIM) (the next M_2's error, so that the next M_1's
 estimate lands at tol / (MARGIN AIM)). rho_K is clipped to [1/SHRINK, GROW],
 the new size of K is h_K rho_K (h_K: the edge of an equilateral cell of K's
 area or volume) and never above the first round's finest size there (half
-the design's [mesh] size, finer in the ladder's zones at anchors and
+the design's [mesh] size in 2D, the size itself in 3D, finer in the ladder's zones at anchors and
 clamped corners: first_sizes; the rounds only refine) nor below the lattice spacing
 of the finite anchors (anchor_spacing: below it each lattice point is a
 point force again, a singularity of the model that refinement would chase;
@@ -70,6 +74,7 @@ nothing across ranks); under MPI, --tol uses the uniform ladder.
 from __future__ import annotations
 
 import logging
+import math
 import time
 from dataclasses import replace
 
@@ -84,7 +89,8 @@ log = logging.getLogger("skelfem")
 SHRINK = 4.0          # a cell's size falls by at most this per round
 GROW = 2.0            # ... and grows by at most this
 MAX_ROUNDS = 4        # rounds of three meshes (the uniform ladder allows 8 meshes)
-FACTORS = (4.0, 2.0, 1.0)
+FACTORS = {2: (4.0, 2.0, 1.0), 3: (2.0, math.sqrt(2.0), 1.0)}   # a round's field scaled by these: the
+                                                                # uniform ladder's ratios (accuracy.RATIO)
 
 
 # -- sizes ----------------------------------------------------------------------------------------------
@@ -224,12 +230,12 @@ def round_trusted(ladder: list[Level], before: float | None) -> bool:
 # -- the loop ------------------------------------------------------------------------------------------
 def first_sizes(zones, h_cap: float, mesh) -> np.ndarray | float:
     """The first round's finest sizes at the mesh's cells: h_cap, finer in the ladder's fixed zones
-    (accuracy.ladder_zones of the first size, scaled by FACTORS[-1] / FACTORS[0]). No round's field is
+    (accuracy.ladder_zones of the first size h0, scaled to h_cap / h0 as that mesh was). No round's field is
     coarser: the rounds only refine, so the clamped corners and anchors stay resolved where the marker's
     adjoint, small near a clamp, would let the indicators coarsen them."""
     if zones is None:
         return h_cap
-    return np.minimum(zones.scaled(FACTORS[-1] / FACTORS[0]).at(cell_centroids(mesh)), h_cap)
+    return np.minimum(zones.scaled(h_cap / zones.outer).at(cell_centroids(mesh)), h_cap)
 
 
 def cross_round(previous: list[Level], level: Level, dim: int) -> float:
@@ -292,8 +298,9 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
     t0 = time.perf_counter()
     base = session.design                     # at the first size, 2 h
     h_design = 0.5 * float(base.mesh.size)
-    h_cap = 0.5 * h_design                    # the first round's finest size: rounds only refine
     dim = base.dim
+    factors = FACTORS[dim]
+    h_cap = float(base.mesh.size) / factors[0]    # the first round's finest size: rounds only refine
     zones = accuracy.ladder_zones(session.model, base, float(base.mesh.size))   # the first round's grading
     records, rounds = [], []
     field = None
@@ -304,12 +311,12 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
     for rnd in range(max_rounds):
         ladder: list[Level] = []
         coarse = None
-        for i, factor in enumerate(FACTORS):
+        for i, factor in enumerate(factors):
             if rnd > 0 or i > 0 or zones is not None:
-                design = _design(base, (h_cap if field is not None else h_design / 2) * factor, degree)
+                design = _design(base, h_cap * factor, degree)
                 if i > 0:
                     coarse = (session.model.V, session.model.u.x.array.copy(), session.model)
-                first = None if zones is None else zones.scaled(factor / FACTORS[0])
+                first = None if zones is None else zones.scaled(factor / factors[0])
                 session.edit(design, size=first if field is None else field.scaled(factor))
             t = time.perf_counter()
             result = session.solve()
@@ -317,7 +324,7 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
                 stop = f"the solve of round {rnd + 1}, mesh {i + 1} failed ({result.status})"
                 break
             level = accuracy.next_level(ladder, factor, result, time.perf_counter() - t)
-            if rounds and i == len(FACTORS) - 1:
+            if rounds and i == len(factors) - 1:
                 cross = cross_round(rounds[-1], level, dim)
                 if cross > level.estimate:
                     log.info("--tol (adaptive) round %d: %.3g mm from the last round's answer", rnd + 1, cross)
@@ -336,10 +343,10 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
             before_last = before
             if round_trusted(ladder, before) and MARGIN * level.estimate <= tol:
                 size = field if field is not None else zones
-                h_last, scale = (h_cap, 1.0) if field is not None else (h_design / 2, 1.0 / FACTORS[0])
+                scale = 1.0 if field is not None else 1.0 / factors[0]
 
                 def edit(f):
-                    session.edit(_design(base, f * h_last, degree),
+                    session.edit(_design(base, f * h_cap, degree),
                                  size=None if size is None else size.scaled(f * scale))
                 twin, result = accuracy.solve_twin(session, level, edit)
                 if twin is None:
@@ -368,7 +375,7 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
             eta = indicators(model, coarse[0], coarse[1], z)
             eta *= (level.change + level.estimate) / max(float(np.sum(eta)), 1e-300)
             goal = tol / (MARGIN * AIM) if reduction is None else reduction * level.estimate
-            target = 2.0 ** level.rate * goal
+            target = (factors[-2] / factors[-1]) ** level.rate * goal
             h_cells = cell_sizes(model.mesh)
             cap = first_sizes(zones, h_cap, model.mesh)
             floor = max(1e-3 * h_design, anchor_spacing(model) or 0.0)

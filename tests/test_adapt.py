@@ -186,6 +186,27 @@ def test_no_round_coarsens_the_first_rounds_zones(monkeypatch):
     assert np.median(h[mid]) > 0.6 * h_cap, np.median(h[mid])            # grown to h_design / 2
 
 
+@pytest.mark.parametrize("name, ratio", [("strip", 2.0), ("post3d", 2.0 ** 0.5)])
+def test_a_rounds_meshes_are_the_uniform_ladders_ratio_apart(monkeypatch, name, ratio):
+    """2D: h0, h0/2, h0/4 (the field scaled by 4, 2, 1); 3D: h0, h0/sqrt 2, h0/2, as the uniform ladder."""
+    from pathlib import Path
+
+    from skelfem.design import load_design
+    sizes, real = [], adapt._design
+    monkeypatch.setattr(adapt, "_design", lambda design, h, degree: sizes.append(h) or real(design, h, degree))
+    design = _strip(size=4.0) if name == "strip" else load_design(
+        Path(__file__).resolve().parents[1] / "geometry" / "post3d.toml", ["mesh.size=3"])
+    session = Session(accuracy.first_level(design))
+    h0 = session.design.mesh.size
+    try:
+        _, a = adapt.refine_adaptive(session, 100.0, max_rounds=1)
+    finally:
+        session.close()
+    mine = [h for h in sizes if h < 0.99 * h0][:2]             # (2D: the base again, graded at its corners)
+    assert mine == pytest.approx([h0 / ratio, h0 / ratio ** 2]), (sizes, h0)
+    assert a["rounds"] == 1 and len([lv for lv in a["levels"] if not lv["twin"]]) == 3
+
+
 def test_the_last_rounds_answer_bounds_the_estimate():
     """Richardson between two rounds' finest meshes (sizes from DOFs); meshes of about one size: their
     difference itself (a twin's scatter)."""
