@@ -23,7 +23,8 @@ Every mesh's tip error against the reference is recorded with its DOFs and
 the wall time the method had spent when that answer was there (all meshes
 before it, meshing, indicators and solves; the reference checks are not
 timed), and with the method's own estimate where it has one (the adaptive
-rounds' last mesh; the uniform ladder's from its third mesh on), so the
+rounds' last mesh; the uniform ladder's from its third mesh on: the
+answers a method can give, which the figure and the summary count), so the
 estimate's effectivity (estimate / error) can be read too. Each adaptive
 round aims at REDUCTION times the last estimate (a curve, not a stop). Then
 ``--tol`` itself (P2) for each of --tols on each of --tol-designs, uniform
@@ -225,7 +226,7 @@ def run(designs=DESIGNS, ref_size: float = 0.3, rounds: int = 3, levels: int = 4
         if name in tol_designs:
             tol_rows += tol_runs(name, tols, tip_ref)
     result = {"rows": rows, "tol_runs": tol_rows, "references": refs, "ref_size": ref_size}
-    result["summary"] = summary(rows)
+    result["summary"] = summary(rows, refs)
     if out is not None:
         write_outputs(Path(out), result)
     return result
@@ -237,13 +238,23 @@ def cheapest(rows: list[dict], tol: float) -> dict | None:
     return None if not ok else {"dofs": ok[0]["dofs"], "time": ok[0]["time"], "error": ok[0]["error"]}
 
 
-def summary(rows: list[dict]) -> dict:
-    """Per design and method: DOFs and time to reach 0.5, 0.1, 0.05, 0.02 mm, and the smallest error."""
+def answer(row: dict) -> bool:
+    """Whether the method can answer with this mesh, an estimate in hand: the uniform ladder from its
+    third mesh on, the adaptive rounds' finest meshes (M_1; the coarser two only estimate)."""
+    return row["mesh"] >= 3 if row["method"] == "uniform" else row["mesh"] % 3 == 0
+
+
+def summary(rows: list[dict], refs: dict | None = None) -> dict:
+    """Per design and method, over the answers (``answer``): DOFs and time to reach 0.5, 0.1, 0.05,
+    0.02 mm ("not measurable" below twice the reference's own scatter), and the smallest error."""
     out = {}
     for key in sorted({(r["design"], r["method"], r["degree"]) for r in rows}):
-        mine = sorted((r for r in rows if (r["design"], r["method"], r["degree"]) == key), key=lambda r: r["time"])
+        mine = sorted((r for r in rows if (r["design"], r["method"], r["degree"]) == key and answer(r)),
+                      key=lambda r: r["time"])
+        floor = 2.0 * (refs or {}).get(key[0], {}).get("scatter", 0.0)
         out[f"{key[0]} {key[1]} P{key[2]}"] = {
-            "reach": {f"{tol:g}": cheapest(mine, tol) for tol in (0.5, 0.1, 0.05, 0.02)},
+            "reach": {f"{tol:g}": cheapest(mine, tol) if tol > floor else "not measurable"
+                      for tol in (0.5, 0.1, 0.05, 0.02)},
             "best_error": min(r["error"] for r in mine),
             "effectivity": [r["estimate"] / r["error"] for r in mine if r["estimate"] and r["error"] > 0]}
     return out
@@ -273,8 +284,7 @@ def plot(path: Path, result: dict) -> None:
             for degree in (1, 2):
                 mine = sorted((r for r in rows if (r["design"], r["method"], r["degree"]) == (name, method, degree)),
                               key=lambda r: r["time"])
-                if method == "adaptive":          # each round's answer: its finest mesh
-                    mine = [r for r in mine if r["mesh"] % 3 == 0] or mine
+                mine = [r for r in mine if answer(r)]              # the answers, each with its estimate
                 if not mine:
                     continue
                 for ax, key in ((axes[0, j], "dofs"), (axes[1, j], "time")):
@@ -283,8 +293,10 @@ def plot(path: Path, result: dict) -> None:
         ref = result["references"][name]
         axes[0, j].set_title(f"{name}: reference P2 h = {result['ref_size']:g} ({ref['dofs']} DOFs)", fontsize=9)
         for ax in axes[:, j]:               # errors below twice the reference's own scatter are not measured
-            ax.axhspan(1e-6, 2.0 * max(ref["scatter"], 1e-6), color="0.85", zorder=0,
+            low, high = ax.get_ylim()
+            ax.axhspan(low, 2.0 * max(ref["scatter"], 1e-9), color="0.85", zorder=0,
                        label="not measurable (2x reference scatter)")
+            ax.set_ylim(low, high)
         axes[0, j].set_xlabel("DOFs of the answer")
         axes[1, j].set_xlabel("wall time spent to get the answer [s]")
         for ax in axes[:, j]:
@@ -313,7 +325,8 @@ def main(argv=None) -> int:
     res = run(a.designs, a.ref_size, a.rounds, a.levels, tuple(a.degrees), a.out, a.reuse_references, tuple(a.tols),
               tuple(a.tol_designs))
     for key, s in res["summary"].items():
-        reach = ", ".join(f"{tol} mm: " + ("-" if v is None else f"{v['dofs']} DOFs {v['time']:.1f} s")
+        reach = ", ".join(f"{tol} mm: " + ("-" if v is None else v if isinstance(v, str) else
+                                           f"{v['dofs']} DOFs {v['time']:.1f} s")
                           for tol, v in s["reach"].items())
         eff = s["effectivity"]
         say(f"{key}: best {s['best_error']:.3g} mm; reaches {reach}"

@@ -35,6 +35,16 @@ def test_every_method_and_degree_has_its_meshes_and_errors(tiny):
     assert ada[-1]["min_size"] < ada[-1]["max_size"]                  # round 2 is graded
 
 
+def test_the_summary_counts_answers_and_not_what_the_reference_cannot_measure(tiny):
+    study, res, _ = tiny
+    answers = [r for r in res["rows"] if study.answer(r)]
+    assert {r["mesh"] for r in answers if r["method"] == "adaptive"} == {3, 6}
+    assert min(r["mesh"] for r in answers if r["method"] == "uniform") == 3
+    refs = {"thumb": {"scatter": 0.2}}
+    s = study.summary(res["rows"], refs)["thumb uniform P2"]["reach"]
+    assert s["0.1"] == s["0.05"] == "not measurable" and isinstance(s["0.5"], (dict, type(None)))
+
+
 def test_tol_runs_report_met_honestly(tiny):
     _, res, _ = tiny
     runs = res["tol_runs"]
