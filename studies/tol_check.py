@@ -194,10 +194,11 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     rows = run(a.designs, a.tols, a.ref_size, a.ref_size_3d, a.out, a.reuse_references, a.adaptive)
     a.out.mkdir(parents=True, exist_ok=True)
-    write_csv(a.out / f"tol_check{'_adaptive' * a.adaptive}.csv", list(rows[0]), rows)
+    table = a.out / f"tol_check{'_adaptive' * a.adaptive}.csv"
+    write_csv(table, list(rows[0]), rows)
     eff = [r["effectivity"] for r in rows]
     say(f"{sum(r['met'] for r in rows)}/{len(rows)} tolerances met ({sum(r['reported_met'] for r in rows)} "
-        f"reported met); effectivity {min(eff):.2f} to {max(eff):.2f}; table in {a.out / 'tol_check.csv'}")
+        f"reported met); effectivity {min(eff):.2f} to {max(eff):.2f}; table in {table}")
     return 0
 
 
