@@ -303,6 +303,7 @@ class Session:
         model.set_factor(1.0)
         model.carry_over(model.u.vector)
         model.apply_bcs(model.u.vector)
+        model.untangle(model.u.vector)
 
     # -- solving -----------------------------------------------------------------------------------
     def solve(self, steps: int | None = None) -> Result:

@@ -138,6 +138,29 @@ def test_carry_over_makes_free_bones_rigid(strip_design):
         assert np.allclose(u, v, atol=1e-12)               # a rigid motion stays as it is
 
 
+def test_untangle_smooths_an_inverted_start_only_where_it_is_inverted(strip_design):
+    """Model.untangle: a start state with one inverted cell (a node pushed across its cell) becomes
+    admissible in a few sweeps; nodes away from that cell keep their displacement; an admissible state is
+    left as it is (0 sweeps)."""
+    with Session(strip_design(size=3.0)) as s:
+        s.solve()
+        m = s.model
+        assert m.untangle(m.u.vector) == 0
+        nodes = m.V.dofmap.list.array.reshape(m.num_cells, -1)
+        X = m.V.tabulate_dof_coordinates()[:, :2]
+        c = int(np.argmin(np.linalg.norm(X[nodes].mean(axis=1) - [5.0, 30.0], axis=1)))   # an inner cell
+        u = m.u.x.array.reshape(-1, 2)
+        before = u.copy()
+        corners = X[nodes[c, :3]]
+        u[nodes[c, 0]] += 2.0 * (corners[1:].mean(axis=0) - corners[0])        # across the opposite edge
+        assert m.min_jacobian(m.u.vector) <= 0.0
+        sweeps = m.untangle(m.u.vector)
+        assert 1 <= sweeps < 20 and m.min_jacobian(m.u.vector) > 0.0
+        moved = np.linalg.norm(m.u.x.array.reshape(-1, 2) - before, axis=1) > 1e-12
+        far = np.linalg.norm(X - X[nodes[c, 0]], axis=1) > 6.0
+        assert moved.any() and not moved[far].any()
+
+
 @pytest.mark.parametrize("changes, key", [
     ({"cables.nope.contraction": 1.0}, "cables"),
     ({"materials.pla.E": -5.0}, "materials.pla.E"),
