@@ -168,7 +168,8 @@ def run(designs=DESIGNS, tols=(0.5, 0.1, 0.05), ref_size: float = 0.25, ref_size
             r = rows[-1]
             where = (f"h={a['min_size']:.3g}..{a['max_size']:.3g}" if adaptive and "min_size" in a
                      else f"h={r['size']:g}")
-            say(f"  tol {tol:g} mm{' adaptive' * adaptive}: P{r['degree']} {where} ({r['dofs']} DOFs, {r['meshes']} meshes), "
+            say(f"  tol {tol:g} mm{' adaptive' * adaptive}: P{r['degree']} {where} "
+                f"({r['dofs']} DOFs, {r['meshes']} meshes), "
                 f"estimated {est:.3g} mm ({'met' if r['reported_met'] else 'NOT met'}), actual {err:.3g} mm "
                 f"(reference +- {u_ref:.2g}), effectivity {r['effectivity']:.2f}"
                 f"{'' if r['measurable'] else ' (error below twice the reference uncertainty)'}, "
