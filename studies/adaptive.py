@@ -67,7 +67,7 @@ def _tip(result) -> np.ndarray:
     return np.asarray(result.markers[MARKER]["position"], dtype=float)
 
 
-def _graded(session, name: str, h0: float):
+def _graded(session, h0: float):
     """The --tol ladder's fixed zones for the design (accuracy.ladder_zones at its first size h0), or None."""
     from skelfem.accuracy import ladder_zones
     return ladder_zones(session.model, session.design, h0)
@@ -102,7 +102,7 @@ def reference(name: str, size: float, out: Path | None, reuse: bool) -> dict:
         return r
 
     with Session(_design(name, h0, 2)) as s:
-        zones = _graded(s, name, h0)
+        zones = _graded(s, h0)
         r = solved(s, size)
         ref = {"design": name, "size": size, "dofs": int(r.dofs), "tip": _tip(r).tolist(),
                "time": time.perf_counter() - t, "graded": zones is not None}
@@ -124,7 +124,7 @@ def uniform(name: str, degree: int, levels: int, tip_ref: np.ndarray) -> list[di
     t = time.perf_counter()
     session = Session(_design(name, h0, degree))
     try:
-        zones = _graded(session, name, h0)
+        zones = _graded(session, h0)
         for k in range(levels):
             if k:
                 t = time.perf_counter()
