@@ -411,6 +411,9 @@ def _run(argv) -> tuple[int, str | None, bool]:
         setup_logging(verbosity)
         resources.FORCED = bool(getattr(args, "force", False))
         _import_gmsh()
+        if args.command != "sweep":           # one result: once it is published, the run is done
+            from . import interrupts
+            outdir.ON_COMMIT = interrupts.finish
         return args.handler(args), None, True
     except (InputError, DesignError, outdir.OutputError) as exc:
         return EXIT_INPUT, str(exc), False
@@ -428,6 +431,7 @@ def _run(argv) -> tuple[int, str | None, bool]:
         hint = "" if verbosity >= 2 else " (run with -v for the traceback)"
         return EXIT_INTERNAL, f"internal error: {type(exc).__name__}: {exc}{hint}", False
     finally:
+        outdir.ON_COMMIT = None
         outdir.release()                      # every output lock this process still holds
         resources.FORCED = False
 

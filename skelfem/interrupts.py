@@ -31,6 +31,7 @@ class Interrupted(KeyboardInterrupt):
 _installed = False
 _critical = 0
 _pending: int | None = None
+_finished = False          # the command's one result is published (finish): later signals are dropped
 
 
 _received: int | None = None
@@ -38,6 +39,8 @@ _received: int | None = None
 
 def _handler(signum, frame):
     global _pending, _received
+    if _finished:
+        return
     _received = signum
     if _critical:
         _pending = signum
@@ -65,9 +68,10 @@ def _unraisable(info) -> None:
 
 def install() -> None:
     """Make SIGINT and SIGTERM raise Interrupted (main thread only; a no-op elsewhere)."""
-    global _installed, _received
+    global _installed, _received, _finished
     if not _installed:
         _received = None
+        _finished = False
     if threading.current_thread() is not threading.main_thread():
         return
     for s in SIGNALS:
@@ -122,6 +126,15 @@ def uninstall() -> None:
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
         sys.unraisablehook = sys.__unraisablehook__
     _installed = False
+
+
+def finish() -> None:
+    """The command's one result is published: SIGINT/SIGTERM from now on are dropped (one held back
+    by critical too), so the run ends as it would have, exit 0, and never reports an interruption
+    beside a complete result it has just published."""
+    global _finished, _pending
+    _finished = True
+    _pending = None
 
 
 @contextmanager

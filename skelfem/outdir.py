@@ -148,6 +148,7 @@ def check_path(out, kind: str = "simulate") -> Path:
 
 # -- locks -----------------------------------------------------------------------------------------
 _HELD: dict = {}        # real target path -> Reservation (rank 0 of this process)
+ON_COMMIT = None        # called once a result is committed (the CLI: interrupts.finish for one-result commands)
 
 
 class Reservation:
@@ -400,6 +401,8 @@ def _commit(stage: Path, target: Path, kind: str) -> None:
         else:
             os.rename(stage, target)
             stage = None
+        if ON_COMMIT is not None:
+            ON_COMMIT()
     if stage is not None:
         _remove(stage)                        # the old content, now in the staging name
 
@@ -444,6 +447,8 @@ def publish(out, comm=None, kind: str = "simulate"):
             except OSError as exc:
                 error = f"{out}: cannot publish the results ({exc.strerror or exc})"
         _agree(comm, error)
+        if ON_COMMIT is not None:                 # the other ranks (rank 0 did it at the rename)
+            ON_COMMIT()
     finally:
         if comm.rank == 0:
             if not committed and path is not None:

@@ -245,3 +245,27 @@ def test_interrupt_inside_a_finalizer_is_not_lost():
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert p.stdout.strip() == "interrupted 130", (p.stdout, p.stderr)
     assert "Traceback" not in p.stderr and "Exception ignored" not in p.stderr, p.stderr
+
+
+def test_a_signal_after_the_result_is_published_is_dropped(tmp_path):
+    """With outdir.ON_COMMIT = interrupts.finish (the CLI, one-result commands), a SIGTERM that comes
+    once the result is committed does not turn a complete run into an interrupted one; before the
+    commit it still interrupts and publishes nothing."""
+    from skelfem import interrupts, outdir
+    interrupts.install()
+    try:
+        outdir.ON_COMMIT = interrupts.finish
+        with pytest.raises(interrupts.Interrupted):
+            with outdir.publish(tmp_path / "a") as stage:
+                (stage.path / "result.json").write_text("{}")
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(0.05)
+        assert not (tmp_path / "a").exists()
+        with outdir.publish(tmp_path / "b") as stage:
+            (stage.path / "result.json").write_text("{}")
+        os.kill(os.getpid(), signal.SIGTERM)                     # after the commit: dropped
+        time.sleep(0.05)
+        assert (tmp_path / "b" / "result.json").exists()
+    finally:
+        outdir.ON_COMMIT = None
+        interrupts.uninstall()
