@@ -23,8 +23,7 @@ def _anchored(size=2.0, degree=2):
 
 
 def _sizes_where(tm, inside):
-    h = adapt.cell_sizes(tm.mesh)
-    x = tm.mesh.geometry.x[:, :2][tm.mesh.geometry.dofmap.array.reshape(-1, 3)].mean(axis=1)
+    h, x = adapt.cell_sizes(tm.mesh), adapt.cell_centroids(tm.mesh)
     mask = inside(x)
     return h[mask], h[~mask]
 
@@ -38,7 +37,7 @@ def test_a_size_field_sets_the_local_mesh_size_and_the_design_size_bounds_it(kin
     design = _strip(size=2.0, degree=1)
     if kind == "field":
         tm0 = mesh_design(design)
-        centres = tm0.mesh.geometry.x[:, :2][tm0.mesh.geometry.dofmap.array.reshape(-1, 3)].mean(axis=1)
+        centres = adapt.cell_centroids(tm0.mesh)
         field = adapt.size_field(tm0.mesh, np.where(_top(centres), 0.25, 10.0))
     else:
         def field(p):
@@ -83,7 +82,7 @@ def anchored_indicators():
     eta_w = adapt.indicators(fine.model, coarse.model.V, coarse.model.u.x.array, z)
     eta = adapt.indicators(fine.model, coarse.model.V, coarse.model.u.x.array, None)
     mesh = fine.model.mesh
-    centres = mesh.geometry.x[:, :2][mesh.geometry.dofmap.array.reshape(-1, 3)].mean(axis=1)
+    centres = adapt.cell_centroids(mesh)
     yield centres, eta, eta_w
     coarse.close()
     fine.close()
