@@ -232,10 +232,14 @@ class ZoneField:
         """The size at points (n, >= dim) mm, as Gmsh evaluates it: the smallest of the Ball fields (inner
         within a zone's radius, growing linearly to outer over its transition width, outer beyond)."""
         x = np.asarray(points, dtype=float)[:, :self.centers.shape[1]]
-        dist = np.linalg.norm(x[:, None, :] - self.centers[None, :, :], axis=2)            # (n, zones)
-        width = np.broadcast_to(np.asarray(self.thickness, dtype=float), self.radii.shape)
-        t = np.clip((dist - self.radii) / np.maximum(width, 1e-300), 0.0, 1.0)
-        return np.min(self.inner + t * (self.outer - self.inner), axis=1, initial=self.outer)
+        width = np.maximum(np.broadcast_to(np.asarray(self.thickness, dtype=float), self.radii.shape), 1e-300)
+        chunk = max(1, 2_000_000 // max(1, len(self.radii)))                  # (chunk, zones) at a time
+        out = np.empty(len(x))
+        for i in range(0, len(x), chunk):
+            dist = np.linalg.norm(x[i:i + chunk, None, :] - self.centers[None, :, :], axis=2)
+            t = np.clip((dist - self.radii) / width, 0.0, 1.0)
+            out[i:i + chunk] = np.min(self.inner + t * (self.outer - self.inner), axis=1, initial=self.outer)
+        return out
 
     def merged(self, other: "ZoneField | None") -> "ZoneField":
         """The zones of both fields (same outer size), each with its own transition width."""

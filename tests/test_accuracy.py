@@ -271,6 +271,35 @@ def test_a_sudden_drop_after_stalled_differences_is_not_trusted():
     assert accuracy.trusted(ladder(1.7, 2.3))                     # ... after convergence had begun
 
 
+def test_an_untrusted_drop_is_estimated_with_the_two_level_rate(monkeypatch):
+    """Changes 0.1 then 0.004 (an observed rate above 2 as the first rate): the estimate is the last
+    change at r = 1, not at the clipped rate 2; a trusted rate keeps its own estimate. In the ladder,
+    the untrusted level stops it when twice that estimate meets the tolerance, and refines otherwise."""
+    def ladder(changes):
+        x, out = 0.0, []
+        for k, d in enumerate((0.0,) + changes):
+            x += d
+            out.append(accuracy.next_level(out, 4.0 / 2 ** k, _Solved(1000 * 4 ** k, [x, 0.0]), 0.0))
+        return out
+    fast = ladder((0.1, 0.004))
+    assert fast[-1].observed > accuracy.R_MAX and not accuracy.trusted(fast)
+    judged = accuracy.judged(fast)
+    assert judged.rate == accuracy.R_TWO_LEVELS and judged.estimate == pytest.approx(0.004 / (2.0 - 1.0))
+    assert fast[-1].estimate == pytest.approx(0.004 / 3.0)                 # r = 2 would say 0.0013
+    steady = ladder((0.1, 0.03))
+    assert accuracy.judged(steady) is steady[-1]
+
+    monkeypatch.setattr(accuracy, "ladder_zones", lambda model, design, h0: None)
+    tip = {4.0: 0.0, 2.828427: 0.1, 2.0: 0.104}
+    for tol, levels in ((0.02, 3), (0.01, 4)):      # r = 1 at sqrt 2: 2 x 0.0097 <= 0.02; > 0.01 (r = 2: 0.008)
+        session = _FakeSession(lambda h: int(1000 * (4.0 / h) ** 3),
+                               lambda h, k: [tip.get(h, 0.104 + 0.001 * (2.0 - h)), 0.0, 0.0])
+        _, acc = accuracy.refine(session, tol=tol)
+        ladder_levels = [lv for lv in acc["levels"] if not lv["twin"]]
+        assert len(ladder_levels) >= levels and ladder_levels[2]["rate"] == accuracy.R_TWO_LEVELS
+        assert (len(ladder_levels) == 3) == (levels == 3)
+
+
 def _strip_design(tmp_path, *sets):
     from skelfem.design import load_design
     path = tmp_path / "strip.toml"
@@ -290,11 +319,72 @@ def test_clamped_corners_are_where_a_fixed_pins_box_cuts_the_outline(tmp_path, r
     assert np.allclose(sorted(got.tolist()), sorted(expected), atol=1e-5)
 
 
-def test_spring_pins_and_3d_bodies_have_no_clamped_corner_zones(tmp_path):
+def test_spring_pins_have_no_clamped_corner_zones_and_3d_bodies_no_clamped_corners(tmp_path):
     d = _strip_design(tmp_path, "pins.base.kind=\"spring\"", "pins.base.stiffness=10.0")
     assert accuracy.clamp_corners(d).shape == (0, 2) and accuracy.corner_zones(d, 4.0) is None
     from skelfem.design import load_design
     assert accuracy.clamp_corners(load_design(GEOMETRY / "post3d.toml")).shape == (0, 2)
+
+
+def _box_design(tmp_path, region, kind="fixed"):
+    from skelfem.design import load_design
+    path = tmp_path / "block.toml"
+    path.write_text(f"""format = 1
+name = "block"
+dim = 3
+[mesh]
+size = 2.0
+[materials]
+gel = {{ E = 0.1, nu = 0.45 }}
+[body]
+material = "gel"
+solids = [{{ box = {{ min = [0, 0, 0], max = [6, 4, 10] }} }}]
+[[pins]]
+name = "clamp"
+region = {region}
+kind = "{kind}"
+[markers]
+tip = [3, 2, 10]
+""")
+    return load_design(path, ["pins.clamp.stiffness=1.0"] if kind == "spring" else [])
+
+
+@pytest.mark.parametrize("region, top", [
+    ("[[-1, -1, -1], [7, 5, 0.01]]", 0.01),      # the base face: its rim, 20 mm long
+    ("[[-1, -1, -1], [7, 5, 3]]", 3.0),          # the box cuts the sides at z = 3: a ring, 20 mm long
+])
+def test_clamped_edges_in_3d_are_where_a_fixed_pins_box_cuts_the_surface(tmp_path, region, top):
+    from skelfem import Session
+    d = _box_design(tmp_path, region)
+    with Session(d) as s:
+        seg = accuracy.clamp_edges(s.model, d)
+        zones = accuracy.corner_zones(d, 4.0, s.model)
+    assert seg.shape[1:] == (2, 3) and np.allclose(seg[..., 2], top, atol=1e-6)
+    on_side = np.isclose(seg[..., 0], 0) | np.isclose(seg[..., 0], 6) | np.isclose(seg[..., 1], 0) | \
+        np.isclose(seg[..., 1], 4)
+    assert on_side.all()
+    assert np.linalg.norm(seg[:, 1] - seg[:, 0], axis=1).sum() == pytest.approx(20.0)
+    # balls about CORNER_RADIUS h0 / 2 apart cover the whole ring: each point is within 0.3 radii of one
+    ring = accuracy.along(seg, 0.01)
+    gap = np.linalg.norm(ring[:, None] - zones.centers[None], axis=2).min(axis=1).max()
+    assert gap <= 0.3 * accuracy.CORNER_RADIUS * 4.0
+    assert np.allclose(zones.radii, accuracy.CORNER_RADIUS * 4.0)
+    assert np.allclose(zones.inner, accuracy.CORNER_SIZE * 4.0)
+
+
+def test_spring_pins_have_no_clamped_edges_in_3d(tmp_path):
+    from skelfem import Session
+    d = _box_design(tmp_path, "[[-1, -1, -1], [7, 5, 0.01]]", kind="spring")
+    with Session(d) as s:
+        assert accuracy.clamp_edges(s.model, d).shape == (0, 2, 3)
+        assert accuracy.corner_zones(d, 4.0, s.model) is None
+
+
+def test_along_samples_segments_at_most_spacing_apart_without_duplicates():
+    seg = np.array([[[0.0, 0, 0], [1.0, 0, 0]], [[1.0, 0, 0], [1.0, 0.25, 0]]])
+    p = accuracy.along(seg, 0.3)
+    assert len(p) == 5 + 1                       # 0, .25, .5, .75, 1, then (1, .25): (1, 0) once
+    assert np.allclose(p[:5, 0], [0, 0.25, 0.5, 0.75, 1.0]) and np.allclose(p[5], [1.0, 0.25, 0])
 
 
 def test_the_ladders_meshes_are_graded_at_clamped_corners_and_at_anchors(tmp_path):
