@@ -134,12 +134,8 @@ def uniform(name: str, degree: int, levels: int, tip_ref: np.ndarray) -> list[di
             spent += time.perf_counter() - t
             if not r.converged:
                 break
-            lv = accuracy.Level(h0 / 2 ** k, int(r.dofs), int(r.newton_iterations), 0.0,
-                                np.array([m["position"] for m in r.markers.values()], float))
-            if ladder:
-                lv.estimate, lv.rate = accuracy.richardson(ladder + [lv])
-                lv.change = float(np.max(np.linalg.norm(lv.markers - ladder[-1].markers, axis=1)))
-            ladder.append(lv)
+            ladder.append(accuracy.next_level(ladder, h0 / 2 ** k, r, 0.0))
+            lv = ladder[-1] = accuracy.judged(ladder)           # the estimate --tol would give
             rows.append({"design": name, "method": "uniform", "degree": degree, "mesh": k + 1,
                          "dofs": int(r.dofs), "max_size": h0 / 2 ** k,
                          "min_size": h0 / 2 ** k if zones is None else zones.scaled(2.0 ** -k).smallest,

@@ -1,6 +1,6 @@
 """Does ``skelfem simulate --tol`` meet its tolerance, and does its estimate know how far off it is?
 
-    python studies/tol_check.py [--designs ...] [--tols 0.5 0.1 0.05] [--ref-size 0.25] [--ref-size-3d 0.5]
+    python studies/tol_check.py [--designs ...] [--tols 0.5 0.1 0.05] [--ref-size 0.25] [--ref-size-3d 0.841]
                                 [--reuse-references] [--adaptive]
 
 For each design it solves a much finer reference (P2 at --ref-size, 3D
@@ -138,7 +138,7 @@ def solve_reference(design: str, h_ref: float, folder: Path) -> None:
     (folder / "result.json").write_text(json.dumps(result))
 
 
-def run(designs=DESIGNS, tols=(0.5, 0.1, 0.05), ref_size: float = 0.25, ref_size_3d: float = 0.5,
+def run(designs=DESIGNS, tols=(0.5, 0.1, 0.05), ref_size: float = 0.25, ref_size_3d: float = 0.841,
         out: Path | None = None, reuse: bool = False, adaptive: bool = False) -> list[dict]:
     """For each design a P2 reference (ref_size, or ref_size_3d for 3D designs) and one --tol run per tol
     (``--tol TOL --adaptive`` with adaptive)."""
@@ -187,7 +187,7 @@ def main(argv=None) -> int:
     p.add_argument("--designs", nargs="+", default=list(DESIGNS))
     p.add_argument("--tols", nargs="+", type=float, default=[0.5, 0.1, 0.05])
     p.add_argument("--ref-size", type=float, default=0.25, help="reference mesh size of 2D designs (P2)")
-    p.add_argument("--ref-size-3d", type=float, default=0.5, help="reference mesh size of 3D designs (P2)")
+    p.add_argument("--ref-size-3d", type=float, default=0.841, help="reference mesh size of 3D designs (P2)")
     p.add_argument("--out", type=Path, default=ROOT / "studies" / "output" / "tol_check")
     p.add_argument("--reuse-references", action="store_true",
                    help="read each design's reference back from OUT/DESIGN/reference if it is there")
