@@ -11,9 +11,11 @@ x_2, x_1: with d = max |x_1 - x_2|,
 
     E = d / (q^r - 1),   r observed from the three (d_{4,2} / d_{2,1}), clipped to [0.5, 2],
 
-is the estimated marker error of the answer (the M_1 solve), trusted by the
-rule of accuracy.trusted read per round (round_trusted: a rate above 2 only
-after a round whose rate was at least 1). The first round is the uniform ladder's first
+is the estimated marker error of the answer (the M_1 solve), with the rate
+trusted by the rule of accuracy.trusted read per round (round_trusted: a
+rate above 2 only after a round whose rate was at least 1); an untrusted
+round is estimated at r = R_TWO_LEVELS, as the uniform ladder's
+(round_judged, accuracy.judged). The first round is the uniform ladder's first
 three meshes (2h, h, h/2 for the design's size h; 2h, sqrt 2 h, h in 3D; graded near finite anchors
 and clamped corners as accuracy.ladder_zones says), so the two agree until the estimate asks for more.
 (In 3D a factor of 2 per mesh would make each M_1 about 8 times M_2: post3d's second round asked
@@ -227,6 +229,17 @@ def round_trusted(ladder: list[Level], before: float | None) -> bool:
     return last.observed <= accuracy.R_MAX or (before is not None and before >= 1.0)
 
 
+def round_judged(ladder: list[Level], before: float | None) -> Level:
+    """A round's last mesh as accuracy.judged sees it: its estimate at the rate R_TWO_LEVELS (the oscillation
+    bound where larger) where ``round_trusted`` does not trust its observed rate."""
+    last = ladder[-1]
+    if round_trusted(ladder, before):
+        return last
+    rho = accuracy._h(ladder[-2]) / accuracy._h(last)
+    return replace(last, rate=accuracy.R_TWO_LEVELS, estimate=max(
+        last.change / (rho ** accuracy.R_TWO_LEVELS - 1.0), accuracy.oscillation(ladder)))
+
+
 # -- the loop ------------------------------------------------------------------------------------------
 def first_sizes(zones, h_cap: float, mesh) -> np.ndarray | float:
     """The first round's finest sizes at the mesh's cells: h_cap, finer in the ladder's fixed zones
@@ -304,7 +317,7 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
     zones = accuracy.ladder_zones(session.model, base, float(base.mesh.size))   # the first round's grading
     records, rounds = [], []
     field = None
-    before = before_last = None           # the observed rate of the round before
+    before = None                         # the observed rate of the round before
     stop = "estimate met the tolerance"
     result = None
     level = None
@@ -323,13 +336,13 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
             if not result.converged:
                 stop = f"the solve of round {rnd + 1}, mesh {i + 1} failed ({result.status})"
                 break
-            level = accuracy.next_level(ladder, factor, result, time.perf_counter() - t)
+            ladder.append(accuracy.next_level(ladder, factor, result, time.perf_counter() - t))
+            level = ladder[-1] = round_judged(ladder, before) if i == len(factors) - 1 else ladder[-1]
             if rounds and i == len(factors) - 1:
                 cross = cross_round(rounds[-1], level, dim)
                 if cross > level.estimate:
                     log.info("--tol (adaptive) round %d: %.3g mm from the last round's answer", rnd + 1, cross)
-                    level = replace(level, estimate=cross)
-            ladder.append(level)
+                    level = ladder[-1] = replace(level, estimate=cross)
             rec = _record(rnd + 1, i + 1, level, result, session)
             records.append(rec)
             log.info("--tol (adaptive) round %d mesh %d: %d DOFs, h %.3g..%.3g mm: change %s, estimate %s",
@@ -340,8 +353,7 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
                 on_level(dict(rec), session)
         else:
             rounds.append(ladder)
-            before_last = before
-            if round_trusted(ladder, before) and MARGIN * level.estimate <= tol:
+            if MARGIN * level.estimate <= tol:
                 size = field if field is not None else zones
                 scale = 1.0 if field is not None else 1.0 / factors[0]
 
@@ -391,9 +403,7 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
     if not rounds:
         return result, {"tol": tol, "adaptive": True, "met": False, "stop": stop, "levels": records}
     last = rounds[-1][-1]
-    three = [lv for lv in rounds[-1] if not lv.twin]
-    met = bool(result.converged and last.twin and round_trusted(three, before_last)
-               and MARGIN * last.estimate <= tol)
+    met = bool(result.converged and last.twin and MARGIN * last.estimate <= tol)
     h_final = cell_sizes(session.model.mesh)
     accuracy_dict = {"tol": tol, "adaptive": True, "degree": degree, "dofs": last.dofs,
                      "min_size": float(h_final.min()), "max_size": float(h_final.max()),

@@ -126,9 +126,25 @@ def test_met_only_when_the_final_estimate_says_so(monkeypatch):
     assert a["met"] and accuracy.MARGIN * a["estimated_error"] <= 0.5
     _, b = _run(1e-6, max_rounds=1)
     assert not b["met"] and accuracy.MARGIN * b["estimated_error"] > 1e-6 and "1 rounds" in b["stop"]
-    monkeypatch.setattr(adapt, "round_trusted", lambda ladder, before: False)   # an estimate not trusted
+    monkeypatch.setattr(adapt, "round_trusted", lambda ladder, before: False)   # a rate not trusted ...
     _, c = _run(100.0, max_rounds=1)
-    assert not c["met"] and accuracy.MARGIN * c["estimated_error"] <= 100.0
+    m1 = [lv for lv in c["levels"] if not lv["twin"]][-1]
+    assert m1["rate"] == accuracy.R_TWO_LEVELS                                  # ... is estimated at r = 1
+    assert c["met"] and c["levels"][-1]["twin"] and accuracy.MARGIN * c["estimated_error"] <= 100.0
+
+
+def test_an_untrusted_round_is_estimated_at_the_two_level_rate():
+    """round_judged: a first round whose rate is above 2 gets E = d / (q - 1) (the oscillation bound where
+    larger); after a round with a rate of at least 1 the observed rate stands."""
+    x, ladder = 0.0, []
+    for k, d in enumerate((0.0, 0.1, 0.004)):
+        x += d
+        res = type("R", (), {"dofs": 1000 * 4 ** k, "newton_iterations": 2, "markers": {"m": {"position": [x, 0.0]}}})()
+        ladder.append(accuracy.next_level(ladder, 4.0 / 2 ** k, res, 0.0))
+    assert ladder[-1].observed > accuracy.R_MAX and ladder[-1].rate == accuracy.R_MAX
+    first = adapt.round_judged(ladder, None)
+    assert first.rate == accuracy.R_TWO_LEVELS and first.estimate == pytest.approx(0.004)
+    assert adapt.round_judged(ladder, 1.2) is ladder[-1]
 
 
 def test_a_met_round_is_checked_by_a_twin_whose_scatter_can_send_it_on(monkeypatch):
