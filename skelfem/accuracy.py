@@ -202,9 +202,15 @@ def judged(levels: list[Level]) -> Level:
     bounded the error (about 0.003 mm); the observed rate (clipped to 2)
     said 0.0034, and the next level's rate-0.5 estimate 0.018.
     """
-    last = levels[-1]
     if len(levels) < 3 or trusted(levels):
-        return last
+        return levels[-1]
+    return at_two_level_rate(levels)
+
+
+def at_two_level_rate(levels: list[Level]) -> Level:
+    """The last level with the estimate of its last two levels at the rate R_TWO_LEVELS (the oscillation
+    bound where larger)."""
+    last = levels[-1]
     rho = _h(levels[-2]) / _h(last)
     return replace(last, rate=R_TWO_LEVELS,
                    estimate=max(last.change / (rho ** R_TWO_LEVELS - 1.0), oscillation(levels)))

@@ -232,12 +232,7 @@ def round_trusted(ladder: list[Level], before: float | None) -> bool:
 def round_judged(ladder: list[Level], before: float | None) -> Level:
     """A round's last mesh as accuracy.judged sees it: its estimate at the rate R_TWO_LEVELS (the oscillation
     bound where larger) where ``round_trusted`` does not trust its observed rate."""
-    last = ladder[-1]
-    if round_trusted(ladder, before):
-        return last
-    rho = accuracy._h(ladder[-2]) / accuracy._h(last)
-    return replace(last, rate=accuracy.R_TWO_LEVELS, estimate=max(
-        last.change / (rho ** accuracy.R_TWO_LEVELS - 1.0), accuracy.oscillation(ladder)))
+    return ladder[-1] if round_trusted(ladder, before) else accuracy.at_two_level_rate(ladder)
 
 
 # -- the loop ------------------------------------------------------------------------------------------
