@@ -451,23 +451,29 @@ def rigid_variant(design):
         return None
 
 
-def _try_rigid(session, rigid, level: Level, size) -> tuple[Level, float] | None:
-    """The first level again with rigid bones: (its Level, max |x_rigid - x_elastic|), or None if the model
-    refuses them or the solve fails. Either way the session no longer holds the elastic solve."""
+def choose_bones(session, rigid, level: Level, size, tol: float) -> tuple[bool, Level | None, object, dict | None]:
+    """The first mesh again with every bone rigid: rigid is that design at the level's size, size its graded
+    field. Returns (use, the rigid Level, its Result, ``accuracy.bones``): use when MARGIN b <= RIGID_SHARE tol,
+    b = max |x_rigid - x_elastic|; (False, None, None, None) if the model refuses rigid bones or their solve
+    fails. Either way the session no longer holds the elastic solve."""
     from .design import DesignError
     t = time.perf_counter()
     try:
-        session.edit(at_size(rigid, level.size), size=size)
+        session.edit(rigid, size=size)
         result = session.solve()
     except DesignError as exc:                   # e.g. a fixed pin holds a bone
         log.info("--tol: rigid bones refused (%s)", exc)
-        return None
+        return False, None, None, None
     if not result.converged:
         log.info("--tol: the solve with rigid bones failed (%s); elastic bones", result.status)
-        return None
+        return False, None, None, None
     probe = Level(level.size, int(result.dofs), int(result.newton_iterations), time.perf_counter() - t,
                   _positions(result), h=level.h)
-    return probe, float(np.max(np.linalg.norm(probe.markers - level.markers, axis=1)))
+    b = float(np.max(np.linalg.norm(probe.markers - level.markers, axis=1)))
+    use = MARGIN * b <= RIGID_SHARE * tol
+    log.info("--tol: rigid bones move the markers by %.3g mm: %s bones", b, "rigid" if use else "elastic")
+    return use, probe, result, {"rigid": use, "difference": b, "elastic_seconds": level.seconds,
+                                "rigid_seconds": probe.seconds}
 
 
 def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
@@ -522,16 +528,11 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
         history.append(level)
         rigid = rigid_variant(design) if len(history) == 1 else None
         if rigid is not None:
-            probe = _try_rigid(session, rigid, level, None if zones is None else zones.scaled(level.size / h0))
-            use = probe is not None and MARGIN * probe[1] <= RIGID_SHARE * tol
-            if probe is not None:
-                bones = {"rigid": use, "difference": probe[1], "elastic_seconds": level.seconds,
-                         "rigid_seconds": probe[0].seconds}
-                log.info("--tol: rigid bones move the markers by %.3g mm: %s bones", probe[1],
-                         "rigid" if use else "elastic")
+            use, probe, _, bones = choose_bones(session, at_size(rigid, level.size), level,
+                                                None if zones is None else zones.scaled(level.size / h0), tol)
             if use:
-                design, b = rigid, probe[1]
-                levels[-1] = history[-1] = answer = probe[0]
+                design, b = rigid, bones["difference"]
+                levels[-1] = history[-1] = answer = probe
             stale = not use            # the session holds the probe (or nothing solved) until the next edit
         if len(levels) >= 3 and MARGIN * (level.estimate + b) <= tol:
             def edit(f, h=level.size):

@@ -15,7 +15,10 @@ is the estimated marker error of the answer (the M_1 solve), with the rate
 trusted by the rule of accuracy.trusted read per round (round_trusted: a
 rate above 2 only after a round whose rate was at least 1); an untrusted
 round is estimated at r = R_TWO_LEVELS, as the uniform ladder's
-(round_judged, accuracy.judged). The first round is the uniform ladder's first
+(round_judged, accuracy.judged). Bones are chosen as the uniform ladder
+chooses them, on the first round's first mesh (accuracy.choose_bones):
+rigid where MARGIN b <= RIGID_SHARE tol, b then added to every estimate.
+The first round is the uniform ladder's first
 three meshes (2h, h, h/2 for the design's size h; 2h, sqrt 2 h, h in 3D; graded near finite anchors
 and clamped corners as accuracy.ladder_zones says), so the two agree until the estimate asks for more.
 (In 3D a factor of 2 per mesh would make each M_1 about 8 times M_2: post3d's second round asked
@@ -235,6 +238,22 @@ def round_judged(ladder: list[Level], before: float | None) -> Level:
     return ladder[-1] if round_trusted(ladder, before) else accuracy.at_two_level_rate(ladder)
 
 
+def _choose_bones(session, base, ladder: list[Level], result, size: float, degree: int, field, tol: float):
+    """accuracy.refine's choice of bones, on the first round's first mesh (accuracy.choose_bones): returns
+    (the design the rounds go on with, b, ``accuracy.bones``, the Result the session holds). With elastic
+    bones that mesh is solved again, so the session holds the answer its Level reports."""
+    rigid = accuracy.rigid_variant(base)
+    if rigid is None:
+        return base, 0.0, None, result
+    use, probe, rigid_result, bones = accuracy.choose_bones(session, _design(rigid, size, degree), ladder[-1],
+                                                            field, tol)
+    if use:
+        ladder[-1] = probe
+        return rigid, bones["difference"], bones, rigid_result
+    session.edit(_design(base, size, degree), size=field)
+    return base, 0.0, bones, session.solve()
+
+
 # -- the loop ------------------------------------------------------------------------------------------
 def first_sizes(zones, h_cap: float, mesh) -> np.ndarray | float:
     """The first round's finest sizes at the mesh's cells: h_cap, finer in the ladder's fixed zones
@@ -313,6 +332,7 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
     records, rounds = [], []
     field = None
     before = None                         # the observed rate of the round before
+    bones, b = None, 0.0                  # accuracy.bones; b: the rigid bones' difference (added to estimates)
     stop = "estimate met the tolerance"
     result = None
     level = None
@@ -320,11 +340,11 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
         ladder: list[Level] = []
         coarse = None
         for i, factor in enumerate(factors):
+            first = None if zones is None else zones.scaled(factor / factors[0])
             if rnd > 0 or i > 0 or zones is not None:
                 design = _design(base, h_cap * factor, degree)
                 if i > 0:
                     coarse = (session.model.V, session.model.u.x.array.copy(), session.model)
-                first = None if zones is None else zones.scaled(factor / factors[0])
                 session.edit(design, size=first if field is None else field.scaled(factor))
             t = time.perf_counter()
             result = session.solve()
@@ -332,6 +352,12 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
                 stop = f"the solve of round {rnd + 1}, mesh {i + 1} failed ({result.status})"
                 break
             ladder.append(accuracy.next_level(ladder, factor, result, time.perf_counter() - t))
+            if not rounds and i == 0:
+                base, b, bones, result = _choose_bones(session, base, ladder, result, h_cap * factor, degree,
+                                                       first, tol)
+                if not result.converged:
+                    stop = f"the elastic solve of round 1, mesh 1 failed again ({result.status})"
+                    break
             level = ladder[-1] = round_judged(ladder, before) if i == len(factors) - 1 else ladder[-1]
             if rounds and i == len(factors) - 1:
                 cross = cross_round(rounds[-1], level, dim)
@@ -348,7 +374,7 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
                 on_level(dict(rec), session)
         else:
             rounds.append(ladder)
-            if MARGIN * level.estimate <= tol:
+            if MARGIN * (level.estimate + b) <= tol:
                 size = field if field is not None else zones
                 scale = 1.0 if field is not None else 1.0 / factors[0]
 
@@ -365,7 +391,7 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
                 log.info("--tol (adaptive) round %d twin: %d DOFs: scatter %.3g mm, estimate %.3g mm", rnd + 1,
                          twin.dofs, twin.scatter, twin.estimate)
                 ladder.append(twin)
-                if MARGIN * twin.estimate <= tol:
+                if MARGIN * (twin.estimate + b) <= tol:
                     break
                 level = ladder[-2] = replace(level, estimate=twin.estimate)   # go on with what the twin saw
             before = level.observed
@@ -398,11 +424,13 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
     if not rounds:
         return result, {"tol": tol, "adaptive": True, "met": False, "stop": stop, "levels": records}
     last = rounds[-1][-1]
-    met = bool(result.converged and last.twin and MARGIN * last.estimate <= tol)
+    estimate = None if last.estimate is None else last.estimate + b
+    met = bool(result.converged and last.twin and estimate is not None and MARGIN * estimate <= tol)
     h_final = cell_sizes(session.model.mesh)
     accuracy_dict = {"tol": tol, "adaptive": True, "degree": degree, "dofs": last.dofs,
                      "min_size": float(h_final.min()), "max_size": float(h_final.max()),
                      "size": float(h_final.max()), "rounds": len(rounds),
-                     "estimated_error": last.estimate, "rate": last.rate, "scatter": last.scatter,
-                     "met": met, "stop": stop, "levels": records, "time": round(time.perf_counter() - t0, 4)}
+                     "estimated_error": estimate, "rate": last.rate, "scatter": last.scatter,
+                     "met": met, "bones": bones, "stop": stop, "levels": records,
+                     "time": round(time.perf_counter() - t0, 4)}
     return result, accuracy_dict

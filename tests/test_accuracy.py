@@ -202,15 +202,18 @@ def test_tol_run_meets_the_tolerance_it_reports_against_a_much_finer_reference(t
     assert err <= tol
 
 
-@pytest.mark.parametrize("E_bone, tol, rigid", [(1000.0, 0.5, True), (1000.0, 0.05, False), (3.0, 0.5, False)])
-def test_tol_makes_bones_rigid_where_their_difference_is_well_below_it(tmp_path, capsys, E_bone, tol, rigid):
+@pytest.mark.parametrize("E_bone, tol, rigid, adaptive", [
+    (1000.0, 0.5, True, False), (1000.0, 0.05, False, False), (3.0, 0.5, False, False),
+    (1000.0, 0.5, True, True), (1000.0, 0.05, False, True)])        # --adaptive chooses them the same way
+def test_tol_makes_bones_rigid_where_their_difference_is_well_below_it(tmp_path, capsys, E_bone, tol, rigid,
+                                                                        adaptive):
     """The first level with rigid bones moves the tip by b; rigid bones (b added to the estimate) only where
     MARGIN b <= RIGID_SHARE tol: not for a stricter tolerance, nor for bones barely stiffer than the body."""
     design = tmp_path / "strip.toml"
     design.write_text(toml_text(strip(length=60.0, width=10.0, size=2.0, contraction=1.0, tendon_offset=2.0,
                                       bones=True)))
     assert main(["simulate", str(design), "--out", str(tmp_path / "o"), "--no-picture", "--tol", str(tol),
-                 "--set", f"materials.hard.E={E_bone}"]) == 0
+                 "--set", f"materials.hard.E={E_bone}"] + (["--adaptive"] if adaptive else [])) == 0
     res = json.loads((tmp_path / "o" / "result.json").read_text())
     a, b = res["accuracy"], res["accuracy"]["bones"]
     assert a["met"] and b["rigid"] == rigid and b["difference"] > 0
