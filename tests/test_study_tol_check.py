@@ -1,5 +1,6 @@
 """studies/tol_check.py on one design and one tolerance: the command meets it against a finer reference."""
 import json
+from pathlib import Path
 
 import pytest
 from _studies import load_study
@@ -61,3 +62,32 @@ def test_a_3d_reference_is_extrapolated_from_three_meshes(tmp_path):
     assert np.allclose(np.asarray(tip["position"]) - tip["reference"], tip["displacement"])
     moved = np.linalg.norm(np.asarray(tip["position"]) - ref["finest"][0])   # extrapolated from the finest
     assert moved == pytest.approx(ref["estimate"], rel=1e-9) and moved > 0      # by its own estimate
+
+
+def test_a_failed_tol_run_is_a_row_that_says_why_not_a_crash(tmp_path, monkeypatch, capsys):
+    """A --tol run whose solve fails (exit 2, result.json with converged: false) is reported as failed: no
+    error against the reference (its state is no equilibrium), not met, and the reason; other exits raise."""
+    import subprocess
+    study = load_study("tol_check")
+    ref = {"dofs": 1000, "markers": {"tip": {"position": [0.0, 0.0]}}, "reference": {"scatter": 1e-4},
+           "timings": {"total": 1.0}}
+    monkeypatch.setattr(study, "_reference", lambda design, out, h, reuse: (ref, 1.0))
+    failed = {"converged": False, "status": "inverted_elements", "dofs": 500, "timings": {"total": 2.0},
+              "markers": {"tip": {"position": [9.0, 9.0]}},
+              "accuracy": {"met": False, "levels": [{}] * 4, "stop": "the twin solve failed (inverted_elements)"}}
+
+    def fake(code):
+        def run(cmd, **kw):
+            out = Path(cmd[cmd.index("--out") + 1])
+            out.mkdir(parents=True, exist_ok=True)
+            (out / "result.json").write_text(json.dumps(failed))
+            return subprocess.CompletedProcess(cmd, code, "", "error: solve failed")
+        return run
+    monkeypatch.setattr(study.subprocess, "run", fake(2))
+    r = study.run(designs=("thumb",), tols=(0.1,), out=tmp_path, adaptive=True)[0]
+    assert r["failed"] == "the twin solve failed (inverted_elements)" and not r["met"] and not r["reported_met"]
+    assert r["error_vs_reference"] != r["error_vs_reference"] and not r["measurable"]        # NaN: no error
+    assert "FAILED after 4 meshes" in capsys.readouterr().out
+    monkeypatch.setattr(study.subprocess, "run", fake(1))
+    with pytest.raises(RuntimeError, match="exit 1"):
+        study.run(designs=("thumb",), tols=(0.1,), out=tmp_path)
