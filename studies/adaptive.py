@@ -187,12 +187,18 @@ def tol_runs(name: str, tols, tip_ref: np.ndarray) -> list[dict]:
             with Session(accuracy.first_level(load_design(ROOT / "geometry" / f"{name}.toml"))) as session:
                 result, a = accuracy.refine(session, tol, adaptive=method == "adaptive")
                 spent = time.perf_counter() - t
+            failed = None if result.converged else a["stop"]          # no equilibrium: no error to measure
             rows.append({"design": name, "method": method, "tol": tol, "dofs": int(a["dofs"]), "time": spent,
                          "meshes": len(a["levels"]), "estimate": a["estimated_error"], "met": bool(a["met"]),
                          "ladder_dofs": [lv["dofs"] for lv in a["levels"] if not lv.get("twin")],
-                         "error": float(np.linalg.norm(_tip(result) - tip_ref)),
-                         "min_size": a.get("min_size", a["size"]), "max_size": a.get("max_size", a["size"])})
+                         "error": float("nan") if failed else float(np.linalg.norm(_tip(result) - tip_ref)),
+                         "min_size": a.get("min_size", a["size"]), "max_size": a.get("max_size", a["size"]),
+                         "failed": failed})
             r = rows[-1]
+            if failed:
+                say(f"  --tol {tol:g} {method:8s}: FAILED after {r['meshes']} meshes ({r['time']:.2f} s): {failed}",
+                    flush=True)
+                continue
             say(f"  --tol {tol:g} {method:8s}: {r['dofs']:7d} DOFs ({r['meshes']} meshes, h {r['min_size']:.3g}.."
                 f"{r['max_size']:.3g}), {r['time']:6.2f} s, estimate {r['estimate']:.3g} mm "
                 f"({'met' if r['met'] else 'NOT met'}), error {r['error']:.3g} mm "
