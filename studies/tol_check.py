@@ -160,7 +160,7 @@ def run(designs=DESIGNS, tols=(0.5, 0.1, 0.05), ref_size: float = 0.25, ref_size
             est = a.get("estimated_error") or float("nan")
             rows.append({"design": design, "tol": tol, "degree": a.get("degree", 2), "size": a.get("size"),
                          "estimated_error": est, "error_vs_reference": err,
-                         "effectivity": est / err if err > 0 else float("inf"),
+                         "effectivity": float("nan") if failed else est / err if err > 0 else float("inf"),
                          "reported_met": bool(a["met"]), "met": err <= tol, "meshes": len(a["levels"]),
                          "reference_uncertainty": u_ref, "measurable": err > 2.0 * u_ref,
                          "time": t, "reference_time": t_ref, "dofs": res["dofs"], "reference_dofs": ref["dofs"],

@@ -87,6 +87,7 @@ def test_a_failed_tol_run_is_a_row_that_says_why_not_a_crash(tmp_path, monkeypat
     r = study.run(designs=("thumb",), tols=(0.1,), out=tmp_path, adaptive=True)[0]
     assert r["failed"] == "the twin solve failed (inverted_elements)" and not r["met"] and not r["reported_met"]
     assert r["error_vs_reference"] != r["error_vs_reference"] and not r["measurable"]        # NaN: no error
+    assert r["effectivity"] != r["effectivity"]
     assert "FAILED after 4 meshes" in capsys.readouterr().out
     monkeypatch.setattr(study.subprocess, "run", fake(1))
     with pytest.raises(RuntimeError, match="exit 1"):
