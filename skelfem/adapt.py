@@ -14,9 +14,10 @@ x_2, x_1: with d = max |x_1 - x_2|,
 is the estimated marker error of the answer (the M_1 solve), with the rate
 trusted by the rule of accuracy.trusted read per round (round_trusted: a
 rate above 2 only after a round whose rate was at least 1); an untrusted
-round is estimated at r = R_TWO_LEVELS, as the uniform ladder's
-(round_judged, accuracy.judged). Bones are chosen as the uniform ladder
-chooses them, on the first round's first mesh (accuracy.choose_bones):
+first round is estimated at r = R_TWO_LEVELS, as the uniform ladder's first
+drop (round_judged, accuracy.judged), and a drop right after a round whose
+differences did not fall never ends the rounds (round_may_stop). Bones
+are chosen as the uniform ladder chooses them, on the first round's first mesh (accuracy.choose_bones):
 rigid where MARGIN b <= RIGID_SHARE tol, b then added to every estimate.
 The first round is the uniform ladder's first
 three meshes (2h, h, h/2 for the design's size h; 2h, sqrt 2 h, h in 3D; graded near finite anchors
@@ -234,8 +235,15 @@ def round_trusted(ladder: list[Level], before: float | None) -> bool:
 
 def round_judged(ladder: list[Level], before: float | None) -> Level:
     """A round's last mesh as accuracy.judged sees it: its estimate at the rate R_TWO_LEVELS (the oscillation
-    bound where larger) where ``round_trusted`` does not trust its observed rate."""
-    return ladder[-1] if round_trusted(ladder, before) else accuracy.at_two_level_rate(ladder)
+    bound where larger) where ``round_trusted`` does not trust the first round's rate (before is None)."""
+    first = before is None and not round_trusted(ladder, before)
+    return accuracy.at_two_level_rate(ladder) if first else ladder[-1]
+
+
+def round_may_stop(ladder: list[Level], before: float | None) -> bool:
+    """accuracy.may_stop for a round: its rate trusted, or untrusted as the first round's (``round_judged``);
+    never a drop right after a round whose differences did not fall."""
+    return round_trusted(ladder, before) or before is None
 
 
 def _choose_bones(session, base, ladder: list[Level], result, size: float, degree: int, field, tol: float):
@@ -331,7 +339,7 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
     zones = accuracy.ladder_zones(session.model, base, float(base.mesh.size))   # the first round's grading
     records, rounds = [], []
     field = None
-    before = None                         # the observed rate of the round before
+    before = before_last = None           # the observed rate of the round before (and of the one before it)
     bones, b = None, 0.0                  # accuracy.bones; b: the rigid bones' difference (added to estimates)
     stop = "estimate met the tolerance"
     result = None
@@ -374,7 +382,8 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
                 on_level(dict(rec), session)
         else:
             rounds.append(ladder)
-            if MARGIN * (level.estimate + b) <= tol:
+            before_last = before
+            if round_may_stop(ladder, before) and MARGIN * (level.estimate + b) <= tol:
                 size = field if field is not None else zones
                 scale = 1.0 if field is not None else 1.0 / factors[0]
 
@@ -425,7 +434,9 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
         return result, {"tol": tol, "adaptive": True, "met": False, "stop": stop, "levels": records}
     last = rounds[-1][-1]
     estimate = None if last.estimate is None else last.estimate + b
-    met = bool(result.converged and last.twin and estimate is not None and MARGIN * estimate <= tol)
+    three = [lv for lv in rounds[-1] if not lv.twin]
+    met = bool(result.converged and last.twin and round_may_stop(three, before_last) and estimate is not None
+               and MARGIN * estimate <= tol)
     h_final = cell_sizes(session.model.mesh)
     accuracy_dict = {"tol": tol, "adaptive": True, "degree": degree, "dofs": last.dofs,
                      "min_size": float(h_final.min()), "max_size": float(h_final.max()),

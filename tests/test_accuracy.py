@@ -291,6 +291,9 @@ def test_an_untrusted_drop_is_estimated_with_the_two_level_rate(monkeypatch):
     assert fast[-1].estimate == pytest.approx(0.004 / 3.0)                 # r = 2 would say 0.0013
     steady = ladder((0.1, 0.03))
     assert accuracy.judged(steady) is steady[-1]
+    stalled = ladder((0.1, 0.1, 0.004))                    # a drop right after a stall: refine on, as before
+    assert not accuracy.trusted(stalled) and accuracy.judged(stalled) is stalled[-1]
+    assert not accuracy.may_stop(stalled) and accuracy.may_stop(fast) and accuracy.may_stop(steady)
 
     monkeypatch.setattr(accuracy, "ladder_zones", lambda model, design, h0: None)
     tip = {4.0: 0.0, 2.828427: 0.1, 2.0: 0.104}

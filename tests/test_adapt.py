@@ -144,7 +144,9 @@ def test_an_untrusted_round_is_estimated_at_the_two_level_rate():
     assert ladder[-1].observed > accuracy.R_MAX and ladder[-1].rate == accuracy.R_MAX
     first = adapt.round_judged(ladder, None)
     assert first.rate == accuracy.R_TWO_LEVELS and first.estimate == pytest.approx(0.004)
-    assert adapt.round_judged(ladder, 1.2) is ladder[-1]
+    assert adapt.round_judged(ladder, 1.2) is ladder[-1] and adapt.round_may_stop(ladder, 1.2)
+    assert adapt.round_judged(ladder, 0.3) is ladder[-1]              # right after a stalled round: ...
+    assert not adapt.round_may_stop(ladder, 0.3)                       # ... it may not end the rounds
 
 
 def test_a_met_round_is_checked_by_a_twin_whose_scatter_can_send_it_on(monkeypatch):
