@@ -52,9 +52,10 @@ def test_a_3d_reference_is_extrapolated_from_three_meshes(tmp_path):
     """3D: P2 at 2, sqrt 2 and 1 x h_ref, the markers extrapolated by Richardson (sizes measured by DOFs)."""
     import numpy as np
     study = load_study("tol_check")
-    study.solve_reference("post3d", 1.414, tmp_path)
+    study.solve_reference("post3d", 2.0, tmp_path)
     r = json.loads((tmp_path / "result.json").read_text())
     ref = r["reference"]
+    assert ref["graded"]                                       # at the clamped edges, as the ladder is
     dofs = ref["extrapolated_from"]
     assert len(dofs) == 3 and dofs[0] < dofs[1] < dofs[2] == r["dofs"] and r["degree"] == 2
     assert 0.5 <= ref["rate"] <= 2.0 and ref["estimate"] > 0
