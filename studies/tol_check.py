@@ -157,7 +157,7 @@ def run(designs=DESIGNS, tols=(0.5, 0.1, 0.05), ref_size: float = 0.25, ref_size
             a = res["accuracy"]
             failed = None if res["converged"] else a.get("stop", res["status"])   # no equilibrium to compare
             err = float(np.linalg.norm(_markers(res) - _markers(ref), axis=1).max()) if not failed else float("nan")
-            est = a.get("estimated_error") or float("nan")
+            est = float("nan") if a.get("estimated_error") is None else a["estimated_error"]
             rows.append({"design": design, "tol": tol, "degree": a.get("degree", 2), "size": a.get("size"),
                          "estimated_error": est, "error_vs_reference": err,
                          "effectivity": float("nan") if failed else est / err if err > 0 else float("inf"),
