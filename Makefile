@@ -1,6 +1,8 @@
 # skelfem: two commands do everything on a fresh Debian 12 / Ubuntu machine.
 #   make demo   install what is missing, simulate geometry/finger.toml into results/finger
 #   make test   install what is missing, run the test suite
+# and one more builds the documentation:
+#   make docs   install what is missing, build docs/ into docs/_build/html (runs the examples)
 SHELL := /bin/bash
 .DEFAULT_GOAL := demo
 
@@ -8,12 +10,14 @@ SHELL := /bin/bash
 # venv that sees the system site-packages (numpy/scipy pinned to Debian's).
 # The editor's web stack (Starlette, uvicorn, websockets, tomlkit) and what its
 # browser tests drive (Chromium, chromedriver, Selenium) are Debian's too:
-# nothing downloads a browser at run time.
+# nothing downloads a browser at run time. The documentation's tools (Sphinx,
+# MyST, the furo theme, sphinx-gallery) are Debian's too.
 APT_PACKAGES := python3-dolfinx python3-gmsh python3-meshio python3-venv python3-pil \
 	python3-scipy python3-matplotlib python3-pytest python3-setuptools python3-h5py \
 	libopenblas0-pthread openmpi-bin libegl1 libegl-mesa0 libgl1-mesa-dri admesh \
 	python3-starlette python3-uvicorn python3-websockets python3-tomlkit \
-	python3-selenium chromium chromium-driver
+	python3-selenium chromium chromium-driver \
+	python3-sphinx python3-myst-parser furo python3-sphinx-gallery
 SYSPY := /usr/bin/python3
 VENV := .venv
 PY := $(VENV)/bin/python
@@ -27,13 +31,19 @@ export OPENBLAS_NUM_THREADS := 1
 export OMP_NUM_THREADS := 1
 export MPLBACKEND := Agg
 
-.PHONY: demo test setup system clean
+.PHONY: demo test docs setup system clean
 
 demo: setup
 	$(VENV)/bin/skelfem simulate geometry/finger.toml --out results/finger
 
 test: setup
 	$(PY) -m pytest -q
+
+# The documentation: MyST pages, the gallery of examples (each one runs), the API
+# from the docstrings and tables read from studies/output/; warnings are errors.
+docs: system setup
+	$(PY) -m sphinx -W --keep-going -b html docs docs/_build/html
+	@echo "documentation in docs/_build/html/index.html"
 
 setup: $(STAMP)
 
@@ -57,4 +67,4 @@ $(STAMP): pyproject.toml | system
 	@touch $@
 
 clean:
-	rm -rf $(VENV) results .pytest_cache
+	rm -rf $(VENV) results .pytest_cache docs/_build docs/auto_examples

@@ -1,0 +1,510 @@
+"""Tables of measured numbers, read from the studies' output files when the docs are built.
+
+A page asks for a table by name::
+
+    ```{study-table} bench
+    ```
+
+and gets a table built from the files under ``studies/output/`` that the
+study scripts (``studies/*.py``) and ``skelfem bench`` write. Nothing here
+holds a number: every cell comes from a file, so the pages show what the
+last kept run measured, and rerunning a study and rebuilding the docs
+refreshes them.
+
+A table whose file is not in the checkout (outputs of studies that are not
+kept in the repository, or not yet run) becomes a short note naming the
+command that writes it; that is not an error.
+
+Each table is a function in ``TABLES``: it gets the output folder and returns
+a ``Table`` (header, rows, an optional caption) or raises ``Missing``.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import statistics
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from docutils import nodes
+from docutils.parsers.rst import directives
+from sphinx.util.docutils import SphinxDirective
+
+ROOT = Path(__file__).resolve().parents[2]
+OUTPUT = ROOT / "studies" / "output"
+
+
+class Missing(Exception):
+    """The table's file is not there: (path, the command that writes it)."""
+
+
+@dataclass
+class Table:
+    header: list[str]
+    rows: list[list[str]]
+    caption: str = ""
+    files: list[Path] = field(default_factory=list)
+
+
+# -- formatting ---------------------------------------------------------------------------------------
+def num(x, digits: int = 3) -> str:
+    """A number with `digits` significant digits, plain where that reads well."""
+    if x is None or x == "":
+        return "–"
+    x = float(x)
+    if math.isnan(x):
+        return "–"
+    if x == 0:
+        return "0"
+    a = abs(x)
+    if a >= 10 ** digits:
+        return f"{x:,.0f}"
+    if a < 1e-3:
+        return f"{x:.{digits - 1}e}"
+    decimals = max(0, digits - 1 - math.floor(math.log10(a)))
+    return f"{x:.{decimals}f}"
+
+
+def short(x) -> str:
+    """A size or tolerance as written in a design file: 0.45, 2, 0.05."""
+    return "–" if x is None or x == "" else f"{float(x):g}"
+
+
+def power(x) -> str:
+    """1e6 rather than 1e+06."""
+    return f"{float(x):.0e}".replace("e+0", "e").replace("e+", "e") if float(x) >= 1e4 else short(x)
+
+
+def ms(seconds, digits: int = 3) -> str:
+    return num(None if seconds is None else 1e3 * float(seconds), digits)
+
+
+def secs(seconds) -> str:
+    return "–" if seconds is None else f"{float(seconds):.2g} s" if float(seconds) < 1 else f"{float(seconds):.1f} s"
+
+
+def thousands(n) -> str:
+    n = int(n)
+    return f"{n / 1000:.1f}k" if n >= 10000 else f"{n:,}"
+
+
+def span(values, fmt=num) -> str:
+    """'a' or 'a–b' over the values."""
+    lo, hi = min(values), max(values)
+    a, b = fmt(lo), fmt(hi)
+    return a if a == b else f"{a}–{b}"
+
+
+def load_json(rel: str, command: str):
+    path = OUTPUT / rel
+    if not path.exists():
+        raise Missing(path, command)
+    return json.loads(path.read_text()), path
+
+
+def load_csv(rel: str, command: str):
+    path = OUTPUT / rel
+    if not path.exists():
+        raise Missing(path, command)
+    with path.open(newline="") as f:
+        return list(csv.DictReader(f)), path
+
+
+def truthy(s: str) -> bool:
+    return str(s).strip().lower() in ("true", "1", "yes")
+
+
+# -- the tables ---------------------------------------------------------------------------------------
+def bench(_: dict) -> Table:
+    d, path = load_json("bench/bench.json", "skelfem bench --sizes 4 2 1 0.45 --out studies/output/bench")
+    rows = []
+    for r in d["rows"]:
+        nm = r.get("newton_matrix", {})
+        rows.append([short(r["size"]), f"{r['dofs']:,}", ms(r["assembly_time"], 2), ms(r["refactorization_time"], 2),
+                     ms(r["iteration_time_median"]), str(r["newton_iterations"]), num(r["ratio"]),
+                     f"{r['nnz']:,}", f"{nm['nnz']:,}" if "nnz" in nm else "–"])
+    f = d.get("floor", {})
+    caption = (f"{d.get('design_name', d.get('design'))}, P{d.get('degree')}, medians of {d.get('repeats')} repeats "
+               f"on {d.get('machine', {}).get('cpus', '?')} CPUs. Newton order at h = {short(f.get('size'))}: "
+               f"{num(f.get('newton_order'))}; ratio there {num(f.get('ratio'))} against the floor's limit "
+               f"{num(f.get('limit'))}.")
+    return Table(["h [mm]", "DOFs", "FE assembly [ms]", "FE refactor + solve [ms]", "Newton iteration [ms]",
+                  "iterations", "ratio", "nnz FE", "nnz K"], rows, caption, [path])
+
+
+def mpi_speed(_: dict) -> Table:
+    d, path = load_json("mpi_speed/mpi_speed.json", "python studies/mpi_speed.py")
+    n = d["ranks"]
+    rows = [["1 rank", secs(d["serial"]["wall"]), secs(d["serial"]["setup"]), secs(d["serial"]["solve"])],
+            [f"mpirun -n {n}", secs(d["parallel"]["wall"]), secs(d["parallel"]["setup"]),
+             secs(d["parallel"]["solve"])],
+            ["ratio", num(d["wall_ratio"], 2), num(d["setup_ratio"], 3), num(d["solve_ratio"], 2)]]
+    walls = d.get("walls", {})
+    caption = (f"{Path(d['design']).name} {' '.join('--set ' + s for s in d.get('set', []))}: {d['dofs']:,} DOFs, "
+               f"medians of {d['repeats']} alternated runs; energies agree to {num(d['energy_difference'], 2)}"
+               + (f"; single walls: 1 rank {', '.join(secs(w) for w in walls.get('1', []))}, "
+                  f"{n} ranks {', '.join(secs(w) for w in walls.get(str(n), []))}" if walls else "") + ".")
+    return Table(["", "wall", "set-up (mesh + model)", "solve"], rows, caption, [path])
+
+
+def editor_latency(_: dict) -> Table:
+    d, path = load_json("editor_latency/latency.json", "python studies/editor_latency.py")
+
+    def pp(s: dict) -> str:
+        return f"{s['p50']:.0f} / {s['p95']:.0f}"
+
+    c, v, api = d["contraction"], d["vertex"], d["api"]
+    rows = [["contraction slider (live `set`)", pp(c["rendered"]["contraction"]), pp(c["every_event"]["contraction"]),
+             pp(c["server_ms"]["set"])],
+            ["bone-vertex drag (draft: moved nodes)", pp(v["rendered"]["vertex"]), pp(v["every_event"]["vertex"]),
+             pp(v["server_ms"]["edit (moved nodes)"])],
+            ["release of the drag (re-mesh)", pp(v["rendered"]["release"]), pp(v["every_event"]["release"]),
+             pp(v["server_ms"]["edit (re-meshed)"])],
+            ["`POST /api/solve`, one bone vertex moved", pp(api["one_vertex_ms"]), "", ""],
+            ["`POST /api/solve`, contraction changed", pp(api["contraction_ms"]), "", ""]]
+    caption = (f"{d['design']} ({d['dofs']} DOFs, {d['cells']} cells): {d['drags']} drags of {d['moves']} moves, "
+               f"a move every {d['step_ms']} ms; p50 / p95 in ms. The page redraws an answer in "
+               f"{c['render_ms']['p50']:.1f} ms (p50).")
+    return Table(["what", "rendered", "every event", "server's own time"], rows, caption, [path])
+
+
+def _rigid(rel: str, command: str) -> Table:
+    d, path = load_json(rel, command)
+
+    def row(name: str, runs: list[dict]) -> list[str]:
+        its = [r["iterations"] for r in runs]
+        warm = sorted({i for r in runs for i in r["warm_iterations"]})
+        return [name, f"{runs[0]['unknowns']:,}", f"{runs[0]['nnz'] / 1000:.0f}k",
+                span([r["time"] for r in runs], lambda t: f"{t:.2f} s") + f" ({span(its, str)} its)",
+                span([r["per_iteration"] for r in runs], lambda t: f"{1e3 * t:.0f} ms"),
+                span([r["warm_time"] for r in runs], lambda t: f"{t:.2f} s") + f" ({span(warm, str)} its)"]
+
+    elastic = d["elastic"]
+    e_bones = [r["E_bone"][0] for r in elastic]
+    rows = [row("rigid bones", [d["rigid"]]),
+            row(f"elastic, E_bone = {power(min(e_bones))} … {power(max(e_bones))} MPa", elastic)]
+    diffs = [r["marker_difference"] for r in elastic]
+    caption = (f"{Path(d['design']).name}, h = {short(d['size'])}, P1, medians; the elastic bones' markers are "
+               f"{span(diffs, lambda x: num(x, 2))} mm from the rigid ones' (1/E_bone).")
+    return Table(["", "unknowns", "nonzeros", "cold solve", "per iteration", "warm re-solve"], rows, caption, [path])
+
+
+def rigid_bones_2d(_: dict) -> Table:
+    return _rigid("rigid_bones/finger_h0.45.json", "python studies/rigid_bones.py --size 0.45 --repeats 3")
+
+
+def rigid_bones_3d(_: dict) -> Table:
+    return _rigid("rigid_bones/finger3d_h2.json",
+                  "python studies/rigid_bones.py --design geometry/finger3d.toml --size 2 --exponents 0 1 2")
+
+
+def speed_accuracy(opts: dict) -> Table:
+    rows_in, path = load_csv("speed_accuracy/cases.csv", "python studies/speed_accuracy.py")
+    problem = opts.get("problem", "finger")
+    table: dict = {}
+    for r in rows_in:
+        if r["problem"] != problem:
+            continue
+        key = (int(r["degree"]), float(r["size"]))
+        table.setdefault(key, {"dofs": r["dofs"]})[r["bones"]] = r
+    bones = sorted({b for v in table.values() for b in v if b != "dofs"})
+
+    def cell(r):
+        if r is None:
+            return "", ""
+        if not truthy(r["converged"]):
+            return "failed", secs(r["time"])
+        err = float(r["error"]) if r["error"] not in ("", "nan") else math.nan
+        return ("reference" if math.isnan(err) else num(err, 2)), secs(r["time"])
+
+    rows = []
+    for (deg, size), v in sorted(table.items(), key=lambda kv: (kv[0][0], -kv[0][1])):
+        line = [f"P{deg}", short(size), f"{int(v['dofs']):,}"]
+        for b in bones:
+            line += list(cell(v.get(b)))
+        rows.append(line)
+    header = ["degree", "h [mm]", "DOFs"] + [f"{b} bones: {what}" for b in bones for what in ("error [mm]", "time")]
+    summary, spath = load_json("speed_accuracy/summary.json", "python studies/speed_accuracy.py")
+    ref = summary["summary"].get(problem, {}).get("reference_error", {})
+    caption = (f"{problem}: marker error against the finest P2 mesh, whose own error is estimated at "
+               f"{num(ref.get('error'), 2)} mm ({ref.get('method', '?')}).")
+    return Table(header, rows, caption, [path, spath])
+
+
+def _tol_rows(rows_in: list[dict]) -> list[list[str]]:
+    """Rows of one tol_check csv, tolerances with the same answer merged."""
+    groups: dict = {}
+    order = []
+    for r in rows_in:
+        failed = r.get("failed") or ""
+        key = (r["design"], r["dofs"], r["estimated_error"], failed)
+        if key not in groups:
+            groups[key] = []
+            order.append(key)
+        groups[key].append(r)
+    out = []
+    for key in order:
+        rs = groups[key]
+        r = rs[0]
+        tols = ", ".join(short(x["tol"]) for x in rs) + " mm"
+        times = span([float(x["time"]) for x in rs], lambda t: f"{t:.1f}")
+        if key[3]:
+            out.append([r["design"], tols, f"**failed**: {key[3]}", "", "–", "–", "–", f"{times} s"])
+            continue
+        bones = r.get("bones") or "none"
+        if bones not in ("none", "") and r.get("bones_difference"):
+            bones += f" ({num(r['bones_difference'], 2)} mm)"
+        met = "met" if truthy(r["reported_met"]) else "**not met**"
+        eff = num(r["effectivity"]) if truthy(r["measurable"]) else f"{num(r['effectivity'])}, not measurable"
+        share = float(r["time"]) / float(r["reference_time"]) if r.get("reference_time") else math.nan
+        out.append([r["design"], tols,
+                    f"P{r['degree']}, h = {float(r['size']):.3g}, {r['meshes']} meshes, {thousands(r['dofs'])} DOFs",
+                    bones, f"{num(r['estimated_error'])} mm, {met}",
+                    f"{num(r['error_vs_reference'])} mm (± {num(r['reference_uncertainty'], 2)})", eff,
+                    f"{times} s ({num(share, 1)})"])
+    return out
+
+
+TOL_HEADER = ["design", "tol", "final mesh", "bones (b)", "estimated", "actual (reference's own scatter)",
+              "effectivity", "time (share of the reference's)"]
+
+
+def tol_check(_: dict) -> Table:
+    rows_in, path = load_csv("tol_check/tol_check.csv", "python studies/tol_check.py")
+    return Table(TOL_HEADER, _tol_rows(rows_in), "Uniform ladder (`--tol`); rows with the same answer merged.",
+                 [path])
+
+
+def tol_check_adaptive(_: dict) -> Table:
+    rows_in, path = load_csv("tol_check/tol_check_adaptive.csv", "python studies/tol_check.py --adaptive")
+    return Table(TOL_HEADER, _tol_rows(rows_in), "Adaptive rounds (`--tol --adaptive`); rows with the same answer "
+                 "merged.", [path])
+
+
+def scatter(_: dict) -> Table:
+    files = [("finger_bones", "scatter/scatter.json"), ("finger_soft", "scatter/finger_soft/scatter.json"),
+             ("finger_tapered_fillet", "scatter/finger_tapered_fillet/scatter.json")]
+    rows, paths = [], []
+    for name, rel in files:
+        try:
+            d, path = load_json(rel, f"python studies/scatter.py --design geometry/{name}.toml")
+        except Missing:
+            continue
+        paths.append(path)
+        xs = [r["markers"]["tip"][0] for r in d["rows"]]
+        sizes = [r["size"] for r in d["rows"]]
+        # the mesh farthest from the others' median, and the spread without it
+        med = statistics.median(xs)
+        far = max(range(len(xs)), key=lambda i: abs(xs[i] - med))
+        rest = [x for i, x in enumerate(xs) if i != far]
+        rows.append([d.get("design", name), f"{len(xs)} (h = {short(min(sizes))} … {short(max(sizes))})",
+                     f"{num(d['std'][0], 2)} mm", f"{num(d['range'][0], 2)} mm",
+                     f"h = {short(sizes[far])}: {num(statistics.pstdev(rest), 2)} / {num(max(rest) - min(rest), 2)} mm"])
+    if not rows:
+        raise Missing(OUTPUT / "scatter", "python studies/scatter.py")
+    return Table(["design", "meshes", "tip x: standard deviation", "range",
+                  "without the farthest mesh: std / range"], rows,
+                 "Graded P2 meshes of nearly the same size, warm-started.", paths)
+
+
+def adaptive_reach(_: dict) -> Table:
+    d, path = load_json("adaptive/adaptive.json", "python studies/adaptive.py")
+    tols = ["0.1", "0.05", "0.02"]
+    rows = []
+    for key in sorted(d["summary"]):
+        s = d["summary"][key]
+        cells = []
+        for t in tols:
+            v = s["reach"].get(t)
+            if v is None:
+                cells.append("–")
+            elif isinstance(v, str):
+                cells.append(v)
+            else:
+                cells.append(f"{thousands(v['dofs'])} ({v['time']:.1f} s)")
+        rows.append([key] + cells + [f"{num(s['best_error'], 2)} mm"])
+    refs = d.get("references", {})
+    caption = ("DOFs (time) of the first answer within each error, against P2 references at h = "
+               f"{short(d.get('ref_size'))} mm (their own scatter: "
+               + ", ".join(f"{k} {num(v.get('scatter'), 2)} mm" for k, v in refs.items()) + ").")
+    return Table(["design, method, degree"] + [f"within {t} mm" for t in tols] + ["smallest error"], rows,
+                 caption, [path])
+
+
+def adaptive_tol_runs(_: dict) -> Table:
+    d, path = load_json("adaptive/adaptive.json", "python studies/adaptive.py")
+    rows = []
+    for r in d["tol_runs"]:
+        if r.get("failed"):
+            rows.append([r["design"], short(r["tol"]), r["method"], f"failed: {r['failed']}", "", "", "", ""])
+            continue
+        rows.append([r["design"], short(r["tol"]), r["method"], thousands(r["dofs"]), f"{r['time']:.1f} s",
+                     f"{num(r['estimate'], 2)} mm", f"{num(r['error'], 2)} mm", "yes" if r["met"] else "no"])
+    return Table(["design", "--tol [mm]", "method", "DOFs", "time", "estimated", "error", "met"], rows,
+                 "P2 `--tol` runs of the adaptive study, uniform against adaptive.", [path])
+
+
+STRATEGY_NOTES = {"none": "full Newton steps", "residual": "backtracking on |∇Π|",
+                  "energy": "Armijo on Π, inversion guard, exact bone rotations; `auto` with bones",
+                  "curved": "energy search along the geodesic curve, watchdog, ≤ 1 rad per step; `auto` without bones",
+                  "trust_region": "PETSc newtontr"}
+
+
+def stability(_: dict) -> Table:
+    d, path = load_json("stability/summary.json", "python studies/stability.py")
+    rows = []
+    for name, s in d["strategies"].items():
+        sl = d.get("slender", {}).get(name, {})
+        rows.append([f"`{name}` ({STRATEGY_NOTES.get(name, '')})", f"{s['successes']}/{s['cases']}",
+                     short(s["median_iterations"]),
+                     f"{sl.get('successes', '–')}/{sl.get('cases', '–')}", secs(sl.get("total_time"))])
+    caption = (f"finger.toml at h = {short(d['size'])} mm over bone/silicone stiffness ratios "
+               f"{power(min(d['ratios']))} … {power(max(d['ratios']))} × contractions "
+               f"{', '.join(short(c) for c in d['contractions'])} mm, with one load step and with four; "
+               "and the slender bodies.")
+    return Table(["strategy (`[solver].line_search`)", "stiffness-ratio map", "median iterations",
+                  "slender cases", "slender time"], rows, caption, [path])
+
+
+def stability_slender(_: dict) -> Table:
+    d, path = load_json("stability/summary.json", "python studies/stability.py")
+    slender = d["slender"]
+    names = list(slender)
+    cases = list(next(iter(slender.values()))["iterations"])
+    rows = [[case] + [("failed" if slender[n]["iterations"][case] is None else str(slender[n]["iterations"][case]))
+                      for n in names] for case in cases]
+    return Table(["case"] + [f"`{n}`" for n in names], rows,
+                 "Newton iterations, every iteration of every attempt counted.", [path])
+
+
+def peer(_: dict) -> Table:
+    d, path = load_json("peer_comparison/summary.json", "python studies/peer_comparison.py")
+    rows = []
+    for c in d["cases"]:
+        rows.append([short(c["size"]), f"{c['dofs']:,}", num(c["tip_difference"], 2), secs(c["time_skelfem"]),
+                     secs(c["time_scikit_fem"]),
+                     f"{secs(c['scikit_fem_jacobian_time'])} / {secs(c['scikit_fem_linear_solve_time'])}",
+                     f"{c['speedup']:.0f}×"])
+    return Table(["h [mm]", "DOFs", "tip difference [mm]", "skelfem", "scikit-fem",
+                  "scikit-fem: Jacobians / sparse LU", "skelfem faster by"], rows,
+                 f"The tendon strip, P{d['degree']}: same mesh, energy, quadrature and via points in both codes.",
+                 [path])
+
+
+# -- tables of studies whose outputs are not kept in the repository ----------------------------------------
+def pull_test(_: dict) -> Table:
+    rows_in, path = load_csv("pull_test/pull_test.csv", "python studies/pull_test.py")
+    loads = sorted({float(r["load_N"]) for r in rows_in})
+    by: dict = {}
+    for r in rows_in:
+        by.setdefault(r["condition"], {})[float(r["load_N"])] = r["tip_axial_displacement_mm"]
+    rows = [[cond] + [num(v.get(F)) for F in loads] for cond, v in by.items()]
+    return Table(["load"] + [f"{short(F)} N" for F in loads], rows, "Axial tip displacement in mm.", [path])
+
+
+def dynamics_checks(_: dict) -> Table:
+    d, path = load_json("dynamics/dynamics_checks.json", "python studies/dynamics_checks.py")
+    f, o, s = d["frequency"], d["orders"], d["slow_schedule"]
+    rows = [["first bending frequency of a cantilever (BDF2)",
+             f"{num(f['f_measured'], 4)} Hz against Euler–Bernoulli {num(f['f_euler_bernoulli'], 4)} Hz: "
+             f"{100 * f['relative_error']:+.2f} %"]]
+    for integ in ("euler", "bdf2"):
+        rows.append([f"order in dt, {integ}", f"slope {o[integ]['slope']:.2f} (errors "
+                     + ", ".join(num(e, 2) for e in o[integ]["errors_mm"]) + " mm)"])
+    for e in d["energy"]:
+        rows.append([f"energy from a sudden load, {e['integrator']}, damping {e['damping'] or 'none'}",
+                     f"largest step change {e['max_increase_relative']:+.1e}; lost "
+                     f"{100 * e['lost_relative']:.1f} % of max |Π|"])
+    rows.append(["slow schedule against the static equilibrium",
+                 f"{num(s['gap_mm'], 2)} mm: {num(s['relative'], 2)} of the {num(s['motion_mm'])} mm motion"])
+    return Table(["check", "result"], rows, "", [path])
+
+
+TABLES = {f.__name__: f for f in (bench, mpi_speed, editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
+                                  tol_check, tol_check_adaptive, scatter, adaptive_reach, adaptive_tol_runs,
+                                  stability, stability_slender, peer, pull_test, dynamics_checks)}
+
+
+# -- docutils -----------------------------------------------------------------------------------------------
+def _inline(text: str) -> list[nodes.Node]:
+    """Cell text with `code` and **bold** spans."""
+    out: list[nodes.Node] = []
+    i = 0
+    while i < len(text):
+        if text.startswith("**", i) and "**" in text[i + 2:]:
+            j = text.index("**", i + 2)
+            out.append(nodes.strong(text=text[i + 2:j]))
+            i = j + 2
+        elif text[i] == "`" and "`" in text[i + 1:]:
+            j = text.index("`", i + 1)
+            out.append(nodes.literal(text=text[i + 1:j]))
+            i = j + 1
+        else:
+            j = min([k for k in (text.find("`", i), text.find("**", i)) if k >= 0] or [len(text)])
+            if j == i:
+                j = i + 1
+            out.append(nodes.Text(text[i:j]))
+            i = j
+    return out
+
+
+def build_table(t: Table) -> list[nodes.Node]:
+    table = nodes.table(classes=["study-table"])
+    group = nodes.tgroup(cols=len(t.header))
+    table += group
+    for _ in t.header:
+        group += nodes.colspec(colwidth=1)
+    head = nodes.thead()
+    group += head
+    row = nodes.row()
+    for h in t.header:
+        row += nodes.entry("", nodes.paragraph("", "", *_inline(h)))
+    head += row
+    body = nodes.tbody()
+    group += body
+    for cells in t.rows:
+        row = nodes.row()
+        for c in cells + [""] * (len(t.header) - len(cells)):
+            row += nodes.entry("", nodes.paragraph("", "", *_inline(str(c))))
+        body += row
+    source = ", ".join(f"studies/output/{p.relative_to(OUTPUT)}" for p in t.files)
+    note = nodes.paragraph(classes=["study-table-source"])
+    if t.caption:
+        note += _inline(t.caption + " ")
+    note += nodes.emphasis(text="From ")
+    note += nodes.literal(text=source)
+    note += nodes.emphasis(text=", read when these pages were built.")
+    return [table, note]
+
+
+class StudyTable(SphinxDirective):
+    """```{study-table} NAME``` with options given as ``:problem: strip``."""
+
+    required_arguments = 1
+    option_spec = {"problem": directives.unchanged}
+
+    def run(self):
+        name = self.arguments[0]
+        if name not in TABLES:
+            raise self.error(f"study-table: no table {name!r}; known: {', '.join(sorted(TABLES))}")
+        try:
+            t = TABLES[name](dict(self.options))
+        except Missing as e:
+            path, command = e.args
+            self.env.note_dependency(str(path))
+            para = nodes.paragraph()
+            para += nodes.Text("This table is made from ")
+            para += nodes.literal(text=str(Path(path).relative_to(ROOT)))
+            para += nodes.Text(", which is not in this checkout: ")
+            para += nodes.literal(text=command)
+            para += nodes.Text(" writes it; rebuild the docs afterwards to see it here.")
+            return [nodes.note("", para)]
+        for p in t.files:
+            self.env.note_dependency(str(p))
+        return build_table(t)
+
+
+def setup(app):
+    app.add_directive("study-table", StudyTable)
+    return {"version": "1", "parallel_read_safe": True, "parallel_write_safe": True}

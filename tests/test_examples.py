@@ -1,0 +1,30 @@
+"""The gallery's examples (examples/plot_*.py) run as scripts and pass their own checks.
+
+Each runs in a fresh Python process with a headless matplotlib backend, from
+a temporary working folder (an example finds the bundled designs from its own
+path), as ``make docs`` runs them for the gallery.
+"""
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = sorted((ROOT / "examples").glob("plot_*.py"))
+SLOW = {"plot_03_soft_ik.py", "plot_04_dynamics.py", "plot_05_3d_finger.py"}   # more than about three seconds
+
+
+def test_examples_found():
+    assert len(EXAMPLES) >= 4, EXAMPLES
+
+
+@pytest.mark.parametrize("path", [pytest.param(p, id=p.stem, marks=[pytest.mark.slow] if p.name in SLOW else [])
+                                  for p in EXAMPLES])
+def test_example_runs(path, tmp_path):
+    env = {**os.environ, "MPLBACKEND": "Agg", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+    proc = subprocess.run([sys.executable, str(path)], cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, f"{path.name} failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}"
+    assert list(tmp_path.iterdir()) == [], "an example wrote into its working folder"
