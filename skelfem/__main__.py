@@ -1,6 +1,6 @@
 """``python -m skelfem ...`` runs the skelfem command (e.g. under mpirun)."""
 import sys
 
-from skelfem.cli import main
+from .cli.main import main
 
 sys.exit(main())

@@ -22,11 +22,11 @@ from __future__ import annotations
 import logging
 import math
 import time
-from pathlib import Path
 
 import numpy as np
 
-from .design import FORMAT, Design, DesignError, changed_keys, flatten, load_design, parse_design
+from .design.spec import FORMAT, Design, DesignError
+from .design.parse import changed_keys, flatten, load_design, parse_design
 
 log = logging.getLogger("skelfem")
 
@@ -140,9 +140,9 @@ class Session:
     # -- building -----------------------------------------------------------------------------
     def _build(self, tm=None) -> None:
         """A model and solver for self.design on tm (default: a new mesh of the design)."""
-        from .geometry import mesh_design
-        from .model import Model
-        from .solver import NewtonSolver
+        from .mesh.geometry import mesh_design
+        from .fem.model import Model
+        from .fem.newton import NewtonSolver
 
         t0 = time.perf_counter()
         fresh = tm is None
@@ -226,7 +226,7 @@ class Session:
 
     def _same_mesh(self, design, morph: bool) -> np.ndarray | None:
         """Node coordinates of the current mesh fit for design (see edit), or None to re-mesh."""
-        from .morph import Morph, polygons
+        from .mesh.morph import Morph, polygons
         meshed = self._meshed
         if (self.comm.size != 1 or design.dim != 2 or self.model is None
                 or float(design.mesh.size) != float(meshed.mesh.size)
@@ -288,7 +288,7 @@ class Session:
         """Start from the old displacement: interpolated where the new nodes lie in the old mesh, else nearest."""
         from scipy.spatial import cKDTree
 
-        from .points import interpolation_matrix, locate_cells
+        from .mesh.points import interpolation_matrix, locate_cells
         model = self.model
         X = model.V.tabulate_dof_coordinates()[:, :model.dim]
         cells = locate_cells(old_model.mesh, X)
@@ -328,7 +328,7 @@ class Session:
         ``dynamics`` block with the energy history); ``result.report.trajectory``
         has one row per accepted step (trajectory.csv).
         """
-        from .dynamics import Dynamics, dynamics_summary
+        from .fem.dynamics import Dynamics, dynamics_summary
         if self.design.dynamics is None:
             raise DesignError(f"{self.design.source}: dynamics: missing (a run in time needs a [dynamics] section)")
         t0 = time.perf_counter()

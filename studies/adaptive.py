@@ -41,7 +41,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from skelfem.output import copy_figure, say
+from skelfem.io.files import copy_figure, say
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "studies" / "output" / "adaptive"
@@ -69,7 +69,7 @@ def _tip(result) -> np.ndarray:
 
 def _graded(session, h0: float):
     """The --tol ladder's fixed zones for the design (accuracy.ladder_zones at its first size h0), or None."""
-    from skelfem.accuracy import ladder_zones
+    from skelfem.accuracy.ladder import ladder_zones
     return ladder_zones(session.model, session.design, h0)
 
 
@@ -83,7 +83,7 @@ def reference(name: str, size: float, out: Path | None, reuse: bool) -> dict:
     twin at accuracy.TWIN * size: ``scatter`` = |tip_twin - tip| is the reference's own mesh-to-mesh
     scatter. Solved, or read back from out/<name>/reference.json (reuse)."""
     from skelfem import Session
-    from skelfem.accuracy import TWIN
+    from skelfem.accuracy.ladder import TWIN
 
     path = None if out is None else Path(out) / name / "reference.json"
     if reuse and path is not None and path.exists():
@@ -108,7 +108,7 @@ def reference(name: str, size: float, out: Path | None, reuse: bool) -> dict:
                "time": time.perf_counter() - t, "graded": zones is not None}
         ref["scatter"] = float(np.linalg.norm(_tip(solved(s, TWIN * size)) - _tip(r)))
     if path is not None:
-        from skelfem.output import write_json
+        from skelfem.io.files import write_json
         path.parent.mkdir(parents=True, exist_ok=True)
         write_json(path, ref)
     return ref
@@ -117,7 +117,8 @@ def reference(name: str, size: float, out: Path | None, reuse: bool) -> dict:
 def uniform(name: str, degree: int, levels: int, tip_ref: np.ndarray) -> list[dict]:
     """The --tol ladder 2h, h, h/2, ... (uniform h, graded by the ladder's fixed zones, warm-started),
     one row per mesh."""
-    from skelfem import Session, accuracy
+    from skelfem import Session
+    from skelfem.accuracy import ladder as accuracy
 
     h0 = _first_size(name)
     rows, ladder, spent = [], [], 0.0
@@ -149,7 +150,7 @@ def uniform(name: str, degree: int, levels: int, tip_ref: np.ndarray) -> list[di
 def adaptive(name: str, degree: int, rounds: int, tip_ref: np.ndarray) -> list[dict]:
     """skelfem.adapt's rounds driven past any tolerance; one row per mesh."""
     from skelfem import Session
-    from skelfem.adapt import refine_adaptive
+    from skelfem.accuracy.adapt import refine_adaptive
 
     h0 = _first_size(name)
     rows = []
@@ -177,14 +178,15 @@ def adaptive(name: str, degree: int, rounds: int, tip_ref: np.ndarray) -> list[d
 
 def tol_runs(name: str, tols, tip_ref: np.ndarray) -> list[dict]:
     """``--tol`` as the command runs it (P2), uniform ladder and adaptive rounds: one row per (tol, method)."""
-    from skelfem import Session, accuracy
+    from skelfem import Session
+    from skelfem.accuracy import ladder, tol as accuracy
     from skelfem.design import load_design
 
     rows = []
     for tol in tols:
         for method in ("uniform", "adaptive"):
             t = time.perf_counter()
-            with Session(accuracy.first_level(load_design(ROOT / "geometry" / f"{name}.toml"))) as session:
+            with Session(ladder.first_level(load_design(ROOT / "geometry" / f"{name}.toml"))) as session:
                 result, a = accuracy.refine(session, tol, adaptive=method == "adaptive")
                 spent = time.perf_counter() - t
             failed = None if result.converged else a["stop"]          # no equilibrium: no error to measure
@@ -263,7 +265,7 @@ def summary(rows: list[dict], refs: dict | None = None) -> dict:
 
 
 def write_outputs(out: Path, result: dict) -> None:
-    from skelfem.output import write_json
+    from skelfem.io.files import write_json
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "adaptive.json", result)
     plot(out / "adaptive.png", result)
@@ -275,7 +277,7 @@ def plot(path: Path, result: dict) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from skelfem.output import atomic_write
+    from skelfem.io.files import atomic_write
 
     rows = result["rows"]
     designs = list(dict.fromkeys(r["design"] for r in rows))

@@ -47,8 +47,8 @@ def corners(design, min_turn: float = MIN_TURN) -> np.ndarray:
 def zones(design, model, fraction: float, radius: float):
     """The ZoneField of the ladder's first level (its anchor and clamped-corner zones) plus a zone at every
     bone corner."""
-    from skelfem.accuracy import first_level, ladder_zones
-    from skelfem.geometry import ZoneField
+    from skelfem.accuracy.ladder import first_level, ladder_zones
+    from skelfem.mesh.geometry import ZoneField
     h0 = float(first_level(design).mesh.size)
     C = corners(design)
     bones = ZoneField.around(C, np.full(len(C), radius), np.full(len(C), fraction * h0), h0)
@@ -61,7 +61,8 @@ def _markers(result: dict) -> np.ndarray:
 
 def run(design=ROOT / "geometry" / "finger_bones.toml", sizes=(0.25, 0.2375), fraction: float = 0.25,
         radius: float = 1.0, answers=()) -> dict:
-    from skelfem import Session, resources
+    from skelfem import Session
+    from skelfem.design import resources
     from skelfem.design import load_design
     d = load_design(design)
     if d.dim != 2:

@@ -27,8 +27,8 @@ FINGER4 = ROOT / "geometry" / "finger4.toml"
 def run(T: float = 0.03, dt: float = 0.0015, size: float = 3.0, knots: int = 4,
         pose: dict | None = None, max_evaluations: int = 60) -> dict:
     from skelfem import Session
-    from skelfem.control import SoftIK, finger_length
-    from skelfem.optimize import optimize_schedules, schedule_items
+    from skelfem.analysis.control import SoftIK, finger_length
+    from skelfem.analysis.optimize import optimize_schedules, schedule_items
 
     t0 = time.perf_counter()
     pose = pose or {"flexor_distal": 6.0, "flexor_middle": 4.0}

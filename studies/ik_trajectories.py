@@ -27,8 +27,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-from skelfem.control import line_targets, pose_indices
-from skelfem.output import draw_track, say
+from skelfem.analysis.control import line_targets, pose_indices
+from skelfem.viz.plots import draw_track
+from skelfem.io.files import say
 
 ROOT = Path(__file__).resolve().parents[1]
 DESIGN = ROOT / "geometry" / "finger4.toml"
@@ -39,7 +40,7 @@ LINES = {"horizontal": ((-25.0, 88.0), (35.0, 88.0)),
 def build(size: float):
     """Session and Soft IK for the finger's tip at mesh size `size`."""
     from skelfem import Session
-    from skelfem.control import SoftIK
+    from skelfem.analysis.control import SoftIK
 
     session = Session(DESIGN, [f"mesh.size={size}"])
     return session, SoftIK(session, "tip")
@@ -54,7 +55,7 @@ def rest(ik) -> None:
 
 def track_line(ik, ends, targets: int):
     """Soft IK along one line from rest; returns (results, poses shown in the picture)."""
-    from skelfem.control import track
+    from skelfem.analysis.control import track
 
     rest(ik)
     points = line_targets(np.asarray(ends, dtype=float), targets)
@@ -68,7 +69,7 @@ def track_line(ik, ends, targets: int):
 
 def random_targets(ik, count: int, u_max: float, seed: int):
     """Targets of random contractions, then Soft IK for each from rest."""
-    from skelfem.sensitivity import set_contractions
+    from skelfem.analysis.sensitivity import set_contractions
     rng = np.random.default_rng(seed)
     rows = []
     for _ in range(count):
@@ -143,7 +144,7 @@ def _result_row(r, names, prefix: str = "") -> dict:
 
 
 def _write(out: Path, ik, lines: dict, rows, numbers: dict) -> None:
-    from skelfem.output import write_csv, write_json
+    from skelfem.io.files import write_csv, write_json
 
     out.mkdir(parents=True, exist_ok=True)
     axes = "xyz"[:ik.model.dim]
@@ -167,7 +168,7 @@ def _plot_paths(path: Path, ik, lines: dict, numbers: dict) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from skelfem.output import atomic_write
+    from skelfem.io.files import atomic_write
 
     fig, axes = plt.subplots(1, len(lines), figsize=(6 * len(lines), 7.5), dpi=110)
     for ax, (name, (results, poses)) in zip(np.atleast_1d(axes), lines.items()):
@@ -186,7 +187,7 @@ def _plot_contractions(path: Path, ik, lines: dict) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from skelfem.output import atomic_write
+    from skelfem.io.files import atomic_write
 
     fig, axes = plt.subplots(1, len(lines), figsize=(6 * len(lines), 3.8), dpi=110, sharey=True)
     for ax, (name, (results, _)) in zip(np.atleast_1d(axes), lines.items()):

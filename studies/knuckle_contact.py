@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from skelfem.output import say
+from skelfem.io.files import say
 
 ROOT = Path(__file__).resolve().parents[1]
 DESIGN = ROOT / "geometry" / "finger_knuckles.toml"
@@ -84,7 +84,8 @@ def write_outputs(out: Path, res: dict, contraction: float) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from skelfem.output import atomic_write, plot_deformed
+    from skelfem.io.files import atomic_write
+    from skelfem.viz.plots import plot_deformed
 
     out.mkdir(parents=True, exist_ok=True)
     lines = ["self_contact,iterate,load_factor,min_distance_mm"]

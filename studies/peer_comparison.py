@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
-from skelfem.output import copy_figure, say
+from skelfem.io.files import copy_figure, say
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "studies" / "output" / "peer_comparison"
@@ -346,7 +346,7 @@ CSV_FIELDS = ("code", "size", "degree", "dofs", "converged", "status", "newton_i
 
 
 def write_outputs(out: Path, result: dict) -> None:
-    from skelfem.output import write_csv, write_json
+    from skelfem.io.files import write_csv, write_json
 
     out.mkdir(parents=True, exist_ok=True)
     write_csv(out / "cases.csv", CSV_FIELDS, result["rows"])
@@ -360,7 +360,7 @@ def plot(path: Path, result: dict) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from skelfem.output import atomic_write
+    from skelfem.io.files import atomic_write
 
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(10, 4.2), dpi=110)
     style = {"skelfem": dict(marker="o", color="#1f5fbf"), "scikit-fem": dict(marker="s", color="#d9822b")}

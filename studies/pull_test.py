@@ -30,7 +30,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from skelfem.output import say
+from skelfem.io.files import say
 
 ROOT = Path(__file__).resolve().parents[1]
 CONDITIONS = {   # key: (design, label)
@@ -102,7 +102,7 @@ def run(size: float = 1.0, loads=DEFAULT_LOADS, snapshot: float | None = None, p
 
 # -- files ---------------------------------------------------------------------------------------
 def write_csv(path: Path, res: dict) -> None:
-    from skelfem.output import write_text
+    from skelfem.io.files import write_text
 
     lines = ["condition,load_N,tip_axial_displacement_mm,tip_dx_mm,tip_dy_mm,status"]
     for key, r in res["conditions"].items():
@@ -117,7 +117,8 @@ def write_outputs(out: Path, res: dict, models: dict) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from skelfem.output import atomic_write, plot_deformed
+    from skelfem.io.files import atomic_write
+    from skelfem.viz.plots import plot_deformed
 
     out.mkdir(parents=True, exist_ok=True)
     write_csv(out / "pull_test.csv", res)

@@ -44,7 +44,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from skelfem.output import say
+from skelfem.io.files import say
 
 ROOT = Path(__file__).resolve().parents[1]
 CONDITIONS = {   # key: (design, label, pretensioned)
@@ -88,7 +88,7 @@ def place_sensor(model, gap: float) -> None:
     """Put the sensor plane `gap` beyond the boundary point nearest to it (along its normal)."""
     from mpi4py import MPI
 
-    from skelfem.output import vertex_displacements
+    from skelfem.io.xdmf import vertex_displacements
 
     x, u, _ = vertex_displacements(model)
     g = model.term("grounds", "fsr")
@@ -149,7 +149,7 @@ def run(size: float = 1.5, travel: float = 6.0, steps: int = 24, gap: float = 0.
 
 # -- files ---------------------------------------------------------------------------------------
 def write_csv(path: Path, res: dict) -> None:
-    from skelfem.output import write_text
+    from skelfem.io.files import write_text
 
     lines = ["condition,travel_mm,force_N,tip_x_mm,tip_y_mm"]
     for key, r in res["conditions"].items():
@@ -168,7 +168,8 @@ def write_outputs(out: Path, res: dict, models: dict) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from skelfem.output import atomic_write, plot_deformed
+    from skelfem.io.files import atomic_write
+    from skelfem.viz.plots import plot_deformed
 
     out.mkdir(parents=True, exist_ok=True)
     write_csv(out / "push_test.csv", res)

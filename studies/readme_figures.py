@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-from skelfem.output import say
+from skelfem.io.files import say
 
 ROOT = Path(__file__).resolve().parents[1]
 CONDITIONS = {"finger": "bones + ligaments", "finger_bones": "bones only", "finger_soft": "no bones"}
@@ -64,8 +64,8 @@ def _fabrication(out: Path | None) -> dict:
 
 
 def _arm(out: Path | None) -> dict:
-    from skelfem.output import plot_deformed_3d
-    from skelfem.run import picture_title
+    from skelfem.viz.plots import plot_deformed_3d
+    from skelfem.jobs.run import picture_title
 
     session, result = solve("arm3d")
     session.close()
@@ -81,7 +81,8 @@ def _figures(out: Path, models: dict, results: dict, contraction: float) -> None
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from skelfem.output import atomic_write, plot_deformed
+    from skelfem.io.files import atomic_write
+    from skelfem.viz.plots import plot_deformed
 
     out.mkdir(parents=True, exist_ok=True)
     plot_deformed(out / "finger.png", models["finger"], f"finger.toml: flexor contracted {contraction:g} mm")

@@ -26,7 +26,7 @@ SIZES = tuple(round(0.80 + 0.01 * k, 2) for k in range(9))
 
 def run(design=ROOT / "geometry" / "finger_bones.toml", sizes=SIZES, sets=()) -> dict:
     from skelfem import Session
-    from skelfem.accuracy import at_size, first_level, ladder_zones
+    from skelfem.accuracy.ladder import at_size, first_level, ladder_zones
     from skelfem.design import load_design
     d = load_design(design, list(sets))
     h0 = float(first_level(d).mesh.size)

@@ -46,7 +46,7 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
-from skelfem.output import copy_figure, say
+from skelfem.io.files import copy_figure, say
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "studies" / "output" / "speed_accuracy"
@@ -117,7 +117,7 @@ def circle_curvature(points: np.ndarray) -> float:
 
 def strip_beam_check(model, nu: float) -> dict:
     """Mid-span curvature of the deformed axis (circle fit, y in [30, 70]) against kappa = T d / (E' I)."""
-    from skelfem.points import interpolation_matrix
+    from skelfem.mesh.points import interpolation_matrix
     ys = np.linspace(30.0, 70.0, 41)
     X = np.column_stack([np.full_like(ys, W / 2), ys])
     x = X + (interpolation_matrix(model.V, X) @ model.u.x.array).reshape(-1, 2)
@@ -307,7 +307,7 @@ CSV_FIELDS = ("problem", "degree", "bones", "size", "dofs", "converged", "status
 
 
 def write_outputs(out: Path, result: dict) -> None:
-    from skelfem.output import write_csv, write_json
+    from skelfem.io.files import write_csv, write_json
 
     out.mkdir(parents=True, exist_ok=True)
     write_csv(out / "cases.csv", CSV_FIELDS, result["cases"])
@@ -328,7 +328,7 @@ def plot(path: Path, result: dict) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from skelfem.output import atomic_write
+    from skelfem.io.files import atomic_write
 
     problems = list(result["summary"])
     fig, axes = plt.subplots(1, len(problems), figsize=(5.0 * len(problems), 4.4), dpi=110, squeeze=False)

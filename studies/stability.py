@@ -46,7 +46,7 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
-from skelfem.output import copy_figure, say
+from skelfem.io.files import copy_figure, say
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "studies" / "output" / "stability"
@@ -251,7 +251,7 @@ CSV_FIELDS = ("strategy", "steps", "ratio", "contraction", "converged", "status"
 
 
 def write_outputs(out: Path, result: dict) -> None:
-    from skelfem.output import write_csv, write_json
+    from skelfem.io.files import write_csv, write_json
 
     out.mkdir(parents=True, exist_ok=True)
     write_csv(out / "cases.csv", CSV_FIELDS, result["cases"])
@@ -272,7 +272,7 @@ def plot(path: Path, result: dict) -> None:
     import matplotlib.pyplot as plt
     from matplotlib.colors import LogNorm
 
-    from skelfem.output import atomic_write
+    from skelfem.io.files import atomic_write
 
     rows = result["cases"]
     strategies = [s for s in STRATEGIES if any(r["strategy"] == s for r in rows)]

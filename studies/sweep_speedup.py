@@ -19,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-from skelfem.output import say, write_json
+from skelfem.io.files import say, write_json
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",

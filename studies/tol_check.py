@@ -25,7 +25,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from skelfem.output import say, write_csv
+from skelfem.io.files import say, write_csv
 
 ROOT = Path(__file__).resolve().parents[1]
 DESIGNS = ("finger_bones", "thumb", "finger_tapered_fillet", "post3d", "finger_soft")
@@ -98,8 +98,9 @@ def solve_reference(design: str, h_ref: float, folder: Path) -> None:
     """
     import time
 
-    from skelfem import Session, resources
-    from skelfem.accuracy import TWIN, first_level, ladder_zones, next_level
+    from skelfem import Session
+    from skelfem.design import resources
+    from skelfem.accuracy.ladder import TWIN, first_level, ladder_zones, next_level
     from skelfem.design import load_design
 
     t0 = time.perf_counter()

@@ -64,8 +64,8 @@ def toml_text(d: dict) -> str:
 def simulate_refused_before_meshing(d: dict, tmp_path, monkeypatch, capsys) -> str:
     """`skelfem simulate` on design d: exit 1 with one `error: PATH: ...` line (returned), no traceback,
     no output folder, and the design never meshed."""
-    from skelfem import geometry
-    from skelfem.cli import main
+    from skelfem.mesh import geometry
+    from skelfem.cli.main import main
 
     def never(*args, **kwargs):
         raise AssertionError("the design was meshed")

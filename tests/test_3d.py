@@ -5,9 +5,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skelfem.cli import main
+from skelfem.cli.main import main
 from skelfem.design import load_design
-from skelfem.geometry import mesh_design
+from skelfem.mesh.geometry import mesh_design
 
 GEOMETRY = Path(__file__).resolve().parents[1] / "geometry"
 

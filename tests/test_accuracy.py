@@ -6,9 +6,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skelfem import accuracy, resources
-from skelfem.accuracy import Level, observed_rate, richardson
-from skelfem.cli import main
+from skelfem.accuracy import ladder as ladder_rules, tol as accuracy
+from skelfem.design import resources
+from skelfem.accuracy.ladder import Level, observed_rate, richardson
+from skelfem.cli.main import main
 
 from _designs import strip, toml_text
 
@@ -35,11 +36,11 @@ def test_richardson_is_exact_for_a_power_law(sizes):
 
 
 def test_the_rate_is_clipped_and_differences_that_grow_give_the_smallest():
-    assert observed_rate((4.0, 2.0, 1.0), (1.0, 1.0 / 2 ** 3)) == accuracy.R_MAX
-    assert observed_rate((4.0, 2.0, 1.0), (1.0, 2.0)) == accuracy.R_MIN      # not converging
-    assert observed_rate((4.0, 2.0, 1.0), (0.0, 0.0)) == accuracy.R_MIN
+    assert observed_rate((4.0, 2.0, 1.0), (1.0, 1.0 / 2 ** 3)) == ladder_rules.R_MAX
+    assert observed_rate((4.0, 2.0, 1.0), (1.0, 2.0)) == ladder_rules.R_MIN      # not converging
+    assert observed_rate((4.0, 2.0, 1.0), (0.0, 0.0)) == ladder_rules.R_MIN
     two = _levels((4.0, 2.0))[-1]
-    assert two.rate == accuracy.R_TWO_LEVELS                                  # two levels: a rate is assumed
+    assert two.rate == ladder_rules.R_TWO_LEVELS                                  # two levels: a rate is assumed
 
 
 def test_an_oscillating_ladder_is_bounded_by_half_its_spread():
@@ -52,26 +53,26 @@ def test_an_oscillating_ladder_is_bounded_by_half_its_spread():
             levels[-1].change = float(np.linalg.norm(levels[-1].markers - levels[-2].markers))
     true_error = 0.02
     x = [lv.markers[0, 0] for lv in levels]
-    assert accuracy.oscillation(levels) == pytest.approx(0.5 * (max(x) - min(x)))
+    assert ladder_rules.oscillation(levels) == pytest.approx(0.5 * (max(x) - min(x)))
     estimate, _ = richardson(levels)
     assert estimate == pytest.approx(0.5 * (max(x) - min(x)))
     assert estimate >= true_error
     d = abs(x[2] - x[1])
-    assert d / (2.0 ** accuracy.R_MAX - 1.0) < true_error   # what Richardson alone would have said
+    assert d / (2.0 ** ladder_rules.R_MAX - 1.0) < true_error   # what Richardson alone would have said
     monotone = _levels((4.0, 2.0, 1.0))
-    assert accuracy.oscillation(monotone) == 0.0         # answers from one side: Richardson alone
+    assert ladder_rules.oscillation(monotone) == 0.0         # answers from one side: Richardson alone
     two_markers = [Level(lv.size, 0, 0, 0.0, np.vstack([lv.markers, m.markers]))
                    for lv, m in zip(levels, monotone)]
-    assert accuracy.oscillation(two_markers) == accuracy.oscillation(levels)   # the reversing marker's spread
+    assert ladder_rules.oscillation(two_markers) == ladder_rules.oscillation(levels)   # the reversing marker's spread
 
 
 def test_next_size_aims_below_the_tolerance_within_bounds():
     lv = Level(1.0, 0, 0, 0.0, np.zeros((1, 2)), change=0.1, rate=2.0, estimate=0.1)
-    h = accuracy.next_size(lv, 0.1, 3)                                       # 3D: between h/2 and h/sqrt 2
-    assert h == pytest.approx((0.1 / (accuracy.MARGIN * accuracy.AIM * 0.1)) ** 0.5)
-    assert accuracy.next_size(lv, 1e-9, 3) == 0.5                            # at most 2x finer
-    assert accuracy.next_size(lv, 0.29, 3) == pytest.approx(1 / np.sqrt(2))  # at least one ratio
-    assert accuracy.next_size(lv, 1e-9, 2) == accuracy.next_size(lv, 0.29, 2) == 0.5   # 2D: halving
+    h = ladder_rules.next_size(lv, 0.1, 3)                                       # 3D: between h/2 and h/sqrt 2
+    assert h == pytest.approx((0.1 / (ladder_rules.MARGIN * ladder_rules.AIM * 0.1)) ** 0.5)
+    assert ladder_rules.next_size(lv, 1e-9, 3) == 0.5                            # at most 2x finer
+    assert ladder_rules.next_size(lv, 0.29, 3) == pytest.approx(1 / np.sqrt(2))  # at least one ratio
+    assert ladder_rules.next_size(lv, 1e-9, 2) == ladder_rules.next_size(lv, 0.29, 2) == 0.5   # 2D: halving
 
 
 class _Solved:
@@ -84,16 +85,16 @@ class _Solved:
 
 def test_a_levels_size_is_measured_by_its_dofs_not_the_size_asked_for():
     """Gmsh may make a mesh finer (or the same) than asked: h_k = h_{k-1} (N_{k-1} / N_k)^(1/dim)."""
-    a = accuracy.next_level([], 2.83, _Solved(5391, [0.0, 0.0, 0.0]), 0.0)
+    a = ladder_rules.next_level([], 2.83, _Solved(5391, [0.0, 0.0, 0.0]), 0.0)
     assert a.h == 2.83
-    b = accuracy.next_level([a], 2.0, _Solved(7869, [0.01, 0.0, 0.0]), 0.0)
+    b = ladder_rules.next_level([a], 2.0, _Solved(7869, [0.01, 0.0, 0.0]), 0.0)
     assert b.h == pytest.approx(2.83 * (5391 / 7869) ** (1 / 3))             # 2.49, not 2.0
     assert b.estimate == pytest.approx(0.01 / (2.83 / b.h - 1.0))            # r = 1 with two levels
-    flat = accuracy.next_level([], 2.0, _Solved(1000, [0.0, 0.0]), 0.0)
-    twice = accuracy.next_level([flat], 1.0, _Solved(4000, [0.01, 0.0]), 0.0)
+    flat = ladder_rules.next_level([], 2.0, _Solved(1000, [0.0, 0.0]), 0.0)
+    twice = ladder_rules.next_level([flat], 1.0, _Solved(4000, [0.01, 0.0]), 0.0)
     assert twice.h == pytest.approx(1.0)                                     # 2D: 4x the DOFs, half h
     lv = Level(1.0, 0, 0, 0.0, np.zeros((1, 2)), h=0.8, change=0.1, rate=2.0, estimate=0.1)
-    assert accuracy.next_size(lv, 1e-9, 3) == 0.5                            # the jump scales what is asked
+    assert ladder_rules.next_size(lv, 1e-9, 3) == 0.5                            # the jump scales what is asked
 
 
 class _FakeSession:
@@ -103,7 +104,7 @@ class _FakeSession:
 
     def __init__(self, dofs, position):
         from skelfem.design import load_design
-        self.design = accuracy.at_size(load_design(GEOMETRY / "pillar3d.toml"), 4.0)
+        self.design = ladder_rules.at_size(load_design(GEOMETRY / "pillar3d.toml"), 4.0)
         self.model, self.sizes, self.dofs, self.position = None, [], dofs, position
 
     def edit(self, design, size=None):
@@ -134,7 +135,7 @@ def test_a_twin_mesh_measures_the_scatter_richardson_cannot_see(monkeypatch):
     session = _FakeSession(lambda h: int(1000 * (4.0 / h) ** 3), None)
 
     def position(h, k):                          # the ladder's meshes converge cleanly, every twin is off
-        twin = k > 0 and h == pytest.approx(accuracy.TWIN * session.sizes[k - 1])
+        twin = k > 0 and h == pytest.approx(ladder_rules.TWIN * session.sizes[k - 1])
         return [1e-4 * h ** 1.8 + (0.004 * h if twin else 0.0), 0.0, 0.0]
     session.position = position
     _, acc = accuracy.refine(session, tol=0.01)
@@ -142,25 +143,25 @@ def test_a_twin_mesh_measures_the_scatter_richardson_cannot_see(monkeypatch):
     twins = [i for i, lv in enumerate(levels) if lv["twin"]]
     assert levels[-1]["twin"] and len(twins) == 2                      # the first twin failed, the ladder went on
     first = levels[twins[0]]
-    assert first["size"] == pytest.approx(accuracy.TWIN * levels[twins[0] - 1]["size"])
-    assert accuracy.MARGIN * levels[twins[0] - 1]["estimate"] <= 0.01      # Richardson alone would have stopped
-    assert accuracy.MARGIN * first["estimate"] > 0.01                       # the twin did not
+    assert first["size"] == pytest.approx(ladder_rules.TWIN * levels[twins[0] - 1]["size"])
+    assert ladder_rules.MARGIN * levels[twins[0] - 1]["estimate"] <= 0.01      # Richardson alone would have stopped
+    assert ladder_rules.MARGIN * first["estimate"] > 0.01                       # the twin did not
     for i in twins:
         lv, ladder = levels[i], levels[i - 1]
         assert lv["estimate"] == pytest.approx(max(ladder["estimate"], lv["scatter"]))
     h = acc["size"]
-    assert acc["met"] and accuracy.MARGIN * acc["estimated_error"] >= 1e-4 * h ** 1.8 + 0.004 * h   # its error
+    assert acc["met"] and ladder_rules.MARGIN * acc["estimated_error"] >= 1e-4 * h ** 1.8 + 0.004 * h   # its error
     assert acc["scatter"] == levels[-1]["scatter"] and session.sizes[-1] == h      # the answer is the twin
 
 
 def test_twin_level_takes_the_larger_of_richardson_and_the_scatter():
     level = Level(1.0, 8000, 3, 0.1, np.array([[1.0, 2.0]]), h=1.0, rate=1.5, estimate=0.01)
     res = type("R", (), {"dofs": 9000, "newton_iterations": 2, "markers": {"m": {"position": [1.0, 2.03]}}})()
-    twin = accuracy.twin_level(level, 0.95, res, 0.2)
+    twin = ladder_rules.twin_level(level, 0.95, res, 0.2)
     assert twin.twin and twin.scatter == pytest.approx(0.03) and twin.estimate == pytest.approx(0.03)
     assert twin.h == pytest.approx((8000 / 9000) ** 0.5)                     # measured by its DOFs
     res.markers["m"]["position"] = [1.0, 2.001]
-    assert accuracy.twin_level(level, 0.95, res, 0.2).estimate == pytest.approx(0.01)
+    assert ladder_rules.twin_level(level, 0.95, res, 0.2).estimate == pytest.approx(0.01)
 
 
 def test_a_twin_that_gmsh_meshes_as_its_level_tries_smaller_sizes_then_warns(monkeypatch):
@@ -170,7 +171,7 @@ def test_a_twin_that_gmsh_meshes_as_its_level_tries_smaller_sizes_then_warns(mon
                           "markers": {"m": {"position": [1.0, 2.0]}}})()
     session, factors, warnings = type("S", (), {"solve": lambda self: same})(), [], []
     monkeypatch.setattr(accuracy.log, "warning", lambda msg, *args: warnings.append(msg % args))
-    twin, _ = accuracy.solve_twin(session, level, factors.append)   # (the CLI's logger does not propagate)
+    twin, _ = ladder_rules.solve_twin(session, level, factors.append)   # (the CLI's logger does not propagate)
     assert factors == pytest.approx([0.95, 0.95 ** 2, 0.95 ** 3]) and twin.size == pytest.approx(2.0 * 0.95 ** 3)
     assert twin.scatter == 0 and twin.estimate == 0.01
     assert len(warnings) == 1 and "scatter is not measured" in warnings[0]
@@ -193,7 +194,7 @@ def test_tol_run_meets_the_tolerance_it_reports_against_a_much_finer_reference(t
     assert main(["simulate", str(design), "--out", str(tmp_path / "tol"), "--no-picture", "--tol", str(tol)]) == 0
     res = json.loads((tmp_path / "tol" / "result.json").read_text())
     a = res["accuracy"]
-    assert a["met"] and accuracy.MARGIN * a["estimated_error"] <= tol and len(a["levels"]) >= 3
+    assert a["met"] and ladder_rules.MARGIN * a["estimated_error"] <= tol and len(a["levels"]) >= 3
     assert res["degree"] == 2 and res["dofs"] == a["dofs"] and a["size"] == a["levels"][-1]["size"]
     assert "--tol" in capsys.readouterr().out
     assert main(["simulate", str(design), "--out", str(tmp_path / "ref"), "-q", "--no-picture",
@@ -217,7 +218,7 @@ def test_tol_makes_bones_rigid_where_their_difference_is_well_below_it(tmp_path,
     res = json.loads((tmp_path / "o" / "result.json").read_text())
     a, b = res["accuracy"], res["accuracy"]["bones"]
     assert a["met"] and b["rigid"] == rigid and b["difference"] > 0
-    assert (accuracy.MARGIN * b["difference"] <= accuracy.RIGID_SHARE * tol) == rigid
+    assert (ladder_rules.MARGIN * b["difference"] <= ladder_rules.RIGID_SHARE * tol) == rigid
     assert all(bone.get("rigid", False) == rigid for bone in (res.get("bones") or {"b1": {}}).values())
     if rigid:                              # the bones' difference is part of the estimate it reports
         assert a["estimated_error"] == pytest.approx(a["levels"][-1]["estimate"] + b["difference"])
@@ -232,7 +233,7 @@ def test_a_ladder_that_ends_on_its_first_level_answers_with_the_bones_it_chose(t
     d = parse_design(strip(length=60.0, width=10.0, size=2.0, contraction=1.0, tendon_offset=2.0, bones=True),
                      overrides=["materials.hard.E=3.0"])
     monkeypatch.setitem(resources.MAX_DOFS, 2, 1500)
-    with Session(accuracy.first_level(d)) as s:
+    with Session(ladder_rules.first_level(d)) as s:
         result, a = accuracy.refine(s, 0.5)
         assert not a["met"] and "DOF limit" in a["stop"] and not a["bones"]["rigid"] and len(a["levels"]) == 1
         assert not s.model.rigid and not any(b.rigid for b in s.design.bones)
@@ -266,12 +267,12 @@ def test_a_sudden_drop_after_stalled_differences_is_not_trusted():
         for lv, r in zip(out[2:], observed):
             lv.observed = r
         return out
-    assert not accuracy.trusted(ladder()[:2])                     # two levels: no rate yet
-    assert accuracy.trusted(ladder(1.4))                          # a P2-like rate
-    assert accuracy.trusted(ladder(0.3))                          # slow: trusted (its estimate is large)
-    assert not accuracy.trusted(ladder(3.8))                      # a drop faster than P2, first rate
-    assert not accuracy.trusted(ladder(0.05, 3.8))                # ... right after a stall
-    assert accuracy.trusted(ladder(1.7, 2.3))                     # ... after convergence had begun
+    assert not ladder_rules.trusted(ladder()[:2])                     # two levels: no rate yet
+    assert ladder_rules.trusted(ladder(1.4))                          # a P2-like rate
+    assert ladder_rules.trusted(ladder(0.3))                          # slow: trusted (its estimate is large)
+    assert not ladder_rules.trusted(ladder(3.8))                      # a drop faster than P2, first rate
+    assert not ladder_rules.trusted(ladder(0.05, 3.8))                # ... right after a stall
+    assert ladder_rules.trusted(ladder(1.7, 2.3))                     # ... after convergence had begun
 
 
 def test_an_untrusted_drop_is_estimated_with_the_two_level_rate(monkeypatch):
@@ -282,18 +283,18 @@ def test_an_untrusted_drop_is_estimated_with_the_two_level_rate(monkeypatch):
         x, out = 0.0, []
         for k, d in enumerate((0.0,) + changes):
             x += d
-            out.append(accuracy.next_level(out, 4.0 / 2 ** k, _Solved(1000 * 4 ** k, [x, 0.0]), 0.0))
+            out.append(ladder_rules.next_level(out, 4.0 / 2 ** k, _Solved(1000 * 4 ** k, [x, 0.0]), 0.0))
         return out
     fast = ladder((0.1, 0.004))
-    assert fast[-1].observed > accuracy.R_MAX and not accuracy.trusted(fast)
-    judged = accuracy.judged(fast)
-    assert judged.rate == accuracy.R_TWO_LEVELS and judged.estimate == pytest.approx(0.004 / (2.0 - 1.0))
+    assert fast[-1].observed > ladder_rules.R_MAX and not ladder_rules.trusted(fast)
+    judged = ladder_rules.judged(fast)
+    assert judged.rate == ladder_rules.R_TWO_LEVELS and judged.estimate == pytest.approx(0.004 / (2.0 - 1.0))
     assert fast[-1].estimate == pytest.approx(0.004 / 3.0)                 # r = 2 would say 0.0013
     steady = ladder((0.1, 0.03))
-    assert accuracy.judged(steady) is steady[-1]
+    assert ladder_rules.judged(steady) is steady[-1]
     stalled = ladder((0.1, 0.1, 0.004))                    # a drop right after a stall: refine on, as before
-    assert not accuracy.trusted(stalled) and accuracy.judged(stalled) is stalled[-1]
-    assert not accuracy.may_stop(stalled) and accuracy.may_stop(fast) and accuracy.may_stop(steady)
+    assert not ladder_rules.trusted(stalled) and ladder_rules.judged(stalled) is stalled[-1]
+    assert not ladder_rules.may_stop(stalled) and ladder_rules.may_stop(fast) and ladder_rules.may_stop(steady)
 
     monkeypatch.setattr(accuracy, "ladder_zones", lambda model, design, h0: None)
     tip = {4.0: 0.0, 2.828427: 0.1, 2.0: 0.104}
@@ -302,7 +303,7 @@ def test_an_untrusted_drop_is_estimated_with_the_two_level_rate(monkeypatch):
                                lambda h, k: [tip.get(h, 0.104 + 0.001 * (2.0 - h)), 0.0, 0.0])
         _, acc = accuracy.refine(session, tol=tol)
         ladder_levels = [lv for lv in acc["levels"] if not lv["twin"]]
-        assert len(ladder_levels) >= levels and ladder_levels[2]["rate"] == accuracy.R_TWO_LEVELS
+        assert len(ladder_levels) >= levels and ladder_levels[2]["rate"] == ladder_rules.R_TWO_LEVELS
         assert (len(ladder_levels) == 3) == (levels == 3)
 
 
@@ -320,16 +321,16 @@ def _strip_design(tmp_path, *sets):
 ])
 def test_clamped_corners_are_where_a_fixed_pins_box_cuts_the_outline(tmp_path, region, expected):
     d = _strip_design(tmp_path, f"pins.base.region={region}")
-    got = accuracy.clamp_corners(d)
+    got = ladder_rules.clamp_corners(d)
     assert got.shape == (2, 2)
     assert np.allclose(sorted(got.tolist()), sorted(expected), atol=1e-5)
 
 
 def test_spring_pins_have_no_clamped_corner_zones_and_3d_bodies_no_clamped_corners(tmp_path):
     d = _strip_design(tmp_path, "pins.base.kind=\"spring\"", "pins.base.stiffness=10.0")
-    assert accuracy.clamp_corners(d).shape == (0, 2) and accuracy.corner_zones(d, 4.0) is None
+    assert ladder_rules.clamp_corners(d).shape == (0, 2) and ladder_rules.corner_zones(d, 4.0) is None
     from skelfem.design import load_design
-    assert accuracy.clamp_corners(load_design(GEOMETRY / "post3d.toml")).shape == (0, 2)
+    assert ladder_rules.clamp_corners(load_design(GEOMETRY / "post3d.toml")).shape == (0, 2)
 
 
 def _box_design(tmp_path, region, kind="fixed"):
@@ -363,32 +364,32 @@ def test_clamped_edges_in_3d_are_where_a_fixed_pins_box_cuts_the_surface(tmp_pat
     from skelfem import Session
     d = _box_design(tmp_path, region)
     with Session(d) as s:
-        seg = accuracy.clamp_edges(s.model, d)
-        zones = accuracy.corner_zones(d, 4.0, s.model)
+        seg = ladder_rules.clamp_edges(s.model, d)
+        zones = ladder_rules.corner_zones(d, 4.0, s.model)
     assert seg.shape[1:] == (2, 3) and np.allclose(seg[..., 2], top, atol=1e-6)
     on_side = np.isclose(seg[..., 0], 0) | np.isclose(seg[..., 0], 6) | np.isclose(seg[..., 1], 0) | \
         np.isclose(seg[..., 1], 4)
     assert on_side.all()
     assert np.linalg.norm(seg[:, 1] - seg[:, 0], axis=1).sum() == pytest.approx(20.0)
     # balls about CORNER_RADIUS h0 / 2 apart cover the whole ring: each point is within 0.3 radii of one
-    ring = accuracy.along(seg, 0.01)
+    ring = ladder_rules.along(seg, 0.01)
     gap = np.linalg.norm(ring[:, None] - zones.centers[None], axis=2).min(axis=1).max()
-    assert gap <= 0.3 * accuracy.CORNER_RADIUS * 4.0
-    assert np.allclose(zones.radii, accuracy.CORNER_RADIUS * 4.0)
-    assert np.allclose(zones.inner, accuracy.CORNER_SIZE * 4.0)
+    assert gap <= 0.3 * ladder_rules.CORNER_RADIUS * 4.0
+    assert np.allclose(zones.radii, ladder_rules.CORNER_RADIUS * 4.0)
+    assert np.allclose(zones.inner, ladder_rules.CORNER_SIZE * 4.0)
 
 
 def test_spring_pins_have_no_clamped_edges_in_3d(tmp_path):
     from skelfem import Session
     d = _box_design(tmp_path, "[[-1, -1, -1], [7, 5, 0.01]]", kind="spring")
     with Session(d) as s:
-        assert accuracy.clamp_edges(s.model, d).shape == (0, 2, 3)
-        assert accuracy.corner_zones(d, 4.0, s.model) is None
+        assert ladder_rules.clamp_edges(s.model, d).shape == (0, 2, 3)
+        assert ladder_rules.corner_zones(d, 4.0, s.model) is None
 
 
 def test_along_samples_segments_at_most_spacing_apart_without_duplicates():
     seg = np.array([[[0.0, 0, 0], [1.0, 0, 0]], [[1.0, 0, 0], [1.0, 0.25, 0]]])
-    p = accuracy.along(seg, 0.3)
+    p = ladder_rules.along(seg, 0.3)
     assert len(p) == 5 + 1                       # 0, .25, .5, .75, 1, then (1, .25): (1, 0) once
     assert np.allclose(p[:5, 0], [0, 0.25, 0.5, 0.75, 1.0]) and np.allclose(p[5], [1.0, 0.25, 0])
 
@@ -398,24 +399,24 @@ def test_the_ladders_meshes_are_graded_at_clamped_corners_and_at_anchors(tmp_pat
     scaled with h they stay one family (the zones keep their extent in mm)."""
     from skelfem import Session
     from skelfem.design import load_design
-    from skelfem.points import cell_sizes
+    from skelfem.mesh.points import cell_sizes
     d = load_design(GEOMETRY / "thumb.toml")
-    h0 = float(accuracy.first_level(d).mesh.size)
-    with Session(accuracy.first_level(d)) as s:
+    h0 = float(ladder_rules.first_level(d).mesh.size)
+    with Session(ladder_rules.first_level(d)) as s:
         z = accuracy.ladder_zones(s.model, s.design, h0)
-        anchors = accuracy.anchor_zones(s.model, h0)
+        anchors = ladder_rules.anchor_zones(s.model, h0)
         assert len(z.radii) == len(anchors.radii) + 2
         corners = z.centers[len(anchors.radii):]
         assert np.allclose(sorted(corners.tolist()), [[0.0, 0.01], [16.0, 0.01]], atol=1e-6)
-        assert np.allclose(z.inner[-2:], accuracy.CORNER_SIZE * h0) and np.allclose(z.radii[-2:], 0.25 * h0)
+        assert np.allclose(z.inner[-2:], ladder_rules.CORNER_SIZE * h0) and np.allclose(z.radii[-2:], 0.25 * h0)
         half = z.scaled(0.5)
         assert np.allclose(half.inner, 0.5 * z.inner) and np.array_equal(half.radii, z.radii)
         assert np.array_equal(np.broadcast_to(half.thickness, (len(z.radii),)),
                               np.broadcast_to(z.thickness, (len(z.radii),)))
-        s.edit(accuracy.at_size(d, h0), size=z)
+        s.edit(ladder_rules.at_size(d, h0), size=z)
         mesh = s.model.mesh
         h = cell_sizes(mesh)
         x = mesh.geometry.x[mesh.geometry.dofmap.array.reshape(-1, 3)][:, :, :2].mean(axis=1)
-        at_corner = np.linalg.norm(x - [0.0, 0.0], axis=1) < accuracy.CORNER_RADIUS * h0
+        at_corner = np.linalg.norm(x - [0.0, 0.0], axis=1) < ladder_rules.CORNER_RADIUS * h0
         far = np.linalg.norm(x - [8.0, 35.0], axis=1) < 5.0
         assert h[at_corner].max() < 0.35 * h0 and h[far].min() > 0.5 * h0

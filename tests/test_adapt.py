@@ -2,9 +2,10 @@
 import numpy as np
 import pytest
 
-from skelfem import Session, accuracy, adapt
+from skelfem import Session
+from skelfem.accuracy import adapt, ladder as ladder_rules
 from skelfem.design import parse_design
-from skelfem.geometry import SizeField, mesh_design
+from skelfem.mesh.geometry import SizeField, mesh_design
 
 from _designs import strip, variant
 
@@ -100,7 +101,7 @@ def test_indicators_are_larger_at_the_anchor_than_far_from_it(anchored_indicator
 
 
 def test_a_round_of_adaptive_refinement_lowers_the_estimate_and_met_is_honest():
-    session = Session(accuracy.first_level(_strip(size=4.0)))
+    session = Session(ladder_rules.first_level(_strip(size=4.0)))
     try:
         result, a = adapt.refine_adaptive(session, 1e-6, max_rounds=2)
     finally:
@@ -114,7 +115,7 @@ def test_a_round_of_adaptive_refinement_lowers_the_estimate_and_met_is_honest():
 
 
 def _run(tol, **kw):
-    session = Session(accuracy.first_level(_strip(size=4.0)))
+    session = Session(ladder_rules.first_level(_strip(size=4.0)))
     try:
         return adapt.refine_adaptive(session, tol, **kw)
     finally:
@@ -123,14 +124,14 @@ def _run(tol, **kw):
 
 def test_met_only_when_the_final_estimate_says_so(monkeypatch):
     _, a = _run(0.5, max_rounds=2)
-    assert a["met"] and accuracy.MARGIN * a["estimated_error"] <= 0.5
+    assert a["met"] and ladder_rules.MARGIN * a["estimated_error"] <= 0.5
     _, b = _run(1e-6, max_rounds=1)
-    assert not b["met"] and accuracy.MARGIN * b["estimated_error"] > 1e-6 and "1 rounds" in b["stop"]
+    assert not b["met"] and ladder_rules.MARGIN * b["estimated_error"] > 1e-6 and "1 rounds" in b["stop"]
     monkeypatch.setattr(adapt, "round_trusted", lambda ladder, before: False)   # a rate not trusted ...
     _, c = _run(100.0, max_rounds=1)
     m1 = [lv for lv in c["levels"] if not lv["twin"]][-1]
-    assert m1["rate"] == accuracy.R_TWO_LEVELS                                  # ... is estimated at r = 1
-    assert c["met"] and c["levels"][-1]["twin"] and accuracy.MARGIN * c["estimated_error"] <= 100.0
+    assert m1["rate"] == ladder_rules.R_TWO_LEVELS                                  # ... is estimated at r = 1
+    assert c["met"] and c["levels"][-1]["twin"] and ladder_rules.MARGIN * c["estimated_error"] <= 100.0
 
 
 def test_an_untrusted_round_is_estimated_at_the_two_level_rate():
@@ -140,10 +141,10 @@ def test_an_untrusted_round_is_estimated_at_the_two_level_rate():
     for k, d in enumerate((0.0, 0.1, 0.004)):
         x += d
         res = type("R", (), {"dofs": 1000 * 4 ** k, "newton_iterations": 2, "markers": {"m": {"position": [x, 0.0]}}})()
-        ladder.append(accuracy.next_level(ladder, 4.0 / 2 ** k, res, 0.0))
-    assert ladder[-1].observed > accuracy.R_MAX and ladder[-1].rate == accuracy.R_MAX
+        ladder.append(ladder_rules.next_level(ladder, 4.0 / 2 ** k, res, 0.0))
+    assert ladder[-1].observed > ladder_rules.R_MAX and ladder[-1].rate == ladder_rules.R_MAX
     first = adapt.round_judged(ladder, None)
-    assert first.rate == accuracy.R_TWO_LEVELS and first.estimate == pytest.approx(0.004)
+    assert first.rate == ladder_rules.R_TWO_LEVELS and first.estimate == pytest.approx(0.004)
     assert adapt.round_judged(ladder, 1.2) is ladder[-1] and adapt.round_may_stop(ladder, 1.2)
     assert adapt.round_judged(ladder, 0.3) is ladder[-1]              # right after a stalled round: ...
     assert not adapt.round_may_stop(ladder, 0.3)                       # ... it may not end the rounds
@@ -157,7 +158,7 @@ def test_a_met_round_is_checked_by_a_twin_whose_scatter_can_send_it_on(monkeypat
     assert a["met"] and last["twin"] and last["mesh"] == "twin" and m1["mesh"] == 3
     assert last["dofs"] != m1["dofs"] and a["dofs"] == last["dofs"] and a["scatter"] == last["scatter"]
     assert a["estimated_error"] == pytest.approx(max(m1["estimate"], last["scatter"]))
-    real, calls = accuracy.twin_level, []
+    real, calls = ladder_rules.twin_level, []
 
     def twin_level(level, size, result, seconds):
         twin = real(level, size, result, seconds)
@@ -165,7 +166,7 @@ def test_a_met_round_is_checked_by_a_twin_whose_scatter_can_send_it_on(monkeypat
         if len(calls) == 1:
             twin.scatter = twin.estimate = 10.0                  # as if this mesh landed 10 mm away
         return twin
-    monkeypatch.setattr(accuracy, "twin_level", twin_level)
+    monkeypatch.setattr(ladder_rules, "twin_level", twin_level)
     _, b = _run(0.5, max_rounds=3)
     twins = [lv for lv in b["levels"] if lv["twin"]]
     assert len(calls) == 2 and len(twins) == 2 and twins[0]["estimate"] == 10.0 and b["rounds"] > a["rounds"]
@@ -173,7 +174,7 @@ def test_a_met_round_is_checked_by_a_twin_whose_scatter_can_send_it_on(monkeypat
 
 
 def test_a_zone_field_is_evaluated_as_gmsh_reads_its_balls():
-    from skelfem.geometry import ZoneField
+    from skelfem.mesh.geometry import ZoneField
     z = ZoneField(np.array([[0.0, 0.0], [10.0, 0.0]]), np.array([1.0, 2.0]), np.array([0.5, 0.2]), 4.0,
                   np.array([3.5, 1.9]))
     x = np.array([[0.5, 0.0], [2.75, 0.0], [0.0, 9.0], [10.0, 1.5], [10.0, 2.95], [5.0, 0.0]])
@@ -186,8 +187,8 @@ def test_no_round_coarsens_the_first_rounds_zones(monkeypatch):
     (without first_sizes they grow: 0.41 against 0.25 mm)."""
     monkeypatch.setattr(adapt, "indicators", lambda model, V, u, z: np.ones(model.mesh.topology.index_map(
         model.mesh.topology.dim).size_local))
-    design = accuracy.first_level(_strip(size=4.0))
-    zones = accuracy.corner_zones(design, design.mesh.size)
+    design = ladder_rules.first_level(_strip(size=4.0))
+    zones = ladder_rules.corner_zones(design, design.mesh.size)
     corner = zones.scaled(0.25).inner.max()                            # the first round's M_1 at the corners
     h_cap = design.mesh.size / 4
     session = Session(design)
@@ -213,7 +214,7 @@ def test_a_rounds_meshes_are_the_uniform_ladders_ratio_apart(monkeypatch, name, 
     monkeypatch.setattr(adapt, "_design", lambda design, h, degree: sizes.append(h) or real(design, h, degree))
     design = _strip(size=4.0) if name == "strip" else load_design(
         Path(__file__).resolve().parents[1] / "geometry" / "post3d.toml", ["mesh.size=3"])
-    session = Session(accuracy.first_level(design))
+    session = Session(ladder_rules.first_level(design))
     h0 = session.design.mesh.size
     try:
         _, a = adapt.refine_adaptive(session, 100.0, max_rounds=1)
@@ -227,7 +228,7 @@ def test_a_rounds_meshes_are_the_uniform_ladders_ratio_apart(monkeypatch, name, 
 def test_the_last_rounds_answer_bounds_the_estimate():
     """Richardson between two rounds' finest meshes (sizes from DOFs); meshes of about one size: their
     difference itself (a twin's scatter)."""
-    Level = accuracy.Level
+    Level = ladder_rules.Level
     prev = [Level(4.0, 100, 3, 0.0, np.array([[0.0, 0.0], [1.0, 1.0]])),
             Level(1.0, 1000, 3, 0.0, np.array([[0.3, 0.0], [1.0, 1.0]])),
             Level(0.95, 1100, 3, 0.0, np.array([[9.0, 9.0], [9.0, 9.0]]), twin=True)]     # twins are not it
@@ -257,8 +258,8 @@ def test_a_round_far_from_the_last_one_is_not_met(monkeypatch):
 
 
 def test_the_dof_limit_stops_the_rounds_unmet(monkeypatch):
-    from skelfem import resources
-    session = Session(accuracy.first_level(_strip(size=4.0)))
+    from skelfem.design import resources
+    session = Session(ladder_rules.first_level(_strip(size=4.0)))
     monkeypatch.setitem(resources.MAX_DOFS, 2, 3000)
     try:
         _, a = adapt.refine_adaptive(session, 1e-6, max_rounds=3)
@@ -281,7 +282,7 @@ def test_the_anchor_floor_is_the_lattice_spacing():
 def test_cli_adaptive_writes_the_final_mesh_and_the_estimate(tmp_path):
     import json
 
-    from skelfem.cli import main
+    from skelfem.cli.main import main
     from _designs import toml_text
     p = tmp_path / "strip.toml"
     p.write_text(toml_text(strip(length=40.0, width=8.0, size=4.0, contraction=1.0, tendon_offset=2.0)))

@@ -7,7 +7,7 @@ import pytest
 
 from _designs import strip
 from skelfem import Session
-from skelfem.adjoint import TimedTarget, knot_weights, schedule_gradient
+from skelfem.analysis.adjoint import TimedTarget, knot_weights, schedule_gradient
 
 
 def flick(integrator="bdf2", size=4.0, dt=0.01, duration=0.08, damping=None):
@@ -86,8 +86,8 @@ def _design_file(tmp_path, **changes):
 def test_optimize_reaches_a_reachable_target_and_reports_an_unreachable_one(tmp_path, capsys):
     import json
 
-    from skelfem.cli import main
-    from skelfem.optimize import schedule_items
+    from skelfem.cli.main import main
+    from skelfem.analysis.optimize import schedule_items
     path, d = _design_file(tmp_path)
     with Session(d) as s:                                  # the target: a forward run of a known schedule
         s.set(schedule_items(["flexor"], np.linspace(0.0, 0.08, 4), [[0.5, 2.5, 1.0, 2.0]]))
@@ -118,7 +118,7 @@ def test_optimize_reaches_a_reachable_target_and_reports_an_unreachable_one(tmp_
     (["--marker", "tip", "--target", "1", "2", "--max-contraction", "ligament=3"], "is not a tendon"),
 ])
 def test_optimize_bad_input_is_one_error_line(tmp_path, capsys, extra, message):
-    from skelfem.cli import main
+    from skelfem.cli.main import main
     path, _ = _design_file(tmp_path)
     out = tmp_path / "never"
     assert main(["optimize", str(path), *extra, "--out", str(out), "-q"]) == 1
@@ -129,7 +129,7 @@ def test_optimize_bad_input_is_one_error_line(tmp_path, capsys, extra, message):
 
 def test_optimize_needs_dynamics(tmp_path, capsys):
     from _designs import toml_text
-    from skelfem.cli import main
+    from skelfem.cli.main import main
     d = strip(size=4.0)
     path = tmp_path / "static.toml"
     path.write_text(toml_text(d))
@@ -140,7 +140,7 @@ def test_optimize_needs_dynamics(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_forward_sensitivities_agree_with_the_adjoint_and_central_differences():
-    from skelfem.adjoint import schedule_sensitivities
+    from skelfem.analysis.adjoint import schedule_sensitivities
     d = flick("bdf2", damping={"mass": 5.0})
     with Session(d) as s:
         g = schedule_gradient(s, TARGETS)
@@ -164,7 +164,7 @@ def test_forward_sensitivities_agree_with_the_adjoint_and_central_differences():
 
 @pytest.mark.slow
 def test_gauss_newton_reaches_a_reachable_target():
-    from skelfem.optimize import optimize_schedules, schedule_items
+    from skelfem.analysis.optimize import optimize_schedules, schedule_items
     d = flick(duration=0.08)
     d.pop("solver")
     with Session(d) as s:
@@ -180,8 +180,8 @@ def test_gauss_newton_reaches_a_reachable_target():
 def test_optimize_follows_timed_targets_from_a_csv(tmp_path, capsys):
     import json
 
-    from skelfem.cli import main
-    from skelfem.optimize import schedule_items
+    from skelfem.cli.main import main
+    from skelfem.analysis.optimize import schedule_items
     path, d = _design_file(tmp_path)
     with Session(d) as s:
         s.set(schedule_items(["flexor"], np.linspace(0.0, 0.08, 4), [[0.5, 2.5, 1.0, 2.0]]))

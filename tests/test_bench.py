@@ -5,8 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skelfem.bench import convergence_orders
-from skelfem.cli import main
+from skelfem.jobs.bench import convergence_orders
+from skelfem.cli.main import main
 
 FINGER = Path(__file__).resolve().parents[1] / "geometry" / "finger.toml"
 

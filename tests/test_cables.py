@@ -8,7 +8,7 @@ from dolfinx import mesh as dmesh
 from mpi4py import MPI
 
 from skelfem.terms.cables import Cable, via_points
-from skelfem.points import interpolation_matrix
+from skelfem.mesh.points import interpolation_matrix
 
 
 def _spec(path, kind="tendon", k=20.0):
@@ -30,7 +30,7 @@ def test_via_points_sit_on_every_crossed_edge(rect):
     # consecutive via points lie in one common cell: the midpoint's cell contains both
     x = rect.geometry.x[:, :2]
     nodes = rect.geometry.dofmap.array.reshape(-1, 3)
-    from skelfem.points import locate_cells
+    from skelfem.mesh.points import locate_cells
     cells = locate_cells(rect, 0.5 * (X[1:] + X[:-1]))
     for a, b, c in zip(X[:-1], X[1:], cells):
         v = x[nodes[c]]

@@ -7,7 +7,7 @@ import pytest
 
 from _designs import strip
 from _designs import toml_text as _toml
-from skelfem.cli import main
+from skelfem.cli.main import main
 
 ROOT = Path(__file__).resolve().parents[1]
 

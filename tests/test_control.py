@@ -5,10 +5,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skelfem.cli import main
-from skelfem.control import SoftIK, finger_length, track
-from skelfem.sensitivity import set_contractions, tendons
-from skelfem.solver import SolveReport
+from skelfem.cli.main import main
+from skelfem.analysis.control import SoftIK, finger_length, track
+from skelfem.analysis.sensitivity import set_contractions, tendons
+from skelfem.fem.newton import SolveReport
 
 ROOT = Path(__file__).resolve().parents[1]
 FINGER4 = str(ROOT / "geometry" / "finger4.toml")

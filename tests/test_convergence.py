@@ -18,9 +18,9 @@ from dolfinx import mesh as dmesh
 from mpi4py import MPI
 
 from skelfem.design import parse_design
-from skelfem.geometry import BODY, TaggedMesh
-from skelfem.model import Model
-from skelfem.solver import NewtonSolver
+from skelfem.mesh.geometry import BODY, TaggedMesh
+from skelfem.fem.model import Model
+from skelfem.fem.newton import NewtonSolver
 from skelfem.terms import BUILDERS, Term
 from skelfem.terms.elasticity import lame, psi
 

@@ -6,7 +6,7 @@ import pytest
 
 from _designs import strip
 from skelfem.design import DesignError, load_design, parse_design
-from skelfem.polygons import contains, is_simple, sample_polyline
+from skelfem.design.polygons import contains, is_simple, sample_polyline
 
 
 def _with_bones():
@@ -190,7 +190,7 @@ def test_polygon_predicates():
 
 def test_geometry_checks_are_remembered_only_when_they_pass():
     """Re-parsing (a live --set) repeats no geometry check; a failing check fails every time."""
-    import skelfem.design as design_module
+    import skelfem.design.table as design_module
     good = _with_bones()
     parse_design(good, "a.toml")
     known = len(design_module._MEMO)

@@ -6,7 +6,7 @@ import pytest
 
 from skelfem import Session
 from skelfem.design import load_design
-from skelfem.geometry import mesh_design
+from skelfem.mesh.geometry import mesh_design
 
 GEOMETRY = Path(__file__).resolve().parents[1] / "geometry"
 

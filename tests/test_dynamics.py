@@ -14,7 +14,7 @@ import pytest
 from _designs import strip
 from _designs import toml_text as _toml
 from skelfem import Session
-from skelfem.cli import main
+from skelfem.cli.main import main
 from skelfem.design import DesignError, parse_design
 from skelfem.terms.inertia import MASS_UNIT, bdf_coefficients
 
@@ -260,7 +260,7 @@ def test_a_falling_cantilever_lands_on_a_ground():
 
 def test_progress_bar_prints_tenths_when_not_a_terminal():
     import io
-    from skelfem.run import ProgressBar
+    from skelfem.jobs.run import ProgressBar
     stream = io.StringIO()
     bar = ProgressBar("run", after=0.0, stream=stream)
     for k in range(1, 101):

@@ -419,7 +419,7 @@ def test_worker_drops_waiting_requests_never_queues():
 
 # -- the command ------------------------------------------------------------------------------------------
 def test_cli_bad_input(tmp_path, capsys):
-    from skelfem.cli import main
+    from skelfem.cli.main import main
     bad = tmp_path / "bad.toml"
     bad.write_text((GEOMETRY / "finger.toml").read_text().replace("[[6, 8], [14, 8]", "[[-6, 8], [14, 8]"))
     assert main(["edit", str(bad), "--no-browser"]) == 1

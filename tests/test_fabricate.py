@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skelfem.cli import main
+from skelfem.cli.main import main
 
 ROOT = Path(__file__).resolve().parents[1]
 GEOMETRY = ROOT / "geometry"
@@ -367,7 +367,7 @@ def test_orient_repairs_a_shuffled_closed_surface():
 
 def test_fabricate_and_simulate_share_a_folder(tmp_path):
     """Files of the other command are carried over; a part that is gone (a renamed bone) goes."""
-    from skelfem import outdir
+    from skelfem.io import outdir
     out = tmp_path / "res"
     with outdir.publish(out, kind="simulate") as stage:
         (stage.path / "result.json").write_text("{}")

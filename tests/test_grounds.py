@@ -11,7 +11,7 @@ from mpi4py import MPI
 
 from _designs import strip
 from skelfem import Session
-from skelfem.geometry import TaggedMesh
+from skelfem.mesh.geometry import TaggedMesh
 from skelfem.terms import Context
 from skelfem.terms.grounds import Ground
 

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from _hardening import (DELETE, ROOT, assert_one_error, box3d, changed, listing, strip2d, toml_dumps)
-from skelfem.cli import main
+from skelfem.cli.main import main
 
 
 class Sandbox:
@@ -451,7 +451,7 @@ def test_3d_overlapping_bones_are_refused_by_the_session_api_too():
 
 
 def test_force_lets_a_large_estimate_through_to_meshing():
-    from skelfem import resources
+    from skelfem.design import resources
     from skelfem.design import DesignError, parse_design
     design = parse_design(changed(S2, (("mesh", "size"), 0.003)), "x.toml")
     est = resources.estimate(design)
@@ -464,9 +464,9 @@ def test_force_lets_a_large_estimate_through_to_meshing():
 @pytest.mark.parametrize("design, size", [("finger.toml", 1.0), ("finger3d.toml", 3.0), ("arm3d.toml", 4.0)])
 def test_mesh_estimate_is_close_to_gmsh(design, size):
     """The estimate behind the limit is within a factor 1.5 of what Gmsh makes."""
-    from skelfem import resources
+    from skelfem.design import resources
     from skelfem.design import load_design
-    from skelfem.geometry import mesh_design
+    from skelfem.mesh.geometry import mesh_design
     d = load_design(ROOT / "geometry" / design, [f"mesh.size={size}"])
     tm = mesh_design(d)
     cells = tm.mesh.topology.index_map(tm.mesh.topology.dim).size_global
@@ -520,7 +520,7 @@ def test_many_bones_validate_quickly():
 
 # -- strict JSON ----------------------------------------------------------------------------------------
 def test_json_is_strict(tmp_path):
-    from skelfem.output import write_json
+    from skelfem.io.files import write_json
     write_json(tmp_path / "r.json", {"a": float("inf"), "b": [float("nan"), np.float64(-np.inf), 1.5],
                                      "c": np.arange(3), "d": {"e": np.float32(2.0)}})
     text = (tmp_path / "r.json").read_text()
@@ -531,7 +531,7 @@ def test_json_is_strict(tmp_path):
 
 # -- internal errors and interrupts, injected ---------------------------------------------------------
 def test_internal_error_is_exit_3_with_and_without_v(sandbox, monkeypatch):
-    import skelfem.cli as cli
+    import skelfem.cli.main as cli
 
     def broken(args):
         raise RuntimeError("boom")
@@ -547,8 +547,8 @@ def test_internal_error_is_exit_3_with_and_without_v(sandbox, monkeypatch):
 
 @pytest.mark.parametrize("signum, code", [(2, 130), (15, 143)])
 def test_interrupt_while_writing_keeps_the_old_result(sandbox, monkeypatch, signum, code):
-    import skelfem.output as output
-    from skelfem.interrupts import Interrupted
+    import skelfem.io.files as output
+    from skelfem.runtime.interrupts import Interrupted
     design = sandbox.write("strip.toml", S2)
     out = sandbox.work / "res"
     sandbox.ok("simulate", design, "-q", "--out", out, out=out)
@@ -568,7 +568,7 @@ def test_interrupt_while_writing_keeps_the_old_result(sandbox, monkeypatch, sign
 
 
 def test_error_lines_are_one_line_whatever_the_message(sandbox, monkeypatch):
-    import skelfem.cli as cli
+    import skelfem.cli.main as cli
 
     def multiline(args):
         raise cli.InputError("first\nsecond\r\x1b[31mred")

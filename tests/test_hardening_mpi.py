@@ -125,7 +125,7 @@ def test_sweep_named_case_escape_is_refused_under_mpirun(work, tmp_path):
 GUARD = textwrap.dedent("""
     import sys
     from mpi4py import MPI
-    from skelfem import mpiguard
+    from skelfem.runtime import mpiguard
     comm = MPI.COMM_WORLD
     ctl = mpiguard.control(comm)
     mode = sys.argv[1]

@@ -19,7 +19,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from _hardening import assert_one_error, listing, strip2d, toml_dumps
-from skelfem.cli import main
+from skelfem.cli.main import main
 from skelfem.design import Design, DesignError, parse_design
 
 SETTINGS = dict(deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)

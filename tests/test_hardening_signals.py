@@ -227,7 +227,7 @@ def test_interrupt_inside_a_finalizer_is_not_lost():
     "Exception ignored") is delivered again and ends the run as interrupted, with no traceback."""
     code = textwrap.dedent("""
         import gc, os, signal, sys, time, weakref
-        from skelfem import interrupts
+        from skelfem.runtime import interrupts
         interrupts.install()
         class Box: pass
         def callback(_):
@@ -251,7 +251,8 @@ def test_a_signal_after_the_result_is_published_is_dropped(tmp_path):
     """With outdir.ON_COMMIT = interrupts.finish (the CLI, one-result commands), a SIGTERM that comes
     once the result is committed does not turn a complete run into an interrupted one; before the
     commit it still interrupts and publishes nothing."""
-    from skelfem import interrupts, outdir
+    from skelfem.runtime import interrupts
+    from skelfem.io import outdir
     interrupts.install()
     try:
         outdir.ON_COMMIT = interrupts.finish

@@ -7,7 +7,7 @@ import os
 import pytest
 
 from _hardening import assert_one_error, listing, strip2d, toml_dumps
-from skelfem.cli import main
+from skelfem.cli.main import main
 
 
 @pytest.fixture

@@ -5,7 +5,7 @@ import ufl
 from dolfinx import fem, mesh
 from mpi4py import MPI
 
-from skelfem import jitcache
+from skelfem.runtime import jitcache
 
 
 def _assemble_area(n: int, power: int) -> float:

@@ -5,7 +5,7 @@ import pytest
 from _designs import strip, variant
 from _taylor import hessian_error, taylor_rates
 from skelfem import Session
-from skelfem.points import interpolation_matrix
+from skelfem.mesh.points import interpolation_matrix
 
 
 def _full_model_dict(degree):

@@ -7,7 +7,7 @@ import pytest
 
 from skelfem import Session
 from skelfem.design import parse_design
-from skelfem.morph import Morph, laplacian, shape_ratio
+from skelfem.mesh.morph import Morph, laplacian, shape_ratio
 
 from conftest import GEOMETRY
 
@@ -105,7 +105,7 @@ def test_an_edit_that_keeps_the_outlines_keeps_the_mesh_and_gives_the_fresh_answ
 
 
 def test_a_failed_rebuild_on_moved_nodes_leaves_the_session_as_it_was(monkeypatch):
-    import skelfem.model
+    import skelfem.fem.model
     import skelfem.terms.cables
     raw = _raw()
     d = copy.deepcopy(raw)
@@ -116,7 +116,7 @@ def test_a_failed_rebuild_on_moved_nodes_leaves_the_session_as_it_was(monkeypatc
 
         def fail(*a, **k):
             raise RuntimeError("boom")
-        monkeypatch.setattr(skelfem.model.Model, "__init__", fail)       # a model built anew fails, ...
+        monkeypatch.setattr(skelfem.fem.model.Model, "__init__", fail)       # a model built anew fails, ...
         monkeypatch.setattr(skelfem.terms.cables.CableTerm, "__init__", fail)   # ... and so does following
         with pytest.raises(RuntimeError):
             s.edit(d, morph=True)
@@ -160,7 +160,7 @@ def _same_answers(a, b, atol=1e-6):
 def test_a_draft_follows_in_place_and_equals_a_model_built_anew_on_the_same_nodes(rich, monkeypatch):
     """Model.refresh keeps the compiled forms, the matrix and the solver, and gives the answer a model built
     anew on the moved nodes gives, over a drag (pattern growth included) and a live change within it."""
-    import skelfem.model
+    import skelfem.fem.model
     raw = _rich(_raw()) if rich else _raw()
     steps = [_drag(raw, 2, [0.1 * k, 0.05 * k]) for k in range(1, 6)]
     steps.append(_drag(raw, 0, [-0.3, 0.2]))                        # a bone, then another
@@ -185,7 +185,7 @@ def test_a_draft_follows_in_place_and_equals_a_model_built_anew_on_the_same_node
             assert s.model is model and s.model.jacobian_form is form       # nothing rebuilt or recompiled
             assert s.model._within_pattern([b for t in s.model.terms for b in t.pattern()])   # every block in K
         assert s.model.term("cables", raw["cables"][0]["name"]).cable.contraction == 6.5
-    monkeypatch.setattr(skelfem.model.Model, "refresh", lambda self, design, changed: None)
+    monkeypatch.setattr(skelfem.fem.model.Model, "refresh", lambda self, design, changed: None)
     with Session(raw) as s:
         s.solve()
         for d, kept in zip(steps, followed):
@@ -217,10 +217,10 @@ def test_a_draft_that_changes_a_compiled_ingredient_builds_the_model_anew():
 def test_a_drag_back_and_forth_grows_the_matrix_pattern_once_and_then_keeps_it(monkeypatch):
     """A via point moving into another cell needs new entries: the new matrix keeps the old ones too
     (the union of the patterns so far), so moving among places seen before makes no further matrices."""
-    import skelfem.solver
+    import skelfem.fem.newton
     made = []
-    new_matrix = skelfem.solver.NewtonSolver.new_matrix
-    monkeypatch.setattr(skelfem.solver.NewtonSolver, "new_matrix", lambda self: (made.append(1), new_matrix(self)))
+    new_matrix = skelfem.fem.newton.NewtonSolver.new_matrix
+    monkeypatch.setattr(skelfem.fem.newton.NewtonSolver, "new_matrix", lambda self: (made.append(1), new_matrix(self)))
     raw = _raw()
     places = [_drag(raw, 2, [0.3 * k, 0.15 * k]) for k in (1, -1, 2)]
     with Session(raw) as s:

@@ -200,7 +200,7 @@ def test_curl_curvature_and_iterations(contraction, h, turn, linear, cap):
 
 
 def test_auto_is_curved_without_bones_and_energy_with():
-    from skelfem.solver import resolve_strategy
+    from skelfem.fem.newton import resolve_strategy
     from skelfem.session import as_design
     from conftest import GEOMETRY
     assert resolve_strategy(as_design(elastica_design(1.0))) == "curved"

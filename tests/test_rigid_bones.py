@@ -8,8 +8,8 @@ import pytest
 
 from skelfem import Session
 from skelfem.design import DesignError, SolverSpec, parse_design
-from skelfem.model import Model
-from skelfem.solver import NewtonSolver
+from skelfem.fem.model import Model
+from skelfem.fem.newton import NewtonSolver
 from skelfem.terms.rigid import rotation
 
 from _designs import simulate_refused_before_meshing, strip, variant
@@ -290,7 +290,7 @@ def test_a_fixed_pin_box_over_a_rigid_bone_holds_only_the_body_boundary():
 def test_sensitivities_with_rigid_bones_match_finite_differences():
     """IK's marker Jacobian (forward and adjoint) through the bordered solve, a marker in silicone and one
     in a rigid bone, against central differences of solves."""
-    from skelfem.sensitivity import Linearization
+    from skelfem.analysis.sensitivity import Linearization
     d = _rigid_strip()
     d["markers"]["bone"] = [5.0, 40.0]
     with Session(d) as s:

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from skelfem.sensitivity import Linearization, contractions, marker_objective, set_contractions, stretch, tendons
-from skelfem.solver import NewtonSolver
+from skelfem.analysis.sensitivity import Linearization, contractions, marker_objective, set_contractions, stretch, tendons
+from skelfem.fem.newton import NewtonSolver
 
 U0 = np.array([6.0, 3.0, 2.0, 4.0])          # every tendon taut here (checked below)
 TARGET = np.array([0.0, 80.0])

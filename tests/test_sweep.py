@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from skelfem.cli import main
+from skelfem.cli.main import main
 from skelfem.design import DesignError
-from skelfem.sweep import load_sweep
+from skelfem.jobs.sweep import load_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 SKELFEM = [str(Path(sys.executable).parent / "skelfem")]
@@ -72,7 +72,7 @@ def test_rerun_completes_only_missing_cases(tmp_path):
     missing = done[1]
     shutil.rmtree(missing.parent)
     sweep = load_sweep(path)
-    from skelfem.sweep import run_sweep
+    from skelfem.jobs.sweep import run_sweep
     summary = run_sweep(sweep, out, progress=None)
     assert summary["ran"] == 1 and summary["converged"] == 4
     for p, t in stamps.items():

@@ -37,7 +37,8 @@ import time
 
 import numpy as np
 
-from ..design import DesignError, changed_keys, flatten, parse_design
+from ..design.spec import DesignError
+from ..design.parse import changed_keys, flatten, parse_design
 from .payload import mesh_payload
 
 log = logging.getLogger("skelfem")
@@ -141,7 +142,7 @@ class Engine:
 
     def _edit(self, d, draft: bool) -> str:
         """Session.edit (moving the mesh's nodes for a draft); returns how the mesh was got."""
-        from ..geometry import MeshingError
+        from ..mesh.geometry import MeshingError
         old = self.session.design
         try:
             return self.session.edit(d, morph=draft)
@@ -157,7 +158,7 @@ class Engine:
         0.1 um, re-solved warm), plus ``new_design`` (the design with them) and ``ik``: target,
         position, error, tol, reached, status, forward solves.
         """
-        from ..control import SoftIK
+        from ..analysis.control import SoftIK
         t0 = time.perf_counter()
         if not isinstance(marker, str):
             raise EditError("marker: must be a marker name", "markers", 400)

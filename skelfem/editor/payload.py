@@ -72,7 +72,7 @@ def boundary_faces(tets: np.ndarray, regions: np.ndarray) -> tuple[np.ndarray, n
 
 def mesh_payload(model) -> dict:
     """The deformed state of a Session's model (serial) as plain lists; see the module doc."""
-    from ..output import snapshot
+    from ..io.xdmf import snapshot
 
     snap = snapshot(model)
     x, u, cells, regions = snap.x, snap.u, np.asarray(snap.cells), np.asarray(snap.regions)

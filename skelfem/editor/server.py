@@ -297,7 +297,7 @@ class Editor:
     HOST = "127.0.0.1"
 
     def __init__(self, path, port: int = 0):
-        from ..design import load_design
+        from ..design.parse import load_design
         from .engine import Engine
         from .worker import Worker
 
@@ -321,7 +321,7 @@ class Editor:
         return f"http://{self.HOST}:{self.port}/"
 
     def _recover(self, exc) -> None:
-        from ..design import DesignError
+        from ..design.spec import DesignError
         from .engine import EditError
         from .savefile import SaveError
         if not isinstance(exc, (EditError, DesignError, SaveError)):
@@ -337,7 +337,7 @@ class Editor:
                 "first": self.engine.first if self.engine.first.get("converged") else None}
 
     def save(self, design: dict, name: str | None, overwrite: bool) -> dict:
-        from ..output import write_text
+        from ..io.files import write_text
         from .savefile import SaveError, render, target
         d = self.engine.parse(design)
         path = target(self.folder, self.path, name)

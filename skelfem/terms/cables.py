@@ -38,7 +38,7 @@ import numpy as np
 import scipy.sparse as sp
 from mpi4py import MPI
 
-from ..points import DofGather, cell_sizes, global_interpolation, locate_cells, owner_ranks
+from ..mesh.points import DofGather, cell_sizes, global_interpolation, locate_cells, owner_ranks
 from .base import Context, Term
 
 _EPS = 1e-10
@@ -496,7 +496,7 @@ class CableTerm(Term):
             self.anchors = anchors(ctx, spec)
             self.cable = Cable.build(ctx.V, spec, self.anchors)
         except ValueError as exc:
-            from ..design import DesignError
+            from ..design.spec import DesignError
             raise DesignError(f"{ctx.design.source}: cables.{spec.name}.path: {exc}") from None
         self.name, self.kind, self.bs = spec.name, spec.kind, ctx.bs
         self.disks = [(np.asarray(spec.path[k], dtype=float), r) for k, r in self.anchors.items()]   # (centre, r)

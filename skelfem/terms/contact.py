@@ -169,7 +169,7 @@ class SelfContact(Term):
 
 def build(ctx: Context) -> list[Term]:
     """The self-contact term if the design asks for it; refuses designs it cannot honour."""
-    from ..design import ENERGY_LINE_SEARCHES, DesignError
+    from ..design.spec import ENERGY_LINE_SEARCHES, DesignError
     d = ctx.design
     if not d.contact.self_contact:
         return []

@@ -24,7 +24,7 @@ import ufl
 from dolfinx import fem
 from mpi4py import MPI
 
-from ..geometry import BODY, bone_tag_name
+from ..mesh.geometry import BODY, bone_tag_name
 from .base import Context, Term, touched
 from .rigid import closest_rigid_motion
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..points import global_interpolation
+from ..mesh.points import global_interpolation
 from .base import Context, Term
 
 
@@ -19,7 +19,7 @@ class PointLoad(Term):
         self.name = spec.name
         self.S, self.gather, owner = global_interpolation(ctx.V, np.atleast_2d(spec.at))
         if owner[0] == ctx.comm.size:
-            from ..design import DesignError
+            from ..design.spec import DesignError
             raise DesignError(f"{ctx.design.source}: loads.{spec.name}.at: point lies outside the mesh")
         self.f = np.asarray(spec.force, dtype=float).copy()
         self.factor = 0.0

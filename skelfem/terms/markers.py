@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ..points import global_interpolation
+from ..mesh.points import global_interpolation
 from .base import Context, Term
 
 
@@ -23,7 +23,7 @@ class Markers(Term):
         self.n_local = len(ctx.u.x.array)
         for name, o in zip(self.names, owner):
             if o == ctx.comm.size:
-                from ..design import DesignError
+                from ..design.spec import DesignError
                 raise DesignError(f"{ctx.design.source}: markers.{name}: point lies outside the mesh")
 
     def positions(self, u: np.ndarray) -> np.ndarray:

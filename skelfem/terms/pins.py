@@ -29,7 +29,7 @@ class Pin(Term):
         self.box, facets = ctx.boundary(spec.region)
         self.facets = np.sort(facets)
         if ctx.comm.allreduce(len(facets)) == 0:
-            from ..design import DesignError
+            from ..design.spec import DesignError
             raise DesignError(f"{ctx.design.source}: pins.{spec.name}.region: "
                               "no boundary facet of the mesh lies inside the region")
         V, bs = ctx.V, ctx.bs

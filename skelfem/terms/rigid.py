@@ -37,7 +37,7 @@ import numpy as np
 from dolfinx import fem
 from mpi4py import MPI
 
-from ..geometry import bone_tag_name
+from ..mesh.geometry import bone_tag_name
 from .base import Context, Term
 
 

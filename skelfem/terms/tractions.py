@@ -28,7 +28,7 @@ class Traction(Term):
         self.box, facets = ctx.boundary(spec.region)
         self.facets = np.sort(facets)
         if ctx.comm.allreduce(len(facets)) == 0:
-            from ..design import DesignError
+            from ..design.spec import DesignError
             raise DesignError(f"{ctx.design.source}: tractions.{spec.name}.region: "
                               "no boundary facet of the mesh lies inside the region")
         self.tau = np.asarray(spec.traction, dtype=float).copy()

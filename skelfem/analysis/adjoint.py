@@ -1,0 +1,304 @@
+"""Gradients through time: the discrete adjoint of a run ([dynamics]) with respect to schedule knots.
+
+A run solves, for every accepted step n (t_n -> t_{n+1}, size h, BDF
+coefficients alpha = (a0, a1, a2), see skelfem.terms.inertia),
+
+    R_n = grad Pi(x_{n+1}; c(t_{n+1})) + D (x_{n+1} - x*_n) - c_I M h (a1 v_n + a2 v_{n-1}) / a0^2 = 0,
+    v_{n+1} = (a0 x_{n+1} + a1 x_n + a2 x_{n-1}) / h,
+
+with x*_n = -(a1 x_n + a2 x_{n-1}) / a0, c_I = a0^2 / h^2, D = (c_I + a a0 / h) M
+(mass-proportional damping a). The tendon contractions c(t) are piecewise
+linear in the schedule knots: c(t) = sum_k phi_k(t) u_k, phi_k the hat
+functions of the knot times (held beyond the ends), so dR_n/du_k =
+phi_k(t_{n+1}) k g (g = grad of the cable length; zero for a slack tendon,
+the taut branch at the kink as in skelfem.sensitivity).
+
+For an objective J(x_0, ..., x_N) the reverse sweep, n = N-1, ..., 0, with
+x^_n, v^_n the adjoints (dJ/dx_n so far) is
+
+    x^_{n+1} += a0/h v^_{n+1};  x^_n += a1/h v^_{n+1};  x^_{n-1} += a2/h v^_{n+1}
+    H_{n+1} lam = x^_{n+1}                       (H: the step's converged Newton Hessian)
+    u^_k -= phi_k(t_{n+1}) (k g)^T lam
+    x^_n -= (a1/a0) D lam;  x^_{n-1} -= (a2/a0) D lam
+    v^_n -= h a1/a0^2 c_I M lam;  v^_{n-1} -= h a2/a0^2 c_I M lam
+
+H_{n+1} = hess Pi(x_{n+1}) + D is assembled and factorised again at the
+stored state x_{n+1} (skelfem.sensitivity.Linearization: the same matrix,
+MUMPS analysis and Woodbury solver as Newton; one factorisation and one
+back-substitution per step). Every state is stored (no checkpointing):
+memory N x DOFs. Dirichlet rows carry no adjoint (pinned DOFs do not depend
+on the schedules). Stiffness damping (b > 0) is not differentiated (its
+tangent at x_n would need third derivatives of psi): ValueError.
+
+The objective here is the tracking of markers at given times,
+J = sum_i |y_m(t_i) - y'_i|^2, y_m(t) linear between the two stored states
+around t_i.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from petsc4py import PETSc
+
+from .sensitivity import Linearization, local_values
+
+
+@dataclass
+class TimedTarget:
+    marker: str
+    time: float          # s, within [0, duration]
+    target: np.ndarray   # mm
+
+
+@dataclass
+class GradientResult:
+    value: float                          # J, mm^2
+    gradient: dict                        # {tendon name: dJ/du at its knots (array)}
+    positions: list                       # achieved marker positions at the targets' times
+    report: object = None                 # the forward DynamicsReport
+    forward_time: float = 0.0
+    adjoint_time: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+
+def knot_weights(times: np.ndarray, t: float) -> np.ndarray:
+    """phi_k(t) of the piecewise-linear interpolation through knot times (held beyond the ends)."""
+    return np.array([np.interp(t, times, e) for e in np.eye(len(times))])
+
+
+def _bracket(step_times: np.ndarray, t: float) -> tuple[int, int, float]:
+    """(i, j, w): y(t) = (1 - w) y_i + w y_j from the stored states at step_times."""
+    j = int(np.searchsorted(step_times, t, side="left"))
+    j = min(max(j, 1), len(step_times) - 1)
+    i = j - 1
+    w = (t - step_times[i]) / (step_times[j] - step_times[i])
+    return i, j, float(np.clip(w, 0.0, 1.0))
+
+
+def schedule_gradient(session, targets: list[TimedTarget]) -> GradientResult:
+    """J and dJ/d(schedule knots) of every tendon with a schedule, by one forward run and one reverse sweep."""
+    from ..fem.dynamics import Dynamics
+
+    design, model, solver = session.design, session.model, session.solver
+    spec = design.dynamics
+    if spec is None:
+        raise ValueError(f"{design.name}: no [dynamics] section")
+    if spec.damping_stiffness > 0.0:
+        raise ValueError("the adjoint does not differentiate stiffness damping (damping.stiffness = 0 needed)")
+    t0 = time.perf_counter()
+    dyn = Dynamics(model, solver, design)
+    rep = dyn.run(store=True)
+    if not rep.converged:
+        raise RuntimeError(f"{design.name}: the forward run failed ({rep.status}) at t = {rep.t_end:g} s")
+    t1 = time.perf_counter()
+    inertia = model.term("dynamics")
+    markers = model.term("markers")
+    names = list(markers.names)
+    d = model.dim
+    states = rep.states
+    step_times = np.array([0.0] + [s[0] for s in rep.steps])
+    N = len(rep.steps)
+    n_local = model.n_local
+
+    # J and dJ/dx_n (local arrays; the marker interpolation acts on gathered global DOFs)
+    xbar = [np.zeros(n_local) for _ in range(N + 1)]
+    vbar = [np.zeros(n_local) for _ in range(N + 1)]
+    value, positions = 0.0, []
+    for tt in targets:
+        i, j, w = _bracket(step_times, tt.time)
+        k = names.index(tt.marker)
+        S = markers.S[k * d:(k + 1) * d]
+        y = (1 - w) * markers.positions(states[i])[k] + w * markers.positions(states[j])[k]
+        r = y - np.asarray(tt.target, float)
+        value += float(r @ r)
+        positions.append(y)
+        g = _on_local(model, markers, 2.0 * (S.T @ r))
+        xbar[i] += (1 - w) * g
+        xbar[j] += w * g
+
+    tendons = [t for t in model.terms_in("cables") if t.kind == "tendon"]
+    scheduled = {t.name: design.cable(t.name).schedule for t in tendons if design.cable(t.name).schedule is not None}
+    grad = {name: np.zeros(len(s)) for name, s in scheduled.items()}
+    M = inertia.mass_matrix()
+    lam_vec = model.u.vector.duplicate()
+    Mlam = model.u.vector.duplicate()
+    fixed = model.fixed
+    a_mass = spec.damping_mass
+    try:
+        for n in range(N - 1, -1, -1):
+            t_next, h, (a0, a1, a2) = rep.steps[n]
+            # the step's state, contractions and Hessian
+            model.u.x.array[:] = states[n + 1]
+            model.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+            dyn.set_time(t_next)
+            inertia.set_coefficients(h, a0)
+            lin = Linearization(model, solver)
+            try:
+                # v_{n+1} = (a0 x_{n+1} + a1 x_n + a2 x_{n-1}) / h
+                xbar[n + 1] += a0 / h * vbar[n + 1]
+                xbar[n] += a1 / h * vbar[n + 1]
+                if n >= 1:
+                    xbar[n - 1] += a2 / h * vbar[n + 1]
+                rhs = xbar[n + 1].copy()
+                rhs[fixed] = 0.0
+                with lam_vec.localForm() as local:
+                    local.array_w[:] = rhs
+                lam = lin.solve(_owned_sum(lam_vec))
+                for c, term in enumerate(lin.tendons):
+                    if term.name in grad:
+                        grad[term.name] -= knot_weights(scheduled[term.name][:, 0], t_next) * lin.dR_du[c].dot(lam)
+                M.mult(lam, Mlam)
+                m_lam = _local_sum(Mlam)
+                c_i = a0 * a0 / (h * h)
+                D = c_i + a_mass * a0 / h
+                xbar[n] -= (a1 / a0) * D * m_lam
+                vbar[n] -= h * a1 / a0 ** 2 * c_i * m_lam
+                if n >= 1:
+                    xbar[n - 1] -= (a2 / a0) * D * m_lam
+                    vbar[n - 1] -= h * a2 / a0 ** 2 * c_i * m_lam
+                lam.destroy()
+            finally:
+                lin.destroy()
+    finally:
+        inertia.stop()
+        dyn.set_time(rep.t_end)
+        model.u.x.array[:] = states[-1]
+        model.sync(model.u.vector)
+        lam_vec.destroy()
+        Mlam.destroy()
+    return GradientResult(value, grad, positions, rep, t1 - t0, time.perf_counter() - t1)
+
+
+def _on_local(model, term, values: np.ndarray) -> np.ndarray:
+    """A local array (ghosts included) holding values given on a gathered term's global DOFs (owned
+    entries only: a sum over ranks of owned entries is the global vector)."""
+    out = np.zeros(model.n_local)
+    out[term.gather.local] = values[term.gather.pos]
+    return out
+
+
+def _owned_sum(v: PETSc.Vec) -> PETSc.Vec:
+    """v as a right-hand side: owned entries as they are (ghost entries hold nothing)."""
+    v.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+    return v
+
+
+def _local_sum(v: PETSc.Vec) -> np.ndarray:
+    """Owned entries of v as a local array, ghost entries zero (adjoint contributions are summed
+    over owned entries only)."""
+    out = np.zeros(len(local_values(v)))
+    out[:len(v.array_r)] = v.array_r
+    return out
+
+
+def schedule_sensitivities(session, targets: list[TimedTarget], report=None) -> tuple[np.ndarray, np.ndarray,
+                                                                                       list]:
+    """Forward (tangent) sensitivities of the targets' marker positions to the schedule knots.
+
+    Returns (residuals r, Jacobian dr/du, parameter names): r stacks y(t_i) - y'_i
+    (len(targets) * dim), dr/du has one column per (tendon, knot) of every
+    scheduled tendon, in design order. The tangents of all knots go through
+    the steps together, n = 0, ..., N-1:
+
+        H_{n+1} x'_{n+1} = -M [D (a1 x'_n + a2 x'_{n-1}) / a0 + c_I h (a1 v'_n + a2 v'_{n-1}) / a0^2]
+                           - sum_k phi_k(t_{n+1}) k g
+        v'_{n+1} = (a0 x'_{n+1} + a1 x'_n + a2 x'_{n-1}) / h
+
+    one factorisation and one multi-column back-substitution per step (for
+    Gauss-Newton). `report`: a DynamicsReport with stored states of the
+    current schedules (a new forward run if None).
+    """
+    from ..fem.dynamics import Dynamics
+
+    design, model, solver = session.design, session.model, session.solver
+    spec = design.dynamics
+    if spec.damping_stiffness > 0.0:
+        raise ValueError("the sensitivities do not differentiate stiffness damping (damping.stiffness = 0 needed)")
+    dyn = Dynamics(model, solver, design)
+    rep = report if report is not None else dyn.run(store=True)
+    if not rep.converged:
+        raise RuntimeError(f"{design.name}: the forward run failed ({rep.status}) at t = {rep.t_end:g} s")
+    inertia, markers = model.term("dynamics"), model.term("markers")
+    names, d = list(markers.names), model.dim
+    tendons = [t for t in model.terms_in("cables") if t.kind == "tendon"]
+    scheduled = [(t.name, design.cable(t.name).schedule) for t in tendons if design.cable(t.name).schedule is not None]
+    columns = [(n, k) for n, sched in scheduled for k in range(len(sched))]
+    P = len(columns)
+    n_owned = len(model.u.vector.array_r)
+    N = len(rep.steps)
+    step_times = np.array([0.0] + [s[0] for s in rep.steps])
+    need = {}                                           # step index -> targets using that state
+    for i, tt in enumerate(targets):
+        a, b, w = _bracket(step_times, tt.time)
+        need.setdefault(a, []).append((i, 1 - w))
+        need.setdefault(b, []).append((i, w))
+    r = np.zeros(len(targets) * d)
+    J = np.zeros((len(targets) * d, P))
+    xs = [np.zeros((n_owned, P)), np.zeros((n_owned, P))]        # x'_n, x'_{n-1}
+    vs = [np.zeros((n_owned, P)), np.zeros((n_owned, P))]
+    M = inertia.mass_matrix()
+    vec, out = model.u.vector.duplicate(), model.u.vector.duplicate()
+    fixed = model.fixed[:n_owned]
+    a_mass = spec.damping_mass
+
+    def record(n, xdot):
+        for i, w in need.get(n, []):
+            k = names.index(targets[i].marker)
+            S = markers.S[k * d:(k + 1) * d]
+            y = markers.positions(rep.states[n])[k]
+            r[i * d:(i + 1) * d] += w * (y - np.asarray(targets[i].target, float))
+            if P:
+                cols = np.column_stack([markers.gather(_full(model, xdot[:, p])) for p in range(P)])
+                J[i * d:(i + 1) * d] += w * (S @ cols)
+
+    try:
+        record(0, xs[0])
+        for n in range(N):
+            t_next, h, (a0, a1, a2) = rep.steps[n]
+            model.u.x.array[:] = rep.states[n + 1]
+            model.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+            dyn.set_time(t_next)
+            inertia.set_coefficients(h, a0)
+            lin = Linearization(model, solver)
+            try:
+                c_i = a0 * a0 / (h * h)
+                D = c_i + a_mass * a0 / h
+                hist = D * (a1 * xs[0] + a2 * xs[1]) / a0 + c_i * h * (a1 * vs[0] + a2 * vs[1]) / a0 ** 2
+                xdot = np.zeros((n_owned, P))
+                for p, (name, k) in enumerate(columns):
+                    vec.array_w[:] = hist[:, p]
+                    M.mult(vec, out)
+                    b = -out.array_r.copy()
+                    c = [j for j, term in enumerate(lin.tendons) if term.name == name][0]
+                    b -= knot_weights(dict(scheduled)[name][:, 0], t_next)[k] * lin.dR_du[c].array_r
+                    b[fixed] = 0.0
+                    vec.array_w[:] = b
+                    sol = lin.solve(vec)
+                    xdot[:, p] = sol.array_r
+                    sol.destroy()
+                vdot = (a0 * xdot + a1 * xs[0] + a2 * xs[1]) / h
+                xs, vs = [xdot, xs[0]], [vdot, vs[0]]
+            finally:
+                lin.destroy()
+            record(n + 1, xs[0])
+    finally:
+        inertia.stop()
+        dyn.set_time(rep.t_end)
+        model.u.x.array[:] = rep.states[-1]
+        model.sync(model.u.vector)
+        vec.destroy()
+        out.destroy()
+    return r, J, [f"cables.{n}.schedule[{k}]" for n, k in columns]
+
+
+def _full(model, owned: np.ndarray) -> np.ndarray:
+    """A local array (ghosts updated) from owned values."""
+    v = model.u.vector.duplicate()
+    try:
+        v.array_w[:] = owned
+        v.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        return local_values(v)
+    finally:
+        v.destroy()

@@ -1,0 +1,194 @@
+"""Sensitivities of the static equilibrium x*(u) to the tendon contractions u.
+
+The equilibrium solves R(x, u) = grad Pi(x; u) = 0 with the contractions fully
+applied (load factor 1). Tendon c stores k Q(l - L) with rest length
+L = L0 - u_c, so its part of R is k s g with s = l - L and g = grad l, and
+
+    dR/du_c = k g_c   if the tendon is taut (s > 0),   0 if it is slack (s < 0).
+
+Q has a kink at s = 0 (a tendon exactly at its rest length, |s| <= 1e-12 L0,
+e.g. every tendon of an unactuated finger): there R is not differentiable in
+u_c. We take the taut branch, the one-sided derivative for increasing u_c (the
+only feasible direction at the bound u_c = 0): dR/du_c = k g_c, and H gains
+its right limit k g g^T (the curvature term k s B^T W B vanishes at s = 0).
+These tendons are listed in Linearization.kinked; their derivatives hold for
+increasing u_c only (skelfem.control restricts its steps accordingly).
+Ligaments are never controls and keep the Hessian as the cable defines it.
+
+Differentiating R(x*(u), u) = 0 with H = dR/dx = hess Pi at x*:
+
+    forward:  H dx*/du_c = -dR/du_c          one solve per tendon;
+              a marker y = X + S x moves by dy/du = S dx*/du.
+    adjoint:  H lambda = dO/dx,  dO/du = -(dR/du)^T lambda
+              one solve for an objective O(x), e.g. O = |y - y'|^2
+              (H is symmetric).
+
+SNES's last Jacobian belongs to the iterate before its final step, so H is
+assembled afresh at x* into the Newton solver's matrix K (fixed pattern:
+MUMPS refactorises numerically, reusing its analysis), its rank-one parts
+(taut cables, and tendons at the kink) go to the same Woodbury solver Newton
+uses (skelfem.linear), and that one factorisation serves every right-hand
+side, forward and adjoint. Dirichlet rows of H are identity rows and every
+right-hand side is zero there, so the pinned components of dx*/du and lambda
+vanish. Everything here works on any number of MPI ranks.
+"""
+from __future__ import annotations
+
+import numpy as np
+from petsc4py import PETSc
+
+KINK = 1e-12      # |s| <= KINK * L0 counts as a tendon exactly at its rest length
+
+
+def tendons(model) -> list:
+    """The tendon terms (the controls u), in design order."""
+    return [t for t in model.terms_in("cables") if t.kind == "tendon"]
+
+
+def contractions(model) -> np.ndarray:
+    """The tendon contractions u, mm."""
+    return np.array([t.cable.contraction for t in tendons(model)], dtype=float)
+
+
+def set_contractions(model, u) -> None:
+    """Write u onto the model's tendons (rest lengths L = L0 - u at load factor 1)."""
+    u = np.asarray(u, dtype=float)
+    ts = tendons(model)
+    if u.shape != (len(ts),):
+        raise ValueError(f"expected {len(ts)} contractions, got shape {u.shape}")
+    for t, value in zip(ts, u):
+        model.set_parameter(f"cables.{t.name}.contraction", float(value))
+
+
+def stretch(term, u: np.ndarray) -> float:
+    """s = l - L of a cable term (positive: taut)."""
+    return term.cable.length(u) - term.rest_length
+
+
+def global_vector(model, term, values: np.ndarray) -> PETSc.Vec:
+    """A vector holding `values` (on the term's global DOFs) in its owned entries, ghosts updated."""
+    v = model.u.vector.duplicate()
+    v.set(0.0)
+    v.array_w[term.gather.local] = values[term.gather.pos]
+    v.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+    return v
+
+
+class Linearization:
+    """H and dR/du at the current converged equilibrium x* (model.u), H factorised once.
+
+    Uses the NewtonSolver that produced x*: its matrix, its MUMPS analysis
+    and its Woodbury solver. The object describes one x*: build a new one
+    after the next solve.
+    """
+
+    def __init__(self, model, solver):
+        if abs(model.factor - 1.0) > 1e-14:
+            raise ValueError("sensitivities need the contractions fully applied "
+                             f"(load factor {model.factor:g}, not 1)")
+        self.model, self.solver = model, solver
+        self.tendons = tendons(model)
+        u = model.u.x.array
+        self.kinked = [i for i, t in enumerate(self.tendons) if abs(stretch(t, u)) <= KINK * t.cable.L0]
+        self._g = [self._masked_g(t) for t in self.tendons]
+        model.jacobian(model.u.vector, solver.A)
+        parts = model.low_rank()
+        self._extra = [global_vector(model, self.tendons[i], self._g[i])   # cable.low_rank dropped k g g^T
+                       for i in self.kinked if stretch(self.tendons[i], u) <= 0.0]
+        parts = parts + [(self.tendons[i].cable.k, v) for i, v in zip(
+            [i for i in self.kinked if stretch(self.tendons[i], u) <= 0.0], self._extra)]
+        solver.lin.update(parts, model.border)   # the one numeric factorisation (rigid bones: their border)
+        self.dR_du = [self._dR_du(i) for i in range(len(self.tendons))]
+
+    @property
+    def m(self) -> int:
+        """Number of controls (tendons)."""
+        return len(self.tendons)
+
+    # -- H and dR/du ------------------------------------------------------------------------
+    def _masked_g(self, term) -> np.ndarray:
+        """g = grad l of a cable on its DOFs, zero on Dirichlet DOFs."""
+        return term.cable.length_gradient(self.model.u.x.array) * self.model._free(term, term.cable.dofs)
+
+    def _dR_du(self, i: int) -> PETSc.Vec:
+        """dR/du_c = k g_c on the free DOFs of a taut (or kinked) tendon, else zero."""
+        t = self.tendons[i]
+        taut = stretch(t, self.model.u.x.array) > 0.0 or i in self.kinked
+        return global_vector(self.model, t, t.cable.k * self._g[i] if taut else 0.0 * self._g[i])
+
+    # -- solves ------------------------------------------------------------------------------
+    def solve(self, rhs: PETSc.Vec) -> PETSc.Vec:
+        """H^-1 rhs with the stored factorisation (rhs must be zero on Dirichlet rows)."""
+        x = rhs.duplicate()
+        self.solver.lin.solve(rhs, x)
+        x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        return x
+
+    def state_sensitivities(self) -> list[PETSc.Vec]:
+        """dx*/du_c = -H^-1 dR/du_c for every tendon c (forward mode)."""
+        out = []
+        for b in self.dR_du:
+            dx = self.solve(b)
+            dx.scale(-1.0)
+            dx.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+            out.append(dx)
+        return out
+
+    def adjoint(self, dO_dx: PETSc.Vec) -> np.ndarray:
+        """dO/du = -(dR/du)^T lambda with H lambda = dO/dx (one solve)."""
+        lam = self.solve(self._dirichlet_free(dO_dx))
+        grad = np.array([-b.dot(lam) for b in self.dR_du])
+        lam.destroy()
+        return grad
+
+    def forward(self, dO_dx: PETSc.Vec) -> np.ndarray:
+        """dO/du = dO/dx . dx*/du_c, one solve per tendon (for checking the adjoint)."""
+        rhs = self._dirichlet_free(dO_dx)
+        dxs = self.state_sensitivities()
+        grad = np.array([rhs.dot(dx) for dx in dxs])
+        for v in dxs + [rhs]:
+            v.destroy()
+        return grad
+
+    def marker_jacobian(self, index: int, mode: str = "adjoint") -> np.ndarray:
+        """dy/du of marker `index`, shape (gdim, m): gdim adjoint or m forward solves."""
+        markers = self.model.term("markers")
+        d = self.model.dim
+        S = markers.S[index * d:(index + 1) * d]
+        if mode == "forward":
+            dxs = self.state_sensitivities()
+            J = np.column_stack([S @ markers.gather(local_values(dx)) for dx in dxs]) if dxs else np.zeros((d, 0))
+            for v in dxs:
+                v.destroy()
+            return J
+        if mode != "adjoint":
+            raise ValueError(f"unknown mode {mode!r}")
+        rows = [self.adjoint(global_vector(self.model, markers, S[j].toarray().ravel())) for j in range(d)]
+        return np.array(rows).reshape(d, self.m)
+
+    def _dirichlet_free(self, v: PETSc.Vec) -> PETSc.Vec:
+        """Copy of v with the Dirichlet rows zeroed."""
+        w = v.copy()
+        with w.localForm() as local:
+            local.array_w[self.model.fixed] = 0.0
+        return w
+
+    def destroy(self) -> None:
+        for b in self.dR_du + self._extra:
+            b.destroy()
+
+
+def local_values(v: PETSc.Vec) -> np.ndarray:
+    """Owned and ghost entries of a ghosted vector, as a numpy array."""
+    with v.localForm() as local:
+        return local.array_r.copy()
+
+
+# -- the tracking objective O = |y - y'|^2 -------------------------------------------------------
+def marker_objective(model, index: int, target) -> tuple[float, PETSc.Vec]:
+    """O = |y - y'|^2 for marker `index` at the current state, and dO/dx = 2 S^T (y - y')."""
+    markers = model.term("markers")
+    d = model.dim
+    S = markers.S[index * d:(index + 1) * d]
+    r = markers.positions(model.u.x.array)[index] - np.asarray(target, dtype=float)
+    return float(r @ r), global_vector(model, markers, 2.0 * (S.T @ r))

@@ -1,0 +1,63 @@
+"""``skelfem edit DESIGN [--port N] [--no-browser]``: the interactive designer (see skelfem.editor).
+
+Validates the design (a bad one is one ``error:`` line, exit 1, before
+anything starts), solves it once, then serves the editor on
+http://127.0.0.1:PORT/ (loopback only) and opens it in the browser unless
+``--no-browser``. Ctrl-C (or SIGTERM) stops the server; the exit status is 0.
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from . import common as cli
+
+DEFAULT_PORT = 8765
+
+
+def add_parsers(subparsers) -> None:
+    p = subparsers.add_parser("edit", help="the interactive designer: drag outlines, bones and cables in the "
+                                           "browser and see the equilibrium live",
+                              description="Serve a page (on 127.0.0.1 only) that draws the design over its "
+                                          "equilibrium and re-solves it as you drag vertices, move sliders and "
+                                          "targets; Save writes the TOML back.")
+    p.add_argument("design", type=Path, help="design file (TOML)")
+    p.add_argument("--port", type=int, default=DEFAULT_PORT,
+                   help=f"port on 127.0.0.1 (default {DEFAULT_PORT}; 0: any free port)")
+    p.add_argument("--no-browser", action="store_true", help="do not open the page in a browser")
+    p.add_argument("-q", "--quiet", action="store_true", help="print only errors")
+    p.add_argument("-v", "--verbose", action="store_true", help="print every solve")
+    p.set_defaults(handler=edit)
+
+
+def edit(args) -> int:
+    from mpi4py import MPI
+
+    from ..design import resources
+    from ..design.spec import DesignError
+    from ..design.parse import load_design
+    from ..editor.server import Editor, EditorError
+    from ..mesh.geometry import MeshingError
+
+    if MPI.COMM_WORLD.size > 1:
+        raise cli.InputError("edit runs on one process; start it without mpirun")
+    if not 0 <= args.port <= 65535:
+        raise cli.InputError(f"--port {args.port}: must be between 0 and 65535")
+    try:
+        design = load_design(args.design)
+        resources.check(design)
+    except DesignError as exc:
+        raise cli.InputError(str(exc)) from None
+    if not args.verbose:
+        cli.log.setLevel(logging.WARNING)       # one line per solve would flood the terminal
+    try:
+        editor = Editor(args.design, args.port)
+    except (DesignError, MeshingError, EditorError) as exc:
+        raise cli.InputError(str(exc)) from None
+    if not args.quiet:
+        print(f"skelfem editor: {editor.url}  ({design.name}{', 3D: read-only' if design.dim != 2 else ''}; "
+              "Ctrl-C to stop)", flush=True)
+    editor.run(open_browser=not args.no_browser)
+    if not args.quiet:
+        print("skelfem editor: stopped", flush=True)
+    return cli.EXIT_OK

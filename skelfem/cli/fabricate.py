@@ -1,0 +1,70 @@
+"""cli/fabricate (from cli.py)
+
+Command line: ``skelfem simulate DESIGN [--out DIR] [--set KEY=VALUE ...]``, ``skelfem fabricate DESIGN``, ....
+
+Exit status: 0 on success, 1 for bad input (one ``error:`` line on stderr;
+command-line mistakes included), 2 when the solve does not converge
+(result.json says why), 3 for an internal error, 130 / 143 when interrupted
+by SIGINT / SIGTERM. Under MPI every rank ends with the same status and one
+line is printed (see skelfem.mpiguard).
+"""
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+from .common import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, InputError, error, reserve_output
+
+log = logging.getLogger("skelfem")
+
+
+def fabricate(args) -> int:
+    """Plan (every check before the folder is touched), then build and publish the parts whole."""
+    from mpi4py import MPI
+
+    from .. import fabricate as fab
+    from ..design.spec import DesignError
+    from ..design.parse import load_design
+    from ..io.outdir import publish
+
+    t0 = time.perf_counter()
+    if MPI.COMM_WORLD.size > 1:
+        raise InputError("fabricate runs on one process; start it without mpirun")
+    try:
+        design = load_design(args.design, args.overrides)
+        plan = fab.plan(design)
+    except DesignError as exc:
+        raise InputError(str(exc)) from None
+    except fab.FabricationError as exc:
+        raise InputError(f"{design.source}: {exc.key}: {exc.message}") from None
+    args.out = reserve_output(args, design, "fabricate")
+    log.info("%s: building %d bone(s) and the mould", design.name, len(design.bones))
+    with publish(args.out, MPI.COMM_WORLD, "fabricate") as stage:
+        try:
+            report = fab.write(plan, stage.path, picture_file=not args.no_picture)
+        except OSError as exc:
+            stage.errors.append(f"cannot write {Path(exc.filename).name if exc.filename else 'the parts'}: "
+                                f"{exc.strerror or exc}")
+            report = None
+    if report is None:
+        return EXIT_INPUT
+    for note in report["notes"]:
+        log.warning("%s: warning: %s", design.name, note)
+    checks = report["checks"]
+    if not checks["passed"]:
+        failed = [k for k in ("stl_closed_and_oriented", "bone_volumes", "cavity_is_body") if not checks[k]]
+        error(f"internal error: {design.name}: fabrication check(s) failed: {', '.join(failed)}; "
+              f"see {args.out / 'fabrication.json'}")
+        return EXIT_INTERNAL
+    if not args.quiet:
+        print(f"{design.name}: {len(design.bones)} bone(s) and a two-part mould in {args.out}/, "
+              f"{time.perf_counter() - t0:.1f} s")
+        for name, part in report["parts"].items():
+            print(f"  {part['stl']:24s} {part['volume']:10.1f} mm^3  {part['triangles']:6d} triangles")
+        m = report["mould"]
+        print(f"  mould cavity {m['cavity_volume']:.1f} mm^3 against the body's {m['body_volume']:.1f} mm^3 "
+              f"({100 * m['relative_error']:+.2f} %; {100 * m['closed_relative_error']:+.3f} % without the pour "
+              "hole, vents, exits, pins and pegs); every STL closed and oriented")
+    return EXIT_OK
+
+

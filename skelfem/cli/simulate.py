@@ -1,0 +1,148 @@
+"""cli/simulate (from cli.py)
+
+Command line: ``skelfem simulate DESIGN [--out DIR] [--set KEY=VALUE ...]``, ``skelfem fabricate DESIGN``, ....
+
+Exit status: 0 on success, 1 for bad input (one ``error:`` line on stderr;
+command-line mistakes included), 2 when the solve does not converge
+(result.json says why), 3 for an internal error, 130 / 143 when interrupted
+by SIGINT / SIGTERM. Under MPI every rank ends with the same status and one
+line is printed (see skelfem.mpiguard).
+"""
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+from .common import EXIT_OK, EXIT_SOLVE, InputError, error, load, prepare, reserve_output
+
+log = logging.getLogger("skelfem")
+
+
+def simulate(args) -> int:
+    from mpi4py import MPI
+
+    from ..jobs.run import write_results
+
+    t0 = time.perf_counter()
+    if args.tol is not None and not (0 < args.tol < float("inf")):
+        raise InputError(f"--tol: must be a finite number > 0, got {args.tol:g}")
+    design = load(args)
+    if args.tol is not None and design.dynamics is not None:
+        raise InputError(f"{args.design}: --tol chooses the mesh of a static run; a design with [dynamics] "
+                         "sets [mesh] by hand")
+    if getattr(args, "adaptive", False) and args.tol is None:
+        raise InputError("--adaptive: refines for --tol; give --tol ABS_MM too")
+    if args.tol is not None and not design.markers:
+        raise InputError(f"{args.design}: --tol needs at least one marker (its error is what --tol bounds)")
+    args.out = reserve_output(args, design)           # before any work: a bad --out is bad input
+    extra = {}
+    if args.tol is not None:
+        design, session = prepare_tol(args, design)
+        with session:
+            solved, extra["accuracy"] = refine_to_tol(session, args.tol, getattr(args, "adaptive", False))
+            result = write_results(session, solved, args.out, t0, picture=not args.no_picture, extra=extra)
+    else:
+        design, session = prepare(args)
+        if design.dynamics is not None:
+            return _simulate_in_time(args, design, session, t0, extra)
+        with session:
+            solved = session.solve()
+            result = write_results(session, solved, args.out, t0, picture=not args.no_picture, extra=extra)
+    if not solved.converged:
+        error(f"{design.name}: solve failed ({solved.status}) after {solved.load_steps} load step(s); "
+              f"try more [solver].steps or a finer mesh; details in {args.out / 'result.json'}")
+        return EXIT_SOLVE
+    if not args.quiet and MPI.COMM_WORLD.rank == 0:
+        _summary(result, args.out)
+    return EXIT_OK
+
+
+def prepare_tol(args, design):
+    """--tol: design at the first size of skelfem.accuracy's ladder (P2), meshed; (that design, session)."""
+    from mpi4py import MPI
+
+    from ..accuracy import ladder
+    from ..design.spec import DesignError
+    from ..mesh.geometry import MeshingError
+    from ..jobs.run import open_session
+
+    try:
+        first = ladder.first_level(design)
+        log.info("--tol %g mm: P%d from h = %g mm, refined until the estimate meets it",
+                 args.tol, ladder.DEGREE, first.mesh.size)
+        return first, open_session(first, MPI.COMM_WORLD)
+    except (DesignError, MeshingError) as exc:
+        raise InputError(str(exc)) from None
+
+
+def refine_to_tol(session, tol: float, adaptive: bool = False):
+    """skelfem.accuracy.refine, with mesh failures of a finer level as one-line input errors."""
+    from ..accuracy import tol as accuracy
+    from ..design.spec import DesignError
+    from ..mesh.geometry import MeshingError
+    try:
+        return accuracy.refine(session, tol, adaptive)
+    except (DesignError, MeshingError) as exc:
+        raise InputError(str(exc)) from None
+
+
+def _simulate_in_time(args, design, session, t0, extra) -> int:
+    """simulate for a design with [dynamics]: the run in time and its files (see run.write_dynamic_results)."""
+    from mpi4py import MPI
+
+    from ..jobs.run import ProgressBar, write_dynamic_results
+
+    bar = None if args.quiet else ProgressBar(f"{design.name}: t = 0 .. {design.dynamics.duration:g} s")
+    try:
+        with session:
+            result = write_dynamic_results(session, args.out, t0, picture=not args.no_picture, progress=bar,
+                                           extra=extra)
+    finally:
+        if bar is not None:
+            bar.close()
+    dyn = result["dynamics"]
+    if not result["converged"]:
+        error(f"{design.name}: time step failed ({result['status']}) at t = {dyn['time_reached']:.6g} s after "
+              f"{dyn['steps']} step(s) and {dyn['cuts']} cut(s); try a smaller [dynamics].dt or a finer mesh; "
+              f"the trajectory up to there is in {args.out}")
+        return EXIT_SOLVE
+    if not args.quiet and MPI.COMM_WORLD.rank == 0:
+        print(f"{result['design']}: {dyn['steps']} time steps ({design.dynamics.integrator}, dt = "
+              f"{design.dynamics.dt:g} s) to t = {dyn['time_reached']:.4g} s, {result['newton_iterations']} "
+              f"Newton iterations, {dyn['cuts']} cut(s); min det F = {result['min_jacobian']:.3f}")
+        for name, m in (result["markers"] or {}).items():
+            print(f"  marker {name} at t = {dyn['time_reached']:.4g} s: "
+                  f"({', '.join(f'{p:.2f}' for p in m['position'])}) mm")
+        files = "result.json, trajectory.csv, trajectory.xdmf" + (", motion.gif" if design.dim == 2
+                                                                   and not args.no_picture else "")
+        print(f"  results in {args.out}/ ({files}), {result['timings']['total']:.1f} s")
+    return EXIT_OK
+
+
+def _summary(result: dict, out: Path) -> None:
+    hist = result["residual_history"][-1] if result["residual_history"] else []
+    print(f"{result['design']}: converged in {result['newton_iterations']} Newton iterations "
+          f"over {result['load_steps']} load step(s); min det F = {result['min_jacobian']:.3f}")
+    if "accuracy" in result:
+        a = result["accuracy"]
+        est = "-" if a.get("estimated_error") is None else f"{a['estimated_error']:.3g} mm"
+        where = (f"h = {a['min_size']:.3g} .. {a['max_size']:.3g} mm (adaptive, {a['dofs']} DOFs)"
+                 if a.get("adaptive") and "min_size" in a else f"h = {a.get('size', float('nan')):g} mm")
+        bones = a.get("bones")
+        if bones:
+            where += (f", {'rigid' if bones['rigid'] else 'elastic'} bones (rigid ones move the markers by "
+                      f"{bones['difference']:.2g} mm)")
+        print(f"  --tol {a['tol']:g} mm: P{a.get('degree', 2)}, {where} "
+              f"after {len(a['levels'])} meshes, estimated marker error {est}"
+              + ("" if a["met"] else f" (NOT met: {a['stop']})"))
+    if hist:
+        print("  last step |R|: " + " ".join(f"{r:.1e}" for r in hist[-5:]))
+    for name, m in (result["markers"] or {}).items():
+        print(f"  marker {name}: ({', '.join(f'{p:.2f}' for p in m['position'])}) mm, "
+              f"moved ({', '.join(f'{d:+.2f}' for d in m['displacement'])}) mm")
+    for name, c in (result["cables"] or {}).items():
+        print(f"  {c['kind']} {name}: tension {c['tension']:.3f} N, length {c['length']:.2f} mm")
+    print(f"  results in {out}/ (result.json, solution.xdmf, deformed.png), "
+          f"{result['timings']['total']:.1f} s")
+
+

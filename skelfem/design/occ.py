@@ -1,0 +1,91 @@
+"""Gmsh's OpenCASCADE kernel: one Gmsh per process, models as blocks, and the design's primitives as solids.
+
+Used by the 3D design checks (skelfem.design.solids) before any meshing, by
+meshing (skelfem.mesh.geometry) and by fabrication.
+"""
+from __future__ import annotations
+
+from contextlib import contextmanager
+
+import numpy as np
+
+
+class MeshingError(RuntimeError):
+    """Gmsh could not build or mesh the design's geometry."""
+
+
+_GMSH_READY = False
+
+
+def ensure_gmsh(gmsh) -> None:
+    """Initialise Gmsh once per process (gmsh 4.8 cannot tell if it is).
+
+    Importing gmsh resets SIGINT to the default action; our interrupt
+    handlers are put back afterwards.
+    """
+    global _GMSH_READY
+    if not _GMSH_READY:
+        from ..runtime import interrupts
+        with interrupts.held():
+            gmsh.initialize(readConfigFiles=False)
+        gmsh.option.setNumber("General.Terminal", 0)
+        _GMSH_READY = True
+    from ..runtime import interrupts
+    interrupts.reinstall()
+
+
+@contextmanager
+def gmsh_model(name: str):
+    """A fresh Gmsh model for the duration of the block (this rank only); removed after."""
+    import gmsh
+    ensure_gmsh(gmsh)
+    gmsh.model.add(name)
+    try:
+        yield gmsh.model
+    finally:
+        gmsh.model.remove()
+
+
+def add_polygon(occ, points) -> int:
+    """OCC plane surface from a closed polygon (n, 2); returns its tag."""
+    pts = [occ.addPoint(float(x), float(y), 0.0) for x, y in points]
+    lines = [occ.addLine(pts[i], pts[(i + 1) % len(pts)]) for i in range(len(pts))]
+    return occ.addPlaneSurface([occ.addCurveLoop(lines)])
+
+
+def add_solid(occ, primitive: dict) -> int:
+    """OCC volume from one 3D primitive of the design format; returns its tag."""
+    (kind, p), = primitive.items()
+    if kind == "box":
+        lo, hi = np.asarray(p["min"], float), np.asarray(p["max"], float)
+        return occ.addBox(*lo, *(hi - lo))
+    if kind == "cylinder":
+        a, b = np.asarray(p["from"], float), np.asarray(p["to"], float)
+        return occ.addCylinder(*a, *(b - a), float(p["radius"]))
+    if kind == "sphere":
+        return occ.addSphere(*np.asarray(p["center"], float), float(p["radius"]))
+    if kind == "extrude":
+        z0, z1 = (float(z) for z in p["z"])
+        pts = [occ.addPoint(float(x), float(y), z0) for x, y in p["outline"]]
+        lines = [occ.addLine(pts[i], pts[(i + 1) % len(pts)]) for i in range(len(pts))]
+        surface = occ.addPlaneSurface([occ.addCurveLoop(lines)])
+        out = occ.extrude([(2, surface)], 0, 0, z1 - z0)
+        return next(tag for dim, tag in out if dim == 3)
+    raise MeshingError(f"unknown solid primitive {kind!r}")
+
+
+def fuse(occ, dim: int, tags: list[int]) -> list[int]:
+    if len(tags) == 1:
+        return tags
+    out, _ = occ.fuse([(dim, tags[0])], [(dim, t) for t in tags[1:]])
+    # Gmsh 4.8's fuse can list a disjoint piece twice (the same volume under
+    # two tags): meshing both would overlap elements. Keep one of each.
+    seen, keep = set(), []
+    for d, t in out:
+        sig = tuple(np.round(occ.getBoundingBox(d, t), 6)) + (round(occ.getMass(d, t), 6),)
+        if sig in seen:
+            occ.remove([(d, t)])
+            continue
+        seen.add(sig)
+        keep.append(t)
+    return keep

@@ -1,0 +1,147 @@
+"""design/parse (from design.py)
+
+Design files: load a TOML design, apply ``--set`` overrides, validate.
+
+The contract is ``shared/design-format.md`` (summarised in the README). Every
+problem is raised as a :class:`DesignError` whose message names the file and
+the offending key, e.g. ``finger.toml: cables.flexor.stiffness: must be > 0``;
+the CLI prints it as one ``error:`` line. Nothing here imports DOLFINx, so a
+bad design is rejected before any heavy import or meshing.
+"""
+from __future__ import annotations
+
+import copy
+import tomllib
+from pathlib import Path
+
+
+from . import polygons
+from .sections import read_cables, read_contact, read_dynamics, check_energy_line_search, read_fabrication, read_gravity, read_grounds, read_loads, read_markers, read_pins, read_solver, read_tractions
+from .shapes import read_body, read_bones, read_materials
+from .spec import Design, DesignError, FORMAT, MeshSpec, SECTIONS_BY_NAME
+from .table import Table, plain_name, positive, apply_override
+
+
+# -- entry points -----------------------------------------------------------------------------------------
+def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
+    """Validate a design given as parsed TOML (a dict); overrides are ``KEY=VALUE`` strings."""
+    data = copy.deepcopy(data)
+    for assignment in overrides:
+        apply_override(data, assignment, source)
+    top = Table(data, "", source)
+    fmt = top.take("format", "int")
+    if fmt != FORMAT:
+        top.fail("format", f"unsupported format {fmt} (this version reads format = {FORMAT})")
+    name = plain_name(top, "name", top.take("name", "str", Path(source).stem if source != "<design>" else "design"),
+                       "the design name (it names the output folder)")
+    dim = top.take("dim", "int", 2)
+    if dim not in (2, 3):
+        top.fail("dim", f"must be 2 or 3, got {dim}")
+    thickness = 1.0
+    if dim == 2:
+        thickness = positive(top, "thickness", top.take("thickness", "number", 1.0))
+    elif top.has("thickness"):
+        top.fail("thickness", "is for dim = 2 only")
+    mt = Table(top.take("mesh", "table", {}), "mesh", source)
+    mesh = MeshSpec(positive(mt, "size", mt.take("size", "number", MeshSpec.size)),
+                    mt.take("degree", "int", MeshSpec.degree))
+    if mesh.degree not in (1, 2):
+        mt.fail("degree", f"must be 1 or 2, got {mesh.degree}")
+    mt.done()
+    materials = read_materials(top)
+    body, region, tol, body_t = read_body(top, dim, materials)
+    bones = read_bones(top, dim, materials, region, tol, body_t)
+    cables = read_cables(top, dim, region, tol)
+    pins = read_pins(top, dim)
+    loads = read_loads(top, dim, region)
+    grounds = read_grounds(top, dim, body, tol)
+    contact = read_contact(top, dim)
+    markers = read_markers(top, dim, region)
+    solver = read_solver(top)
+    check_energy_line_search(top, solver, bones, contact)
+    gravity = read_gravity(top, dim, materials, [body.material] + [b.material for b in bones])
+    tractions = read_tractions(top, dim)
+    fabrication = read_fabrication(top, dim, thickness, body)
+    dynamics = read_dynamics(top, materials, [body.material] + [b.material for b in bones])
+    top.done()
+    if dim == 2:
+        measure = abs(polygons.signed_area(body.outline)) - sum(abs(polygons.signed_area(h)) for h in body.holes)
+        vertices = len(body.outline) + sum(len(h) for h in body.holes) + sum(len(b.outline) for b in bones)
+    else:
+        from . import solids
+        result = solids.check(body.solids, [(b.name, b.solids) for b in bones], [(c.name, c.path) for c in cables],
+                              markers, [(ld.name, ld.at) for ld in loads], [(p.name, p.region) for p in pins], tol)
+        if result.error is not None:
+            key, message = result.error
+            raise DesignError(f"{source}: {key}: {message}")
+        measure = result.volume
+        vertices = sum(len(next(iter(s.values())).get("outline", ())) + 8 for s in body.solids) \
+            + sum(len(next(iter(s.values())).get("outline", ())) + 8 for b in bones for s in b.solids)
+    return Design(
+        source=str(source), name=name, dim=dim, thickness=thickness, mesh=mesh,
+        materials=materials, body=body, bones=bones, cables=cables, pins=pins, loads=loads,
+        grounds=grounds, contact=contact, markers=markers, solver=solver, gravity=gravity,
+        tractions=tractions, fabrication=fabrication, dynamics=dynamics, raw=data, measure=float(measure), vertices=int(vertices),
+    )
+
+
+MAX_FILE = 64 * 2 ** 20      # bytes: a design is text, not a data set
+
+
+def read_toml(path, what: str = "design file") -> dict:
+    """Parse a TOML file; DesignError (one line) for anything that is not a readable TOML table."""
+    source = str(path)
+    try:
+        with open(path, "rb") as f:
+            raw = f.read(MAX_FILE + 1)
+        if len(raw) > MAX_FILE:
+            raise DesignError(f"{source}: larger than {MAX_FILE // 2 ** 20} MB; not a {what}")
+        return tomllib.loads(raw.decode("utf-8"))
+    except FileNotFoundError:
+        raise DesignError(f"{source}: no such file") from None
+    except IsADirectoryError:
+        raise DesignError(f"{source}: is a folder, not a {what}") from None
+    except PermissionError:
+        raise DesignError(f"{source}: permission denied") from None
+    except UnicodeDecodeError:
+        raise DesignError(f"{source}: not a text (UTF-8) file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise DesignError(f"{source}: malformed TOML: {exc}") from None
+    except RecursionError:
+        raise DesignError(f"{source}: malformed TOML: nested too deeply") from None
+    except OSError as exc:
+        raise DesignError(f"{source}: cannot read ({exc.strerror or exc})") from None
+    except ValueError as exc:          # e.g. an embedded NUL in the path
+        raise DesignError(f"{source}: cannot read ({exc})") from None
+
+
+def load_design(path, overrides=()) -> Design:
+    """Read, override and validate a design file; raises DesignError for any problem."""
+    path = Path(path)
+    data = read_toml(path)
+    data.setdefault("name", path.stem)
+    return parse_design(data, str(path), overrides)
+
+
+def flatten(raw: dict, prefix: str = "") -> dict:
+    """{dotted key: value}: the --set keys of a design dict; named entries by name (order kept as a key)."""
+    out = {}
+    for key, value in raw.items():
+        path = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(flatten(value, path + "."))
+        elif (not prefix and key in SECTIONS_BY_NAME and isinstance(value, list)
+              and all(isinstance(e, dict) and isinstance(e.get("name"), str) for e in value)
+              and len({e["name"] for e in value}) == len(value)):
+            out[f"{path}.#order"] = tuple(e["name"] for e in value)
+            for e in value:
+                out.update(flatten(e, f"{path}.{e['name']}."))
+        else:
+            out[path] = value
+    return out
+
+
+def changed_keys(old: dict, new: dict) -> set:
+    """The keys whose values differ between two flattened designs (present in one only included)."""
+    missing = object()
+    return {k for k in old.keys() | new.keys() if old.get(k, missing) != new.get(k, missing)}

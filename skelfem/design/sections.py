@@ -1,0 +1,352 @@
+"""design/sections (from design.py)
+
+Design files: load a TOML design, apply ``--set`` overrides, validate.
+
+The contract is ``shared/design-format.md`` (summarised in the README). Every
+problem is raised as a :class:`DesignError` whose message names the file and
+the offending key, e.g. ``finger.toml: cables.flexor.stiffness: must be > 0``;
+the CLI prints it as one ``error:`` line. Nothing here imports DOLFINx, so a
+bad design is rejected before any heavy import or meshing.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .shapes import check_inside, named_entries
+from .spec import Body, CableSpec, ContactSpec, DesignError, DynamicsSpec, ENERGY_LINE_SEARCHES, FabricationSpec, GroundSpec, INTEGRATORS, LINE_SEARCHES, LoadSpec, MAX_COORDINATE, MAX_STEPS, MAX_TIME_STEPS, PinSpec, SolverSpec, TractionSpec
+from .table import Table, check_bounded, is_finite, is_number, plain_name, positive, show_value
+
+
+def read_cables(top: Table, dim: int, region, tol) -> tuple:
+    cables = []
+    for t in named_entries(top, "cables"):
+        name = t.where.split(".", 1)[1]
+        kind = t.take("kind", "str")
+        if kind not in ("tendon", "ligament"):
+            t.fail("kind", f"must be \"tendon\" or \"ligament\", got {kind!r}")
+        path = check_bounded(t, "path", t.take("path", "points", dim=dim))
+        if len(path) < 2:
+            t.fail("path", "a cable path needs at least 2 points")
+        seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
+        if np.any(seg <= tol):
+            t.fail("path", "repeated consecutive points (zero-length segment)")
+        if region is not None and not region.contains_path(path):
+            t.fail("path", "the cable leaves the body (it must run inside it or on its boundary)")
+        k = positive(t, "stiffness", t.take("stiffness", "number"))
+        contraction = pretension = 0.0
+        if kind == "tendon":
+            contraction = positive(t, "contraction", t.take("contraction", "number", 0.0), strict=False)
+            if t.has("pretension"):
+                t.fail("pretension", "only ligaments take a pretension (a tendon is shortened by contraction)")
+        else:
+            pretension = positive(t, "pretension", t.take("pretension", "number", 0.0), strict=False)
+            if t.has("contraction"):
+                t.fail("contraction", "ligaments are passive and never contracted (use pretension)")
+        anchor = None
+        if t.has("anchor_radius"):
+            anchor = positive(t, "anchor_radius", t.take("anchor_radius", "number"), strict=False)
+            if anchor >= seg.sum():
+                t.fail("anchor_radius", f"must be smaller than the cable ({seg.sum():g} mm)")
+        if max(contraction, pretension) >= seg.sum():
+            t.fail("contraction" if kind == "tendon" else "pretension",
+                   f"must be shorter than the cable ({seg.sum():g} mm)")
+        schedule = None
+        if t.has("schedule"):
+            if kind != "tendon":
+                t.fail("schedule", "ligaments are passive and never actuated (only tendons take a schedule)")
+            schedule = _schedule(t, t.take("schedule", "list"), float(seg.sum()))
+        t.done()
+        cables.append(CableSpec(name, kind, path, k, contraction, pretension, anchor, schedule))
+    return tuple(cables)
+
+
+def _schedule(t: Table, value: list, length: float) -> np.ndarray:
+    """[[t0, u0], [t1, u1], ...]: times (s) >= 0 strictly increasing, contractions (mm) in [0, length)."""
+    if not value:
+        t.fail("schedule", "must be a non-empty list of [time, contraction] pairs")
+    for i, row in enumerate(value):
+        if not (isinstance(row, list) and len(row) == 2 and all(is_number(x) for x in row)):
+            t.fail("schedule", f"entry {i} must be a [time, contraction] pair of numbers, got {show_value(row)}")
+        if not all(is_finite(x) for x in row):
+            t.fail("schedule", f"entry {i} must be finite, got {show_value(row)}")
+    a = np.asarray(value, dtype=float)
+    if a[0, 0] < 0:
+        t.fail("schedule", f"times must be >= 0, got {a[0, 0]:g}")
+    bad = np.flatnonzero(np.diff(a[:, 0]) <= 0)
+    if len(bad):
+        i = int(bad[0]) + 1
+        t.fail("schedule", f"times must increase strictly: entry {i} (t = {a[i, 0]:g}) "
+                           f"does not come after entry {i - 1} (t = {a[i - 1, 0]:g})")
+    if np.any(a[:, 1] < 0):
+        t.fail("schedule", f"contractions must be >= 0, got {a[:, 1].min():g}")
+    if np.any(a[:, 1] >= length):
+        t.fail("schedule", f"contractions must be shorter than the cable ({length:g} mm), got {a[:, 1].max():g}")
+    return a
+
+
+def read_dynamics(top: Table, materials: dict, used: list) -> DynamicsSpec | None:
+    if not top.has("dynamics"):
+        return None
+    t = Table(top.take("dynamics", "table"), "dynamics", top.source)
+    dt = positive(t, "dt", t.take("dt", "number"))
+    duration = positive(t, "duration", t.take("duration", "number"))
+    if duration < dt:
+        t.fail("duration", f"must be at least one time step (dt = {dt:g} s), got {duration:g}")
+    if duration / dt > MAX_TIME_STEPS:
+        t.fail("dt", f"duration / dt must be at most {MAX_TIME_STEPS:g} time steps, got {duration / dt:.3g}")
+    integrator = t.take("integrator", "str", "bdf2")
+    if integrator not in INTEGRATORS:
+        t.fail("integrator", f"must be one of {', '.join(INTEGRATORS)}; got {integrator!r}")
+    d = Table(t.take("damping", "table", {}), "dynamics.damping", top.source)
+    mass = positive(d, "mass", d.take("mass", "number", 0.0), strict=False)
+    stiffness = positive(d, "stiffness", d.take("stiffness", "number", 0.0), strict=False)
+    d.done()
+    t.done()
+    for name in used:
+        if materials[name].density is None:
+            raise DesignError(f"{top.source}: materials.{name}.density: missing (required with [dynamics])")
+    return DynamicsSpec(dt, duration, integrator, mass, stiffness)
+
+
+def read_pins(top: Table, dim: int) -> tuple:
+    pins = []
+    for t in named_entries(top, "pins", required=True):
+        name = t.where.split(".", 1)[1]
+        region = _box(t, dim)
+        kind = t.take("kind", "str", "fixed")
+        if kind not in ("fixed", "spring"):
+            t.fail("kind", f"must be \"fixed\" or \"spring\", got {kind!r}")
+        if kind == "spring" or t.has("stiffness"):
+            k = positive(t, "stiffness", t.take("stiffness", "number"))
+        else:
+            k = 0.0
+        move = t.take("move", "vector", np.zeros(dim), dim=dim)
+        t.done()
+        pins.append(PinSpec(name, region, kind, k, move))
+    return tuple(pins)
+
+
+def read_loads(top: Table, dim: int, region) -> tuple:
+    loads = []
+    for t in named_entries(top, "loads"):
+        at = check_bounded(t, "at", t.take("at", "vector", dim=dim))
+        check_inside(t, "at", at, region, "the load point")
+        force = t.take("force", "vector", dim=dim)
+        t.done()
+        loads.append(LoadSpec(t.where.split(".", 1)[1], at, force))
+    return tuple(loads)
+
+
+def _box(t: Table, dim: int) -> np.ndarray:
+    region = t.take("region", "points", dim=dim)
+    if region.shape != (2, dim) or np.any(region[1] < region[0]):
+        t.fail("region", "must be [min, max] corners of a box with min <= max")
+    return region
+
+
+def read_tractions(top: Table, dim: int) -> tuple:
+    out = []
+    for t in named_entries(top, "tractions"):
+        region = _box(t, dim)
+        traction = t.take("traction", "vector", dim=dim)
+        t.done()
+        out.append(TractionSpec(t.where.split(".", 1)[1], region, traction))
+    return tuple(out)
+
+
+def read_gravity(top: Table, dim: int, materials: dict, used: list) -> np.ndarray | None:
+    t = Table(top.take("gravity", "table", {}), "gravity", top.source)
+    if not t.data:
+        return None
+    g = t.take("acceleration", "vector", dim=dim)
+    t.done()
+    for name in used:
+        if materials[name].density is None:
+            raise DesignError(f"{top.source}: materials.{name}.density: missing (required with [gravity])")
+    return g
+
+
+def read_grounds(top: Table, dim: int, body: Body, tol: float) -> tuple:
+    grounds = []
+    for t in named_entries(top, "grounds"):
+        point = check_bounded(t, "point", t.take("point", "vector", dim=dim))
+        normal = t.take("normal", "vector", dim=dim)
+        norm = float(np.linalg.norm(normal / np.abs(normal).max())) * np.abs(normal).max() \
+            if np.any(normal) else 0.0
+        if not norm > 0 or not math.isfinite(norm):
+            t.fail("normal", "must be a non-zero vector")
+        normal = normal / norm
+        k = positive(t, "stiffness", t.take("stiffness", "number"))
+        t.done()
+        depth = -_lowest(body, dim, point, normal)
+        if depth > max(tol, 1e-9):
+            t.fail("point", f"the plane cuts the body at rest ({depth:.3g} mm of it lies beyond the plane); "
+                            "a ground must start on the normal's side of the body (touching is fine)")
+        grounds.append(GroundSpec(t.where.split(".", 1)[1], point, normal, k))
+    return tuple(grounds)
+
+
+def _lowest(body: Body, dim: int, point: np.ndarray, normal: np.ndarray) -> float:
+    """The smallest signed distance (x - point) . normal over the body at rest."""
+    if dim == 2:
+        return float(((body.outline - point) @ normal).min())
+    lows = []
+    for prim in body.solids:
+        (kind, p), = prim.items()
+        if kind == "box":
+            corners = np.array([[x, y, z] for x in (p["min"][0], p["max"][0]) for y in (p["min"][1], p["max"][1])
+                                for z in (p["min"][2], p["max"][2])])
+            lows.append(((corners - point) @ normal).min())
+        elif kind == "sphere":
+            lows.append(float((p["center"] - point) @ normal) - p["radius"])
+        elif kind == "cylinder":
+            axis = (p["to"] - p["from"]) / np.linalg.norm(p["to"] - p["from"])
+            spread = p["radius"] * math.sqrt(max(0.0, 1.0 - float(axis @ normal) ** 2))
+            lows.append(min(float((c - point) @ normal) for c in (p["from"], p["to"])) - spread)
+        else:
+            pts = np.array([[x, y, z] for x, y in p["outline"] for z in p["z"]])
+            lows.append(((pts - point) @ normal).min())
+    return float(min(lows))
+
+
+def _body_box(body: Body, dim: int, thickness: float) -> tuple[np.ndarray, np.ndarray]:
+    """An axis-aligned box around the body (3D: around its primitives, conservative for round ones)."""
+    if dim == 2:
+        lo, hi = body.outline.min(axis=0), body.outline.max(axis=0)
+        return np.r_[lo, 0.0], np.r_[hi, thickness]
+    los, his = [], []
+    for prim in body.solids:
+        (kind, p), = prim.items()
+        if kind == "box":
+            los.append(p["min"]), his.append(p["max"])
+        elif kind == "cylinder":
+            ends = np.array([p["from"], p["to"]])
+            los.append(ends.min(axis=0) - p["radius"]), his.append(ends.max(axis=0) + p["radius"])
+        elif kind == "sphere":
+            los.append(p["center"] - p["radius"]), his.append(p["center"] + p["radius"])
+        else:
+            los.append(np.r_[p["outline"].min(axis=0), p["z"][0]]), his.append(np.r_[p["outline"].max(axis=0), p["z"][1]])
+    return np.min(los, axis=0), np.max(his, axis=0)
+
+
+def read_fabrication(top: Table, dim: int, thickness: float, body: Body) -> FabricationSpec:
+    """[fabrication]: every key optional; defaults follow the body's size (see the README).
+
+    bone_depth defaults to 0.8 x thickness (2D), the mould wall to 5 % of the
+    body's largest extent (to 0.5 mm, at least 3 mm), the pour hole to 30 % of its
+    smallest extent (at most 6 mm); the 3D parting plane to the mid-plane of
+    the body's bounding box across its smallest extent. Geometric feasibility
+    (channels inside bones, room for pegs and the pour hole) is checked by
+    skelfem.fabricate before anything is written.
+    """
+    t = Table(top.take("fabrication", "table", {}), "fabrication", top.source)
+    d = FabricationSpec()
+    lo, hi = _body_box(body, dim, thickness)
+    extent = hi - lo
+    if dim == 2:
+        extent = np.r_[extent[:2], thickness]
+
+    def length(name, default, strict=True):
+        value = positive(t, name, t.take(name, "number", default), strict)
+        if value > MAX_COORDINATE:
+            t.fail(name, f"must be at most {MAX_COORDINATE:g} mm, got {value:g}")
+        return value
+
+    channel = length("channel_diameter", d.channel_diameter)
+    anchor = length("anchor_diameter", d.anchor_diameter)
+    if dim == 2:
+        depth = length("bone_depth", 0.8 * thickness)
+        if depth >= thickness:
+            t.fail("bone_depth", f"must be less than thickness ({thickness:g} mm): the bones are cast inside the slab")
+    else:
+        if t.has("bone_depth"):
+            t.fail("bone_depth", "is for dim = 2 only (3D bones are their solids)")
+        depth = 0.0
+    min_wall = length("min_wall", d.min_wall, strict=False)
+    wall = length("wall", max(3.0, round(0.1 * float(extent.max())) / 2))
+    clearance = length("clearance", d.clearance, strict=False)
+    pour = length("pour_diameter", min(d.pour_diameter, 0.3 * float(extent.min())))
+    vent = length("vent_diameter", d.vent_diameter)
+    vents = t.take("vents", "int", d.vents)
+    if not 0 <= vents <= 16:
+        t.fail("vents", f"must be between 0 and 16, got {vents}")
+    peg = length("peg_diameter", d.peg_diameter)
+    socket = length("socket_depth", d.socket_depth)
+    if dim == 2:
+        if t.has("split"):
+            t.fail("split", "is for dim = 3 only (a 2D mould parts at the slab's mid-plane)")
+        point, normal = np.array([0.0, 0.0, thickness / 2]), np.array([0.0, 0.0, 1.0])
+    else:
+        axis = 2 - int(np.argmin(extent[::-1]))      # the smallest extent; ties prefer z, then y
+        s = Table(t.take("split", "table", {}), "fabrication.split", top.source)
+        point = check_bounded(s, "point", s.take("point", "vector", 0.5 * (lo + hi), dim=3))
+        normal = s.take("normal", "vector", np.eye(3)[axis], dim=3)
+        scale = float(np.abs(normal).max())
+        if not scale > 0:
+            s.fail("normal", "must be a non-zero vector")
+        normal = normal / scale
+        normal = normal / float(np.linalg.norm(normal))
+        s.done()
+    t.done()
+    return FabricationSpec(channel, anchor, depth, min_wall, wall, clearance, pour, vent, vents, peg, socket,
+                           point, normal)
+
+
+def read_markers(top: Table, dim: int, region) -> dict:
+    t = Table(top.take("markers", "table", {}), "markers", top.source)
+    out = {}
+    for name in list(t.data):
+        if "." in name:
+            t.fail(name, "marker names must not contain '.'")
+        plain_name(t, name, name, "a marker name")
+        X = check_bounded(t, name, t.take(name, "vector", dim=dim))
+        check_inside(t, name, X, region, "the marker")
+        out[name] = X
+    return out
+
+
+def read_contact(top: Table, dim: int) -> ContactSpec:
+    t = Table(top.take("contact", "table", {}), "contact", top.source)
+    spec = ContactSpec(t.take("self", "bool", False), positive(t, "dhat", t.take("dhat", "number", 0.3)))
+    if spec.self_contact and dim != 2:
+        t.fail("self", "self-contact is implemented for dim = 2 only")
+    t.done()
+    return spec
+
+
+def read_solver(top: Table) -> SolverSpec:
+    t = Table(top.take("solver", "table", {}), "solver", top.source)
+    d = SolverSpec()
+    steps = t.take("steps", "int", d.steps)
+    if not 1 <= steps <= MAX_STEPS:
+        t.fail("steps", f"must be >= 1 and <= {MAX_STEPS}" if steps >= 1 else "must be >= 1")
+    its = t.take("max_iterations", "int", d.max_iterations)
+    if not 1 <= its <= MAX_STEPS:
+        t.fail("max_iterations", f"must be >= 1 and <= {MAX_STEPS}" if its >= 1 else "must be >= 1")
+    ls = t.take("line_search", "str", d.line_search)
+    if ls not in LINE_SEARCHES:
+        t.fail("line_search", f"must be one of {', '.join(LINE_SEARCHES)}; got {ls!r}")
+    rtol = positive(t, "rtol", t.take("rtol", "number", d.rtol))
+    atol = positive(t, "atol", t.take("atol", "number", d.atol))
+    t.done()
+    return SolverSpec(steps, its, ls, rtol, atol)
+
+
+def check_energy_line_search(top: Table, solver: SolverSpec, bones: tuple, contact: ContactSpec) -> None:
+    """Rigid bones move along their exact rigid motion, and self-contact's steps are bounded to
+    collision-free ones, only in the energy line searches (skelfem.solver and skelfem.terms.contact
+    refuse the others); "auto" resolves to one of them ("energy" with bones, else "curved")."""
+    rigid = [b.name for b in bones if b.rigid]
+    if solver.line_search in ("auto", *ENERGY_LINE_SEARCHES) or not (rigid or contact.self_contact):
+        return
+    reasons = []
+    if rigid:
+        reasons.append(f"keep rigid bones rigid (rigid: {', '.join(rigid)})")
+    if contact.self_contact:
+        reasons.append("bound steps to collision-free ones for self-contact (contact.self = true)")
+    top.fail("solver.line_search", f"{solver.line_search!r} cannot {' nor '.join(reasons)}; "
+                                   "use \"energy\" or \"curved\"")
+
+

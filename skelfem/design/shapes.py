@@ -1,0 +1,272 @@
+"""design/shapes (from design.py)
+
+Design files: load a TOML design, apply ``--set`` overrides, validate.
+
+The contract is ``shared/design-format.md`` (summarised in the README). Every
+problem is raised as a :class:`DesignError` whose message names the file and
+the offending key, e.g. ``finger.toml: cables.flexor.stiffness: must be > 0``;
+the CLI prints it as one ``error:`` line. Nothing here imports DOLFINx, so a
+bad design is rejected before any heavy import or meshing.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from . import polygons
+from .spec import Body, Bone, DesignError, MAX_COORDINATE, Material, PRIMITIVES
+from .table import Table, check_bounded, convert_value, memoised, plain_name, positive
+
+
+def _polygon(t: Table, name: str, pts: np.ndarray, tol: float) -> np.ndarray:
+    if len(pts) < 3:
+        t.fail(name, "a polygon needs at least 3 points")
+    check_bounded(t, name, pts)
+    memoised("polygon", [pts], tol, lambda: _polygon_shape(t, name, pts, tol))
+    return pts
+
+
+def _polygon_shape(t: Table, name: str, pts: np.ndarray, tol: float) -> bool:
+    if np.any(np.linalg.norm(pts - np.roll(pts, -1, axis=0), axis=1) <= tol):
+        t.fail(name, "repeated consecutive points (degenerate polygon)")
+    if np.ptp(pts, axis=0).min() <= tol:
+        t.fail(name, "polygon has zero area (degenerate)")
+    if not polygons.is_simple(pts, tol):
+        t.fail(name, "polygon is not simple (edges cross or touch)")
+    if abs(polygons.signed_area(pts)) <= tol * np.ptp(pts, axis=0).max():
+        t.fail(name, "polygon has zero area (degenerate)")
+    return True
+
+
+class _Region2D:
+    """The body's closed region: inside the outline and outside every hole."""
+
+    def __init__(self, outline, holes, tol):
+        self.outline, self.holes, self.tol = outline, holes, tol
+        self.loops = [outline, *holes]
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        # holes lie strictly inside the outline and apart: the even-odd rule over all loops
+        return polygons.region_contains(self.loops, np.atleast_2d(points), self.tol)
+
+    def contains_path(self, path: np.ndarray) -> bool:
+        return memoised("path", [*self.loops, path], self.tol, lambda: bool(
+            np.all(self.contains(polygons.polyline_samples(path, self.loops, self.tol)))))
+
+
+def _layout_2d(body_t: "Table", region: _Region2D, bone_tables: list, bone_outlines: list) -> None:
+    loops = [region.outline, *region.holes, *bone_outlines]
+    memoised(f"layout{len(region.holes)}", loops, region.tol,
+          lambda: _check_layout_2d(body_t, region, bone_tables, bone_outlines))
+
+
+def _check_layout_2d(body_t: "Table", region: _Region2D, bone_tables: list, bone_outlines: list) -> bool:
+    """Holes strictly inside the outline and apart; bones strictly inside the body, apart.
+
+    All boundaries are intersected at once (polygons.meeting_loops); loops
+    that do not meet are nested or apart, which one vertex decides.
+    """
+    outline, holes, tol = region.outline, region.holes, region.tol
+    loops = [outline, *holes, *bone_outlines]
+    nh = len(holes)
+    meets = polygons.meeting_loops(loops, tol)
+    firsts = np.array([loop[0] for loop in loops])
+    in_outline = polygons.parity(firsts, [outline])
+
+    boxes = np.array([np.r_[loop.min(axis=0) - tol, loop.max(axis=0) + tol] for loop in loops])
+    nested = set()                                  # (i, j): loop i's first vertex lies inside loop j
+    candidates: dict = {}
+    for I, J in polygons.candidate_pairs(boxes[1:]):
+        for i, j in zip((I + 1).tolist(), (J + 1).tolist()):
+            candidates.setdefault(j, []).append(i)
+            candidates.setdefault(i, []).append(j)
+    for j, inner in candidates.items():
+        inner = sorted(set(inner))
+        hit = polygons.parity(firsts[inner], [loops[j]])
+        nested.update((i, j) for i, h in zip(inner, hit) if h)
+
+    def overlapping(i, j):
+        a, b = min(i, j), max(i, j)
+        return (a, b) in meets or (i, j) in nested or (j, i) in nested
+
+    for k in range(nh):
+        i = 1 + k
+        if (0, i) in meets or not in_outline[i]:
+            body_t.fail(f"holes[{k}]", "a hole must lie strictly inside the outline")
+        for m in range(k):
+            if overlapping(i, 1 + m):
+                body_t.fail(f"holes[{k}]", f"overlaps holes[{m}]")
+    for k, t in enumerate(bone_tables):
+        i = 1 + nh + k
+        if (0, i) in meets or not in_outline[i]:
+            t.fail("outline", "a bone must lie strictly inside the body outline")
+        for m in range(nh):
+            if overlapping(i, 1 + m):
+                t.fail("outline", f"overlaps body.holes[{m}]")
+        for m in range(k):
+            if overlapping(i, 1 + nh + m):
+                other = bone_tables[m].where.split(".", 1)[1]
+                t.fail("outline", f"overlaps or touches bone {other!r}")
+    return True
+
+
+# -- sections -------------------------------------------------------------------------------------------
+def named_entries(top: Table, section: str, required: bool = False) -> list[Table]:
+    entries = top.take(section, "tables", default=None)
+    if entries is None:
+        if required:
+            top.fail(section, "missing: at least one entry is required")
+        return []
+    if required and not entries:
+        top.fail(section, "at least one entry is required")
+    tables, seen = [], set()
+    for i, e in enumerate(entries):
+        name = e.get("name")
+        label = name if isinstance(name, str) and name else str(i)
+        t = Table(e, f"{section}.{label}", top.source)
+        name = t.take("name", "str")
+        if not name or "." in name or "=" in name:
+            t.fail("name", "must be a non-empty name without '.' or '='")
+        plain_name(t, "name", name, "a name")
+        if name in seen:
+            t.fail("name", f"duplicate name {name!r} in {section}")
+        seen.add(name)
+        tables.append(t)
+    return tables
+
+
+def read_materials(top: Table) -> dict:
+    mt = Table(top.take("materials", "table"), "materials", top.source)
+    if not mt.data:
+        mt.fail("", "at least one material is required")
+    out = {}
+    for name in list(mt.data):
+        t = Table(mt.take(name, "table"), f"materials.{name}", top.source)
+        E = positive(t, "E", t.take("E", "number"))
+        nu = t.take("nu", "number")
+        if not -1.0 < nu < 0.5:
+            t.fail("nu", f"must lie in (-1, 0.5), got {nu:g}")
+        density = t.take("density", "number", None)
+        if density is not None:
+            positive(t, "density", density)
+        t.done()
+        out[name] = Material(name, E, nu, density)
+    return out
+
+
+def _material_ref(t: Table, materials: dict) -> str:
+    name = t.take("material", "str")
+    if name not in materials:
+        t.fail("material", f"unknown material {name!r} (defined: {', '.join(materials)})")
+    return name
+
+
+def _solid(t: Table, i: int, prim, dim: int, tol: float) -> dict:
+    where = f"{t.where}.solids[{i}]"
+    if not isinstance(prim, dict) or len(prim) != 1 or next(iter(prim)) not in PRIMITIVES:
+        raise DesignError(f"{t.source}: {where}: must be one of "
+                          + ", ".join(f"{{ {p} = {{...}} }}" for p in PRIMITIVES))
+    (kind, params), = prim.items()
+    p = Table(params, f"{where}.{kind}", t.source)
+    if kind == "box":
+        lo, hi = check_bounded(p, "min", p.take("min", "vector", dim=3)), check_bounded(p, "max", p.take("max", "vector", dim=3))
+        if np.any(hi - lo <= tol):
+            p.fail("max", "must exceed min in every coordinate")
+        out = {"min": lo, "max": hi}
+    elif kind == "cylinder":
+        a, b = check_bounded(p, "from", p.take("from", "vector", dim=3)), check_bounded(p, "to", p.take("to", "vector", dim=3))
+        if np.linalg.norm(b - a) <= tol:
+            p.fail("to", "must differ from 'from'")
+        out = {"from": a, "to": b, "radius": _small(p, "radius", p.take("radius", "number"), tol)}
+    elif kind == "sphere":
+        out = {"center": check_bounded(p, "center", p.take("center", "vector", dim=3)),
+               "radius": _small(p, "radius", p.take("radius", "number"), tol)}
+    else:
+        outline = _polygon(p, "outline", p.take("outline", "points", dim=2), tol)
+        z = check_bounded(p, "z", p.take("z", "vector", dim=2))
+        if z[1] - z[0] <= tol:
+            p.fail("z", "must be [z0, z1] with z1 > z0")
+        out = {"outline": outline, "z": z}
+    p.done()
+    return {kind: out}
+
+
+def _small(t: Table, name: str, r: float, tol: float) -> float:
+    positive(t, name, r)
+    if r <= tol or r > MAX_COORDINATE:
+        t.fail(name, f"must lie in ({tol:g}, {MAX_COORDINATE:g}] mm, got {r:g}")
+    return r
+
+
+def _solids(t: Table, dim: int, tol: float) -> tuple:
+    prims = t.take("solids", "list")
+    if not prims:
+        t.fail("solids", "at least one primitive is required")
+    return tuple(_solid(t, i, p, dim, tol) for i, p in enumerate(prims))
+
+
+def read_body(top: Table, dim: int, materials: dict):
+    t = Table(top.take("body", "table"), "body", top.source)
+    material = _material_ref(t, materials)
+    if dim == 3:
+        tol = 1e-9 * max(_extent(top.data), 1.0)
+        body = Body(material, solids=_solids(t, dim, tol))
+        t.done()
+        return body, None, tol, t
+    outline = t.take("outline", "points", dim=2)
+    tol = 1e-9 * max(float(np.ptp(outline, axis=0).max()) if len(outline) >= 1 else 1.0, 1.0)
+    outline = _polygon(t, "outline", outline, tol)
+    holes = []
+    for i, h in enumerate(t.take("holes", "list", default=[])):
+        hname = f"holes[{i}]"
+        holes.append(_polygon(t, hname, convert_value(h, "points", 2, lambda m: t.fail(hname, m)), tol))
+    t.done()
+    return Body(material, outline=outline, holes=tuple(holes)), _Region2D(outline, holes, tol), tol, t
+
+
+def _extent(data: dict) -> float:
+    """Size of the 3D body's primitives (for tolerances), from the raw table; 1 if unreadable."""
+    try:
+        pts = []
+        for prim in data["body"]["solids"]:
+            (kind, p), = prim.items()
+            if kind == "box":
+                pts += [p["min"], p["max"]]
+            elif kind == "cylinder":
+                pts += [p["from"], p["to"]]
+            elif kind == "sphere":
+                pts += [p["center"]]
+            else:
+                pts += [[x, y, z] for x, y in p["outline"] for z in p["z"]]
+        a = np.asarray(pts, float)
+        ext = float(np.ptp(a, axis=0).max())
+        return ext if math.isfinite(ext) else 1.0
+    except Exception:
+        return 1.0
+
+
+def read_bones(top: Table, dim: int, materials: dict, region, tol, body_t) -> tuple:
+    bones, tables = [], []
+    for t in named_entries(top, "bones"):
+        name = t.where.split(".", 1)[1]
+        material = _material_ref(t, materials)
+        rigid = t.take("rigid", "bool", False)
+        if dim == 3:
+            bones.append(Bone(name, material, solids=_solids(t, dim, tol), rigid=rigid))
+            t.done()
+            continue
+        outline = _polygon(t, "outline", t.take("outline", "points", dim=2), tol)
+        t.done()
+        bones.append(Bone(name, material, outline=outline, rigid=rigid))
+        tables.append(t)
+    if dim == 2:
+        _layout_2d(body_t, region, tables, [b.outline for b in bones])
+    return tuple(bones)
+
+
+def check_inside(t: Table, key: str, points: np.ndarray, region, what: str) -> None:
+    if region is not None and not np.all(region.contains(np.atleast_2d(points))):
+        t.fail(key, f"{what} lies outside the body")
+
+

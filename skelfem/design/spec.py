@@ -1,0 +1,199 @@
+"""design/spec (from design.py)
+
+Design files: load a TOML design, apply ``--set`` overrides, validate.
+
+The contract is ``shared/design-format.md`` (summarised in the README). Every
+problem is raised as a :class:`DesignError` whose message names the file and
+the offending key, e.g. ``finger.toml: cables.flexor.stiffness: must be > 0``;
+the CLI prints it as one ``error:`` line. Nothing here imports DOLFINx, so a
+bad design is rejected before any heavy import or meshing.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+
+FORMAT = 1
+MAX_COORDINATE = 1e7      # mm: geometry beyond +-10 km is a typo, and overflows the predicates
+MAX_STEPS = 10_000        # load steps and Newton iterations: a cap against runaway runs
+MAX_NAME = 100            # bytes in a design, entry or marker name
+LINE_SEARCHES = ("auto", "energy", "curved", "residual", "none", "trust_region")
+ENERGY_LINE_SEARCHES = ("energy", "curved")   # line searches on Pi: the only ones rigid bones and self-contact allow
+INTEGRATORS = ("euler", "bdf2")
+MAX_TIME_STEPS = 1_000_000   # duration / dt: a cap against runaway runs
+SECTIONS_BY_NAME = ("bones", "cables", "pins", "loads", "grounds", "tractions")
+PRIMITIVES = ("box", "cylinder", "sphere", "extrude")
+
+
+class DesignError(ValueError):
+    """A design that cannot be simulated; the message is one line for the user."""
+
+
+# -- the validated design --------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class Material:
+    name: str
+    E: float          # Young's modulus, MPa
+    nu: float         # Poisson's ratio
+    density: float | None = None   # kg/m^3 (gravity, dynamics); None: not given
+
+
+@dataclass(frozen=True, eq=False)
+class MeshSpec:
+    size: float = 2.0     # target edge length, mm
+    degree: int = 1       # Lagrange degree of u
+
+
+@dataclass(frozen=True, eq=False)
+class Body:
+    material: str
+    outline: np.ndarray | None = None        # 2D: (n, 2)
+    holes: tuple = ()                        # 2D: tuple of (m, 2)
+    solids: tuple = ()                       # 3D: tuple of primitive dicts
+
+
+@dataclass(frozen=True, eq=False)
+class Bone:
+    name: str
+    material: str
+    outline: np.ndarray | None = None
+    solids: tuple = ()
+    rigid: bool = False   # a rigid body: its nodes follow 3 (2D) / 6 (3D) rigid DOFs, its cells carry no energy
+
+
+@dataclass(frozen=True, eq=False)
+class CableSpec:
+    name: str
+    kind: str             # "tendon" or "ligament"
+    path: np.ndarray      # (n, dim) sketch polyline
+    stiffness: float      # k, N/mm
+    contraction: float = 0.0   # tendon: u, mm
+    pretension: float = 0.0    # ligament: rest-length shortening, mm
+    anchor_radius: float | None = None   # mm; an end in silicone pulls on a disk/ball this wide (None: default)
+    schedule: np.ndarray | None = None   # tendons, dynamics: (n, 2) rows [t (s), contraction (mm)], t increasing
+
+    def contraction_at(self, t: float) -> float:
+        """The contraction at time t: the schedule, piecewise linear and held beyond its ends, or the
+        constant contraction if there is no schedule."""
+        if self.schedule is None:
+            return self.contraction
+        return float(np.interp(t, self.schedule[:, 0], self.schedule[:, 1]))
+
+
+@dataclass(frozen=True, eq=False)
+class PinSpec:
+    name: str
+    region: np.ndarray    # (2, dim): [min, max]
+    kind: str = "fixed"   # "fixed" (Dirichlet) or "spring" (penalty)
+    stiffness: float = 0.0
+    move: np.ndarray | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class LoadSpec:
+    name: str
+    at: np.ndarray
+    force: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class TractionSpec:
+    name: str
+    region: np.ndarray    # (2, dim): [min, max]; the boundary inside it is loaded
+    traction: np.ndarray  # MPa: a dead load per area of reference boundary
+
+
+@dataclass(frozen=True, eq=False)
+class GroundSpec:
+    name: str
+    point: np.ndarray
+    normal: np.ndarray    # unit normal, pointing to the side the body stays on
+    stiffness: float
+
+
+@dataclass(frozen=True, eq=False)
+class ContactSpec:
+    self_contact: bool = False
+    dhat: float = 0.3
+
+
+@dataclass(frozen=True, eq=False)
+class SolverSpec:
+    steps: int = 1
+    max_iterations: int = 50
+    line_search: str = "auto"
+    rtol: float = 1e-9
+    atol: float = 1e-10
+
+
+@dataclass(frozen=True, eq=False)
+class DynamicsSpec:
+    """The [dynamics] section: its presence makes a run dynamic."""
+    dt: float                         # time step, s
+    duration: float                   # s
+    integrator: str = "bdf2"          # "euler" or "bdf2"
+    damping_mass: float = 0.0         # Rayleigh a, 1/s: damping force a M v
+    damping_stiffness: float = 0.0    # Rayleigh b, s: damping force b K v (K: elastic tangent at the last step)
+
+    @property
+    def steps(self) -> int:
+        """Number of time steps of size dt (the last one may be shorter)."""
+        return int(math.ceil(self.duration / self.dt * (1.0 - 1e-12)))
+
+
+@dataclass(frozen=True, eq=False)
+class FabricationSpec:
+    """The [fabrication] section (skelfem fabricate), every default resolved; lengths in mm."""
+    channel_diameter: float = 1.2     # tendon channels through the bones
+    anchor_diameter: float = 1.5      # ligament anchor holes (the rubber band loops through)
+    bone_depth: float = 0.0           # 2D: extrusion depth of the bones, centred in the slab
+    min_wall: float = 0.4             # least printed material left around a channel, hole or socket
+    wall: float = 5.0                 # mould wall beyond the body
+    clearance: float = 0.2            # fit of registration pins and bone pegs in their holes
+    pour_diameter: float = 6.0
+    vent_diameter: float = 2.0
+    vents: int = 2
+    peg_diameter: float = 2.0         # pegs that hold the bones in the mould
+    socket_depth: float = 1.0         # sockets in the bones that the pegs enter
+    split_point: np.ndarray | None = None    # the mould's parting plane (2D: the slab's mid-plane)
+    split_normal: np.ndarray | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Design:
+    source: str
+    name: str
+    dim: int
+    thickness: float
+    mesh: MeshSpec
+    materials: dict
+    body: Body
+    bones: tuple
+    cables: tuple
+    pins: tuple
+    loads: tuple = ()
+    grounds: tuple = ()
+    contact: ContactSpec = field(default_factory=ContactSpec)
+    markers: dict = field(default_factory=dict)
+    solver: SolverSpec = field(default_factory=SolverSpec)
+    gravity: np.ndarray | None = None    # m/s^2 as written; None: no gravity
+    tractions: tuple = ()
+    fabrication: FabricationSpec = field(default_factory=FabricationSpec)
+    dynamics: DynamicsSpec | None = None   # None: a static run
+    format: int = FORMAT
+    raw: dict = field(default_factory=dict)   # the TOML data after overrides
+    measure: float = 0.0      # body area (2D, mm^2) or volume (3D, mm^3), bones included
+    vertices: int = 0         # polygon vertices of all outlines (2D) / primitives (3D)
+
+    @property
+    def tendons(self) -> tuple:
+        return tuple(c for c in self.cables if c.kind == "tendon")
+
+    def cable(self, name: str) -> CableSpec:
+        return next(c for c in self.cables if c.name == name)
+
+

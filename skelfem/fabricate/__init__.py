@@ -1,0 +1,13 @@
+"""skelfem fabricate: printable bones and a two-part mould from a design.
+
+``plan`` finds every problem on triangulations before anything is written
+(``surfaces``: triangle surfaces, rays, STL; ``meshing``: Gmsh surfaces;
+``plan``: the plan), ``build`` makes each part with OpenCASCADE, ``picture``
+draws the exploded view and ``files`` writes a checked folder.
+"""
+from .files import build, write
+from .plan import Plan, plan
+from .surfaces import FabricationError, check_mesh, orient, read_stl, write_stl
+
+__all__ = ["FabricationError", "Plan", "build", "check_mesh", "orient", "plan", "read_stl", "write",
+           "write_stl"]

@@ -1,0 +1,195 @@
+"""fabricate/build (from fabricate.py)
+
+Fabrication export: printable bones and a two-part mould from the design that is simulated.
+
+The paper's second pipeline (section III): PLA bones with channels for the
+cables, rubber-band ligaments, and a printed two-part mould into which
+silicone is cast; section VI.A asks for moulds that fixture the skeleton.
+``skelfem fabricate DESIGN`` turns a design into
+
+- ``bone_<name>.stl`` / ``.step``: each bone (2D: its outline extruded over
+  ``bone_depth``, centred in the slab) minus a channel of ``channel_diameter``
+  along every piece of a tendon's sketch inside it, an anchor hole of
+  ``anchor_diameter`` through it (along the mould's normal) where a ligament
+  ends in it, and the sockets of the mould's pegs;
+- ``mould_bottom.stl`` / ``mould_top.stl`` (and ``.step``): a block around the
+  body split by the parting plane (2D: the slab's mid-plane z = thickness/2;
+  3D: ``[fabrication] split``), each half minus the body, so that the closed
+  cavity is the body; registration pins on the bottom half and holes with
+  ``clearance`` in the top, a pour hole and vents through the top, exits for
+  the tendons through the wall, and pegs that reach from each half through
+  the silicone into sockets in the bones and so hold each bone where the
+  design puts it (the fixturing of section VI.A).
+
+Geometry in two passes. A *probe* pass builds the body and the bones with
+Gmsh's OpenCASCADE kernel, triangulates their surfaces and plans everything
+with numpy on the triangles (rays for the cable crossings, inside tests,
+peg and pour sites; exact point-triangle distances for the walls around
+channels). Every problem is found there, before any output folder is
+touched, and raised as :class:`FabricationError` (key, message). A *build*
+pass then makes each part in its own OCC model (boolean cuts and fuses),
+measures its volume exactly (``getMass``), triangulates its surface, writes
+binary STL and STEP, and checks the STL it wrote (every edge shared by
+exactly two triangles, every shared edge used in opposite directions,
+positive volume by the divergence theorem).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from .meshing import generate_surface_mesh, quiet_gmsh, triangle_surface
+from .plan import Frame, Plan, Tool
+from .surfaces import CURVATURE, Surface, orient
+
+
+# -- the build pass --------------------------------------------------------------------------------------------
+@dataclass
+class Part:
+    """One printed part: its file stem, kind, oriented surface and exact (CAD) volume."""
+
+    name: str
+    kind: str                    # "bone" or "mould"
+    surface: Surface
+    cad_volume: float
+    info: dict = field(default_factory=dict)
+
+
+def _shapes(occ, tool: Tool) -> list:
+    """OCC solids of a tool: a cylinder per segment of its axis (the ends extended), a ball at each bend."""
+    p = tool.points.copy()
+    p[0], p[-1] = tool.ends()
+    out = []
+    for a, b in zip(p[:-1], p[1:]):
+        out.append((3, occ.addCylinder(*a, *(b - a), tool.radius)))
+    for x in tool.points[1:-1]:
+        out.append((3, occ.addSphere(*x, tool.radius)))
+    return out
+
+
+def _mass(occ, dimtags) -> float:
+    occ.synchronize()
+    return float(sum(occ.getMass(*v) for v in dimtags))
+
+
+def _volumes(out) -> list[int]:
+    return [t for d, t in out if d == 3]
+
+
+def _solid(occ, out) -> list:
+    """The volumes of a boolean's result without the empty slivers OpenCASCADE sometimes leaves
+    (a solid of zero volume where a plane touches a sphere, say); those are removed from the model."""
+    occ.synchronize()
+    vols = [(3, t) for t in _volumes(out)]
+    mass = np.array([occ.getMass(*v) for v in vols])
+    empty = [v for v, m in zip(vols, mass) if m <= 1e-9 * max(mass.max(initial=0.0), 1.0)]
+    if empty:
+        occ.remove(empty, recursive=True)
+    return [v for v in vols if v not in empty]
+
+
+def _finish(gmsh, name: str, kind: str, volumes: list[int], plan: Plan, folder: Path | None, info: dict) -> Part:
+    """Measure, triangulate and (if folder) write the STEP file of the part in the current model."""
+    occ = gmsh.model.occ
+    occ.synchronize()
+    if len(volumes) != 1:
+        raise RuntimeError(f"{name}: the geometry kernel made {len(volumes)} solids instead of one")
+    cad = float(occ.getMass(3, volumes[0]))
+    if folder is not None:
+        with quiet_gmsh():
+            gmsh.write(str(folder / f"{name}.step"))
+    generate_surface_mesh(gmsh, plan.scale / 6, CURVATURE)
+    surface = triangle_surface(gmsh, volumes)
+    surface.tris = orient(surface.points, surface.tris)
+    return Part(name, kind, surface, cad, info)
+
+
+def build_bone(plan: Plan, bone, folder: Path | None = None) -> Part:
+    """A bone minus its channels, anchor holes and sockets.
+
+    The removed volume is measured on its own, as the OCC intersection of the
+    fused tools with an un-cut copy of the bone, so that the bone's volume
+    can be checked against (un-cut volume) - (removed volume).
+    """
+    import gmsh
+
+    from ..design.occ import gmsh_model
+    from ..mesh.geometry import add_design_solids
+    design = plan.design
+    with gmsh_model(f"skelfem-fabricate-bone-{bone.name}"):
+        occ = gmsh.model.occ
+        _, tags = add_design_solids(occ, design, plan.spec.bone_depth or None, bones=[bone.name])
+        solid = [(3, t) for t in tags[bone.name]]
+        tools = [s for tool in plan.bone_tools[bone.name] for s in _shapes(occ, tool)]
+        removed = 0.0
+        if tools:
+            copies = occ.copy(tools)
+            if len(copies) > 1:
+                copies, _ = occ.fuse(copies[:1], copies[1:])
+            common, _ = occ.intersect(occ.copy(solid), copies)
+            occ.synchronize()
+            removed = float(sum(occ.getMass(3, t) for t in _volumes(common)))
+            occ.remove(common, recursive=True)
+            solid = _solid(occ, occ.cut(solid, tools)[0])
+        kinds = [t.kind for t in plan.bone_tools[bone.name]]
+        info = {"uncut_volume": plan.bone_volumes[bone.name], "removed_volume": removed,
+                "channels": kinds.count("channel"), "anchor_holes": kinds.count("anchor"),
+                "sockets": kinds.count("socket")}
+        return _finish(gmsh, f"bone_{bone.name}", "bone", _volumes(solid), plan, folder, info)
+
+
+def _block(occ, frame: Frame, n0: float, n1: float) -> tuple[int, float]:
+    """The block's slab between n0 and n1 (frame coordinates) as an OCC box; (tag, volume).
+
+    When the frame's axes are the coordinate axes (2D, and 3D planes normal
+    to an axis) the box is made in place; otherwise it is made in frame
+    coordinates and rotated rigidly (an affine map would turn its faces into
+    general surfaces, which the boolean operations handle badly).
+    """
+    lo, hi = frame.lo.copy(), frame.hi.copy()
+    lo[2], hi[2] = n0, n1
+    M = frame.matrix
+    if np.allclose(np.abs(M), np.round(np.abs(M)), atol=1e-12):
+        corners = frame.world(np.array([lo, hi]))
+        a, b = corners.min(axis=0), corners.max(axis=0)
+        return occ.addBox(*a, *(b - a)), float(np.prod(hi - lo))
+    from scipy.spatial.transform import Rotation
+    tag = occ.addBox(*lo, *(hi - lo))
+    rv = Rotation.from_matrix(M).as_rotvec()
+    angle = float(np.linalg.norm(rv))
+    if angle > 0:
+        occ.rotate([(3, tag)], 0.0, 0.0, 0.0, *(rv / angle), angle)
+    return tag, float(np.prod(hi - lo))
+
+
+def build_half(plan: Plan, side: str, folder: Path | None = None) -> Part:
+    """One mould half: its slab of the block minus the body, with pins or pin holes, its pegs, the
+    tendon exits and (top) the pour hole and vents."""
+    import gmsh
+
+    from ..design.occ import gmsh_model
+    from ..mesh.geometry import add_design_solids
+    f = plan.frame
+    with gmsh_model(f"skelfem-fabricate-mould-{side}"):
+        occ = gmsh.model.occ
+        body, _ = add_design_solids(occ, plan.design, bones=[])
+        n0, n1 = (f.lo[2], f.c) if side == "bottom" else (f.c, f.hi[2])
+        box, block = _block(occ, f, n0, n1)
+        half = _solid(occ, occ.cut([(3, box)], [(3, t) for t in body])[0])
+        mass = [_mass(occ, half)]                     # the slab minus the body
+        adds = [t for t in plan.pegs if t.side == side] + [t for t in plan.mould_tools if t.kind == "pin"
+                                                            and side == "bottom"]
+        if adds:
+            half = _solid(occ, occ.fuse(half, [s for t in adds for s in _shapes(occ, t)])[0])
+        mass.append(_mass(occ, half))
+        cuts = [t for t in plan.mould_tools
+                if t.kind == "exit" or (side == "top" and t.kind in ("pin_hole", "pour", "vent"))]
+        if cuts:
+            half = _solid(occ, occ.cut(half, [s for t in cuts for s in _shapes(occ, t)])[0])
+        mass.append(_mass(occ, half))
+        info = {"block_volume": block, "pegs": sum(t.side == side for t in plan.pegs),
+                "added_volume": mass[1] - mass[0], "cut_volume": mass[1] - mass[2]}
+        return _finish(gmsh, f"mould_{side}", "mould", _volumes(half), plan, folder, info)
+
+

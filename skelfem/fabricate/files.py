@@ -1,0 +1,134 @@
+"""fabricate/files (from fabricate.py)
+
+Fabrication export: printable bones and a two-part mould from the design that is simulated.
+
+The paper's second pipeline (section III): PLA bones with channels for the
+cables, rubber-band ligaments, and a printed two-part mould into which
+silicone is cast; section VI.A asks for moulds that fixture the skeleton.
+``skelfem fabricate DESIGN`` turns a design into
+
+- ``bone_<name>.stl`` / ``.step``: each bone (2D: its outline extruded over
+  ``bone_depth``, centred in the slab) minus a channel of ``channel_diameter``
+  along every piece of a tendon's sketch inside it, an anchor hole of
+  ``anchor_diameter`` through it (along the mould's normal) where a ligament
+  ends in it, and the sockets of the mould's pegs;
+- ``mould_bottom.stl`` / ``mould_top.stl`` (and ``.step``): a block around the
+  body split by the parting plane (2D: the slab's mid-plane z = thickness/2;
+  3D: ``[fabrication] split``), each half minus the body, so that the closed
+  cavity is the body; registration pins on the bottom half and holes with
+  ``clearance`` in the top, a pour hole and vents through the top, exits for
+  the tendons through the wall, and pegs that reach from each half through
+  the silicone into sockets in the bones and so hold each bone where the
+  design puts it (the fixturing of section VI.A).
+
+Geometry in two passes. A *probe* pass builds the body and the bones with
+Gmsh's OpenCASCADE kernel, triangulates their surfaces and plans everything
+with numpy on the triangles (rays for the cable crossings, inside tests,
+peg and pour sites; exact point-triangle distances for the walls around
+channels). Every problem is found there, before any output folder is
+touched, and raised as :class:`FabricationError` (key, message). A *build*
+pass then makes each part in its own OCC model (boolean cuts and fuses),
+measures its volume exactly (``getMass``), triangulates its surface, writes
+binary STL and STEP, and checks the STL it wrote (every edge shared by
+exactly two triangles, every shared edge used in opposite directions,
+positive volume by the divergence theorem).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from .build import Part, build_bone, build_half
+from .picture import picture
+from .plan import Plan
+from .surfaces import FORMAT, check_mesh, read_stl, write_stl
+
+
+# -- everything, into a folder -------------------------------------------------------------------------------------
+TOLERANCE = 0.01       # relative: bone volumes and the mould's cavity against their references
+
+
+def build(plan: Plan, folder: Path | None = None) -> list[Part]:
+    """Every part of the plan: the bones in design order, then mould_bottom and mould_top (STEP files
+    into folder if given)."""
+    parts = [build_bone(plan, b, folder) for b in plan.design.bones]
+    return parts + [build_half(plan, side, folder) for side in ("bottom", "top")]
+
+
+def _plain(x) -> list:
+    return [round(float(v), 6) for v in np.ravel(x)]
+
+
+def write(plan: Plan, folder: Path, picture_file: bool = True) -> dict:
+    """Build every part into folder (STL, STEP), check the STL files as written, and write
+    fabrication.json and fabrication.png; returns the report (fabrication.json's content)."""
+    from ..design import polygons
+    from ..io.files import write_json
+
+    folder = Path(folder)
+    design, spec, f = plan.design, plan.spec, plan.frame
+    parts = build(plan, folder)
+    report = {"format": FORMAT, "design": design.name, "dim": design.dim,
+              "bone_depth": spec.bone_depth if design.dim == 2 else None,
+              "fabrication": {k: (_plain(v) if isinstance(v, np.ndarray) else v)
+                              for k, v in vars(spec).items() if k not in ("split_point", "split_normal")},
+              "parts": {}, "bones": {}, "mould": {}, "checks": {}, "notes": list(plan.notes)}
+    report["fabrication"]["split"] = {"point": _plain(spec.split_point), "normal": _plain(f.n)}
+    if design.dim == 3:
+        report["fabrication"].pop("bone_depth")
+    stl = {}
+    for part in parts:
+        path = folder / f"{part.name}.stl"
+        write_stl(path, part.surface.points, part.surface.tris, part.name)
+        stl[part.name] = check_mesh(*read_stl(path))
+        report["parts"][part.name] = {"kind": part.kind, "stl": path.name, "step": f"{part.name}.step",
+                                      "volume": part.cad_volume, "stl_volume": stl[part.name]["volume"],
+                                      "triangles": stl[part.name]["triangles"]}
+    checks = report["checks"]
+    checks["stl"] = stl
+    for bone, part in zip(design.bones, parts):
+        info = part.info
+        uncut = abs(polygons.signed_area(bone.outline)) * spec.bone_depth if design.dim == 2 else info["uncut_volume"]
+        expected = uncut - info["removed_volume"]
+        got = stl[part.name]["volume"]
+        report["bones"][bone.name] = {
+            "file": f"{part.name}.stl", "uncut_volume": uncut, "removed_volume": info["removed_volume"],
+            "expected_volume": expected, "volume": part.cad_volume, "stl_volume": got,
+            "relative_error": (got - expected) / expected, "channels": info["channels"],
+            "anchor_holes": info["anchor_holes"], "pegs": info["sockets"],
+            "cables": sorted({t.cable for t in plan.bone_tools[bone.name] if t.cable})}
+    halves = {p.name: p for p in parts if p.kind == "mould"}
+    block = sum(p.info["block_volume"] for p in halves.values())
+    cavity = block - sum(stl[name]["volume"] for name in halves)
+    cavity_cad = block - sum(p.cad_volume for p in halves.values())
+    cut = sum(p.info["cut_volume"] for p in halves.values())
+    added = sum(p.info["added_volume"] for p in halves.values())
+    closed = cavity - cut + added
+    report["mould"] = {
+        "split": report["fabrication"]["split"], "axes": {"u": _plain(f.u), "v": _plain(f.v), "n": _plain(f.n)},
+        "block": {"min": _plain(f.lo), "max": _plain(f.hi), "volume": block},
+        "body_volume": plan.body_volume, "cavity_volume": cavity, "cavity_volume_cad": cavity_cad,
+        "relative_error": (cavity - plan.body_volume) / plan.body_volume,
+        "openings_volume": cut, "pegs_and_pins_volume": added, "closed_cavity_volume": closed,
+        "closed_relative_error": (closed - plan.body_volume) / plan.body_volume,
+        "pins": [{"at": _plain(t.points[0]), "diameter": 2 * t.radius} for t in plan.mould_tools if t.kind == "pin"],
+        "pour": [{"from": _plain(t.points[-1]), "to": _plain(t.points[0]), "diameter": 2 * t.radius}
+                 for t in plan.mould_tools if t.kind == "pour"],
+        "vents": [{"from": _plain(t.points[-1]), "to": _plain(t.points[0]), "diameter": 2 * t.radius}
+                  for t in plan.mould_tools if t.kind == "vent"],
+        "exits": {t.cable: {"from": _plain(t.points[0]), "to": _plain(t.points[-1])}
+                  for t in plan.mould_tools if t.kind == "exit"},
+        "pegs": [{"bone": t.bone, "half": t.side, "tip": _plain(t.points[0]), "diameter": 2 * t.radius}
+                 for t in plan.pegs]}
+    checks["stl_closed_and_oriented"] = all(r["oriented"] and r["degenerate"] == 0 and r["parts"] == 1
+                                            for r in stl.values())
+    checks["bone_volumes"] = all(abs(b["relative_error"]) <= TOLERANCE for b in report["bones"].values())
+    # the cavity (block minus both halves, from the STL files) holds the body plus what the pour hole,
+    # vents, exits and pin holes take out of the halves, minus what the pegs and pins put in
+    checks["cavity_is_body"] = abs(report["mould"]["closed_relative_error"]) <= TOLERANCE
+    checks["tolerance"] = TOLERANCE
+    checks["passed"] = checks["stl_closed_and_oriented"] and checks["bone_volumes"] and checks["cavity_is_body"]
+    if picture_file:
+        picture(folder / "fabrication.png", parts, plan)
+    write_json(folder / "fabrication.json", report)
+    return report

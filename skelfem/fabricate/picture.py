@@ -1,0 +1,118 @@
+"""fabricate/picture (from fabricate.py)
+
+Fabrication export: printable bones and a two-part mould from the design that is simulated.
+
+The paper's second pipeline (section III): PLA bones with channels for the
+cables, rubber-band ligaments, and a printed two-part mould into which
+silicone is cast; section VI.A asks for moulds that fixture the skeleton.
+``skelfem fabricate DESIGN`` turns a design into
+
+- ``bone_<name>.stl`` / ``.step``: each bone (2D: its outline extruded over
+  ``bone_depth``, centred in the slab) minus a channel of ``channel_diameter``
+  along every piece of a tendon's sketch inside it, an anchor hole of
+  ``anchor_diameter`` through it (along the mould's normal) where a ligament
+  ends in it, and the sockets of the mould's pegs;
+- ``mould_bottom.stl`` / ``mould_top.stl`` (and ``.step``): a block around the
+  body split by the parting plane (2D: the slab's mid-plane z = thickness/2;
+  3D: ``[fabrication] split``), each half minus the body, so that the closed
+  cavity is the body; registration pins on the bottom half and holes with
+  ``clearance`` in the top, a pour hole and vents through the top, exits for
+  the tendons through the wall, and pegs that reach from each half through
+  the silicone into sockets in the bones and so hold each bone where the
+  design puts it (the fixturing of section VI.A).
+
+Geometry in two passes. A *probe* pass builds the body and the bones with
+Gmsh's OpenCASCADE kernel, triangulates their surfaces and plans everything
+with numpy on the triangles (rays for the cable crossings, inside tests,
+peg and pour sites; exact point-triangle distances for the walls around
+channels). Every problem is found there, before any output folder is
+touched, and raised as :class:`FabricationError` (key, message). A *build*
+pass then makes each part in its own OCC model (boolean cuts and fuses),
+measures its volume exactly (``getMass``), triangulates its surface, writes
+binary STL and STEP, and checks the STL it wrote (every edge shared by
+exactly two triangles, every shared edge used in opposite directions,
+positive volume by the divergence theorem).
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+from .plan import Plan
+
+
+# -- the picture ---------------------------------------------------------------------------------------------------
+def coarsen(points: np.ndarray, tris: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """Vertex clustering, for drawing: corners in one cube of side h merge at their mean, triangles
+    that collapse are dropped. Keeps the look of a surface at a fraction of its triangles."""
+    keys = np.floor(points / h).astype(np.int64)
+    _, cluster, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    cluster = cluster.ravel()
+    merged = np.zeros((len(counts), 3))
+    np.add.at(merged, cluster, points)
+    t = cluster[tris]
+    keep = (t[:, 0] != t[:, 1]) & (t[:, 1] != t[:, 2]) & (t[:, 0] != t[:, 2])
+    return merged / counts[:, None], t[keep]
+
+
+COLOURS = {"bone": (0.93, 0.55, 0.18), "mould_bottom": (0.45, 0.62, 0.85), "mould_top": (0.55, 0.75, 0.60)}
+
+
+def picture(path, parts: list, plan: Plan, title: str = "") -> None:
+    """Exploded view of the parts (matplotlib, headless): mould halves drawn apart along the mould's
+    normal (up in the picture), bones between them where they are cast.
+
+    Each triangle is shaded by Lambert's law, colour x (0.35 + 0.65 max(0, n . l)),
+    with n its outward normal and l a fixed light from above and in front;
+    triangles facing away from the eye (n . e <= 0) are left out, which also
+    spares matplotlib's painter's algorithm most of its depth-order mistakes.
+    """
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    from ..io.files import atomic_write
+
+    f = plan.frame
+    elev, azim = math.radians(22), math.radians(-58)
+    eye = np.array([math.cos(elev) * math.cos(azim), math.cos(elev) * math.sin(azim), math.sin(elev)])
+    height = float(f.hi[2] - f.lo[2])
+    shift = {"mould_bottom": -0.9 * height, "mould_top": 0.9 * height}
+    light = np.array([0.4, -0.6, 0.7]) / np.linalg.norm([0.4, -0.6, 0.7])
+    fig = plt.figure(figsize=(9, 7), dpi=110)
+    ax = fig.add_subplot(projection="3d")
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for part in parts:
+        h = plan.scale / (150 if part.kind == "mould" else 600)     # the mould halves carry most triangles
+        points, tris = coarsen(part.surface.points, part.surface.tris, h)
+        y = f.local(points)
+        y[:, 2] += shift.get(part.name, 0.0)
+        tri = y[tris]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+        facing = n @ eye > 0                # back faces are hidden in a closed solid: not drawn
+        tri, n = tri[facing], n[facing]
+        base = np.array(COLOURS.get(part.name, COLOURS["bone"]))
+        shade = 0.35 + 0.65 * np.clip(n @ light, 0.0, 1.0)
+        alpha = 0.35 if part.name == "mould_top" else 1.0
+        colours = np.column_stack([np.clip(shade[:, None] * base, 0, 1), np.full(len(tri), alpha)])
+        ax.add_collection3d(Poly3DCollection(tri, facecolors=colours, edgecolors=colours,
+                                             linewidths=0.2 if alpha == 1.0 else 0.0))
+        lo, hi = np.minimum(lo, y.min(axis=0)), np.maximum(hi, y.max(axis=0))
+    centre, span = (lo + hi) / 2, (hi - lo)
+    for set_lim, c, s in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre, span):
+        set_lim(c - s / 2, c + s / 2)
+    ax.set_box_aspect(span)
+    ax.view_init(elev=math.degrees(elev), azim=math.degrees(azim))
+    ax.set_xlabel("u [mm]"), ax.set_ylabel("v [mm]"), ax.set_zlabel("n [mm]")
+    ax.tick_params(labelsize=7)
+    handles = [plt.Rectangle((0, 0), 1, 1, color=COLOURS[k]) for k in ("mould_top", "bone", "mould_bottom")]
+    ax.legend(handles, ["mould top (translucent)", "bones", "mould bottom"], loc="upper left", fontsize=8)
+    ax.set_title(title or f"{plan.design.name}: parts, exploded along the mould's normal", fontsize=10)
+    fig.subplots_adjust(left=0.0, right=1.0, bottom=0.04, top=0.94)
+    atomic_write(Path(path), lambda tmp: fig.savefig(tmp, format="png"))
+    plt.close(fig)
+
+

@@ -1,0 +1,453 @@
+"""fem/model (from model.py)
+
+The model: Pi(u; a) = sum of the registered terms, and its derivatives.
+
+Every physical ingredient is a term (:mod:`skelfem.terms`); the model builds
+them from the design, sums their UFL energies into one form compiled once
+(with its residual and Jacobian forms), and adds the hand-written ones on
+their few DOFs. It names no ingredient. The solver sees ``energy``,
+``residual``, ``jacobian`` (the sparse Newton matrix K), ``low_rank`` (the
+rank-one parts c g g^T kept out of K), ``admissible``, ``max_step`` and
+``step_correction``; output reads ``readouts``; control reads and writes
+``parameters``.
+
+Dirichlet DOFs (fixed pins) have identity rows and columns in K and carry no
+term entries, and their entries of every low-rank vector are zero.
+
+Rigid bodies (``Term.rigid_body``: rigid bones) are solved for their rigid
+DOFs q: their nodes' rows of K become identity rows and columns too, after
+K T (T = du_b/dq) has given the coupling E and the reduced block
+C = T^T K T + sum_i R_i . d2u_i/dq2 of the linear solver's border
+(:class:`skelfem.linear.Border`, ``border``). In serial the border lives in
+K itself: each body's q takes the rows and columns of the first DOFs of its
+first nodes (its *hosts*), which hold E and C, so one factorisation covers
+it; under MPI the linear solver adds it from K^{-1} E. The residual on those
+rows is the projection of grad Pi onto the rigid modes, and ``apply_bcs``
+puts every rigid body exactly on its closest rigid motion.
+
+``refresh`` makes the model follow an edit that keeps the mesh (moved nodes,
+cables, markers, pins...) without compiling anything again: terms follow in
+place or are built anew, and the Newton matrix is kept while its pattern holds.
+"""
+from __future__ import annotations
+
+import numpy as np
+import ufl
+from dolfinx import cpp as _cpp
+from dolfinx import fem
+from dolfinx.fem import petsc as fem_petsc
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from ..mesh.points import global_dof_numbers
+from ..terms import BUILDERS, Context
+from ..terms.elasticity import cell_values_min, min_jacobian_expression
+from .assembly import MatrixAssembly, block_keys
+from .follow import MODEL_KEYS, CannotFollow, PackedCoefficients, raw_value
+
+
+
+class Model(MatrixAssembly):
+    """Pi, grad Pi and hess Pi of one design on one mesh."""
+
+    def __init__(self, design, tagged_mesh, builders=None):
+        self.design, self.tm = design, tagged_mesh
+        mesh = self.mesh = tagged_mesh.mesh
+        self.comm = mesh.comm
+        self.dim = mesh.geometry.dim
+        self.thickness = float(design.thickness) if design.dim == 2 else 1.0
+        V = self.V = fem.VectorFunctionSpace(mesh, ("Lagrange", int(design.mesh.degree)))
+        self.u = fem.Function(V, name="displacement")
+        self.bs = V.dofmap.index_map_bs
+        imap = V.dofmap.index_map
+        self.n_local = (imap.size_local + imap.num_ghosts) * self.bs
+        self.n_owned = imap.size_local * self.bs
+        self.num_cells = mesh.topology.index_map(mesh.topology.dim).size_local
+        self.factor = 0.0
+        x = mesh.geometry.x[:, :self.dim]
+        self.size = float(self.comm.allreduce(np.linalg.norm(x.max(axis=0) - x.min(axis=0)) if len(x) else 0.0,
+                                              op=MPI.MAX))   # bounding-box diagonal, mm
+        t = fem.Constant(mesh, PETSc.ScalarType(self.thickness))
+        self.ctx = Context(design, tagged_mesh, V, self.u, t)
+        self._built = [(build, build(self.ctx)) for build in (builders or BUILDERS)]   # who built which terms
+        self.terms = [term for _, terms in self._built for term in terms]
+        self.ctx.finalise()
+        self.global_dofs = global_dof_numbers(V).astype(PETSc.IntType)   # local -> global, unrolled
+        self._constraints()
+        self.border = None            # the linear solver's Border at the last jacobian (rigid bodies)
+        self._last_gradient = None    # (state, grad Pi) of the last residual (rigid bodies)
+        self._pattern_keys = None     # node pairs (row * nodes + column) of the last matrix made (serial)
+        self._extra_keys = np.zeros(0, np.int64)  # node pairs of terms replaced by refresh, kept in new matrices
+        self._hosts = None            # serial rigid bodies: [(host DOFs, coupled DOFs)] per body (_border_pattern)
+
+        parts = [e for e in (term.ufl_energy(self.ctx) for term in self.terms) if e is not None]
+        Pi = sum(parts[1:], parts[0])
+        v, du = ufl.TestFunction(V), ufl.TrialFunction(V)
+        R = ufl.derivative(Pi, self.u, v)
+        self.energy_form = fem.form(Pi)
+        self.residual_form = fem.form(R)
+        self.jacobian_form = fem.form(ufl.derivative(R, self.u, du))
+        self.detF = min_jacobian_expression(self.u)
+        self._w = fem.Function(V)                         # scratch field for max_gradient
+        k = max(V.ufl_element().degree() - 1, 0)
+        W = fem.FunctionSpace(self.mesh, ("DG", k))
+        self._grad_w = fem.Expression(ufl.sqrt(ufl.inner(ufl.grad(self._w), ufl.grad(self._w))),
+                                      W.element.interpolation_points())
+        self._vectors: list[PETSc.Vec] = []
+        self._fixed_cache: dict = {}
+        self._block_cache: dict = {}   # (term, block) -> its map into the matrix (see _term_blocks_at)
+        self._csr_cache = None
+        self._packs = PackedCoefficients()
+        self.changes: dict = {}      # {key: (value at the last solve, value now)} of live parameters
+
+    def _constraints(self, terms=None) -> None:
+        """Dirichlet conditions and rigid bodies of the terms (default: the model's own)."""
+        terms = self.terms if terms is None else terms
+        fixed = np.zeros(self.n_local, dtype=bool)
+        for term in terms:
+            for _, dofs in term.dirichlet():
+                fixed[dofs] = True
+        rigid = [b for b in (term.rigid_body() for term in terms) if b is not None]
+        slaved = np.zeros(self.n_owned, dtype=bool)      # owned DOFs that follow a rigid body
+        for body in rigid:
+            # a guard: pins hold the body's boundary and bones lie strictly inside it (design.py)
+            if self.comm.allreduce(bool(fixed[body.dofs].any()), op=MPI.LOR):
+                from ..design.spec import DesignError
+                raise DesignError(f"{self.design.source}: bones.{body.name}.rigid: a rigid bone cannot be held "
+                                  "by a fixed pin (make it elastic)")
+            slaved[body.dofs] = True
+        self.bcs = [bc for term in terms for bc, _ in term.dirichlet()]
+        self.fixed = self.ctx.fixed = fixed
+        self.rigid, self.slaved = rigid, slaved
+        self._slaved_rows = self.global_dofs[np.flatnonzero(slaved)].astype(PETSc.IntType)
+
+    # -- following a design on the same mesh -------------------------------------------------------
+    def refresh(self, design, changed) -> str | None:
+        """Follow design on this mesh, whose nodes may have moved, keeping the compiled forms.
+
+        changed: the dotted design keys that differ from the model's design
+        (skelfem.design.flatten). Each ingredient whose terms can follow in
+        place does (Term.follow); the others are built anew, which is allowed
+        only if none of their terms, old or new, has a UFL energy. Live
+        parameters among the changes are set as ``set_parameter`` would.
+        Returns None when the model cannot follow (nothing was changed: build a
+        new model), "same matrix" when the Newton matrix's pattern still holds
+        every term's blocks, and "new matrix" when the caller must make a new one
+        (``create_matrix``). Serial only.
+        """
+        live = self.parameters()
+        changed = set(changed)
+        if self.comm.size != 1 or any(k.split(".", 1)[0] in MODEL_KEYS for k in changed):
+            return None
+        values = {}
+        for key in changed & live.keys():
+            try:
+                values[key] = raw_value(design.raw, key)
+            except (KeyError, StopIteration, TypeError):      # dropped for its default: build anew
+                pass
+        structural = changed - values.keys()
+        ctx = Context(design, self.tm, self.V, self.u, self.ctx.thickness)
+        old_design, self.ctx.design = self.ctx.design, design      # kept terms read the new design
+        built, rebuilt, replaced = [], [], []
+        try:
+            for build, terms in self._built:
+                if terms and all(term.follow(self.ctx, structural) for term in terms):
+                    built.append((build, terms))
+                    continue
+                new = build(ctx)
+                if any(t.has_ufl_energy() for t in terms + new):
+                    raise CannotFollow
+                built.append((build, new))
+                rebuilt += new
+                replaced += terms
+            terms = [term for _, ts in built for term in ts]
+            self._constraints(terms)
+        except CannotFollow:
+            self.ctx.design = old_design
+            return None
+        except BaseException:
+            self.ctx.design = old_design
+            raise
+        ctx.fixed = self.fixed
+        self.design, self._built, self.terms = design, built, terms
+        for key, value in values.items():
+            if key in self.parameters():
+                self.set_parameter(key, value)
+        x = self.mesh.geometry.x[:, :self.dim]
+        self.size = float(np.linalg.norm(x.max(axis=0) - x.min(axis=0)))
+        self._fixed_cache.clear()
+        self._block_cache.clear()
+        self._csr_cache = None
+        self._last_gradient = self.border = None
+        border_blocks, self._hosts = self._border_pattern([b for term in terms for b in term.pattern()])
+        if self._within_pattern([b for term in rebuilt for b in term.pattern()] + border_blocks):
+            return "same matrix"
+        # the new matrix keeps the replaced terms' blocks too: while a drag moves via points from
+        # cell to cell, the pattern grows a few times and then holds
+        n = self.n_local // self.bs
+        self._extra_keys = np.union1d(self._extra_keys,
+                                      block_keys([b for term in replaced for b in term.pattern()], n))
+        return "new matrix"
+
+    def _extra_rows(self) -> list:
+        """The kept node pairs (_extra_keys) as one pattern block per row node."""
+        n = self.n_local // self.bs
+        rows, cols = np.divmod(self._extra_keys, n)
+        starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]]) if len(rows) else np.zeros(0, int)
+        return [(rows[i:i + 1], c) for i, c in zip(starts, np.split(cols, starts[1:]))]
+
+    def _within_pattern(self, blocks) -> bool:
+        """Whether every pattern block (row nodes, column nodes) is inside the last matrix made (serial)."""
+        if self._pattern_keys is None:
+            return False
+        keys = block_keys(blocks, self.n_local // self.bs)
+        if not len(keys):
+            return True
+        if not len(self._pattern_keys):
+            return False
+        at = np.minimum(np.searchsorted(self._pattern_keys, keys), len(self._pattern_keys) - 1)
+        return bool(np.array_equal(self._pattern_keys[at], keys))
+
+    # -- terms and parameters -------------------------------------------------------------------
+    def term(self, section: str, name: str | None = None):
+        """The term of a section (and name); KeyError if there is none."""
+        for term in self.terms:
+            if term.section == section and (name is None or term.name == name):
+                return term
+        raise KeyError(f"{section}.{name}" if name else section)
+
+    def terms_in(self, section: str) -> list:
+        return [t for t in self.terms if t.section == section]
+
+    def parameters(self) -> dict:
+        """{--set key: value} of every parameter that changes live (no re-mesh, no recompile)."""
+        return {k: v for term in self.terms for k, v in term.parameters().items()}
+
+    def set_parameter(self, key: str, value) -> None:
+        """Change a live parameter; the change is remembered (``changes``) until the next solve."""
+        owners = [term for term in self.terms if key in term.parameters()]
+        if not owners:
+            raise KeyError(key)
+        old = self.changes.get(key, (np.array(owners[0].parameters()[key], dtype=float), None))[0]
+        self._last_gradient = None
+        for term in owners:          # a key may belong to several terms (density: gravity and inertia)
+            term.set_parameter(key, value)
+        self.changes[key] = (old, np.array(owners[0].parameters()[key], dtype=float))
+
+    def parameter_path(self, s: float) -> None:
+        """Set every changed parameter to old + s (new - old): s = 0 the last solved state, 1 the new one."""
+        self._last_gradient = None
+        for key, (old, new) in self.changes.items():
+            value = old + s * (new - old)
+            for term in self.terms:
+                if key in term.parameters():
+                    term.set_parameter(key, float(value) if value.ndim == 0 else value)
+
+    def carry_over(self, x: PETSc.Vec) -> None:
+        """Let every term adjust a start state x interpolated from another mesh (see Term.carry_over)."""
+        u = x.array_w
+        for term in self.terms:
+            term.carry_over(u)
+        x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+
+    def set_factor(self, a: float) -> None:
+        """Ramp contractions, pretensions, loads and pin moves to a fraction a."""
+        self.factor = float(a)
+        self._last_gradient = None
+        for term in self.terms:
+            term.set_factor(a)
+
+    def end_step(self) -> None:
+        for term in self.terms:
+            term.end_step(self)
+
+    # -- state ----------------------------------------------------------------------------------
+    def sync(self, x: PETSc.Vec) -> np.ndarray:
+        """Make self.u hold x (ghosts updated); returns its local array."""
+        if x is not self.u.vector:
+            x.copy(self.u.vector)
+        self.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        return self.u.x.array
+
+    def apply_bcs(self, x: PETSc.Vec) -> None:
+        """Write the prescribed pin displacements into x and put each rigid body on its closest rigid motion."""
+        fem_petsc.set_bc(x, self.bcs)
+        if self.rigid:
+            u = x.array_r.copy()
+            for body in self.rigid:
+                body.snap(u)
+            x.array_w[:] = u
+        x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+
+    def min_jacobian(self, x: PETSc.Vec | None = None) -> float:
+        """Smallest det F over the mesh (sampled at DG nodes), reduced over ranks."""
+        if x is not None:
+            self.sync(x)
+        return self.comm.allreduce(cell_values_min(self.detF, self.num_cells), op=MPI.MIN)
+
+    def max_gradient(self, v: PETSc.Vec) -> float:
+        """max |grad v| over the mesh (exact for P1 and P2 fields; reduced over ranks)."""
+        v.copy(self._w.vector)
+        self._w.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        cells = np.arange(self.num_cells, dtype=np.int32)
+        local = float(self._grad_w.eval(cells).max()) if self.num_cells else 0.0
+        return self.comm.allreduce(local, op=MPI.MAX)
+
+    def untangle(self, x: PETSc.Vec, sweeps: int = 20) -> int:
+        """Smooth a start state x on its inverted cells until det F > 0 everywhere (at most `sweeps`).
+
+        A displacement interpolated from a coarser mesh can invert a small
+        cell: near a clamped corner's strain singularity the coarse P2 field's
+        det F dips below zero between the points where the coarse solve checked
+        it (finger_bones from h = 1 to 0.5: one cell of 0.05 mm at det F =
+        -0.07), and the warm re-solve fell back to a ramp from rest (26 Newton
+        iterations; 24 from the untangled start). Each sweep moves the nodes of
+        every cell with det F <= 0 to the mean of their cells' mean
+        displacements (a Laplacian step), then re-applies the pins and rigid
+        bones; the state elsewhere stays as it was. Returns the sweeps made
+        (0: x was admissible).
+        """
+        cells = np.arange(self.num_cells, dtype=np.int32)
+
+        def inverted() -> np.ndarray:
+            bad = self.detF.eval(cells).min(axis=1) <= 0.0 if self.num_cells else np.zeros(0, bool)
+            return bad if self.comm.allreduce(bool(bad.any()), op=MPI.LOR) else None
+
+        self.sync(x)
+        bad = inverted()
+        if bad is None:
+            return 0
+        nodes = self.V.dofmap.list.array.reshape(-1, self.V.dofmap.dof_layout.num_dofs)[:self.num_cells]
+        count = np.maximum(np.bincount(nodes.ravel(), minlength=self.n_local // self.bs), 1)
+        for sweep in range(1, sweeps + 1):
+            u = self.u.x.array.reshape(-1, self.bs)
+            mean = u[nodes].mean(axis=1)                                  # (cells, bs)
+            around = np.zeros_like(u)
+            np.add.at(around, nodes.ravel(), np.repeat(mean, nodes.shape[1], axis=0))
+            moved = np.unique(nodes[bad])
+            u[moved] = around[moved] / count[moved, None]
+            x.array_w[:] = u.ravel()[:len(x.array_w)]
+            self.apply_bcs(x)
+            self.sync(x)
+            bad = inverted()
+            if bad is None:
+                return sweep
+        return sweeps
+
+    def admissible(self, x: PETSc.Vec) -> bool:
+        """det F > 0 everywhere and every term accepts the state (e.g. no self-intersection)."""
+        if not self.min_jacobian(x) > 0.0:
+            return False
+        u = self.u.x.array
+        return self.comm.allreduce(all(term.admissible(u) for term in self.terms), op=MPI.LAND)
+
+    @property
+    def bounds_steps(self) -> bool:
+        """Whether some term limits the step (only the energy line search honours that)."""
+        return any(term.bounds_steps for term in self.terms)
+
+    def max_step(self, x0: np.ndarray, p: np.ndarray) -> float:
+        """Largest alpha in [0, 1] such that every term admits x0 + s p, s <= alpha (agreed over ranks)."""
+        alpha = min([1.0] + [term.max_step(x0, p) for term in self.terms])
+        return float(self.comm.allreduce(alpha, op=MPI.MIN))
+
+    def step_correction(self, x0: np.ndarray, p: np.ndarray, alpha: float) -> np.ndarray | float:
+        """Sum of the terms' corrections to the trial state x0 + alpha p (0 if none)."""
+        out = 0.0
+        for term in self.terms:
+            c = term.step_correction(x0, p, alpha)
+            if c is not None:
+                out = out + c
+        return out
+
+    @property
+    def energy_noise(self) -> float:
+        """Round-off level of Pi: terms of size mu, lam cancel in psi."""
+        return 64 * np.finfo(float).eps * sum(term.energy_scale() for term in self.terms)
+
+    # -- energy and gradient ------------------------------------------------------------------
+    def energy(self, x: PETSc.Vec) -> float:
+        """Total energy Pi(x) in N mm."""
+        u = self.sync(x)
+        form = self.energy_form
+        e = self.comm.allreduce(_cpp.fem.assemble_scalar(form, _cpp.fem.pack_constants(form),
+                                                         self._packs(form)), op=MPI.SUM)
+        return e + float(sum(term.energy(u) for term in self.terms))
+
+    def term_gradient(self, u: np.ndarray) -> np.ndarray:
+        """Gradient of the hand-written terms, on local DOFs (global-DOF terms add their owned entries)."""
+        g = np.zeros(self.n_local)
+        for term in self.terms:
+            out = term.gradient(u)
+            if out is None:
+                continue
+            dofs, values = out
+            if term.gather is None:
+                np.add.at(g, dofs, values)
+            else:
+                term.gather.scatter_add(values, g)
+        return g
+
+    def gradient(self, x: PETSc.Vec, b: PETSc.Vec) -> None:
+        """Full gradient of Pi, Dirichlet rows included (for reactions)."""
+        u = self.sync(x)
+        form = self.residual_form
+        with b.localForm() as b_local:
+            b_local.set(0.0)
+            _cpp.fem.assemble_vector(b_local.array_w, form, _cpp.fem.pack_constants(form), self._packs(form))
+            b_local.array_w[:] += self.term_gradient(u)
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+
+    def residual(self, x: PETSc.Vec, b: PETSc.Vec) -> None:
+        """grad Pi with Dirichlet rows replaced by x - g (zero when x satisfies the pins), and on a
+        rigid body's rows its projection onto the body's rigid modes (zero iff T^T grad Pi = 0)."""
+        self.gradient(x, b)
+        fem_petsc.set_bc(b, self.bcs, x, -1.0)
+        if self.rigid:
+            u, r = self.u.x.array, b.array_r.copy()
+            self._last_gradient = (x.array_r.copy(), r.copy())       # for the border's d2u/dq2 term
+            for body in self.rigid:
+                body.project(body.modes(u), r)
+            b.array_w[:] = r
+
+    def full_gradient(self) -> np.ndarray:
+        """grad Pi at the current state, owned entries, Dirichlet rows included."""
+        b = self.u.vector.duplicate()
+        self.gradient(self.u.vector, b)
+        out = b.array_r.copy()
+        b.destroy()
+        return out
+
+    # -- the Newton matrix ----------------------------------------------------------------------
+    def low_rank(self, x: PETSc.Vec | None = None) -> list[tuple[float, PETSc.Vec]]:
+        """The rank-one parts c g g^T of hess Pi as (c, g) with g a PETSc vector, zero on Dirichlet DOFs.
+
+        The same list (same length, same order) on every rank.
+        """
+        u = self.u.x.array if x is None else self.sync(x)
+        parts = [(term, c, dofs, g) for term in self.terms for c, dofs, g in term.low_rank(u)]
+        while len(self._vectors) < len(parts):
+            self._vectors.append(self.u.vector.duplicate())
+        out = []
+        for (term, c, dofs, g), vec in zip(parts, self._vectors):
+            g = np.asarray(g, float) * self._free(term, dofs)
+            vec.set(0.0)
+            if term.gather is None:
+                pos = np.flatnonzero(np.asarray(dofs) < self.n_owned)
+                vec.array_w[np.asarray(dofs)[pos]] = g[pos]
+            else:
+                vec.array_w[term.gather.local] = g[term.gather.pos]
+            out.append((float(c), vec))
+        return out
+
+    # -- read-outs -------------------------------------------------------------------------------
+    def readouts(self) -> dict:
+        """{section: {name: {...}}} of every term at the current state (collective)."""
+        out: dict = {}
+        for term in self.terms:
+            values = term.readout(self)
+            if values:
+                out.setdefault(term.section, {}).update(values)
+        return out
+
+

@@ -1,0 +1,413 @@
+"""fem/newton (from solver.py)
+
+Static equilibrium: PETSc SNES Newton on grad Pi = 0, with load stepping.
+
+Newton's direction p solves H p = -grad Pi with H = K + sum c g g^T: the
+sparse matrix K factorised (MUMPS LDL^T, the matrix pattern fixed so the
+symbolic factorisation is reused) and the rank-one parts of taut cables
+added by the Woodbury formula (skelfem.linear), through a PETSc python PC.
+The default line search ("energy") runs in SNES's pre-check: it starts from
+the model's admissible step alpha_max = model.max_step(x, p) <= 1 (e.g. the
+collision-free step of self-contact) and backtracks until the trial state is admissible (det F > 0
+in every element, no term objects) and satisfies the Armijo condition
+
+    Pi(x + alpha p) <= Pi(x) + c alpha grad Pi . p,
+
+or, once energy differences drown in round-off, reduces |grad Pi|. A trial
+state with an inverted element is never accepted. ``curved`` is the same
+line search along the second-order curve x + alpha p + alpha^2 a / 2 with the
+geodesic acceleration a = -H^{-1} D^2R[p, p] (one more back-substitution and
+two residuals per iteration; the straight step is kept when it is lower at
+alpha_max): on slender bodies that rotate a lot the straight step stretches
+the body by O(alpha^2) and the energy model fails, the curve follows the
+rotation. Other strategies
+(``residual``: PETSc's backtracking on |grad Pi|, ``none``: full steps,
+``trust_region``: PETSc's newtontr) exist to compare against.
+
+Contractions, loads and pin moves are ramped over ``steps`` load steps; a
+failed step is retried with half the increment (up to ``max_cuts`` times).
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from petsc4py import PETSc
+
+from ..design.spec import ENERGY_LINE_SEARCHES, LINE_SEARCHES as STRATEGIES
+from .linesearch import WATCHDOG, LineSearch
+from .linear import LowRankSolver, default_petsc_options  # noqa: F401 (re-exported)
+
+log = logging.getLogger("skelfem")
+
+
+
+
+
+def resolve_strategy(design) -> str:
+    """What line_search = "auto" means for a design: "curved" for bodies without bones, else "energy".
+
+    The exact bone rotation (Elasticity.step_correction) keeps stiff bones
+    robust under the monotone energy line search; a geodesic acceleration
+    through a stiff bone is dominated by its stiffness and does not help, and
+    relaxed steps cost bony designs iterations. Soft bodies without bones
+    are the ones that crawl under the monotone search.
+    """
+    return "energy" if getattr(design, "bones", None) else "curved"
+
+_REASONS = {
+    PETSc.SNES.ConvergedReason.DIVERGED_MAX_IT: "max_iterations",
+    PETSc.SNES.ConvergedReason.DIVERGED_LINE_SEARCH: "line_search_failed",
+    PETSc.SNES.ConvergedReason.DIVERGED_FNORM_NAN: "diverged",
+    PETSc.SNES.ConvergedReason.DIVERGED_FUNCTION_COUNT: "diverged",
+    PETSc.SNES.ConvergedReason.DIVERGED_LINEAR_SOLVE: "linear_solve_failed",
+    PETSc.SNES.ConvergedReason.DIVERGED_DTOL: "diverged",
+    PETSc.SNES.ConvergedReason.DIVERGED_TR_DELTA: "trust_region_collapsed",
+    PETSc.SNES.ConvergedReason.DIVERGED_INNER: "inner_solve_failed",
+    PETSc.SNES.ConvergedReason.DIVERGED_LOCAL_MIN: "local_minimum_of_residual",
+    PETSc.SNES.ConvergedReason.DIVERGED_FUNCTION_DOMAIN: "inverted_elements",
+    PETSc.SNES.ConvergedReason.DIVERGED_JACOBIAN_DOMAIN: "inverted_elements",
+}
+
+
+class SolveError(RuntimeError):
+    """Raised by callers that need an equilibrium and did not get one."""
+
+
+@dataclass
+class SolveReport:
+    converged: bool
+    status: str
+    newton_iterations: int = 0
+    load_steps: int = 0
+    residual_history: list = field(default_factory=list)   # one list of |R| per load step
+    attempts: list = field(default_factory=list)           # every Newton run: factor, iterations, status
+    energy: float = float("nan")
+    min_jacobian: float = float("nan")
+    time: float = 0.0
+
+
+class NewtonSolver(LineSearch):
+    """SNES Newton for one Model; reusable across solves (warm starts)."""
+
+    def __init__(self, model, spec=None, petsc_options: dict | None = None, prefix: str = "skelfem_"):
+        self.model = model
+        spec = spec if spec is not None else model.design.solver
+        self.strategy = spec.line_search
+        if self.strategy not in STRATEGIES:
+            raise ValueError(f"unknown line search {self.strategy!r}")
+        if self.strategy == "auto":
+            self.strategy = resolve_strategy(model.design)
+        self.energy_search = self.strategy in ENERGY_LINE_SEARCHES
+        if not self.energy_search and model.rigid:     # a design's own spec is refused when it is read
+            raise ValueError(f"line search {self.strategy!r} cannot keep rigid bones rigid; use 'energy'")
+        if not self.energy_search and model.bounds_steps:
+            raise ValueError(f"line search {self.strategy!r} cannot limit steps to the model's "
+                             "admissible ones; use 'energy'")
+        self.max_iterations, self.rtol, self.atol = spec.max_iterations, spec.rtol, spec.atol
+        self.xtol = 1e-11             # relative size of a full Newton step that ends the solve
+        self.max_cuts = 8
+        self._newton_step = np.inf    # |p| of the last undamped Newton step
+        self.reference_residual = 0.0  # largest first |R| of a solve from rest (the problem's force scale)
+        self.etol = 1e-15             # Newton decrement -grad Pi . p relative to |Pi| that ends the solve
+        self._decrement_converged = False
+        self.A = model.create_matrix()
+        self.lin = LowRankSolver(self.A, model.comm, petsc_options, prefix + "k_")
+        self.b = model.u.vector.duplicate()
+        self.x = model.u.vector.copy()      # SNES iterate; model.u is scratch for evaluations
+        self._history: list[float] = []
+        self._failure: str | None = None
+        self._f0 = 0.0
+        self._last_trial = None       # (state, Pi) of the last accepted line-search trial
+        self.curved = self.strategy == "curved"
+        self.watchdog = WATCHDOG if self.curved else 0   # full steps that may raise Pi before it must
+        #                                                   be below the reference
+        self._watch = None            # the watchdog's reference (state, energy, Newton step) while relaxed
+        self._watch_allowed = True
+        self._factorised = False      # lin holds a factorisation of K near the current state
+        self.snes = self._create_snes(prefix)
+
+    # -- SNES set-up -------------------------------------------------------------------
+    def jacobian(self, x: PETSc.Vec) -> None:
+        """Assemble K at x and factorise it with the rank-one parts (what every Newton solve uses)."""
+        self.model.jacobian(x, self.A)
+        self.lin.update(self.model.low_rank(), self.model.border)
+
+    def _create_snes(self, prefix: str) -> PETSc.SNES:
+        snes = PETSc.SNES().create(self.model.comm)
+        snes.setOptionsPrefix(prefix)
+        snes.setFunction(lambda s, x, b: self.model.residual(x, b), self.b)
+        snes.setJacobian(lambda s, x, A, P: self.jacobian(x), self.A)
+        options = {}
+        if self.strategy == "trust_region":
+            snes.setType("newtontr")
+        else:
+            snes.setType("newtonls")
+            options = {"snes_linesearch_type": "bt" if self.strategy == "residual" else "basic",
+                       **options}
+            if self.energy_search:
+                snes.setLineSearchPreCheck(self._energy_line_search)
+        opts = PETSc.Options()
+        for key, value in options.items():
+            opts[f"{prefix}{key}"] = value
+        snes.setTolerances(rtol=0.0, atol=0.0, stol=0.0, max_it=self.max_iterations)
+        snes.setConvergenceTest(self._converged)
+        snes.setFromOptions()
+        for key in options:
+            del opts[f"{prefix}{key}"]
+        ksp = snes.getKSP()
+        ksp.setType("preonly")
+        self.lin.as_pc(ksp.getPC())
+        return snes
+
+    def new_matrix(self) -> None:
+        """A new Newton matrix from the model (its terms' pattern grew: Model.refresh)."""
+        A = self.model.create_matrix()
+        self.snes.setJacobian(lambda s, x, A_, P: self.jacobian(x), A)
+        self.A.destroy()
+        self.A = self.lin.K = A
+        self.lin.reset()
+
+    def forget(self) -> None:
+        """Drop what was computed for the model before it changed (Model.refresh): factorisation, trials."""
+        self._factorised = False
+        self._last_trial = None
+        self._watch, self._watch_allowed = None, True
+
+    def destroy(self) -> None:
+        self.snes.destroy()
+        self.lin.destroy()
+        for v in (self.A, self.b, self.x):
+            v.destroy()
+
+    def _converged(self, snes, it, norms):
+        """|R| <= max(atol, rtol |R_0|), or a full Newton step below xtol * size."""
+        xnorm, ynorm, fnorm = norms
+        self._history.append(float(fnorm))
+        if it == 0:
+            # the force scale: |R| at the start of a solve from rest; a warm start, whose first
+            # residual is small, is held to the same absolute accuracy, not to rtol of its own |R_0|
+            self._f0 = max(fnorm, self.reference_residual)
+        log.debug("  newton %2d  |R| = %.3e  |dx| = %.3e", it, fnorm, ynorm)
+        if not np.isfinite(fnorm):
+            return PETSc.SNES.ConvergedReason.DIVERGED_FNORM_NAN
+        if fnorm <= max(self.atol, self.rtol * self._f0):
+            return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_ABS
+        if self._decrement_converged:
+            return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_RELATIVE
+        step = self._newton_step if self.energy_search else ynorm
+        if it > 0 and step <= self.xtol * max(xnorm, self.model.size):
+            return PETSc.SNES.ConvergedReason.CONVERGED_SNORM_RELATIVE
+        if self._failure is not None:
+            return PETSc.SNES.ConvergedReason.DIVERGED_LINE_SEARCH
+        if it >= self.max_iterations:
+            return PETSc.SNES.ConvergedReason.DIVERGED_MAX_IT
+        return PETSc.SNES.ConvergedReason.ITERATING
+
+    # -- solves ---------------------------------------------------------------------------
+    def _newton(self) -> tuple[bool, str, int]:
+        """Newton from the current state at the current load factor."""
+        self._history, self._failure, self._newton_step = [], None, np.inf
+        self._watch, self._watch_allowed = None, True
+        self._decrement_converged = False
+        self._last_trial = None
+        self.model.u.vector.copy(self.x)
+        self.model.apply_bcs(self.x)
+        if not self.model.admissible(self.x):
+            return False, "inverted_elements", 0
+        try:
+            self.snes.solve(None, self.x)
+        except np.linalg.LinAlgError as exc:     # a singular Newton matrix: this attempt failed
+            log.debug("%s", exc)
+            self.lin.reset()
+            its = max(len(self._history) - 1, 0)
+            self.model.sync(self.model.u.vector)
+            return False, "linear_solve_failed", its
+        self.model.sync(self.x)
+        reason = self.snes.getConvergedReason()
+        its = self.snes.getIterationNumber()
+        if reason > 0:
+            if not self.model.admissible(self.x):
+                return False, "inverted_elements", its
+            self._factorised = self._factorised or its > 0
+            return True, "converged", its
+        log.debug("SNES reason %s", reason)
+        return False, self._failure or _REASONS.get(reason, f"diverged ({reason})"), its
+
+    def _predict(self, prev, a_prev: float, a: float, target: float) -> None:
+        """Secant predictor: extrapolate the last increment to the new load factor."""
+        if prev is None or a <= a_prev:
+            return
+        model = self.model
+        u = model.u.vector
+        guess = u.copy()
+        guess.axpy((target - a) / (a - a_prev), u - prev)
+        model.set_factor(target)
+        current = u.copy()
+        model.apply_bcs(current)
+        model.apply_bcs(guess)
+        reachable = self._max_step(u.array_r, guess.array_r - u.array_r) >= 1.0
+        if reachable and model.admissible(guess) and (not model.admissible(current)
+                                                      or model.energy(guess) < model.energy(current)):
+            guess.copy(u)
+        for v in (guess, current):
+            v.destroy()
+        model.set_factor(a)
+        model.sync(u)
+
+    def solve(self, steps: int = 1, start: float = 0.0, end: float = 1.0) -> SolveReport:
+        """Ramp the load factor from start to end in `steps` steps (cut in half on failure)."""
+        t0 = time.perf_counter()
+        model = self.model
+        model.changes.clear()
+        report = SolveReport(False, "not_started")
+        a, da, cuts = start, (end - start) / max(int(steps), 1), 0
+        da0 = da
+        saved = model.u.vector.copy()
+        prev, a_prev = None, a
+        while a < end - 1e-12:
+            target = min(a + da, end)
+            self._predict(prev, a_prev, a, target)
+            model.set_factor(target)
+            ok, status, its = self._newton()
+            if self._history:
+                self.reference_residual = max(self.reference_residual, self._history[0])
+            report.newton_iterations += its
+            report.attempts.append({"factor": float(target), "iterations": int(its), "status": status})
+            if ok:
+                report.load_steps += 1
+                report.residual_history.append(self._history)
+                log.info("load step %d: factor %.4g, %d Newton iterations, |R| %.2e -> %.2e",
+                         report.load_steps, target, its,
+                         self._history[0] if self._history else 0.0,
+                         self._history[-1] if self._history else 0.0)
+                model.end_step()
+                prev = prev or saved.duplicate()
+                saved.copy(prev)
+                a_prev, a = a, target
+                if its <= 8:
+                    da = min(2.0 * da, da0)
+                model.u.vector.copy(saved)
+                continue
+            log.info("load step to factor %.4g failed (%s)", target, status)
+            saved.copy(model.u.vector)
+            model.set_factor(a)
+            model.sync(model.u.vector)
+            cuts += 1
+            if cuts > self.max_cuts:
+                report.status = status
+                report.residual_history.append(self._history)
+                break
+            da = (target - a) / 2.0
+        else:
+            report.converged, report.status = True, "converged"
+        for v in (saved, prev):
+            if v is not None:
+                v.destroy()
+        return self._finish(report, t0)
+
+    def newton(self) -> SolveReport:
+        """One Newton solve from the model's current state at the current parameters (no load ramp,
+        no predictor, no retry): a time step. The state is left as Newton ended it, accepted
+        (``end_step``) by the caller only if converged."""
+        t0 = time.perf_counter()
+        self.model.changes.clear()
+        ok, status, its = self._newton()
+        if self._history:
+            self.reference_residual = max(self.reference_residual, self._history[0])
+        report = SolveReport(ok, status, its, int(ok), [self._history],
+                             [{"factor": self.model.factor, "iterations": int(its), "status": status}])
+        report.time = time.perf_counter() - t0
+        return report
+
+    def _finish(self, report: SolveReport, t0: float) -> SolveReport:
+        model = self.model
+        report.energy = model.energy(model.u.vector)
+        report.min_jacobian = model.min_jacobian(model.u.vector)
+        report.time = time.perf_counter() - t0
+        return report
+
+    def _tangent_predictor(self) -> float:
+        """Euler predictor from the last equilibrium u_0 to the changed parameters p_1.
+
+        The step is d = -H_0^{-1} (dR/dp) (p_1 - p_0) = du/dp (p_1 - p_0), the
+        first-order change of the equilibrium, with H_0 the Hessian already
+        factorised next to u_0 (one back-substitution: no assembly, no
+        factorisation). dR/dp (p_1 - p_0) is the difference quotient of R(u_0)
+        along the parameter path with the active set of u_0 (a small step
+        keeps taut cables taut): a cable that the new rest length leaves
+        momentarily slack at u_0 still pulls in the prediction, where a
+        Newton step at u_0 would let the body spring past the equilibrium.
+        The energy line search with the new parameters scales it like a
+        Newton step. Returns the step length taken (0 if none).
+        """
+        model = self.model
+        if not self._factorised or all(np.array_equal(o, n) for o, n in model.changes.values()):
+            return 0.0
+        x = model.u.vector.copy()
+        r0, d = x.duplicate(), x.duplicate()
+        eps = 1e-4
+        try:
+            for s, vec in ((0.0, r0), (eps, self.b)):
+                model.parameter_path(s)
+                model.residual(x, vec)
+            self.b.axpy(-1.0, r0)
+            self.b.scale(1.0 / eps)                         # dR/dp (p_1 - p_0) at u_0
+            model.parameter_path(1.0)
+            try:
+                self.lin.solve(self.b, d)
+            except np.linalg.LinAlgError:
+                return 0.0
+            p = -d.array_r.copy()                           # pinned rows: g(p_1) - g(p_0)
+            model.gradient(x, self.b)                       # grad Pi with the new parameters, all rows
+            r = self.b.array_r
+            slope = float(model.comm.allreduce(r @ p))
+            if not np.isfinite(slope) or slope >= 0.0:
+                return 0.0
+            x0 = x.array_r.copy()
+            f0 = float(np.sqrt(model.comm.allreduce(r @ r)))
+            alpha, ok = self._backtrack(x, x0, p, model.energy(x), slope, f0, self._max_step(x0, p))
+            if not ok:
+                return 0.0
+            x.array_w[:] = x0 + alpha * p + model.step_correction(x0, p, alpha)
+            x.copy(model.u.vector)
+            return float(alpha)
+        finally:
+            model.parameter_path(1.0)
+            model.sync(model.u.vector)
+            for v in (x, r0, d):
+                v.destroy()
+
+    def resolve(self, steps: int = 1) -> SolveReport:
+        """Warm re-solve: a tangent predictor, then Newton at full load, from the last equilibrium.
+
+        If that fails, the state is restored and the load is ramped from the
+        rest state in `steps` steps, as a cold solve would; the report counts
+        the iterations of both.
+        """
+        t0 = time.perf_counter()
+        model = self.model
+        saved = model.u.vector.copy()
+        model.set_factor(1.0)
+        predicted = self._tangent_predictor()
+        model.changes.clear()
+        ok, status, its = self._newton()
+        report = SolveReport(ok, status, its, int(ok), [self._history] if ok else [],
+                             [{"factor": 1.0, "iterations": int(its), "status": status, "warm": True,
+                               "predictor_step": predicted}])
+        if ok:
+            model.end_step()
+            saved.destroy()
+            return self._finish(report, t0)
+        log.info("warm re-solve failed (%s); ramping from rest", status)
+        self._factorised = False
+        model.u.vector.set(0.0)
+        model.sync(model.u.vector)
+        cold = self.solve(steps)
+        saved.destroy()
+        cold.newton_iterations += its
+        cold.attempts = report.attempts + cold.attempts
+        cold.time = time.perf_counter() - t0
+        return cold

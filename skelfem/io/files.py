@@ -1,0 +1,104 @@
+"""io/files (from output.py)
+
+Results on disk: result.json, solution.xdmf (ParaView/meshio) and deformed.png.
+
+Every file is written to a temporary name in the output folder and renamed
+into place, so a reader never sees a half-written file. Only rank 0 writes.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+
+FORMAT = 1
+
+
+# -- small helpers ---------------------------------------------------------------------------
+def say(*args, **kwargs) -> None:
+    """print, on MPI rank 0 only (progress lines of studies and scripts)."""
+    from mpi4py import MPI
+    if MPI.COMM_WORLD.rank == 0:
+        print(*args, **kwargs)
+
+
+def atomic_write(path: Path, write) -> None:
+    """Call write(tmp_path) and rename the result onto path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        write(tmp)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def copy_figure(picture: Path, folder: Path | None) -> None:
+    """Copy a study's picture into folder (the README's figures), atomically; nothing if folder is None."""
+    if folder is not None:
+        data = Path(picture).read_bytes()
+        atomic_write(Path(folder) / Path(picture).name, lambda tmp: Path(tmp).write_bytes(data))
+
+
+def strict_json(value):
+    """value with numpy types made plain and every non-finite float (NaN, +-Infinity) made None.
+
+    JSON has no NaN or Infinity; Python's json module would write them anyway
+    (and most readers then fail), so skelfem writes null instead.
+    """
+    if isinstance(value, dict):
+        return {str(k): strict_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [strict_json(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return [strict_json(v) for v in value.tolist()]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        v = float(value)
+        return v if np.isfinite(v) else None
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def write_json(path: Path, data: dict) -> None:
+    """data as strict JSON (non-finite numbers as null), atomically."""
+    text = json.dumps(strict_json(data), indent=2, allow_nan=False) + "\n"
+
+    def write(tmp):
+        with open(tmp, "w") as f:
+            f.write(text)
+    atomic_write(path, write)
+
+
+def write_text(path: Path, text: str) -> None:
+    """A text file, atomically."""
+    atomic_write(path, lambda tmp: Path(tmp).write_text(text))
+
+
+def write_csv(path: Path, fields, rows) -> None:
+    """Rows (dicts) as CSV with the given columns (missing values empty), atomically."""
+    import csv
+
+    def write(tmp):
+        with open(tmp, "w", newline="") as f:
+            w = csv.DictWriter(f, list(fields), extrasaction="ignore")
+            w.writeheader()
+            for r in rows:
+                w.writerow({k: r.get(k, "") for k in fields})
+    atomic_write(path, write)
+
+

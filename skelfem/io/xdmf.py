@@ -1,0 +1,201 @@
+"""io/xdmf (from output.py)
+
+Results on disk: result.json, solution.xdmf (ParaView/meshio) and deformed.png.
+
+Every file is written to a temporary name in the output folder and renamed
+into place, so a reader never sees a half-written file. Only rank 0 writes.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+from .files import atomic_write
+
+
+def _floats(a) -> list:
+    return [float(v) for v in np.asarray(a, dtype=float).ravel()]
+
+
+# -- the state as numbers ------------------------------------------------------------------------
+def vertex_displacements(scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rest node coordinates, displacement at the nodes, triangles/tets) of the P1 geometry."""
+    mesh, V = scene.mesh, scene.V
+    tdim, gdim = mesh.topology.dim, mesh.geometry.dim
+    x = mesh.geometry.x[:, :gdim]
+    geo = mesh.geometry.dofmap.array.reshape(-1, tdim + 1)
+    dofs = V.dofmap.list.array.reshape(len(geo), -1)[:, :tdim + 1]   # vertex DOFs come first
+    node_dof = np.empty(len(x), dtype=np.int64)
+    node_dof[geo.ravel()] = dofs.ravel()
+    u = scene.u.x.array.reshape(-1, scene.bs)[node_dof]
+    return x, u, geo
+
+
+def cell_regions(scene) -> np.ndarray:
+    """Tag value of every local cell (body = 1, bones after)."""
+    n = scene.mesh.topology.index_map(scene.mesh.topology.dim).size_local
+    tags = np.zeros(n, dtype=np.int32)
+    ct = scene.tm.cell_tags
+    owned = ct.indices < n
+    tags[ct.indices[owned]] = ct.values[owned]
+    return tags
+
+
+def cable_states(model) -> list[dict]:
+    u = model.u.x.array
+    out = []
+    for term in model.terms_in("cables"):
+        c, L = term.cable, term.rest_length
+        out.append({"name": c.name, "kind": c.kind, "rest": c.X, "deformed": c.positions(u),
+                    "length": c.length(u), "rest_length": L, "tension": c.tension(u, L)})
+    return out
+
+
+def marker_positions(model) -> dict:
+    """{name: current position} of the design's markers (collective under MPI)."""
+    terms = model.terms_in("markers")
+    if not terms:
+        return {}
+    return dict(zip(terms[0].names, terms[0].positions(model.u.x.array)))
+
+
+class Snapshot(SimpleNamespace):
+    """The whole state gathered in one place: what files and pictures are made from."""
+
+
+def snapshot(scene, to=(0,)) -> Snapshot | None:
+    """The whole state on the ranks in `to` (collective; None on other ranks).
+
+    Under MPI each rank holds its part of the mesh; nodes are matched by their
+    input (Gmsh) numbers, so rank 0 gets the same arrays as a serial run, and
+    sends them on to the other ranks in `to` (e.g. one that draws the picture
+    while rank 0 writes the XDMF file).
+    Returns a Snapshot with x (rest nodes), u (their displacement), cells,
+    regions (tag per cell), cables (see cable_states), markers (name -> position).
+    """
+    comm = scene.comm
+    x, u, cells = vertex_displacements(scene)
+    n_cells = scene.mesh.topology.index_map(scene.mesh.topology.dim).size_local
+    cells, regions = cells[:n_cells], cell_regions(scene)
+    cables = cable_states(scene)
+    markers = marker_positions(scene)
+    if comm.size > 1:
+        orig = np.asarray(scene.mesh.geometry.input_global_indices, dtype=np.int64)
+        parts = comm.gather((orig, x, u, orig[cells], regions), root=0)
+        if comm.rank == 0:
+            orig_all = np.concatenate([p[0] for p in parts])
+            numbers, first = np.unique(orig_all, return_index=True)
+            x = np.concatenate([p[1] for p in parts])[first]
+            u = np.concatenate([p[2] for p in parts])[first]
+            cells = np.searchsorted(numbers, np.concatenate([p[3] for p in parts]))
+            regions = np.concatenate([p[4] for p in parts])
+    snap = Snapshot(x=x, u=u, cells=cells, regions=regions, cables=cables, markers=markers,
+                    body_tag=scene.tm.tags["body"], design=scene.design) if comm.rank == 0 else None
+    for rank in sorted(set(to) - {0}):
+        if comm.rank == 0:
+            comm.send(snap, dest=rank, tag=71)
+        elif comm.rank == rank:
+            snap = comm.recv(source=0, tag=71)
+    return snap if comm.rank in to else None
+
+
+def gathered_snapshot(state) -> Snapshot | None:
+    """A Snapshot as it is, or the snapshot of a model (collective)."""
+    return state if isinstance(state, Snapshot) else snapshot(state)
+
+
+# -- files ------------------------------------------------------------------------------------------
+def write_xdmf(path: Path, scene) -> None:
+    """Mesh (rest coordinates) with displacement, region tag, and cables as polylines.
+
+    `scene` is a model (collective) or a Snapshot of one.
+
+    Cables are extra points and line cells in the same grid, carrying their
+    tension and an id (the cable's position in the design), so a single file
+    opens in ParaView (Warp By Vector on `displacement`) and in meshio.
+    """
+    import meshio
+
+    snap = gathered_snapshot(scene)
+    if snap is None:
+        return
+    x, u, cells = snap.x, snap.u, snap.cells
+    gdim = x.shape[1]
+    cell_type = "triangle" if gdim == 2 else "tetra"
+    points, disp = [x], [u]
+    lines, tension, cable_id = [], [], []
+    offset = len(x)
+    for i, c in enumerate(snap.cables):
+        n = len(c["rest"])
+        points.append(c["rest"])
+        disp.append(c["deformed"] - c["rest"])
+        lines.append(offset + np.column_stack([np.arange(n - 1), np.arange(1, n)]))
+        tension += [c["tension"]] * (n - 1)
+        cable_id += [i] * (n - 1)
+        offset += n
+    pts = np.vstack(points)
+    if gdim == 2:
+        pts = np.column_stack([pts, np.zeros(len(pts))])
+    d = np.vstack(disp)
+    d3 = np.column_stack([d, np.zeros(len(d))]) if gdim == 2 else d
+    blocks = [(cell_type, cells)]
+    region = [snap.regions.astype(float)]
+    tens = [np.zeros(len(cells))]
+    ids = [np.full(len(cells), -1.0)]
+    if lines:
+        blocks.append(("line", np.vstack(lines)))
+        region.append(np.full(len(tension), -1.0))
+        tens.append(np.asarray(tension, float))
+        ids.append(np.asarray(cable_id, float))
+    m = meshio.Mesh(pts, blocks, point_data={"displacement": d3},
+                    cell_data={"region": region, "tension": tens, "cable": ids})
+    atomic_write(path, lambda tmp: meshio.xdmf.write(tmp, m, data_format="XML"))
+
+
+# -- runs in time (skelfem.dynamics) -------------------------------------------------------------------
+def _body_arrays(snap: Snapshot) -> tuple[np.ndarray, list, np.ndarray]:
+    """(points, cell blocks, displacement) of a snapshot's mesh, padded to 3D as in solution.xdmf."""
+    x, u = snap.x, snap.u
+    if x.shape[1] == 2:
+        x, u = np.column_stack([x, np.zeros(len(x))]), np.column_stack([u, np.zeros(len(u))])
+    return x, [("triangle" if snap.x.shape[1] == 2 else "tetra", snap.cells)], u
+
+
+class XdmfSeries:
+    """trajectory.xdmf + trajectory.h5: the mesh once, the displacement at every step (rank 0 only).
+
+    Every ``write`` appends the step's displacement to the HDF5 file at once;
+    the small XML index that ParaView (and meshio's TimeSeriesReader) reads is
+    written by ``close``. Open it in ParaView and press play; Warp By Vector on
+    ``displacement`` shows the motion. The cables are not in it (meshio 5.0's
+    time-series writer cannot mix line and volume cells); the GIF and
+    trajectory.csv have them.
+    """
+
+    def __init__(self, path: Path, snap: Snapshot):
+        import h5py
+        from meshio.xdmf.time_series import TimeSeriesWriter
+
+        path = Path(path)
+
+        class _Writer(TimeSeriesWriter):            # meshio 5.0 puts the .h5 in the working folder
+            def __enter__(self):
+                self.h5_filename = str(path.with_suffix(".h5"))
+                self.h5_file = h5py.File(self.h5_filename, "w")
+                return self
+
+        self.path = path
+        self.writer = _Writer(str(path), data_format="HDF").__enter__()
+        pts, blocks, _ = _body_arrays(snap)
+        self.writer.write_points_cells(pts, blocks)
+        self.region = [snap.regions.astype(float)]
+
+    def write(self, t: float, snap: Snapshot) -> None:
+        _, _, d = _body_arrays(snap)
+        self.writer.write_data(float(t), point_data={"displacement": d}, cell_data={"region": self.region})
+        self.writer.h5_file.flush()
+
+    def close(self) -> None:
+        self.writer.__exit__(None, None, None)
+

@@ -1,0 +1,174 @@
+"""One simulation, from a validated design to files on disk: static, or in time with [dynamics].
+
+Shared by ``skelfem simulate`` (on COMM_WORLD) and ``skelfem sweep`` (one
+sub-communicator per case). Raises DesignError / MeshingError for bad input;
+a solve that fails is reported in the result (``converged: false``), never
+as an equilibrium.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger("skelfem")
+
+
+def open_session(design, comm):
+    """Mesh the design on comm and compile its model: a Session ready to solve."""
+    from ..session import Session
+    return Session(design, comm=comm)
+
+
+def picture_title(design) -> str:
+    pulled = [f"{c.name} u={c.contraction:g} mm" for c in design.cables
+              if c.kind == "tendon" and c.contraction > 0]
+    return f"{design.name}: " + (", ".join(pulled) if pulled else "no contraction")
+
+
+def write_results(session, result, out: Path, t0: float, picture: bool = True,
+                  extra: dict | None = None) -> dict:
+    """result.json always; solution.xdmf and deformed.png only for an equilibrium."""
+    from ..io.outdir import publish
+    from ..viz.plots import plot_deformed, plot_deformed_3d
+    from ..io.xdmf import snapshot, write_xdmf
+    from ..io.files import write_json
+
+    design, model = session.design, session.model
+    comm = model.comm
+    data = result.to_dict()
+    data.update(extra or {})
+    # staged beside `out` and swapped in whole (skelfem.outdir): the folder holds the old
+    # complete result until the new one is complete, never a mix of the two
+    with publish(out, comm) as stage:
+        if result.converged:
+            # one gather; under MPI the last rank draws the picture while rank 0 writes the XDMF
+            painter = comm.size - 1 if picture else 0
+            snap = snapshot(model, to=(0, painter))
+            if comm.rank == 0:
+                stage.run(write_xdmf, stage.path / "solution.xdmf", snap)
+            if picture and comm.rank == painter:
+                plot = plot_deformed if design.dim == 2 else plot_deformed_3d
+                stage.run(plot, stage.path / "deformed.png", snap, picture_title(design))
+        if comm.size > 1:
+            comm.Barrier()                       # the total includes the picture
+        data["timings"]["total"] = round(time.perf_counter() - t0, 4)
+        if comm.rank == 0:
+            stage.run(write_json, stage.path / "result.json", data)
+    return data
+
+
+def simulate_design(design, out: Path, comm, picture: bool = True, extra: dict | None = None) -> dict:
+    """Mesh, solve and write one design on comm; returns the result dict."""
+    t0 = time.perf_counter()
+    with open_session(design, comm) as session:
+        result = session.solve()
+        return write_results(session, result, Path(out), t0, picture, extra)
+
+
+MAX_GIF_FRAMES = 80
+
+
+class ProgressBar:
+    """A one-line progress bar on stderr (rank 0) for runs longer than `after` seconds.
+
+    On a terminal the line is redrawn in place; otherwise (a log file) one line
+    is printed per tenth of the run.
+    """
+
+    def __init__(self, label: str, after: float = 2.0, stream=None):
+        import sys
+        from mpi4py import MPI
+        self.label, self.after = label, after
+        self.stream = stream or sys.stderr
+        self.on = MPI.COMM_WORLD.rank == 0
+        self.tty = self.on and hasattr(self.stream, "isatty") and self.stream.isatty()
+        self.t0 = time.perf_counter()
+        self.shown, self.last, self.tenth = False, 0.0, 0
+
+    def __call__(self, fraction: float) -> None:
+        now = time.perf_counter()
+        if not self.on or now - self.t0 < self.after:
+            return
+        fraction = min(max(fraction, 0.0), 1.0)
+        try:
+            if self.tty:
+                if now - self.last < 0.2 and fraction < 1.0:
+                    return
+                width = 30
+                filled = int(round(width * fraction))
+                eta = (now - self.t0) * (1.0 - fraction) / fraction if fraction > 0 else float("nan")
+                self.stream.write(f"\r{self.label} [{'#' * filled}{'.' * (width - filled)}] "
+                                  f"{100 * fraction:5.1f} %  {now - self.t0:6.1f} s, about {eta:5.0f} s left ")
+                self.stream.flush()
+            elif int(10 * fraction) > self.tenth:
+                self.tenth = int(10 * fraction)
+                self.stream.write(f"{self.label}: {100 * fraction:.0f} % ({now - self.t0:.1f} s)\n")
+                self.stream.flush()
+            self.shown, self.last = True, now
+        except (OSError, ValueError):
+            self.on = False
+
+    def close(self) -> None:
+        if self.on and self.tty and self.shown:
+            try:
+                self.stream.write("\n")
+                self.stream.flush()
+            except (OSError, ValueError):
+                pass
+
+
+def write_dynamic_results(session, out: Path, t0: float, picture: bool = True, progress=None,
+                          extra: dict | None = None) -> dict:
+    """Run a design with [dynamics] in time and write its results, all or nothing.
+
+    trajectory.xdmf/.h5 (the displacement at every step, written as the run
+    goes), trajectory.csv (markers, tensions and energies per step),
+    motion.gif (2D: up to MAX_GIF_FRAMES frames) and result.json, staged
+    beside `out` and swapped in whole when every file is complete.
+    """
+    from ..fem.dynamics import trajectory_columns
+    from ..io.outdir import publish
+    from ..io.xdmf import XdmfSeries, snapshot
+    from ..io.files import write_csv, write_json
+    from ..viz.animation import write_motion_gif
+
+    design, model = session.design, session.model
+    comm = model.comm
+    spec = design.dynamics
+    every = max(1, int(np.ceil(spec.steps / MAX_GIF_FRAMES)))
+    gif = picture and design.dim == 2
+    with publish(out, comm) as stage:
+        series, frames = None, []
+
+        def on_step(t, report):
+            nonlocal series
+            snap = snapshot(model)                     # collective; None off rank 0
+            if comm.rank != 0:
+                return
+            if series is None:
+                series = stage.run(XdmfSeries, stage.path / "trajectory.xdmf", snap)
+            if series is not None:
+                stage.run(series.write, t, snap)
+            n = len(report.times) - 1
+            if gif and (n % every == 0 or abs(t - spec.duration) <= 1e-9 * spec.duration):
+                frames.append((t, snap))
+
+        result = session.run(on_step, progress)
+        data = result.to_dict()
+        data.update(extra or {})
+        if comm.rank == 0:
+            if series is not None:
+                stage.run(series.close)
+            stage.run(write_csv, stage.path / "trajectory.csv", trajectory_columns(design),
+                      result.report.trajectory)
+            if gif and frames:
+                stage.run(write_motion_gif, stage.path / "motion.gif", frames, design.name)
+        if comm.size > 1:
+            comm.Barrier()
+        data["timings"]["total"] = round(time.perf_counter() - t0, 4)
+        if comm.rank == 0:
+            stage.run(write_json, stage.path / "result.json", data)
+    return data

@@ -1,0 +1,192 @@
+"""viz/plots (from output.py)
+
+Results on disk: result.json, solution.xdmf (ParaView/meshio) and deformed.png.
+
+Every file is written to a temporary name in the output folder and renamed
+into place, so a reader never sees a half-written file. Only rank 0 writes.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+from ..io.files import atomic_write
+from ..io.xdmf import gathered_snapshot
+
+
+REGION_COLORS = {"body": "#f4b6a6", "bone": "#e8e4d8"}
+CABLE_COLORS = {"tendon": "#1f5fbf", "ligament": "#d9822b"}
+
+
+def plot_deformed(path: Path, scene, title: str = "", ax=None, show_rest: bool = True):
+    """Rest outline, deformed mesh coloured by region, cables, markers and pins (2D)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import PolyCollection
+
+    snap = gathered_snapshot(scene)
+    if snap is None:
+        return
+    design = snap.design
+    x, u, tri = snap.x, snap.u, snap.cells
+    y = x + u
+    own = ax is None
+    if own:
+        fig, ax = plt.subplots(figsize=(6, 7), dpi=120)
+    regions = snap.regions
+    body_tag = snap.body_tag
+    colors = np.where(regions == body_tag, REGION_COLORS["body"], REGION_COLORS["bone"])
+    ax.add_collection(PolyCollection(y[tri], facecolors=colors, edgecolors="#7a6a66",
+                                     linewidths=0.15))
+    if show_rest:
+        loops = [design.body.outline, *design.body.holes, *(b.outline for b in design.bones)]
+        for loop in loops:
+            closed = np.vstack([loop, loop[:1]])
+            ax.plot(closed[:, 0], closed[:, 1], color="0.55", lw=0.8, ls="--", zorder=1)
+    for c in snap.cables:
+        p = c["deformed"]
+        lw = 1.2 + (1.5 if c["tension"] > 0 else 0.0)
+        label = f"{c['name']} ({c['kind']}): {c['tension']:.3g} N"
+        ax.plot(p[:, 0], p[:, 1], color=CABLE_COLORS[c["kind"]], lw=lw, zorder=3,
+                ls="-" if c["tension"] > 0 else ":", label=label)
+    for pin in design.pins:
+        (x0, y0), (x1, y1) = pin.region
+        ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, hatch="////",
+                                   ec="0.3", lw=0.6, zorder=2))
+    for g in design.grounds:
+        t = np.array([-g.normal[1], g.normal[0]])
+        ends = np.array([g.point - 1e3 * t, g.point + 1e3 * t])
+        ax.plot(ends[:, 0], ends[:, 1], color="k", lw=1.5, zorder=2)
+    if snap.markers:
+        pos = np.array(list(snap.markers.values()))
+        ax.plot(pos[:, 0], pos[:, 1], "o", color="#222222", ms=4, zorder=4)
+        for name, p in snap.markers.items():
+            ax.annotate(name, p, textcoords="offset points", xytext=(5, 5), fontsize=8)
+    allpts = np.vstack([y, x]) if show_rest else y
+    lo, hi = allpts.min(axis=0), allpts.max(axis=0)
+    pad = 0.06 * (hi - lo).max()
+    ax.set_xlim(lo[0] - pad, hi[0] + pad)
+    ax.set_ylim(lo[1] - pad, hi[1] + pad)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [mm]")
+    ax.set_ylabel("y [mm]")
+    if title:
+        ax.set_title(title, fontsize=10)
+    if snap.cables:
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.09), ncol=2, fontsize=7, frameon=False)
+    if own:
+        fig.tight_layout()
+        atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
+        plt.close(fig)
+
+
+def plot_deformed_3d(path: Path, scene, title: str = "", window_size=(900, 900),
+                     points=(), paths=()) -> None:
+    """Off-screen PNG of a 3D result: translucent body, opaque bones, cables, markers.
+
+    `points` are extra (xyz, colour) dots (e.g. IK targets), `paths` extra
+    ((n, 3) array, colour) polylines (e.g. a target path). Rendered with
+    pyvista/VTK through EGL, so it needs no display.
+    """
+    os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+    import pyvista as pv
+
+    snap = gathered_snapshot(scene)
+    if snap is None:
+        return
+    x, u, tets = snap.x, snap.u, snap.cells
+    y = x + u
+    regions = snap.regions
+    body_tag = snap.body_tag
+    cells = np.column_stack([np.full(len(tets), 4), tets]).ravel()
+    grid = pv.UnstructuredGrid(cells, np.full(len(tets), pv.CellType.TETRA, dtype=np.uint8), y)
+    grid.cell_data["region"] = regions
+    rest = pv.UnstructuredGrid(cells, np.full(len(tets), pv.CellType.TETRA, dtype=np.uint8), x)
+    p = pv.Plotter(off_screen=True, window_size=window_size)
+    p.set_background("white")
+    body = grid.extract_cells(np.flatnonzero(regions == body_tag)).extract_surface(algorithm=None)
+    p.add_mesh(rest.extract_surface(algorithm=None).extract_feature_edges(30.0), color="#888888", line_width=1.0)
+    p.add_mesh(body, color=REGION_COLORS["body"], opacity=0.35, show_edges=False)
+    bones = np.flatnonzero(regions != body_tag)
+    if len(bones):
+        p.add_mesh(grid.extract_cells(bones).extract_surface(algorithm=None), color=REGION_COLORS["bone"],
+                   show_edges=True, edge_color="#9a9080", line_width=0.3)
+    for c in snap.cables:
+        line = pv.lines_from_points(c["deformed"])
+        width = 5 if c["tension"] > 0 else 2
+        p.add_mesh(line, color=CABLE_COLORS[c["kind"]], line_width=width, render_lines_as_tubes=True)
+    if snap.markers:
+        pos = np.array(list(snap.markers.values()))
+        p.add_point_labels(pos, list(snap.markers), point_size=12, font_size=14, point_color="#222222",
+                           shape=None, always_visible=True)
+    for xyz, colour in points:
+        p.add_mesh(pv.PolyData(np.atleast_2d(np.asarray(xyz, float))), color=colour, point_size=16,
+                   render_points_as_spheres=True)
+    for pts, colour in paths:
+        p.add_mesh(pv.lines_from_points(np.asarray(pts, float)), color=colour, line_width=4)
+    if title:
+        p.add_text(title, font_size=11, color="black")
+    p.add_axes(color="black")
+    extent = np.ptp(x, axis=0)
+    if extent[2] < 0.5 * extent[:2].max():   # a slab (extruded 2D design) bends in x-y: look along z
+        p.view_xy()
+        p.camera.Elevation(-20)
+        p.camera.Azimuth(25)
+    else:
+        p.view_isometric()
+    p.reset_camera()
+    atomic_write(path, lambda tmp: p.screenshot(tmp))
+    p.close()
+
+
+# -- tracking pictures (ik, track, the IK study) ---------------------------------------------------
+TARGET_COLOR, ACHIEVED_COLOR = "#d62728", "#2ca02c"
+
+
+def include_points(ax, points: np.ndarray, pad: float = 3.0) -> None:
+    """Widen the axis limits to show points."""
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    lo, hi = points[:, :2].min(axis=0) - pad, points[:, :2].max(axis=0) + pad
+    ax.set_xlim(min(x0, lo[0]), max(x1, hi[0]))
+    ax.set_ylim(min(y0, lo[1]), max(y1, hi[1]))
+
+
+def plot_poses(ax, model, poses: list, alpha: float = 0.3) -> None:
+    """Deformed poses (local DOF arrays) drawn faded on one axis; model.u is restored after."""
+    from matplotlib.legend import Legend
+
+    keep = model.u.x.array.copy()
+    lims = []
+    for i, pose in enumerate(poses):
+        model.u.x.array[:] = pose
+        before = set(ax.get_children())
+        plot_deformed(None, model, ax=ax, show_rest=(i == 0))
+        for artist in set(ax.get_children()) - before:
+            if hasattr(artist, "set_alpha") and not isinstance(artist, Legend):
+                artist.set_alpha(alpha if i < len(poses) - 1 else min(1.0, 2 * alpha))
+        lims.append((*ax.get_xlim(), *ax.get_ylim()))
+    model.u.x.array[:] = keep
+    if lims:
+        lims = np.array(lims)
+        ax.set_xlim(lims[:, 0].min(), lims[:, 1].max())
+        ax.set_ylim(lims[:, 2].min(), lims[:, 3].max())
+
+
+def draw_track(ax, model, results, poses: list, title: str = "") -> None:
+    """Target and achieved paths over a few faded deformed poses, on one axis."""
+    plot_poses(ax, model, poses)
+    if ax.get_legend() is not None:
+        ax.get_legend().remove()                # the cables' legend: too long for several poses
+    target = np.array([r.target for r in results])
+    achieved = np.array([r.position for r in results])
+    h1, = ax.plot(target[:, 0], target[:, 1], "x--", color=TARGET_COLOR, ms=5, lw=1, zorder=6, label="target")
+    h2, = ax.plot(achieved[:, 0], achieved[:, 1], "o-", color=ACHIEVED_COLOR, ms=3, lw=1.2, zorder=7,
+                  mfc="none", label="achieved")
+    include_points(ax, np.vstack([target, achieved]))
+    ax.legend(handles=[h1, h2], loc="upper right", fontsize=8)
+    if title:
+        ax.set_title(title, fontsize=10)
+
+
