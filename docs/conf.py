@@ -74,11 +74,13 @@ autodoc_typehints = "description"
 napoleon_google_docstring = True
 napoleon_numpy_docstring = True
 
+from sphinx_gallery.sorting import FileNameSortKey  # noqa: E402
+
 sphinx_gallery_conf = {
     "examples_dirs": str(ROOT / "examples"),
     "gallery_dirs": "auto_examples",
     "filename_pattern": r"/plot_",
-    "within_subsection_order": "FileNameSortKey",
+    "within_subsection_order": FileNameSortKey,
     "download_all_examples": False,
     "remove_config_comments": True,
     "abort_on_example_error": False,
