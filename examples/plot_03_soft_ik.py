@@ -4,7 +4,7 @@ Soft IK: tendon contractions that put the tip on a target
 
 ``geometry/finger4.toml`` has four tendons: two flexors and two extensors.
 Soft IK asks for the contractions u ≥ 0 that move the tip marker to a target
-y′, minimising |y(u) − y′|². ``skelfem ik`` does this with the exact
+y′, minimising ‖y(u) − y′‖². ``skelfem ik`` does this with the exact
 derivatives dy/du of the equilibrium (one factorisation, one solve per
 tendon). This example writes the same bounded Levenberg–Marquardt loop by
 hand on a :class:`skelfem.Session`, with derivatives by forward differences:
@@ -23,7 +23,9 @@ import numpy as np
 
 from skelfem import Session
 
-ROOT = Path(__file__).resolve().parent.parent
+# the repository's root, where the bundled designs are (sphinx-gallery runs an example
+# from its own folder and without __file__)
+ROOT = Path(__file__).resolve().parent.parent if "__file__" in globals() else Path.cwd().parent
 DESIGN = ROOT / "geometry" / "finger4.toml"
 TENDONS = ["flexor_distal", "flexor_middle", "extensor_distal", "extensor_middle"]
 KEYS = [f"cables.{name}.contraction" for name in TENDONS]

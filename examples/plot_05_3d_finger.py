@@ -17,7 +17,9 @@ import numpy as np
 
 from skelfem import Session
 
-ROOT = Path(__file__).resolve().parent.parent
+# the repository's root, where the bundled designs are (sphinx-gallery runs an example
+# from its own folder and without __file__)
+ROOT = Path(__file__).resolve().parent.parent if "__file__" in globals() else Path.cwd().parent
 
 answers = {}
 for name in ("finger", "finger3d"):
