@@ -25,7 +25,8 @@ import time
 
 import numpy as np
 
-from .design.spec import FORMAT, Design, DesignError
+from .design.spec import Design, DesignError
+from .result import Result, plain as _plain, result_dict  # noqa: F401 (Result re-exported)
 from .design.parse import changed_keys, flatten, load_design, parse_design
 
 log = logging.getLogger("skelfem")
@@ -57,71 +58,6 @@ def as_design(design, overrides=()) -> Design:
     if isinstance(design, dict):
         return parse_design(design, "<design>", overrides)
     return load_design(design, overrides)
-
-
-def _plain(value):
-    """JSON-ready: arrays to lists, numpy scalars to floats, non-finite floats to None."""
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple, np.ndarray)):
-        return [_plain(v) for v in (value.tolist() if isinstance(value, np.ndarray) else value)]
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        return float(value) if math.isfinite(value) else None
-    return value
-
-
-class Result:
-    """One solve's outcome; attribute access to the keys of result.json, ``to_dict()`` for all of it."""
-
-    def __init__(self, data: dict, report=None):
-        self._data, self.report = data, report
-
-    def __getattr__(self, key):
-        try:
-            return self.__dict__["_data"][key]
-        except KeyError:
-            raise AttributeError(key) from None
-
-    def to_dict(self) -> dict:
-        import copy
-        return copy.deepcopy(self._data)
-
-    def __repr__(self) -> str:
-        d = self._data
-        return f"Result({d['design']!r}, {d['status']}, {d['newton_iterations']} Newton iterations)"
-
-
-STANDARD_SECTIONS = ("markers", "cables", "pins", "grounds")
-
-
-def result_dict(design, model, report, timings: dict) -> dict:
-    """result.json as the design-format contract defines it, from the terms' read-outs."""
-    converged = bool(report.converged)
-    res = {
-        "format": FORMAT,
-        "design": design.name,
-        "converged": converged,
-        "status": report.status,
-        "newton_iterations": int(report.newton_iterations),
-        "load_steps": int(report.load_steps),
-        "energy": float(report.energy) if converged else None,
-        "dofs": int(model.V.dofmap.index_map.size_global * model.bs),
-        "cells": int(model.mesh.topology.index_map(model.mesh.topology.dim).size_global),
-        "degree": int(design.mesh.degree),
-        "min_jacobian": float(report.min_jacobian),
-    }
-    readouts = model.readouts() if converged else {}
-    for section in STANDARD_SECTIONS:
-        res[section] = readouts.pop(section, {}) if converged else None
-    res.update(readouts)
-    res["attempts"] = report.attempts
-    res["residual_history"] = [[float(r) for r in step] for step in report.residual_history]
-    res["timings"] = {k: round(float(v), 4) for k, v in timings.items()}
-    return _plain(res)
 
 
 class Session:
@@ -319,7 +255,7 @@ class Session:
         timings = dict(self.timings, solve=time.perf_counter() - t0)
         timings["total"] = sum(timings.values())
         self.timings = {"mesh": 0.0, "compile": 0.0}          # paid once per mesh
-        return Result(result_dict(self.design, self.model, report, timings), report)
+        return Result(result_dict(self.design, self.model, report, timings), report, self._state())
 
     def run(self, on_step=None, progress=None) -> Result:
         """A run in time ([dynamics]): from rest, steps of dt to the duration (see skelfem.dynamics).
@@ -341,7 +277,15 @@ class Session:
         self.timings = {"mesh": 0.0, "compile": 0.0}
         data = result_dict(self.design, self.model, report, timings)
         data["dynamics"] = _plain(dynamics_summary(self.design, report))
-        return Result(data, report)
+        return Result(data, report, self._state())
+
+    def _state(self):
+        """(X, u, cells) of the mesh's vertices now, copied, for Result.displacement (serial only)."""
+        if self.comm.size > 1:
+            return None
+        from .io.xdmf import vertex_displacements
+        X, u, cells = vertex_displacements(self.model)
+        return X.copy(), u.copy(), cells.copy()
 
     # -- clean-up ------------------------------------------------------------------------------------
     def close(self) -> None:

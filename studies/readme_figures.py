@@ -52,13 +52,14 @@ def run(size: float = 2.0, contraction: float = 8.0, out: Path | None = None, ar
 def _fabrication(out: Path | None) -> dict:
     """finger.toml's bones and mould (skelfem.fabricate); the exploded view as fabrication.png."""
     from skelfem import fabricate
+    from skelfem.fabricate.picture import picture as draw
     from skelfem.design import load_design
 
     plan = fabricate.plan(load_design(ROOT / "geometry" / "finger.toml"))
     parts = fabricate.build(plan)
     if out is not None:
         Path(out).mkdir(parents=True, exist_ok=True)
-        fabricate.picture(Path(out) / "fabrication.png", parts, plan,
+        draw(Path(out) / "fabrication.png", parts, plan,
                           "finger.toml: bones and the two-part mould, exploded along the mould's normal")
     return {p.name: p.cad_volume for p in parts}
 

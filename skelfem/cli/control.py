@@ -272,18 +272,16 @@ def plot_ik(path: Path, scene, res, title: str = "") -> None:
         from ..viz.plots import plot_deformed_3d
         plot_deformed_3d(path, scene, title, points=[(res.target, "red")])
         return
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     from ..viz.plots import plot_deformed
-    fig, ax = plt.subplots(figsize=(6, 7), dpi=120)
+    fig = Figure(figsize=(6, 7), dpi=120)
+    ax = fig.subplots()
     plot_deformed(None, scene, title, ax=ax)
     _mark(ax, res.target, res.position)
     include_points(ax, np.array([res.target]))
     fig.tight_layout()
     atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
-    plt.close(fig)
 
 
 def _mark(ax, target, achieved):
@@ -299,15 +297,13 @@ def plot_track(path: Path, scene, results, poses: list, title: str = "") -> None
         achieved = np.array([r.position for r in results])
         plot_deformed_3d(path, scene, title, paths=[(targets, "red"), (achieved, "#1a7f37")])
         return
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
-    fig, ax = plt.subplots(figsize=(6, 7), dpi=120)
+    fig = Figure(figsize=(6, 7), dpi=120)
+    ax = fig.subplots()
     draw_track(ax, scene, results, poses, title)
     fig.tight_layout()
     atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
-    plt.close(fig)
 
 
 # -- commands ------------------------------------------------------------------------------------------

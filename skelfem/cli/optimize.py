@@ -117,12 +117,11 @@ def optimize_dict(design, marker, targets, res, timings: dict, method: str = "lb
 
 def plot_optimize(path: Path, model, trajectory: list, marker: str, targets, res, title: str) -> None:
     """The marker's path over the run, the targets and where it was at their times, on the final pose."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     from ..viz.plots import plot_deformed
-    fig, ax = plt.subplots(figsize=(6, 7), dpi=120)
+    fig = Figure(figsize=(6, 7), dpi=120)
+    ax = fig.subplots()
     plot_deformed(None, model, title, ax=ax)
     if ax.get_legend() is not None:
         ax.get_legend().remove()
@@ -137,7 +136,6 @@ def plot_optimize(path: Path, model, trajectory: list, marker: str, targets, res
     ax.legend(handles=ax.get_lines()[-3:], loc="lower left", fontsize=8)
     fig.tight_layout()
     atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
-    plt.close(fig)
 
 
 def optimize_command(args) -> int:
@@ -183,7 +181,7 @@ def optimize_command(args) -> int:
         print(f"{design.name}: marker {args.marker}, largest error {res.error:.3g} mm, {state}; "
               f"{res.forward_runs} forward runs + {res.adjoint_sweeps} adjoint sweeps, {res.time:.1f} s")
         for n, row in zip(res.names, res.schedules):
-            print(f"  {n}: " + ", ".join(f"{u:.3f}" for u in row) + f" mm at t = "
+            print(f"  {n}: " + ", ".join(f"{u:.3f}" for u in row) + " mm at t = "
                   + ", ".join(f"{t:.3g}" for t in res.knot_times) + " s")
         print(f"  results in {args.out}/ (optimize.json, schedules.csv"
               + (", optimize.png)" if design.dim == 2 else ")"))

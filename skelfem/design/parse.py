@@ -81,7 +81,7 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
         source=str(source), name=name, dim=dim, thickness=thickness, mesh=mesh,
         materials=materials, body=body, bones=bones, cables=cables, pins=pins, loads=loads,
         grounds=grounds, contact=contact, markers=markers, solver=solver, gravity=gravity,
-        tractions=tractions, fabrication=fabrication, dynamics=dynamics, raw=data, measure=float(measure), vertices=int(vertices),
+        tractions=tractions, fabrication=fabrication, dynamics=dynamics, data=data, measure=float(measure), vertices=int(vertices),
     )
 
 

@@ -11,7 +11,9 @@ bad design is rejected before any heavy import or meshing.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from types import MappingProxyType
 
 import numpy as np
 
@@ -163,6 +165,26 @@ class FabricationSpec:
     split_normal: np.ndarray | None = None
 
 
+def freeze(value):
+    """A read-only deep view of TOML-like data: dicts as mappingproxy, lists as tuples."""
+    if isinstance(value, Mapping):
+        return MappingProxyType({k: freeze(v) for k, v in value.items()})
+    if isinstance(value, (list, tuple)):
+        return tuple(freeze(v) for v in value)
+    if isinstance(value, np.ndarray):
+        return tuple(freeze(v) for v in value.tolist())
+    return value
+
+
+def thaw(value):
+    """A plain mutable deep copy of frozen data: dicts and lists again."""
+    if isinstance(value, Mapping):
+        return {k: thaw(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [thaw(v) for v in value]
+    return value
+
+
 @dataclass(frozen=True, eq=False)
 class Design:
     source: str
@@ -185,9 +207,18 @@ class Design:
     fabrication: FabricationSpec = field(default_factory=FabricationSpec)
     dynamics: DynamicsSpec | None = None   # None: a static run
     format: int = FORMAT
-    raw: dict = field(default_factory=dict)   # the TOML data after overrides
+    data: Mapping = field(default_factory=dict)   # the TOML data after overrides, read-only (see raw)
     measure: float = 0.0      # body area (2D, mm^2) or volume (3D, mm^3), bones included
     vertices: int = 0         # polygon vertices of all outlines (2D) / primitives (3D)
+
+    def __post_init__(self):
+        object.__setattr__(self, "data", freeze(self.data))
+
+    @property
+    def raw(self) -> dict:
+        """The TOML data after overrides as a fresh dict: edit it and hand it to Session.edit or
+        parse_design; changing it never changes this Design (nor a Session that holds it)."""
+        return thaw(self.data)
 
     @property
     def tendons(self) -> tuple:

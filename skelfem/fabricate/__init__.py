@@ -6,7 +6,8 @@
 draws the exploded view and ``files`` writes a checked folder.
 """
 from .files import build, write
-from .plan import Plan, plan
+from .parts import Plan
+from .plan import plan
 from .surfaces import FabricationError, check_mesh, orient, read_stl, write_stl
 
 __all__ = ["FabricationError", "Plan", "build", "check_mesh", "orient", "plan", "read_stl", "write",

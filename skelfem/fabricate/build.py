@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 from .meshing import generate_surface_mesh, quiet_gmsh, triangle_surface
-from .plan import Frame, Plan, Tool
+from .parts import Frame, Plan, Tool
 from .surfaces import CURVATURE, Surface, orient
 
 

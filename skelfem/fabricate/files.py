@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 from .build import Part, build_bone, build_half
 from .picture import picture
-from .plan import Plan
+from .parts import Plan
 from .surfaces import FORMAT, check_mesh, read_stl, write_stl
 
 

@@ -39,7 +39,7 @@ import math
 from pathlib import Path
 
 import numpy as np
-from .plan import Plan
+from .parts import Plan
 
 
 # -- the picture ---------------------------------------------------------------------------------------------------
@@ -68,9 +68,8 @@ def picture(path, parts: list, plan: Plan, title: str = "") -> None:
     triangles facing away from the eye (n . e <= 0) are left out, which also
     spares matplotlib's painter's algorithm most of its depth-order mistakes.
     """
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Rectangle
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     from ..io.files import atomic_write
@@ -81,7 +80,7 @@ def picture(path, parts: list, plan: Plan, title: str = "") -> None:
     height = float(f.hi[2] - f.lo[2])
     shift = {"mould_bottom": -0.9 * height, "mould_top": 0.9 * height}
     light = np.array([0.4, -0.6, 0.7]) / np.linalg.norm([0.4, -0.6, 0.7])
-    fig = plt.figure(figsize=(9, 7), dpi=110)
+    fig = Figure(figsize=(9, 7), dpi=110)
     ax = fig.add_subplot(projection="3d")
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
     for part in parts:
@@ -108,11 +107,10 @@ def picture(path, parts: list, plan: Plan, title: str = "") -> None:
     ax.view_init(elev=math.degrees(elev), azim=math.degrees(azim))
     ax.set_xlabel("u [mm]"), ax.set_ylabel("v [mm]"), ax.set_zlabel("n [mm]")
     ax.tick_params(labelsize=7)
-    handles = [plt.Rectangle((0, 0), 1, 1, color=COLOURS[k]) for k in ("mould_top", "bone", "mould_bottom")]
+    handles = [Rectangle((0, 0), 1, 1, color=COLOURS[k]) for k in ("mould_top", "bone", "mould_bottom")]
     ax.legend(handles, ["mould top (translucent)", "bones", "mould bottom"], loc="upper left", fontsize=8)
     ax.set_title(title or f"{plan.design.name}: parts, exploded along the mould's normal", fontsize=10)
     fig.subplots_adjust(left=0.0, right=1.0, bottom=0.04, top=0.94)
     atomic_write(Path(path), lambda tmp: fig.savefig(tmp, format="png"))
-    plt.close(fig)
 
 

@@ -36,84 +36,11 @@ positive volume by the divergence theorem).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 from .meshing import generate_surface_mesh, triangle_surface
+from .parts import Frame, Plan, Tool
 from .surfaces import FabricationError, GRAZING, PROBE_CURVATURE, Surface, face_distances, inside, point_triangle_distance, ray_hits
-
-
-# -- the plan ----------------------------------------------------------------------------------------------------
-@dataclass
-class Frame:
-    """The mould's axes: u, v span the parting plane n . x = c; the block spans lo..hi in (u, v, n)."""
-
-    u: np.ndarray
-    v: np.ndarray
-    n: np.ndarray
-    c: float
-    lo: np.ndarray = None
-    hi: np.ndarray = None
-
-    @classmethod
-    def from_normal(cls, point, normal) -> "Frame":
-        n = np.asarray(normal, float) / np.linalg.norm(normal)
-        k = int(np.argmax(np.abs(n)))
-        axis = np.eye(3)[(k + 1) % 3]
-        u = axis - (axis @ n) * n
-        u /= np.linalg.norm(u)
-        return cls(u, np.cross(n, u), n, float(n @ np.asarray(point, float)))
-
-    @property
-    def matrix(self) -> np.ndarray:
-        """Columns u, v, n: global = matrix @ (u, v, n) coordinates."""
-        return np.column_stack([self.u, self.v, self.n])
-
-    def local(self, x) -> np.ndarray:
-        return np.asarray(x, float) @ self.matrix
-
-    def world(self, y) -> np.ndarray:
-        return np.asarray(y, float) @ self.matrix.T
-
-
-@dataclass
-class Tool:
-    """A cylinder-swept cut or addition: an axis polyline, its radius, where it extends past its ends."""
-
-    kind: str              # "channel", "anchor", "socket", "peg", "pin", "pin_hole", "pour", "vent", "exit"
-    points: np.ndarray     # (k, 3) axis polyline
-    radius: float
-    bone: str | None = None
-    cable: str | None = None
-    extend: tuple = (0.0, 0.0)     # lengths the cylinder runs on beyond the first and the last point
-    side: str | None = None        # pegs: the mould half they belong to, "bottom" or "top"
-
-    @property
-    def length(self) -> float:
-        return float(np.linalg.norm(np.diff(self.points, axis=0), axis=1).sum())
-
-    def ends(self) -> tuple[np.ndarray, np.ndarray]:
-        """The cylinder's end points, each end extended along its segment."""
-        p = self.points
-        d0 = (p[0] - p[1]) / np.linalg.norm(p[0] - p[1])
-        d1 = (p[-1] - p[-2]) / np.linalg.norm(p[-1] - p[-2])
-        return p[0] + self.extend[0] * d0, p[-1] + self.extend[1] * d1
-
-
-@dataclass
-class Plan:
-    """Everything the build pass needs: tools per part, the frame and block, the reference volumes."""
-
-    design: object
-    spec: object
-    frame: Frame
-    scale: float
-    bone_tools: dict = field(default_factory=dict)      # bone name -> [Tool]
-    pegs: list = field(default_factory=list)            # Tools of kind "peg"
-    mould_tools: list = field(default_factory=list)     # pins, pin holes, pour, vents, exits
-    body_volume: float = 0.0
-    bone_volumes: dict = field(default_factory=dict)    # un-cut bone volumes (probe pass)
-    notes: list = field(default_factory=list)
 
 
 def _samples(points: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:

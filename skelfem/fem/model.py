@@ -40,6 +40,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from ..mesh.points import global_dof_numbers
+from ..runtime import jitcache
 from ..terms import BUILDERS, Context
 from ..terms.elasticity import cell_values_min, min_jacobian_expression
 from .assembly import MatrixAssembly, block_keys
@@ -51,6 +52,7 @@ class Model(MatrixAssembly):
     """Pi, grad Pi and hess Pi of one design on one mesh."""
 
     def __init__(self, design, tagged_mesh, builders=None):
+        jitcache.install()             # FFCx's compiled modules looked up once per process (idempotent)
         self.design, self.tm = design, tagged_mesh
         mesh = self.mesh = tagged_mesh.mesh
         self.comm = mesh.comm

@@ -418,14 +418,13 @@ def write_summary(sweep: Sweep, out: Path, outcomes: dict | None = None) -> dict
 
 def _plot_summary(sweep: Sweep, rows: list[dict], path: Path) -> None:
     """|marker displacement| against the first parameter, one line per other combination."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     from ..io.files import atomic_write
 
     metric = next((k for r in rows for k in r if k.endswith(".|u|")), None)
-    fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=110)
+    fig = Figure(figsize=(6.4, 4.0), dpi=110)
+    ax = fig.subplots()
     first = sweep.parameters[0] if sweep.parameters else None
 
     def number(v):
@@ -460,4 +459,3 @@ def _plot_summary(sweep: Sweep, rows: list[dict], path: Path) -> None:
     ax.grid(alpha=0.3)
     fig.tight_layout()
     atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
-    plt.close(fig)

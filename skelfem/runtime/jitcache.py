@@ -13,6 +13,7 @@ log on every call; they are kept per set of priority parameters.
 from __future__ import annotations
 
 _MODULES: dict = {}
+MIN_WAIT = 300          # s: how long a look-up waits for another process's compile of the same module
 _INSTALLED = False
 
 
@@ -21,7 +22,9 @@ def _memoised(lookup):
         key = (module_name, tuple(object_names), str(cache_dir))
         hit = _MODULES.get(key)
         if hit is None:
-            hit = lookup(module_name, object_names, cache_dir, timeout)
+            # another process compiling the same module (parallel tests, sweeps): wait for it
+            # as long as a 3D P2 compile takes on a loaded machine, not FFCx's 10 s
+            hit = lookup(module_name, object_names, cache_dir, max(timeout, MIN_WAIT))
             if hit[0] is not None:          # (None, None): this process compiles it now
                 _MODULES[key] = hit
         return hit

@@ -17,15 +17,14 @@ from .plots import plot_deformed
 
 def write_motion_gif(path: Path, frames: list, title: str = "", fps: int = 20) -> None:
     """An animated GIF of 2D snapshots [(t, Snapshot)], axes fixed over the motion (Pillow writer)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
     from matplotlib.animation import FuncAnimation, PillowWriter
 
     allpts = np.vstack([np.vstack([s.x + s.u, s.x]) for _, s in frames])
     lo, hi = allpts.min(axis=0), allpts.max(axis=0)
     pad = 0.06 * (hi - lo).max()
-    fig, ax = plt.subplots(figsize=(5, 5.5), dpi=80)
+    fig = Figure(figsize=(5, 5.5), dpi=80)
+    ax = fig.subplots()
 
     def draw(i):
         ax.clear()
@@ -39,4 +38,3 @@ def write_motion_gif(path: Path, frames: list, title: str = "", fps: int = 20) -
 
     anim = FuncAnimation(fig, draw, frames=len(frames), blit=False)
     atomic_write(path, lambda tmp: anim.save(tmp, writer=PillowWriter(fps=fps)))
-    plt.close(fig)

@@ -21,9 +21,8 @@ CABLE_COLORS = {"tendon": "#1f5fbf", "ligament": "#d9822b"}
 
 def plot_deformed(path: Path, scene, title: str = "", ax=None, show_rest: bool = True):
     """Rest outline, deformed mesh coloured by region, cables, markers and pins (2D)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Rectangle
     from matplotlib.collections import PolyCollection
 
     snap = gathered_snapshot(scene)
@@ -34,7 +33,8 @@ def plot_deformed(path: Path, scene, title: str = "", ax=None, show_rest: bool =
     y = x + u
     own = ax is None
     if own:
-        fig, ax = plt.subplots(figsize=(6, 7), dpi=120)
+        fig = Figure(figsize=(6, 7), dpi=120)
+        ax = fig.subplots()
     regions = snap.regions
     body_tag = snap.body_tag
     colors = np.where(regions == body_tag, REGION_COLORS["body"], REGION_COLORS["bone"])
@@ -53,7 +53,7 @@ def plot_deformed(path: Path, scene, title: str = "", ax=None, show_rest: bool =
                 ls="-" if c["tension"] > 0 else ":", label=label)
     for pin in design.pins:
         (x0, y0), (x1, y1) = pin.region
-        ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, hatch="////",
+        ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, hatch="////",
                                    ec="0.3", lw=0.6, zorder=2))
     for g in design.grounds:
         t = np.array([-g.normal[1], g.normal[0]])
@@ -79,7 +79,6 @@ def plot_deformed(path: Path, scene, title: str = "", ax=None, show_rest: bool =
     if own:
         fig.tight_layout()
         atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
-        plt.close(fig)
 
 
 def plot_deformed_3d(path: Path, scene, title: str = "", window_size=(900, 900),
