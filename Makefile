@@ -17,7 +17,7 @@ APT_PACKAGES := python3-dolfinx python3-gmsh python3-meshio python3-venv python3
 	libopenblas0-pthread openmpi-bin libegl1 libegl-mesa0 libgl1-mesa-dri admesh \
 	python3-starlette python3-uvicorn python3-websockets python3-tomlkit \
 	python3-selenium chromium chromium-driver \
-	python3-sphinx python3-myst-parser furo python3-sphinx-gallery
+	python3-sphinx python3-myst-parser furo python3-sphinx-gallery python3-pytest-xdist
 SYSPY := /usr/bin/python3
 VENV := .venv
 PY := $(VENV)/bin/python
@@ -31,13 +31,17 @@ export OPENBLAS_NUM_THREADS := 1
 export OMP_NUM_THREADS := 1
 export MPLBACKEND := Agg
 
-.PHONY: demo test docs setup system clean
+.PHONY: demo test test-fast docs setup system clean
 
 demo: setup
 	$(VENV)/bin/skelfem simulate geometry/finger.toml --out results/finger
 
+# The whole suite on two workers, slowest tests listed; test-fast skips the slow tier (the edit loop).
 test: setup
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n 2 --durations=25
+
+test-fast: setup
+	$(PY) -m pytest -q -n 2 -m "not slow" --durations=10
 
 # The documentation: MyST pages, the gallery of examples (each one runs), the API
 # from the docstrings and tables read from studies/output/; warnings are errors.

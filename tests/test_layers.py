@@ -215,3 +215,22 @@ print("ok")
     env = {k: v for k, v in __import__("os").environ.items() if k != "MPLBACKEND"}
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
     assert r.returncode == 0 and r.stdout.strip().endswith("ok"), r.stderr[-2000:]
+
+
+def test_a_misspelt_term_hook_is_refused_when_the_class_is_defined():
+    from skelfem.terms import BUILDERS  # noqa: F401 (every registered term defined without complaint)
+    from skelfem.terms.base import Term
+
+    with pytest.raises(TypeError, match="did you mean end_step"):
+        class Misspelt(Term):
+            def end_steps(self, model):
+                pass
+
+    with pytest.raises(TypeError, match="did you mean readout"):
+        class Plural(Term):
+            def readouts(self, model):
+                return {}
+
+    class Fine(Term):                 # a new helper name far from any hook is fine
+        def stiffness_of(self, x):
+            return x

@@ -1,4 +1,4 @@
-"""accuracy/ladder (from accuracy.py)
+"""The uniform --tol ladder's rules: levels, observed rates, Richardson estimates, when to stop, graded zones.
 
 Model no more than the scene needs: refine the design's own mesh until its error estimate meets --tol.
 
@@ -60,7 +60,7 @@ added to every estimate it reports and checks; else with elastic bones
 
 What it assumes: the finest levels are in the asymptotic range, where the
 marker error falls like h^r. Where the continuum answer does not exist (a
-point force in 2D: a cable *bending* inside silicone, see the README), the
+point force in 2D: a cable *bending* inside silicone, see docs/model.md, finite anchors), the
 differences do not fall, the observed rate is small, and the estimate stays
 large: ``met: false``, which is the truth.
 """

@@ -1,4 +1,4 @@
-"""cli/common (from cli.py)
+"""What every sub-command shares: exit codes, logging, common arguments, one-line errors, loading and output folders.
 
 Command line: ``skelfem simulate DESIGN [--out DIR] [--set KEY=VALUE ...]``, ``skelfem fabricate DESIGN``, ....
 

@@ -1,8 +1,8 @@
-"""design/parse (from design.py)
+"""The entry points: read a TOML file, apply --set overrides, validate every section; flatten and diff designs.
 
 Design files: load a TOML design, apply ``--set`` overrides, validate.
 
-The contract is ``shared/design-format.md`` (summarised in the README). Every
+The contract is the design format (docs/guide/design-files.md). Every
 problem is raised as a :class:`DesignError` whose message names the file and
 the offending key, e.g. ``finger.toml: cables.flexor.stiffness: must be > 0``;
 the CLI prints it as one ``error:`` line. Nothing here imports DOLFINx, so a

@@ -1,12 +1,4 @@
-"""design/sections (from design.py)
-
-Design files: load a TOML design, apply ``--set`` overrides, validate.
-
-The contract is ``shared/design-format.md`` (summarised in the README). Every
-problem is raised as a :class:`DesignError` whose message names the file and
-the offending key, e.g. ``finger.toml: cables.flexor.stiffness: must be > 0``;
-the CLI prints it as one ``error:`` line. Nothing here imports DOLFINx, so a
-bad design is rejected before any heavy import or meshing.
+"""One reader per design section besides the body and bones: cables, pins, loads, tractions, gravity, grounds, markers, contact, solver, dynamics, fabrication.
 """
 from __future__ import annotations
 
@@ -232,7 +224,7 @@ def _body_box(body: Body, dim: int, thickness: float) -> tuple[np.ndarray, np.nd
 
 
 def read_fabrication(top: Table, dim: int, thickness: float, body: Body) -> FabricationSpec:
-    """[fabrication]: every key optional; defaults follow the body's size (see the README).
+    """[fabrication]: every key optional; defaults follow the body's size (docs/guide/fabrication.md).
 
     bone_depth defaults to 0.8 x thickness (2D), the mould wall to 5 % of the
     body's largest extent (to 0.5 mm, at least 3 mm), the pour hole to 30 % of its

@@ -1,12 +1,4 @@
-"""design/shapes (from design.py)
-
-Design files: load a TOML design, apply ``--set`` overrides, validate.
-
-The contract is ``shared/design-format.md`` (summarised in the README). Every
-problem is raised as a :class:`DesignError` whose message names the file and
-the offending key, e.g. ``finger.toml: cables.flexor.stiffness: must be > 0``;
-the CLI prints it as one ``error:`` line. Nothing here imports DOLFINx, so a
-bad design is rejected before any heavy import or meshing.
+"""Materials, the body (2D outline or 3D solids) and the bones, and the 2D layout checks between them.
 """
 from __future__ import annotations
 

@@ -1,12 +1,4 @@
-"""design/table (from design.py)
-
-Design files: load a TOML design, apply ``--set`` overrides, validate.
-
-The contract is ``shared/design-format.md`` (summarised in the README). Every
-problem is raised as a :class:`DesignError` whose message names the file and
-the offending key, e.g. ``finger.toml: cables.flexor.stiffness: must be > 0``;
-the CLI prints it as one ``error:`` line. Nothing here imports DOLFINx, so a
-bad design is rejected before any heavy import or meshing.
+"""Typed reading of one TOML table at a time (unknown keys are errors), --set overrides, cached geometry checks.
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """The editor's web side: a Starlette app on uvicorn, bound to 127.0.0.1 only.
 
-Routes (the JSON API is documented in the README, "The editor"):
+Routes (the JSON API is documented in docs/guide/editor.md):
 
     GET  /                 the page (static/index.html, editor.js, editor.css)
     GET  /api/design       the design as loaded: its TOML keys, file name, live parameter keys

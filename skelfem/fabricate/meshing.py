@@ -1,37 +1,4 @@
-"""fabricate/meshing (from fabricate.py)
-
-Fabrication export: printable bones and a two-part mould from the design that is simulated.
-
-The paper's second pipeline (section III): PLA bones with channels for the
-cables, rubber-band ligaments, and a printed two-part mould into which
-silicone is cast; section VI.A asks for moulds that fixture the skeleton.
-``skelfem fabricate DESIGN`` turns a design into
-
-- ``bone_<name>.stl`` / ``.step``: each bone (2D: its outline extruded over
-  ``bone_depth``, centred in the slab) minus a channel of ``channel_diameter``
-  along every piece of a tendon's sketch inside it, an anchor hole of
-  ``anchor_diameter`` through it (along the mould's normal) where a ligament
-  ends in it, and the sockets of the mould's pegs;
-- ``mould_bottom.stl`` / ``mould_top.stl`` (and ``.step``): a block around the
-  body split by the parting plane (2D: the slab's mid-plane z = thickness/2;
-  3D: ``[fabrication] split``), each half minus the body, so that the closed
-  cavity is the body; registration pins on the bottom half and holes with
-  ``clearance`` in the top, a pour hole and vents through the top, exits for
-  the tendons through the wall, and pegs that reach from each half through
-  the silicone into sockets in the bones and so hold each bone where the
-  design puts it (the fixturing of section VI.A).
-
-Geometry in two passes. A *probe* pass builds the body and the bones with
-Gmsh's OpenCASCADE kernel, triangulates their surfaces and plans everything
-with numpy on the triangles (rays for the cable crossings, inside tests,
-peg and pour sites; exact point-triangle distances for the walls around
-channels). Every problem is found there, before any output folder is
-touched, and raised as :class:`FabricationError` (key, message). A *build*
-pass then makes each part in its own OCC model (boolean cuts and fuses),
-measures its volume exactly (``getMass``), triangulates its surface, writes
-binary STL and STEP, and checks the STL it wrote (every edge shared by
-exactly two triangles, every shared edge used in opposite directions,
-positive volume by the divergence theorem).
+"""Gmsh for fabrication: quiet runs, surface meshes at a given curvature, triangle surfaces of volumes.
 """
 from __future__ import annotations
 

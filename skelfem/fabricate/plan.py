@@ -1,4 +1,4 @@
-"""fabricate/plan (from fabricate.py)
+"""The probe pass: every problem found on triangulations (numpy) before any output folder is touched.
 
 Fabrication export: printable bones and a two-part mould from the design that is simulated.
 

@@ -1,33 +1,4 @@
-"""fem/follow (from model.py)
-
-The model: Pi(u; a) = sum of the registered terms, and its derivatives.
-
-Every physical ingredient is a term (:mod:`skelfem.terms`); the model builds
-them from the design, sums their UFL energies into one form compiled once
-(with its residual and Jacobian forms), and adds the hand-written ones on
-their few DOFs. It names no ingredient. The solver sees ``energy``,
-``residual``, ``jacobian`` (the sparse Newton matrix K), ``low_rank`` (the
-rank-one parts c g g^T kept out of K), ``admissible``, ``max_step`` and
-``step_correction``; output reads ``readouts``; control reads and writes
-``parameters``.
-
-Dirichlet DOFs (fixed pins) have identity rows and columns in K and carry no
-term entries, and their entries of every low-rank vector are zero.
-
-Rigid bodies (``Term.rigid_body``: rigid bones) are solved for their rigid
-DOFs q: their nodes' rows of K become identity rows and columns too, after
-K T (T = du_b/dq) has given the coupling E and the reduced block
-C = T^T K T + sum_i R_i . d2u_i/dq2 of the linear solver's border
-(:class:`skelfem.linear.Border`, ``border``). In serial the border lives in
-K itself: each body's q takes the rows and columns of the first DOFs of its
-first nodes (its *hosts*), which hold E and C, so one factorisation covers
-it; under MPI the linear solver adds it from K^{-1} E. The residual on those
-rows is the projection of grad Pi onto the rigid modes, and ``apply_bcs``
-puts every rigid body exactly on its closest rigid motion.
-
-``refresh`` makes the model follow an edit that keeps the mesh (moved nodes,
-cables, markers, pins...) without compiling anything again: terms follow in
-place or are built anew, and the Newton matrix is kept while its pattern holds.
+"""Following an edit that keeps the mesh, and packed form coefficients shared while they are unchanged.
 """
 from __future__ import annotations
 

@@ -1,31 +1,4 @@
-"""fem/linesearch (from solver.py)
-
-Static equilibrium: PETSc SNES Newton on grad Pi = 0, with load stepping.
-
-Newton's direction p solves H p = -grad Pi with H = K + sum c g g^T: the
-sparse matrix K factorised (MUMPS LDL^T, the matrix pattern fixed so the
-symbolic factorisation is reused) and the rank-one parts of taut cables
-added by the Woodbury formula (skelfem.linear), through a PETSc python PC.
-The default line search ("energy") runs in SNES's pre-check: it starts from
-the model's admissible step alpha_max = model.max_step(x, p) <= 1 (e.g. the
-collision-free step of self-contact) and backtracks until the trial state is admissible (det F > 0
-in every element, no term objects) and satisfies the Armijo condition
-
-    Pi(x + alpha p) <= Pi(x) + c alpha grad Pi . p,
-
-or, once energy differences drown in round-off, reduces |grad Pi|. A trial
-state with an inverted element is never accepted. ``curved`` is the same
-line search along the second-order curve x + alpha p + alpha^2 a / 2 with the
-geodesic acceleration a = -H^{-1} D^2R[p, p] (one more back-substitution and
-two residuals per iteration; the straight step is kept when it is lower at
-alpha_max): on slender bodies that rotate a lot the straight step stretches
-the body by O(alpha^2) and the energy model fails, the curve follows the
-rotation. Other strategies
-(``residual``: PETSc's backtracking on |grad Pi|, ``none``: full steps,
-``trust_region``: PETSc's newtontr) exist to compare against.
-
-Contractions, loads and pin moves are ramped over ``steps`` load steps; a
-failed step is retried with half the increment (up to ``max_cuts`` times).
+"""Newton's line searches on Pi: the energy (Armijo, admissible steps) and curved (geodesic acceleration) strategies.
 """
 from __future__ import annotations
 

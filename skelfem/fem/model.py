@@ -1,6 +1,4 @@
-"""fem/model (from model.py)
-
-The model: Pi(u; a) = sum of the registered terms, and its derivatives.
+"""The model: Pi(u; a) = sum of the registered terms, and its derivatives.
 
 Every physical ingredient is a term (:mod:`skelfem.terms`); the model builds
 them from the design, sums their UFL energies into one form compiled once

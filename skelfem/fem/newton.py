@@ -1,6 +1,4 @@
-"""fem/newton (from solver.py)
-
-Static equilibrium: PETSc SNES Newton on grad Pi = 0, with load stepping.
+"""Static equilibrium: PETSc SNES Newton on grad Pi = 0, with load stepping.
 
 Newton's direction p solves H p = -grad Pi with H = K + sum c g g^T: the
 sparse matrix K factorised (MUMPS LDL^T, the matrix pattern fixed so the

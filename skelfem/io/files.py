@@ -1,9 +1,4 @@
-"""io/files (from output.py)
-
-Results on disk: result.json, solution.xdmf (ParaView/meshio) and deformed.png.
-
-Every file is written to a temporary name in the output folder and renamed
-into place, so a reader never sees a half-written file. Only rank 0 writes.
+"""Files: rank-0 printing, atomic writes, strict JSON (null for non-finite), text and CSV.
 """
 from __future__ import annotations
 
@@ -44,7 +39,7 @@ def atomic_write(path: Path, write) -> None:
 
 
 def copy_figure(picture: Path, folder: Path | None) -> None:
-    """Copy a study's picture into folder (the README's figures), atomically; nothing if folder is None."""
+    """Copy a study's picture into folder (the docs' figures), atomically; nothing if folder is None."""
     if folder is not None:
         data = Path(picture).read_bytes()
         atomic_write(Path(folder) / Path(picture).name, lambda tmp: Path(tmp).write_bytes(data))

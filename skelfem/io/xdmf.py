@@ -1,9 +1,4 @@
-"""io/xdmf (from output.py)
-
-Results on disk: result.json, solution.xdmf (ParaView/meshio) and deformed.png.
-
-Every file is written to a temporary name in the output folder and renamed
-into place, so a reader never sees a half-written file. Only rank 0 writes.
+"""The state as numbers (vertex displacements, regions, cables, markers) gathered on rank 0, and solution.xdmf / trajectory.xdmf.
 """
 from __future__ import annotations
 

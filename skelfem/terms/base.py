@@ -51,6 +51,20 @@ class Term:
     gather = None                # DofGather: DOFs are global numbers; None: local indices
     bounds_steps: bool = False   # whether max_step can return < 1
 
+    def __init_subclass__(cls, **kwargs):
+        """A method named almost like a hook (``end_steps``, ``readouts``) is a misspelt hook that the
+        model would never call: refuse the class when it is defined."""
+        super().__init_subclass__(**kwargs)
+        import difflib
+        hooks = [n for n, v in vars(Term).items() if not n.startswith("_") and callable(v)]
+        for name, value in vars(cls).items():
+            if name.startswith("_") or name in hooks or not callable(value):
+                continue
+            close = difflib.get_close_matches(name, hooks, n=1, cutoff=0.85)
+            if close:
+                raise TypeError(f"{cls.__name__}.{name}: not a Term hook; did you mean {close[0]}? "
+                                "(a misspelt hook is never called)")
+
     # -- energy ------------------------------------------------------------------------------------
     def ufl_energy(self, ctx: "Context"):
         """UFL integral of this term's energy, or None (called once, after all terms are built)."""

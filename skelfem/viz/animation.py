@@ -1,9 +1,4 @@
-"""viz/animation (from output.py)
-
-Results on disk: result.json, solution.xdmf (ParaView/meshio) and deformed.png.
-
-Every file is written to a temporary name in the output folder and renamed
-into place, so a reader never sees a half-written file. Only rank 0 writes.
+"""motion.gif: an animated run in time, axes fixed over the motion.
 """
 from __future__ import annotations
 

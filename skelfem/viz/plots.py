@@ -1,9 +1,4 @@
-"""viz/plots (from output.py)
-
-Results on disk: result.json, solution.xdmf (ParaView/meshio) and deformed.png.
-
-Every file is written to a temporary name in the output folder and renamed
-into place, so a reader never sees a half-written file. Only rank 0 writes.
+"""deformed.png: the deformed design in 2D (matplotlib, no pyplot) or 3D (PyVista, off-screen), and IK tracks.
 """
 from __future__ import annotations
 
