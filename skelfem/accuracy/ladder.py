@@ -1,6 +1,6 @@
 """The uniform --tol ladder's rules: levels, observed rates, Richardson estimates, when to stop, graded zones.
 
-Model no more than the scene needs: refine the design's own mesh until its error estimate meets --tol.
+Model no more than the design needs: refine the design's own mesh until its error estimate meets --tol.
 
 ``skelfem simulate DESIGN --tol ABS_MM`` solves the design itself with P2 on
 a ladder of uniform meshes h_0 > h_1 > ... (each solve warm-started from the

@@ -67,7 +67,7 @@ class IKResult:
     errors: list = field(default_factory=list)   # |y - y'| at the start and after each accepted step
 
 
-def finger_length(model) -> float:
+def body_extent(model) -> float:
     """Extent of the body along its longest axis, mm."""
     from mpi4py import MPI
     x = model.mesh.geometry.x[:, :model.dim]
@@ -111,7 +111,7 @@ class SoftIK:
         self.lower = np.zeros(len(self.names))
         self.upper = self._upper_bounds(upper or {})
         self.reg = float(reg)
-        self.length = finger_length(model)
+        self.length = body_extent(model)
         self.tol = TOL_FRACTION * self.length if tol is None else float(tol)
         self.max_solves = int(max_solves)
         self.max_step = STEP_FRACTION * self.length if max_step is None else float(max_step)
