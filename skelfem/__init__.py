@@ -4,7 +4,7 @@ The public surface is ``__all__``; everything else is internal and may change.
 Importing skelfem changes no global state (no signal handlers, PETSc options,
 matplotlib backend or environment variable): the command line
 (``skelfem.cli``) does that for itself. Names that need DOLFINx or PETSc are
-imported on first use.
+imported on first use::
 
     from skelfem import Session
     with Session("geometry/finger.toml") as s:

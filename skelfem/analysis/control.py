@@ -98,8 +98,8 @@ class SoftIK:
                  tol: float | None = None, max_solves: int = 40, max_step: float | None = None,
                  damping: float = 1e-3):
         """upper: {tendon: u_max} (others unbounded); reg: rho, mm^2 per mm^2; tol: mm
-        (default 1e-3 x finger length); max_step: cap on |D|_inf, mm (default
-        0.05 x finger length); damping: initial mu relative to max diag(J^T J).
+        (default 1e-3 x the body's extent); max_step: cap on ``|D|_inf``, mm (default
+        0.05 x the body's extent); damping: initial mu relative to max diag(J^T J).
         """
         model = self.model = session.model
         self.session, self.solver = session, session.solver
@@ -215,7 +215,7 @@ class SoftIK:
 
     # -- the objective and the step -----------------------------------------------------------
     def objective(self, r: np.ndarray, u: np.ndarray) -> float:
-        """O = |r|^2 + rho |u|^2 with r = y - y'."""
+        """O = ``|r|^2 + rho |u|^2`` with r = y - y'."""
         return float(r @ r + self.reg * u @ u)
 
     def step(self, J: np.ndarray, r: np.ndarray, mu: float) -> tuple[np.ndarray, float]:
