@@ -28,7 +28,7 @@ import numpy as np
 from . import common as cli
 from ..io import outdir
 from ..viz.plots import ACHIEVED_COLOR, TARGET_COLOR, draw_track, include_points
-from ..io.files import FORMAT, atomic_write, write_json, write_text
+from ..io.files import FORMAT, InputTooLarge, atomic_write, read_bounded, write_json, write_text
 
 
 
@@ -66,6 +66,7 @@ def _control_arguments(p: argparse.ArgumentParser) -> None:
 # -- input ---------------------------------------------------------------------------------------
 MAX_SOLVES = 10_000        # forward solves per target
 MAX_TARGETS = 100_000      # targets of one track
+MAX_CSV_BYTES = 16 * 2 ** 20     # a target file is at most MAX_TARGETS short lines
 
 
 def contraction_bounds(items: list[str]) -> dict:
@@ -140,7 +141,9 @@ def coordinate_rows(values: list[float], dim: int, what: str) -> np.ndarray:
 def read_targets(path: Path, dim: int) -> np.ndarray:
     """Targets from a CSV file: one point per line, comma or whitespace separated."""
     try:
-        text = Path(path).read_text()
+        text = read_bounded(path, MAX_CSV_BYTES, "target file")
+    except InputTooLarge as exc:
+        raise cli.InputError(str(exc)) from None
     except OSError as exc:
         raise cli.InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
     except (UnicodeDecodeError, ValueError):

@@ -54,3 +54,28 @@ def test_a_lone_surrogate_design_name_is_refused_before_meshing(tmp_path):
         load_design(ROOT / "geometry" / "finger.toml", ["name=\udcff"])
     with pytest.raises(DesignError, match="valid UTF-8"):
         load_design(ROOT / "geometry" / "finger.toml", ["markers.tip=[0, 0]", "name=a\ud800b"])
+
+
+@pytest.mark.parametrize("command", ["track", "optimize"])
+def test_an_endless_target_file_is_refused_quickly(tmp_path, command):
+    """/dev/zero as --csv: refused once over the size limit (it used to grow memory without end)."""
+    import time
+    design = tmp_path / "finger.toml"             # optimize plans motions in time: a [dynamics] section
+    design.write_text((ROOT / "geometry" / "finger.toml").read_text() + "\n[dynamics]\ndt = 0.01\nduration = 0.1\n")
+    t0 = time.perf_counter()
+    res = run(command.encode(), os.fsencode(str(design)), b"--marker", b"tip", b"--csv", b"/dev/zero",
+              b"--out", os.fsencode(str(tmp_path / "o")), b"-q")
+    assert res.returncode == 1 and "larger than 16 MB" in one_error(res)
+    assert time.perf_counter() - t0 < 30                 # process start and imports included
+    assert not (tmp_path / "o").exists()
+
+
+def test_read_bounded_reads_no_more_than_its_limit(tmp_path):
+    from skelfem.io.files import InputTooLarge, read_bounded
+    p = tmp_path / "t.csv"
+    p.write_text("1,2\n" * 1000)
+    assert read_bounded(p, 4000, "target file").count("\n") == 1000
+    with pytest.raises(InputTooLarge, match="not a target file"):
+        read_bounded(p, 3999, "target file")
+    with pytest.raises(InputTooLarge):
+        read_bounded("/dev/zero", 2 ** 20, "target file")
