@@ -22,14 +22,14 @@ __all__ = [
     "Linearization", "SoftIK", "IKResult", "track", "line_targets",  # control
     "optimize_schedules", "OptimizeResult",                         # trajectory optimisation
     "Term", "Context", "BUILDERS",                                  # the energy-term contract
-    "SolveError", "MeshingError", "FabricationError",               # failures beyond bad input
+    "SolveError", "SessionError", "MeshingError", "FabricationError",   # failures beyond bad input
 ]
 
 _LAZY = {
     "Session": "session", "Linearization": "analysis.sensitivity", "SoftIK": "analysis.control",
     "IKResult": "analysis.control", "track": "analysis.control", "line_targets": "analysis.control",
     "optimize_schedules": "analysis.optimize", "OptimizeResult": "analysis.optimize",
-    "Term": "terms", "Context": "terms", "BUILDERS": "terms", "SolveError": "fem.newton",
+    "Term": "terms", "Context": "terms", "BUILDERS": "terms", "SolveError": "fem.newton", "SessionError": "session",
     "MeshingError": "design.occ", "FabricationError": "fabricate",
 }
 
