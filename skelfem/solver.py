@@ -43,6 +43,7 @@ log = logging.getLogger("skelfem")
 
 C1 = 1e-4          # Armijo constant
 MAX_ROTATION = 1.0
+MAX_LAG_UPDATES = 30   # re-solves with updated lagged quantities (friction's normal forces) per step
 WATCHDOG = 5       # relaxed (energy-raising) full steps of the curved strategy before it checks Pi
 
 
@@ -451,6 +452,8 @@ class NewtonSolver:
         self.model.sync(self.x)
         reason = self.snes.getConvergedReason()
         its = self.snes.getIterationNumber()
+        if reason > 0 and self.model.update_lag():       # lagged friction: solve again to a fixed point
+            return self._relag(its)
         if reason > 0:
             if not self.model.admissible(self.x):
                 return False, "inverted_elements", its
@@ -458,6 +461,39 @@ class NewtonSolver:
             return True, "converged", its
         log.debug("SNES reason %s", reason)
         return False, self._failure or _REASONS.get(reason, f"diverged ({reason})"), its
+
+    def _relag(self, its: int) -> tuple[bool, str, int]:
+        """Newton again after each change of the terms' lagged quantities, until none changes."""
+        if self._history:                       # the re-solves keep the first solve's force scale
+            self.reference_residual = max(self.reference_residual, self._history[0])
+        for _ in range(MAX_LAG_UPDATES):
+            self._failure, self._newton_step, self._decrement_converged = None, np.inf, False
+            self._watch, self._watch_allowed, self._last_trial = None, True, None
+            ok, status, more = self._newton_once()
+            its += more
+            if not ok:
+                return False, status, its
+            if not self.model.update_lag():
+                if not self.model.admissible(self.x):
+                    return False, "inverted_elements", its
+                self._factorised = True
+                return True, "converged", its
+        return False, "friction_not_converged", its
+
+    def _newton_once(self) -> tuple[bool, str, int]:
+        """One SNES solve from self.x (no lag update); the model's state follows it."""
+        try:
+            self.snes.solve(None, self.x)
+        except np.linalg.LinAlgError as exc:
+            log.debug("%s", exc)
+            self.lin.reset()
+            self.model.sync(self.model.u.vector)
+            return False, "linear_solve_failed", 0
+        self.model.sync(self.x)
+        reason = self.snes.getConvergedReason()
+        if reason > 0:
+            return True, "converged", self.snes.getIterationNumber()
+        return False, self._failure or _REASONS.get(reason, f"diverged ({reason})"), self.snes.getIterationNumber()
 
     def _predict(self, prev, a_prev: float, a: float, target: float) -> None:
         """Secant predictor: extrapolate the last increment to the new load factor."""

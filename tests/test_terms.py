@@ -13,6 +13,7 @@ from dolfinx import fem
 
 from skelfem import Session
 from skelfem.terms import BUILDERS
+from skelfem.terms.friction import GroundFriction
 
 from _designs import strip
 
@@ -41,7 +42,10 @@ def _designs():
     dynamic = dict(base, dynamics={"dt": 0.01, "duration": 0.1, "integrator": "bdf2",
                                    "damping": {"mass": 5.0, "stiffness": 0.01}})
     rigid = dict(full, bones=[dict(full["bones"][0], rigid=True)])
-    return {"full": full, "spring": spring, "contact": contact, "dynamic": dynamic, "rigid": rigid}
+    friction = dict(base, grounds=[{"name": "wall", "point": [0.0, 0.0], "normal": [1.0, 0.0], "stiffness": 5.0,
+                                    "friction": 0.4, "friction_static": 0.6}])
+    return {"full": full, "spring": spring, "contact": contact, "dynamic": dynamic, "rigid": rigid,
+            "friction": friction}
 
 
 def _perturbed_state(model, scale):
@@ -95,7 +99,7 @@ def _gradient(model, term, u, gform):
     return g
 
 
-@pytest.mark.parametrize("name", ["full", "spring", "contact", "dynamic", "rigid"])
+@pytest.mark.parametrize("name", ["full", "spring", "contact", "dynamic", "rigid", "friction"])
 def test_every_term_gradient_and_hessian_match_central_differences(name):
     import dolfinx.fem.petsc  # noqa: F401
     design = _designs()[name]
@@ -122,6 +126,15 @@ def test_every_term_gradient_and_hessian_match_central_differences(name):
             model.u.x.array[:] = 0.6 * u0
             term.end_step(model)
             term.prepare(0.005)
+        if isinstance(term, GroundFriction) and term.active:   # pressed into the wall, half the nodes sticking
+            u0 = u0.copy()
+            u0.reshape(-1, 2)[:, 0] -= 0.05 * ~model.fixed.reshape(-1, 2)[:, 0]
+            model.u.x.array[:] = u0
+            term.update_lag(model)
+            assert np.count_nonzero(term.N) >= 4
+            s_now = term.positions(u0) @ term.T
+            term.anchor = s_now + 0.5 * term.eps * np.where(np.arange(len(s_now)) % 2 == 0, 1.0, 3.0)[:, None]
+            term.trial[::3] = True                    # some kinetic nodes too
         eform, gform, hform = _term_derivatives(model, term)
         if eform is None and term.gradient(u0) is None:
             continue                                  # a read-out only term (markers)
@@ -157,12 +170,14 @@ def test_every_term_gradient_and_hessian_match_central_differences(name):
         assert "Inertia" in seen
     if name == "rigid":
         assert "RigidBone" in seen
+    if name == "friction":
+        assert "GroundFriction" in seen
 
 
 def test_every_builder_is_exercised():
     names = {b.__module__.rsplit(".", 1)[1] for b in BUILDERS}
     assert names == {"elasticity", "pins", "cables", "loads", "grounds", "contact", "markers", "gravity",
-                     "tractions", "inertia", "rigid"}
+                     "tractions", "inertia", "rigid", "friction"}
 
 
 def test_woodbury_direction_equals_the_full_hessian_direction():

@@ -141,6 +141,10 @@ class Term:
     def end_step(self, model) -> None:
         """Called after every accepted load or time step (history: friction, inertia)."""
 
+    def update_lag(self, model) -> bool:
+        """Refresh lagged quantities (friction's normal forces) at a converged state; True: solve again."""
+        return False
+
 
 def touched(changed: set, *prefixes: str) -> bool:
     """Whether any dotted key in changed is one of prefixes, lies under one or holds one."""
