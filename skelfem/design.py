@@ -187,6 +187,7 @@ class Design:
     fabrication: FabricationSpec = field(default_factory=FabricationSpec)
     dynamics: DynamicsSpec | None = None   # None: a static run
     friction: objects_design.FrictionSpec = field(default_factory=objects_design.FrictionSpec)   # Coulomb coefficients
+    objects: tuple = ()                    # objects_design.ObjectSpec: free rigid bodies
     format: int = FORMAT
     raw: dict = field(default_factory=dict)   # the TOML data after overrides
     measure: float = 0.0      # body area (2D, mm^2) or volume (3D, mm^3), bones included
@@ -1000,7 +1001,7 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     cables = _cables(top, dim, region, tol)
     pins = _pins(top, dim)
     loads = _loads(top, dim, region)
-    friction, = objects_design.take(top, dim)     # friction keys of [contact] and [[grounds]]
+    friction, objects = objects_design.take(top, dim, materials, body)   # [[objects]], friction keys
     grounds = _grounds(top, dim, body, tol)
     contact = _contact(top, dim)
     markers = _markers(top, dim, region)
@@ -1028,7 +1029,7 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
         source=str(source), name=name, dim=dim, thickness=thickness, mesh=mesh,
         materials=materials, body=body, bones=bones, cables=cables, pins=pins, loads=loads,
         grounds=grounds, contact=contact, markers=markers, solver=solver, gravity=gravity,
-        tractions=tractions, fabrication=fabrication, dynamics=dynamics, friction=friction, raw=data, measure=float(measure), vertices=int(vertices),
+        tractions=tractions, fabrication=fabrication, dynamics=dynamics, friction=friction, objects=objects, raw=data, measure=float(measure), vertices=int(vertices),
     )
 
 

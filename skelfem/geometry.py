@@ -20,6 +20,10 @@ def bone_tag_name(name: str) -> str:
     return f"bone:{name}"
 
 
+def object_tag_name(name: str) -> str:
+    return f"object:{name}"
+
+
 @dataclass
 class TaggedMesh:
     """A DOLFINx mesh with its cell tags and the names of the tags."""
@@ -120,10 +124,11 @@ def _build_model(gmsh, design) -> dict:
         body = _union(occ, 3, [_add_solid(occ, s) for s in design.body.solids])
         bones = {b.name: _union(occ, 3, [_add_solid(occ, s) for s in b.solids])
                  for b in design.bones}
+    objects = {object_tag_name(o.name): [_add_polygon(occ, o.outline)] for o in design.objects}   # apart
     bone_list = [(name, t) for name, tags in bones.items() for t in tags]
     if not bone_list:
         occ.synchronize()
-        return {BODY: body}
+        return {BODY: body, **objects}
     _, children = occ.fragment([(dim, t) for t in body], [(dim, t) for _, t in bone_list])
     occ.synchronize()
     groups = {bone_tag_name(name): [] for name in bones}
@@ -131,7 +136,7 @@ def _build_model(gmsh, design) -> dict:
         groups[bone_tag_name(name)] += [t for _, t in kids]
     in_bones = {t for tags in groups.values() for t in tags}
     groups[BODY] = sorted({t for kids in children[:len(body)] for _, t in kids} - in_bones)
-    return groups
+    return {**groups, **objects}
 
 
 _GMSH_READY = False
@@ -325,7 +330,7 @@ def mesh_design(design, comm=MPI.COMM_WORLD, verbose: bool = False, size=None) -
     from . import resources
     resources.check(design)         # refuse a mesh that would not fit (unless --force), on every rank
     dim = design.dim
-    names = [BODY] + [bone_tag_name(b.name) for b in design.bones]
+    names = [BODY] + [bone_tag_name(b.name) for b in design.bones] + [object_tag_name(o.name) for o in design.objects]
     tags = {name: i + 1 for i, name in enumerate(names)}
     if comm.rank == 0:
         _ensure_gmsh(gmsh)

@@ -118,6 +118,8 @@ def result_dict(design, model, report, timings: dict) -> dict:
     for section in STANDARD_SECTIONS:
         res[section] = readouts.pop(section, {}) if converged else None
     res.update(readouts)
+    if isinstance(res.get("contacts"), dict):                # contacts between pieces: a list of pairs
+        res["contacts"] = list(res["contacts"].values())
     res["attempts"] = report.attempts
     res["residual_history"] = [[float(r) for r in step] for step in report.residual_history]
     res["timings"] = {k: round(float(v), 4) for k, v in timings.items()}

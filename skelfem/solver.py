@@ -458,7 +458,8 @@ class NewtonSolver:
             if not self.model.admissible(self.x):
                 return False, "inverted_elements", its
             self._factorised = self._factorised or its > 0
-            return True, "converged", its
+            why = self.model.failure()                     # e.g. a free object that nothing holds
+            return (False, why, its) if why else (True, "converged", its)
         log.debug("SNES reason %s", reason)
         return False, self._failure or _REASONS.get(reason, f"diverged ({reason})"), its
 
@@ -477,7 +478,8 @@ class NewtonSolver:
                 if not self.model.admissible(self.x):
                     return False, "inverted_elements", its
                 self._factorised = True
-                return True, "converged", its
+                why = self.model.failure()
+                return (False, why, its) if why else (True, "converged", its)
         return False, "friction_not_converged", its
 
     def _newton_once(self) -> tuple[bool, str, int]:
@@ -555,7 +557,7 @@ class NewtonSolver:
             model.set_factor(a)
             model.sync(model.u.vector)
             cuts += 1
-            if cuts > self.max_cuts:
+            if cuts > self.max_cuts or status.startswith("no equilibrium"):   # smaller steps cannot help
                 report.status = status
                 report.residual_history.append(self._history)
                 break

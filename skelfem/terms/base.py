@@ -141,6 +141,10 @@ class Term:
     def end_step(self, model) -> None:
         """Called after every accepted load or time step (history: friction, inertia)."""
 
+    def failure(self, model) -> str | None:
+        """Why a converged state is no equilibrium (a free object that nothing holds), or None."""
+        return None
+
     def update_lag(self, model) -> bool:
         """Refresh lagged quantities (friction's normal forces) at a converged state; True: solve again."""
         return False

@@ -305,7 +305,7 @@ class GroundFriction(Term):
 
     def readout(self, model) -> dict:
         if not (self.active and self._ready):
-            return {self.name: {"friction_force": np.zeros(self.ctx.dim), "sticking": 1.0}}
+            return {}                  # frictionless: result.json as before friction existed
         return {self.name: dict(self._report or self._measure(model.u.x.array))}
 
 

@@ -1,0 +1,183 @@
+"""Free rigid objects (2D): their rigid motion, weight, contact with the body and the "not held" verdict.
+
+An object (``[[objects]]``, :mod:`skelfem.objects_design`) is meshed as its
+own region, apart from the body (``object:<name>``); its cells carry no
+strain (Elasticity gives them no material) and its nodes follow three rigid
+DOFs through the machinery of rigid bones (:class:`.rigid.RigidBody`).
+Its boundary is part of the mesh boundary, so grounds (:mod:`.grounds`,
+:mod:`.friction`) push it and hold it by friction like the body.
+
+Energy of an object o with nodes i (displacement u_i):
+
+    Pi_o(u; a) = -a sum_i f_i . u_i + k_o / (2 n) sum_i |u_i|^2,
+
+f_i = 1e-9 rho g t int phi_i dx its consistent nodal weights (rho in
+kg/m^3, g in m/s^2, a the load factor), and a tether k_o (N/mm, summed over
+its n nodes) to its rest place, ``tether`` = 1e-9 times the body's E t: far
+below any contact stiffness, it only keeps the Newton matrix regular while
+the object touches nothing. The verdict (``failure``): in an equilibrium
+the tether's pull must be a negligible part (``held_tol``) of the forces
+on the object (weight and contacts); if it is not, nothing holds the
+object and the solve reports ``no equilibrium: object NAME is not held``.
+
+Contact between the body and the objects (and between objects) is the IPC
+barrier of :mod:`.contact` on the same boundary polygon, with a collision
+filter that lets only parts of different pieces (body, each object)
+collide. Read-outs: ``objects.NAME`` (``position`` of the centroid,
+``rotation`` in rad, ``displacement`` of the centroid, ``held``) and
+``contacts``: per pair of pieces in contact, the ``normal_force`` acting on
+the first one, N.
+"""
+from __future__ import annotations
+
+import ipctk
+import numpy as np
+from dolfinx import fem
+
+from ..geometry import object_tag_name
+from .base import Context, Term
+from .contact import SelfContact, _fortran
+from .gravity import KG_PER_M3_TIMES_M_PER_S2
+from .rigid import RigidBody
+
+BODY = "body"
+
+
+def nodal_areas(V, cells: np.ndarray) -> np.ndarray:
+    """int phi_i dx over the cells for every local node (P1: a third of each cell's area at its vertices;
+    P2: at its edge midpoints, the vertex functions integrating to zero)."""
+    npc = V.dofmap.dof_layout.num_dofs
+    nodes = V.dofmap.list.array.reshape(-1, npc)[cells]
+    x = V.tabulate_dof_coordinates()[:, :2]
+    a, b, c = x[nodes[:, 0]], x[nodes[:, 1]], x[nodes[:, 2]]
+    area = 0.5 * np.abs((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+    carriers = nodes[:, :3] if npc == 3 else nodes[:, 3:6]
+    out = np.zeros(len(x))
+    np.add.at(out, carriers.ravel(), np.repeat(area / 3.0, 3))
+    return out
+
+
+class RigidObject(Term):
+    """One free rigid object: its weight, its tether, its kinematics and its read-out."""
+
+    section = "objects"
+    tether = 1e-9        # k_o / (E_body t)
+    held_tol = 1e-3      # the tether may carry at most this share of the forces on the object
+
+    def __init__(self, ctx: Context, spec):
+        self.ctx, self.name, self.spec = ctx, spec.name, spec
+        tm, V, bs = ctx.tagged, ctx.V, ctx.bs
+        design = ctx.design
+        cells = tm.cell_tags.find(tm.tags[object_tag_name(spec.name)])
+        self.nodes = fem.locate_dofs_topological(V, ctx.mesh.topology.dim, cells)
+        owned = self.nodes[self.nodes < V.dofmap.index_map.size_local]
+        self.dofs = owned[:, None] * bs + np.arange(bs)
+        self.X = V.tabulate_dof_coordinates()[owned, :ctx.dim]
+        self.body = RigidBody(spec.name, self.dofs, self.X, ctx.comm)
+        t = float(ctx.thickness.value)
+        w = nodal_areas(V, cells)[owned]
+        self.area = float(ctx.comm.allreduce(w.sum()))
+        self.centroid0 = ctx.comm.allreduce(w @ self.X) / self.area
+        rho = design.materials[spec.material].density
+        g = np.zeros(ctx.dim) if design.gravity is None else np.asarray(design.gravity, float)
+        self.f = KG_PER_M3_TIMES_M_PER_S2 * (rho or 0.0) * t * w[:, None] * g      # (k, dim) N at a = 1
+        self.factor = 0.0
+        self.k = self.tether * design.materials[design.body.material].E * t
+        self.n = self.body.count
+
+    def rigid_body(self):
+        return self.body
+
+    def pattern(self) -> list:
+        return [(self.nodes[i:i + 1], self.nodes[i:i + 1]) for i in range(len(self.nodes))]
+
+    def set_factor(self, a: float) -> None:
+        self.factor = float(a)
+
+    def energy(self, u: np.ndarray) -> float:
+        ub = u[self.dofs]
+        return float(-self.factor * np.sum(self.f * ub) + 0.5 * self.k / self.n * np.sum(ub * ub))
+
+    def gradient(self, u: np.ndarray):
+        return self.dofs.ravel(), (-self.factor * self.f + self.k / self.n * u[self.dofs]).ravel()
+
+    def hessian(self, u: np.ndarray) -> list:
+        import scipy.sparse as sp
+        d = self.dofs.ravel()
+        return [(d, sp.identity(len(d), format="coo") * (self.k / self.n))]
+
+    def weight(self) -> np.ndarray:
+        return self.ctx.comm.allreduce(self.f.sum(axis=0))
+
+    def failure(self, model) -> str | None:
+        """'no equilibrium: object NAME is not held' when the tether carries the object."""
+        u = model.u.x.array
+        pull = self.ctx.comm.allreduce((self.k / self.n * u[self.dofs]).sum(axis=0))
+        g = model.full_gradient()[self.dofs] - self.k / self.n * u[self.dofs]       # weight and contacts
+        loads = self.ctx.comm.allreduce(float(np.linalg.norm(g, axis=1).sum()))
+        if np.linalg.norm(pull) > self.held_tol * loads:
+            return f"no equilibrium: object {self.name} is not held"
+        return None
+
+    def readout(self, model) -> dict:
+        t, R = self.body.fit(model.u.x.array)
+        c = self.centroid0 + t + (R - np.eye(self.ctx.dim)) @ (self.centroid0 - self.body.c0)
+        return {self.name: {"position": c, "rotation": float(np.arctan2(R[1, 0], R[0, 0])),
+                            "displacement": c - self.centroid0, "weight": self.weight()}}
+
+
+class PieceContact(SelfContact):
+    """The IPC barrier between different pieces (the body, each object) of the mesh boundary."""
+
+    section, name = "contacts", "pieces"
+
+    def __init__(self, ctx: Context, objects: list, dhat: float, stiffness: float, project: bool = True):
+        super().__init__(ctx.V, dhat, stiffness, float(ctx.thickness.value), project)
+        self.pieces = [BODY] + [o.name for o in objects]
+        label = np.zeros(len(self.nodes), np.int32)
+        for k, o in enumerate(objects, start=1):
+            label[np.isin(self.nodes, o.nodes)] = k
+        self.label = label
+        self.mesh.can_collide = ipctk.make_vertex_patches_filter(label)
+
+    def min_distance(self, u: np.ndarray) -> float:
+        """Smallest distance between different pieces, mm (inf if none within the boundary's extent)."""
+        y = self.positions(u)
+        reach = float(np.linalg.norm(np.ptp(y, axis=0)))
+        c = self.collisions(y, reach)
+        if len(c) == 0:
+            return float("inf")
+        return float(np.sqrt(c.compute_minimum_distance(self.mesh, _fortran(y))))
+
+    def readout(self, model) -> dict:
+        """Per pair of pieces in contact: the barrier's force on the first piece (the one named first)."""
+        u = model.u.x.array
+        y = self.positions(u)
+        c = self.collisions(y)
+        out = {}
+        if len(c):
+            g = self.t * np.asarray(self.barrier.gradient(c, self.mesh, _fortran(y))).reshape(-1, 2)
+            force = -g                                   # the barrier's force on each boundary node
+            for k in range(1, len(self.pieces)):
+                on = self.label == k
+                f = force[on].sum(axis=0)
+                if np.linalg.norm(f) > 0:
+                    a, b = self.pieces[0], self.pieces[k]
+                    out[f"{a}|{b}"] = {"between": [a, b], "normal_force": -f}     # on the body: minus that on b
+        return out
+
+
+def build(ctx: Context) -> list[Term]:
+    from ..design import DesignError
+    d = ctx.design
+    if not d.objects:
+        return []
+    if ctx.comm.size > 1:
+        raise DesignError(f"{d.source}: objects: objects run on one MPI process (got {ctx.comm.size})")
+    objects = [RigidObject(ctx, spec) for spec in d.objects]
+    contact = PieceContact(ctx, objects, d.contact.dhat, d.materials[d.body.material].E)
+    d0 = contact.min_distance(np.zeros(len(ctx.u.x.array)))
+    if d0 <= d.contact.dhat:
+        raise DesignError(f"{d.source}: contact.dhat: {d.contact.dhat:g} mm is not below the smallest rest "
+                          f"distance between the body and the objects ({d0:.3g} mm); lower dhat or move them apart")
+    return objects + [contact]
