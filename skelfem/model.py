@@ -261,9 +261,9 @@ class Model:
         for term in self.terms:
             term.end_step(self)
 
-    def failure(self) -> str | None:
-        """The first term's reason why the converged state is no equilibrium, or None."""
-        return next((why for why in (term.failure(self) for term in self.terms) if why), None)
+    def failure(self, converged: bool = True) -> str | None:
+        """The first term's reason why the state (converged or where Newton gave up) is no equilibrium."""
+        return next((why for why in (term.failure(self, converged) for term in self.terms) if why), None)
 
     def update_lag(self) -> bool:
         """Let every term refresh its lagged quantities at the converged state; True: solve again."""

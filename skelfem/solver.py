@@ -461,7 +461,8 @@ class NewtonSolver:
             why = self.model.failure()                     # e.g. a free object that nothing holds
             return (False, why, its) if why else (True, "converged", its)
         log.debug("SNES reason %s", reason)
-        return False, self._failure or _REASONS.get(reason, f"diverged ({reason})"), its
+        why = self.model.failure(converged=False)          # e.g. a free object sliding away
+        return False, why or self._failure or _REASONS.get(reason, f"diverged ({reason})"), its
 
     def _relag(self, its: int) -> tuple[bool, str, int]:
         """Newton again after each change of the terms' lagged quantities, until none changes."""
@@ -495,7 +496,8 @@ class NewtonSolver:
         reason = self.snes.getConvergedReason()
         if reason > 0:
             return True, "converged", self.snes.getIterationNumber()
-        return False, self._failure or _REASONS.get(reason, f"diverged ({reason})"), self.snes.getIterationNumber()
+        why = self.model.failure(converged=False)
+        return False, why or self._failure or _REASONS.get(reason, f"diverged ({reason})"), self.snes.getIterationNumber()
 
     def _predict(self, prev, a_prev: float, a: float, target: float) -> None:
         """Secant predictor: extrapolate the last increment to the new load factor."""

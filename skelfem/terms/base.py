@@ -141,8 +141,9 @@ class Term:
     def end_step(self, model) -> None:
         """Called after every accepted load or time step (history: friction, inertia)."""
 
-    def failure(self, model) -> str | None:
-        """Why a converged state is no equilibrium (a free object that nothing holds), or None."""
+    def failure(self, model, converged: bool = True) -> str | None:
+        """Why the state is no equilibrium (a free object that nothing holds), or None; converged=False:
+        the state where Newton gave up."""
         return None
 
     def update_lag(self, model) -> bool:

@@ -33,6 +33,12 @@ friction regularised on the step's increment, the quasi-static counterpart
 of a velocity mollifier: it slips by up to eps at every step and drifts
 without bound; it is kept to measure that drift.
 
+Newton uses the exact Hessian (none along the slip of a slipping node), so
+a block that slides is carried to its new place in a step or two;
+``project = True`` replaces it with the secant stiffness F_i / r in every
+tangential direction (positive; it slows a long slide to a crawl and is
+kept for comparison).
+
 N_i is *lagged* (held fixed while Newton solves), which keeps Pi_f a
 potential, and the lag is iterated to a fixed point: after Newton
 converges, ``update_lag`` recomputes N_i(u) and asks for a re-solve until
@@ -101,6 +107,7 @@ class GroundFriction(Term):
     lag_rtol = 1e-7            # fixed point of the lagged normal forces: relative change below this
     anchored = True            # False: re-anchor every node at every step (regularised, creeps)
     slip_length = 1e-6         # eps, as a fraction of the body's size
+    project = False            # True: Newton's Hessian of a slipping node is its secant F / r along d too
     breakaway = 1e-4           # D_c: slip (fraction of the body's size) after which mu_s drops to mu_k
 
     def __init__(self, ctx: Context, spec, coulomb):
@@ -206,7 +213,8 @@ class GroundFriction(Term):
             return []
         m = self.T.shape[1]
         e = d / np.where(r > 0, r, 1.0)[:, None]
-        P = np.eye(m)[None] - np.where(stick, 0.0, 1.0)[:, None, None] * e[:, :, None] * e[:, None, :]
+        along = np.where(stick | self.project, 0.0, 1.0)                 # exact: no stiffness along the slip
+        P = np.eye(m)[None] - along[:, None, None] * e[:, :, None] * e[:, None, :]
         c = np.where(stick, K, F / np.where(stick, 1.0, r))
         H = np.einsum("ia,nab,jb->nij", self.T, c[:, None, None] * P, self.T)        # (n, dim, dim)
         H = sp.block_diag(list(H), format="coo")

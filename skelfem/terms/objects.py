@@ -17,22 +17,26 @@ its n nodes) to its rest place, ``tether`` = 1e-9 times the body's E t: far
 below any contact stiffness, it only keeps the Newton matrix regular while
 the object touches nothing. The verdict (``failure``): in an equilibrium
 the tether's pull must be a negligible part (``held_tol``) of the forces
-on the object (weight and contacts); if it is not, nothing holds the
-object and the solve reports ``no equilibrium: object NAME is not held``.
+on the object (weight and contacts); if it is not (and the object has
+moved beyond round-off), nothing holds the object and the solve reports
+``no equilibrium: object NAME is not held``.
 
 Contact between the body and the objects (and between objects) is the IPC
 barrier of :mod:`.contact` on the same boundary polygon, with a collision
 filter that lets only parts of different pieces (body, each object)
 collide. Read-outs: ``objects.NAME`` (``position`` of the centroid,
-``rotation`` in rad, ``displacement`` of the centroid, ``held``) and
+``rotation`` in rad, ``displacement`` of the centroid, ``weight``) and
 ``contacts``: per pair of pieces in contact, the ``normal_force`` acting on
-the first one, N.
+the first one (N, summed: opposite pads cancel) and ``normal_magnitude``,
+the sum of the magnitudes of the barrier's nodal forces on the second
+piece (N: what a pinch's friction limit mu sum N is made of).
 """
 from __future__ import annotations
 
 import ipctk
 import numpy as np
 from dolfinx import fem
+from mpi4py import MPI
 
 from ..geometry import object_tag_name
 from .base import Context, Term
@@ -78,15 +82,35 @@ class RigidObject(Term):
         w = nodal_areas(V, cells)[owned]
         self.area = float(ctx.comm.allreduce(w.sum()))
         self.centroid0 = ctx.comm.allreduce(w @ self.X) / self.area
-        rho = design.materials[spec.material].density
-        g = np.zeros(ctx.dim) if design.gravity is None else np.asarray(design.gravity, float)
-        self.f = KG_PER_M3_TIMES_M_PER_S2 * (rho or 0.0) * t * w[:, None] * g      # (k, dim) N at a = 1
+        self.w = KG_PER_M3_TIMES_M_PER_S2 * t * w                 # nodal volumes x (N/mm^3 per kg/m^3 m/s^2)
+        self.rho = float(design.materials[spec.material].density or 0.0)
+        self.g = np.zeros(ctx.dim) if design.gravity is None else np.asarray(design.gravity, float).copy()
+        self._weights()
         self.factor = 0.0
         self.k = self.tether * design.materials[design.body.material].E * t
         self.n = self.body.count
+        self.size = float(np.linalg.norm(np.ptp(np.asarray(spec.outline, float), axis=0)))
+
+    def _weights(self) -> None:
+        self.f = self.rho * self.w[:, None] * self.g                   # (k, dim) N at a = 1
 
     def rigid_body(self):
         return self.body
+
+    def parameters(self) -> dict:
+        out = {f"materials.{self.spec.material}.density": self.rho}
+        if self.ctx.design.gravity is not None:
+            out["gravity.acceleration"] = self.g.copy()
+        return out
+
+    def set_parameter(self, key: str, value) -> None:
+        if key == "gravity.acceleration":
+            self.g = np.asarray(value, float).reshape(self.g.shape).copy()
+        elif key == f"materials.{self.spec.material}.density":
+            self.rho = float(value)
+        else:
+            raise KeyError(key)
+        self._weights()
 
     def pattern(self) -> list:
         return [(self.nodes[i:i + 1], self.nodes[i:i + 1]) for i in range(len(self.nodes))]
@@ -109,13 +133,17 @@ class RigidObject(Term):
     def weight(self) -> np.ndarray:
         return self.ctx.comm.allreduce(self.f.sum(axis=0))
 
-    def failure(self, model) -> str | None:
-        """'no equilibrium: object NAME is not held' when the tether carries the object."""
+    def failure(self, model, converged: bool = True) -> str | None:
+        """'no equilibrium: object NAME is not held' when the tether carries the object (converged), or
+        when Newton gave up with the object gone further than its own size."""
         u = model.u.x.array
         pull = self.ctx.comm.allreduce((self.k / self.n * u[self.dofs]).sum(axis=0))
         g = model.full_gradient()[self.dofs] - self.k / self.n * u[self.dofs]       # weight and contacts
         loads = self.ctx.comm.allreduce(float(np.linalg.norm(g, axis=1).sum()))
-        if np.linalg.norm(pull) > self.held_tol * loads:
+        moved = self.ctx.comm.allreduce(float(np.abs(u[self.dofs]).max(initial=0.0)), op=MPI.MAX)
+        if not converged:
+            return f"no equilibrium: object {self.name} is not held" if moved > self.size else None
+        if np.linalg.norm(pull) > self.held_tol * loads and moved > 1e-9 * self.size:   # not round-off
             return f"no equilibrium: object {self.name} is not held"
         return None
 
@@ -163,7 +191,8 @@ class PieceContact(SelfContact):
                 f = force[on].sum(axis=0)
                 if np.linalg.norm(f) > 0:
                     a, b = self.pieces[0], self.pieces[k]
-                    out[f"{a}|{b}"] = {"between": [a, b], "normal_force": -f}     # on the body: minus that on b
+                    out[f"{a}|{b}"] = {"between": [a, b], "normal_force": -f,     # on the body: minus that on b
+                                       "normal_magnitude": float(np.linalg.norm(force[on], axis=1).sum())}
         return out
 
 
@@ -180,4 +209,5 @@ def build(ctx: Context) -> list[Term]:
     if d0 <= d.contact.dhat:
         raise DesignError(f"{d.source}: contact.dhat: {d.contact.dhat:g} mm is not below the smallest rest "
                           f"distance between the body and the objects ({d0:.3g} mm); lower dhat or move them apart")
-    return objects + [contact]
+    from .object_friction import ObjectFriction
+    return objects + [contact, ObjectFriction(ctx, contact, objects)]
