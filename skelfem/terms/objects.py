@@ -29,7 +29,9 @@ collide. Read-outs: ``objects.NAME`` (``position`` of the centroid,
 ``contacts``: per pair of pieces in contact, the ``normal_force`` acting on
 the first one (N, summed: opposite pads cancel) and ``normal_magnitude``,
 the sum of the magnitudes of the barrier's nodal forces on the second
-piece (N: what a pinch's friction limit mu sum N is made of).
+piece (N: what a pinch's friction limit mu sum N is made of), and
+``min_distance``, the smallest distance between different pieces (mm,
+asserted positive).
 """
 from __future__ import annotations
 
@@ -183,6 +185,9 @@ class PieceContact(SelfContact):
         y = self.positions(u)
         c = self.collisions(y)
         out = {}
+        gap = self.min_distance(u)
+        if not gap > 0.0:                               # the barrier keeps every accepted state apart
+            raise AssertionError(f"pieces interpenetrate (distance {gap:g} mm)")
         if len(c):
             g = self.t * np.asarray(self.barrier.gradient(c, self.mesh, _fortran(y))).reshape(-1, 2)
             force = -g                                   # the barrier's force on each boundary node
@@ -192,7 +197,8 @@ class PieceContact(SelfContact):
                 if np.linalg.norm(f) > 0:
                     a, b = self.pieces[0], self.pieces[k]
                     out[f"{a}|{b}"] = {"between": [a, b], "normal_force": -f,     # on the body: minus that on b
-                                       "normal_magnitude": float(np.linalg.norm(force[on], axis=1).sum())}
+                                       "normal_magnitude": float(np.linalg.norm(force[on], axis=1).sum()),
+                                       "min_distance": gap}
         return out
 
 
