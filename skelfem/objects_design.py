@@ -142,6 +142,8 @@ def _objects(top, dim: int, materials: dict, body) -> tuple:
         top.fail("objects", "must be an array of tables ([[...]])")
     if dim != 2:
         top.fail("objects", "objects are implemented for dim = 2 only")
+    if top.has("dynamics"):
+        top.fail("objects", "objects are not implemented with [dynamics] yet (static runs only)")
     out, seen = [], set()
     loops = [body.outline, *body.holes]
     tol = 1e-9 * max(float(np.ptp(body.outline, axis=0).max()), 1.0)

@@ -142,6 +142,7 @@ def test_pinch_holds_above_mu_min_and_loses_below():
     (lambda d: d.update(contact={"pairs": {"soft:steel": 0.3}}), 'contact.pairs."soft:steel"'),
     (lambda d: d.update(contact={"pairs": {"soft:pla": -0.3}}), 'contact.pairs."soft:pla"'),
     (lambda d: d.update(contact={"friction": 0.5, "friction_static": 0.4}), "contact.friction_static"),
+    (lambda d: d.update(dynamics={"dt": 0.01, "duration": 0.1}), "objects"),
 ])
 def test_bad_objects_input_is_one_error_naming_the_key(change, key):
     d = _base([_box(2, 10.5, 8, 13.5)])
@@ -158,3 +159,14 @@ def test_pairs_and_defaults():
     assert (d.friction.between("soft", "soft").kinetic, d.friction.between("soft", "soft").static) == (0.3, 0.4)
     assert d.friction.between("pla", "pla").kinetic == 0.2
     assert d.objects[0].name == "box" and "objects" in d.raw
+
+
+def test_moving_an_object_re_meshes():
+    """An edit of an object's outline is a new mesh (the old one's object would stay where it was).
+    With friction: off centre, the block tilts under the box, and a frictionless box slides off."""
+    with Session(_base([_box(2, 10.5, 8, 13.5)], contact={"dhat": 0.2, "friction": 0.5})) as s:
+        assert s.solve().converged
+        s.set({"objects.box.outline": [[3, 10.5], [9, 10.5], [9, 13.5], [3, 13.5]]})
+        r = s.solve()
+        assert r.converged, r.status
+        assert r.to_dict()["objects"]["box"]["position"][0] == pytest.approx(6.0, abs=0.05)
