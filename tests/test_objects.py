@@ -85,6 +85,11 @@ def test_object_on_a_ground_sticks_iff_tan_theta_below_mu(theta, held):
         floor = r.to_dict()["grounds"]["floor"]
         W = 1250e-9 * G * 6 * 3 * 10
         assert floor["friction_force"][0] == pytest.approx(W * math.sin(th), rel=1e-3)
+        (pair,) = r.to_dict()["contacts"]                      # the box on the floor: forces on the floor
+        assert pair["between"] == ["floor", "box"]
+        assert pair["normal_force"][1] == pytest.approx(-W * math.cos(th), rel=1e-3)
+        assert pair["friction_force"][0] == pytest.approx(W * math.sin(th), rel=1e-3)
+        assert pair["sticking"] > 0.5
     else:
         assert r.status == "no equilibrium: object box is not held"
 

@@ -120,6 +120,7 @@ class GroundFriction(Term):
         self.T = tangent_basis(self.normal)
         self._ready = False
         self._report = None        # read-out at the last accepted step
+        self.nodal = None          # (nodes, friction force on the plane, slipping, N) at the last accepted step
         if self.active:
             self._setup()
 
@@ -309,6 +310,9 @@ class GroundFriction(Term):
         slipping[on] = r > self.eps * (1 + 1e-12)
         total = comm.allreduce(float(self.N.sum()))
         held = comm.allreduce(float(self.N[~slipping].sum()))
+        nodal = np.zeros((len(self.N), self.ctx.dim))
+        nodal[on] = f @ self.T.T
+        self.nodal = (self.nodes, nodal, slipping, self.N.copy())   # per node, for per-piece read-outs
         return {"friction_force": force, "sticking": held / total if total > 0 else 1.0}
 
     def readout(self, model) -> dict:

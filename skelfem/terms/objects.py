@@ -164,6 +164,8 @@ class PieceContact(SelfContact):
     def __init__(self, ctx: Context, objects: list, dhat: float, stiffness: float, project: bool = True):
         super().__init__(ctx.V, dhat, stiffness, float(ctx.thickness.value), project)
         self.pieces = [BODY] + [o.name for o in objects]
+        self.objects = objects
+        self._weights = None          # boundary weights of the nodes (grounds' quadrature), on demand
         label = np.zeros(len(self.nodes), np.int32)
         for k, o in enumerate(objects, start=1):
             label[np.isin(self.nodes, o.nodes)] = k
@@ -179,12 +181,44 @@ class PieceContact(SelfContact):
             return float("inf")
         return float(np.sqrt(c.compute_minimum_distance(self.mesh, _fortran(y))))
 
+    def _on_grounds(self, model, u: np.ndarray) -> dict:
+        """Per ground and object on it: the force the object exerts on the ground (normal, and friction
+        if the ground has it), from the ground's nodal penalty forces on the object's nodes."""
+        from .friction import GroundFriction, boundary_weights
+        from .grounds import Ground
+        if self._weights is None:
+            self._weights = boundary_weights(model.V)
+        X = model.V.tabulate_dof_coordinates()[:, :2]
+        out = {}
+        for ground in model.terms_in("grounds"):
+            if not isinstance(ground, Ground):
+                continue
+            k = float(ground.parameters()[f"grounds.{ground.name}.stiffness"])
+            friction = next((t for t in model.terms_in("grounds") if isinstance(t, GroundFriction)
+                             and t.name == ground.name and t.nodal is not None), None)
+            for obj in self.objects:
+                nodes = obj.nodes[self._weights[obj.nodes] > 0]
+                y = X[nodes] + u[(nodes[:, None] * self.bs + np.arange(self.bs))]
+                N = k * self.t * self._weights[nodes] * np.maximum(-((y - ground.point) @ ground.normal), 0.0)
+                if not N.sum() > 0:
+                    continue
+                entry = {"between": [ground.name, obj.name], "normal_force": -N.sum() * ground.normal}
+                if friction is not None:
+                    fn, ff, slipping, Nf = friction.nodal
+                    mine = np.isin(fn, nodes)
+                    held = float(Nf[mine & ~slipping].sum())
+                    entry.update(friction_force=ff[mine].sum(axis=0),
+                                 sticking=held / float(Nf[mine].sum()) if Nf[mine].sum() > 0 else 1.0)
+                out[f"{ground.name}|{obj.name}"] = entry
+        return out
+
     def readout(self, model) -> dict:
-        """Per pair of pieces in contact: the barrier's force on the first piece (the one named first)."""
+        """Per pair of pieces in contact: the barrier's force on the first piece (the one named first);
+        per ground and object on it, the object's force on the ground."""
         u = model.u.x.array
         y = self.positions(u)
         c = self.collisions(y)
-        out = {}
+        out = self._on_grounds(model, u)
         gap = self.min_distance(u)
         if not gap > 0.0:                               # the barrier keeps every accepted state apart
             raise AssertionError(f"pieces interpenetrate (distance {gap:g} mm)")
