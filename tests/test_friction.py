@@ -158,3 +158,36 @@ def test_bad_friction_is_one_error_naming_the_key(where, value, key):
     with pytest.raises(DesignError) as e:
         parse_design(raw, "d.toml")
     assert str(e.value).startswith(f"d.toml: {key}: ") and "\n" not in str(e.value)
+
+
+@pytest.mark.mpi
+def test_friction_serial_equals_two_ranks(tmp_path, mpirun):
+    """Between mu_k and mu_s (tan theta = 0.55, mu_k 0.5, mu_s 0.6) the block sticks, then a pull of
+    0.3 mm: the same state and read-outs on 1 and 2 ranks."""
+    import json
+    import sys
+    from pathlib import Path
+    script = tmp_path / "run.py"
+    script.write_text(
+        "import json, math, sys\n"
+        f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+        "import numpy as np\nfrom mpi4py import MPI\nfrom skelfem import Session\nimport test_friction as t\n"
+        "d = t.block(mu=0.5, mu_s=0.6, theta=math.degrees(math.atan(0.55)), kp=1e-4)\n"
+        "with Session(d) as s:\n"
+        "    r = s.solve().to_dict()\n"
+        "    s.model.set_parameter('pins.pull.move', np.array([0.3, 0.0]))\n"
+        "    assert s.solver.resolve(1).converged\n"
+        "    ro = s.model.readouts()\n"
+        "    if MPI.COMM_WORLD.rank == 0:\n"
+        "        print(json.dumps([r['markers']['c']['position'], r['grounds']['floor']['sticking'],\n"
+        "                          ro['grounds']['floor']['friction_force'].tolist(),\n"
+        "                          ro['pins']['pull']['reaction'].tolist()]))\n")
+    out = []
+    for ranks in (1, 2):
+        proc = mpirun.run([sys.executable, script], ranks=ranks, timeout=300)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        out.append(json.loads(proc.stdout.strip().splitlines()[-1]))
+    (x1, st1, f1, r1), (x2, st2, f2, r2) = out
+    assert st1 == st2 == 1.0                                  # static friction holds it above mu_k
+    assert np.allclose(x1, x2, rtol=0, atol=1e-9)
+    assert np.allclose(f1, f2, rtol=1e-8, atol=1e-12) and np.allclose(r1, r2, rtol=1e-8, atol=1e-12)

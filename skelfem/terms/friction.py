@@ -137,7 +137,9 @@ class GroundFriction(Term):
         self.X = ctx.V.tabulate_dof_coordinates()[self.nodes, :ctx.dim]
         self.anchor = self.X @ self.T                                # stick anchors s_i (tangential)
         x = ctx.mesh.geometry.x[:, :ctx.dim]
-        size = np.linalg.norm(ctx.comm.allreduce(x.max(axis=0), op=MPI.MAX) - ctx.comm.allreduce(x.min(axis=0), op=MPI.MIN))
+        parts = ctx.comm.allgather((x.max(axis=0), x.min(axis=0)) if len(x) else None)
+        size = np.linalg.norm(np.max([p[0] for p in parts if p is not None], axis=0)
+                              - np.min([p[1] for p in parts if p is not None], axis=0))
         self.eps = self.slip_length * float(size)                      # mm
         self.dc = self.breakaway * float(size)                          # mm
         self.run = np.zeros(len(self.nodes))                            # slip since the node last stuck, mm
@@ -191,7 +193,8 @@ class GroundFriction(Term):
         if not (self.active and self._ready):
             return 0.0
         _, _, r, K, F, stick = self._parts(u)
-        return float(np.sum(np.where(stick, 0.5 * K * r ** 2, F * r - 0.5 * F ** 2 / K)))
+        local = float(np.sum(np.where(stick, 0.5 * K * r ** 2, F * r - 0.5 * F ** 2 / K)))
+        return self.ctx.comm.allreduce(local) if self.ctx.comm.size > 1 else local     # Pi is global
 
     def _forces(self, u: np.ndarray):
         """(active nodes, tangential force min(K r, F) d / r as (n, dim-1))."""
