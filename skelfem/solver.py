@@ -452,7 +452,7 @@ class NewtonSolver:
         self.model.sync(self.x)
         reason = self.snes.getConvergedReason()
         its = self.snes.getIterationNumber()
-        if reason > 0 and self.model.update_lag():       # lagged friction: solve again to a fixed point
+        if self.model.update_lag():     # lagged friction (or contacts a failed solve ran into): solve again
             return self._relag(its)
         if reason > 0:
             if not self.model.admissible(self.x):
@@ -473,9 +473,10 @@ class NewtonSolver:
             self._watch, self._watch_allowed, self._last_trial = None, True, None
             ok, status, more = self._newton_once()
             its += more
-            if not ok:
+            changed = self.model.update_lag()
+            if not ok and not changed:
                 return False, status, its
-            if not self.model.update_lag():
+            if ok and not changed:
                 if not self.model.admissible(self.x):
                     return False, "inverted_elements", its
                 self._factorised = True

@@ -32,9 +32,13 @@ Newton uses the exact Hessian (zero along the slip of a slipping node in
 pinch near its limit it is ten times slower (359 Newton iterations against
 31) and it slows a sliding object to a crawl, so it is off.
 
-Limits: friction acts at the body's nodes on the objects' edges; an
-object's corner pressing into the body's surface has the barrier's normal
-force but no friction.
+Every boundary vertex of a piece (the body, each object) anchors on the
+edges of the other pieces, so friction acts both where the body's nodes
+press on an object's side and where an object's corner presses into the
+body; N_i counts only the collisions in which vertex i is the vertex
+(against an edge; half of a vertex-vertex one), so the two sides of one
+contact are not both counted. Pairs of objects rub too (their coefficient
+from their materials).
 """
 from __future__ import annotations
 
@@ -61,21 +65,23 @@ class ObjectFriction(Term):
         X = contact.X
         size = float(np.linalg.norm(np.ptp(X, axis=0)))
         self.eps, self.dc = self.slip_length * size, self.breakaway * size
-        self.body_vertices = np.flatnonzero(contact.label == 0)
+        self.body_vertices = np.arange(len(X))               # every boundary vertex (body and objects) ...
+        self.vertex_piece = contact.label                    # ... of its piece, anchored on other pieces' edges
         edges = contact.edges
-        obj = (contact.label[edges[:, 0]] > 0) & (contact.label[edges[:, 1]] > 0)
-        self.obj_edges = edges[obj]                          # (m, 2) vertex indices
-        self.edge_piece = contact.label[self.obj_edges[:, 0]]
+        self.obj_edges = edges                               # (m, 2) vertex indices: every boundary edge
+        self.edge_piece = contact.label[edges[:, 0]]
         body_mat = design.body.material
-        mats = [design.materials[o.spec.material].name for o in objects]
-        coeff = [design.friction.between(body_mat, m) for m in mats]
-        self.mu_k_piece = np.array([0.0] + [c.kinetic for c in coeff])
-        self.mu_s_piece = np.array([0.0] + [c.static for c in coeff])
-        # the body vertices' boundary weights (half their edges' lengths): the fresh springs' areas
+        mats = [body_mat] + [design.materials[o.spec.material].name for o in objects]
+        coeff = [[design.friction.between(a, b) for b in mats] for a in mats]
+        self.mu_k_pair = np.array([[c.kinetic for c in row] for row in coeff])
+        self.mu_s_pair = np.array([[c.static for c in row] for row in coeff])
+        np.fill_diagonal(self.mu_k_pair, 0.0)                # a piece does not rub on itself here
+        np.fill_diagonal(self.mu_s_pair, 0.0)
+        # the vertices' boundary weights (half their edges' lengths): the fresh springs' areas
         L = np.linalg.norm(X[edges[:, 1]] - X[edges[:, 0]], axis=1)
         w = np.zeros(len(X))
         np.add.at(w, edges.ravel(), np.repeat(0.5 * L, 2))
-        self.w = w[self.body_vertices]
+        self.w = w
         self.k_fresh = design.materials[body_mat].E * self.t / self.eps      # stuck within eps: N/mm per mm
         n = len(self.body_vertices)
         self.edge = np.full(n, -1)                           # anchor edge (row of obj_edges), -1: none
@@ -87,20 +93,23 @@ class ObjectFriction(Term):
         self.trial = np.zeros(n, bool)
         self.run = np.zeros(n)
         self._report = None
+        self._y0 = contact.X.copy()                          # vertex positions at the step's start
 
     @property
     def active(self) -> bool:
-        return bool(self.mu_s_piece.max() > 0.0)
+        return bool(self.mu_s_pair.max() > 0.0)
 
     # -- geometry -------------------------------------------------------------------------------
-    def _closest(self, P: np.ndarray):
-        """For points P (n, 2): (object edge, parameter s in [0, 1], distance) of the closest object edge."""
+    def _closest(self, P: np.ndarray, piece: np.ndarray):
+        """For points P (n, 2) of pieces `piece`: (edge, parameter s in [0, 1], distance) of the closest
+        edge of another piece."""
         y = self._y
         a, b = y[self.obj_edges[:, 0]], y[self.obj_edges[:, 1]]
         ab = b - a
         s = np.clip(np.einsum("nek,ek->ne", P[:, None, :] - a[None], ab) / np.einsum("ek,ek->e", ab, ab), 0, 1)
         q = a[None] + s[..., None] * ab[None]
         dist = np.linalg.norm(P[:, None, :] - q, axis=2)
+        dist[piece[:, None] == self.edge_piece[None, :]] = np.inf
         j = np.argmin(dist, axis=1)
         k = np.arange(len(P))
         return j, s[k, j], dist[k, j]
@@ -110,17 +119,24 @@ class ObjectFriction(Term):
         t = y[e[:, 1]] - y[e[:, 0]]
         return t / np.linalg.norm(t, axis=1)[:, None]
 
-    def _anchor_new(self, y: np.ndarray, which: np.ndarray | None = None) -> None:
-        """Anchor the unanchored body nodes (of which, default all) within dhat of an object where they are."""
+    def _anchor_new(self, y: np.ndarray, which: np.ndarray | None = None, start: np.ndarray | None = None) -> None:
+        """Anchor the unanchored vertices (of which, default all) within dhat of another piece's edge: where
+        they are, or (start: the positions at the step's start) where they were relative to that edge
+        when the step began -- a contact made during a step has not slipped yet."""
         if not len(self.obj_edges):
             return
         self._y = y
         free = np.flatnonzero((self.edge < 0) & (True if which is None else which))
         if not len(free):
             return
-        j, s, dist = self._closest(y[self.body_vertices[free]])
+        j, s, dist = self._closest(y[self.body_vertices[free]], self.vertex_piece[free])
         near = dist <= self.c.dhat
         idx = free[near]
+        if start is not None and len(idx):
+            e = self.obj_edges[j[near]]
+            a, b, v = start[e[:, 0]], start[e[:, 1]], start[self.body_vertices[idx]]
+            s = s.copy()
+            s[near] = np.clip(np.einsum("nk,nk->n", v - a, b - a) / np.einsum("nk,nk->n", b - a, b - a), 0, 1)
         self.edge[idx], self.s[idx] = j[near], s[near]
         self.T[idx] = self._tangents(y, j[near])
 
@@ -135,8 +151,9 @@ class ObjectFriction(Term):
 
     # -- the potential ----------------------------------------------------------------------------
     def _mu(self) -> np.ndarray:
-        piece = np.where(self.edge >= 0, self.edge_piece[np.maximum(self.edge, 0)], 0)
-        return np.where(self.trial, self.mu_k_piece[piece], self.mu_s_piece[piece])
+        master = np.where(self.edge >= 0, self.edge_piece[np.maximum(self.edge, 0)], self.vertex_piece)
+        return np.where(self.trial, self.mu_k_pair[self.vertex_piece, master],
+                        self.mu_s_pair[self.vertex_piece, master])
 
     def _parts(self, u: np.ndarray):
         y = self.c.positions(u)
@@ -200,16 +217,28 @@ class ObjectFriction(Term):
 
     # -- lag and history ---------------------------------------------------------------------------
     def _normal_forces(self, y: np.ndarray) -> np.ndarray:
-        c = self.c.collisions(y)
-        if len(c) == 0:
-            return np.zeros(len(self.body_vertices))
-        g = self.t * np.asarray(self.c.barrier.gradient(c, self.c.mesh, np.asfortranarray(y))).reshape(-1, 2)
-        return np.linalg.norm(g[self.body_vertices], axis=1)
+        """N_i: the barrier's force on vertex i from the collisions in which i is the vertex (against
+        an edge; half of each vertex-vertex one), so that the two sides of a contact are not both counted."""
+        N = np.zeros(len(self.body_vertices))
+        cs = self.c.collisions(y)
+        if len(cs) == 0:
+            return N
+        mesh, Y = self.c.mesh, np.asfortranarray(y)
+        for col in cs.ev_collisions:
+            g = np.asarray(self.c.barrier.gradient(col, col.dof(Y, mesh.edges, mesh.faces))).reshape(-1, 2)
+            N[col.vertex_id] += self.t * float(np.linalg.norm(g[0]))
+        for col in cs.vv_collisions:
+            ids = [i for i in col.vertex_ids(mesh.edges, mesh.faces) if i >= 0]
+            g = np.asarray(self.c.barrier.gradient(col, col.dof(Y, mesh.edges, mesh.faces))).reshape(-1, 2)
+            for i in ids:
+                N[i] += 0.5 * self.t * float(np.linalg.norm(g[0]))
+        return N
 
     def set_factor(self, a: float) -> None:
         if self.active:
             self.trial = self.sliding.copy()
-            self._anchor_new(self.c.positions(self.u_fn.x.array))
+            self._y0 = self.c.positions(self.u_fn.x.array)
+            self._anchor_new(self._y0)
             self.fresh = self.edge >= 0
 
     def update_lag(self, model) -> bool:
@@ -225,14 +254,14 @@ class ObjectFriction(Term):
         new = (N > 0) & (self.edge < 0)              # came into contact during the solve: stuck where they are
         if new.any():
             before = int(np.count_nonzero(self.edge >= 0))
-            self._anchor_new(y, new)
+            self._anchor_new(y, new, start=self._y0)
             changed = changed or int(np.count_nonzero(self.edge >= 0)) > before
         on = self.edge >= 0
         if on.any():
             T = self._tangents(y, self.edge[on])
             changed = changed or bool(np.abs(T - self.T[on]).max() > 1e-9)
             self.T[on] = T
-        if (self.mu_s_piece > self.mu_k_piece).any():
+        if (self.mu_s_pair > self.mu_k_pair).any():
             idx, d = self._slip(y)
             broke = np.zeros(len(N), bool)
             broke[idx] = self.run[idx] + np.maximum(np.abs(d) - self.eps, 0.0) > self.dc
@@ -259,7 +288,7 @@ class ObjectFriction(Term):
             s = self.s[idx][:, None]
             P = (1 - s) * y[e[:, 0]] + s * y[e[:, 1]]
             back = (np.abs(d[slip]) - self.eps) * np.sign(d[slip])
-            j, s_new, _ = self._closest(P + back[:, None] * self.T[idx])
+            j, s_new, _ = self._closest(P + back[:, None] * self.T[idx], self.vertex_piece[idx])
             self.edge[idx], self.s[idx] = j, s_new
             self.T[idx] = self._tangents(y, j)
         run = np.zeros(len(self.N))
@@ -267,38 +296,44 @@ class ObjectFriction(Term):
         self.run = run
         self.sliding = self.run > self.dc
         # nodes that left the barrier's reach lose their anchor; new ones are anchored where they are
-        _, _, dist = self._closest(y[self.body_vertices]) if len(self.obj_edges) else (None, None, None)
+        _, _, dist = self._closest(y[self.body_vertices], self.vertex_piece) if len(self.obj_edges) \
+            else (None, None, None)
         if dist is not None:
             gone = dist > self.c.dhat
             self.edge[gone] = -1
             self.run[gone], self.sliding[gone] = 0.0, False
         self._anchor_new(y)
+        self._y0 = y
         self.trial = self.sliding.copy()
         self.fresh = self.edge >= 0
 
     # -- read-out ------------------------------------------------------------------------------------
     def _measure(self, u: np.ndarray) -> dict:
-        """Per object touched: the friction force on the body (N) and the share of the normal force
-        carried by nodes that did not slip in this step (at a converged state, before the return map)."""
+        """Per pair of pieces rubbing: the friction force on the first (N) and the share of the normal
+        force carried by vertices that did not slip in this step (at a converged state, before the
+        return map). A vertex of piece p anchored on an edge of piece q feels -f T; the edge, +f T."""
         on, f = self._force(u)
         anchored, d = self._slip(self.c.positions(u))
         slipping = np.zeros(len(self.N), bool)
         slipping[anchored] = np.abs(d) > self.eps * (1 + 1e-12)
+        mine = np.flatnonzero(self.edge >= 0)
+        slave, master = self.vertex_piece[mine], self.edge_piece[self.edge[mine]]
+        force_on = self.vertex_piece[on], self.edge_piece[self.edge[on]]
         out = {}
-        piece = self.edge_piece[self.edge[on]] if len(on) else np.zeros(0, int)
-        mine_all = np.flatnonzero(self.edge >= 0)
-        for k in range(1, len(self.c.pieces)):
-            mine = mine_all[self.edge_piece[self.edge[mine_all]] == k]
-            if not len(mine):
-                continue
-            sel = piece == k
-            force = -(f[sel][:, None] * self.T[on[sel]]).sum(axis=0)        # on the body's nodes
-            N = self.N[mine]
-            total = float(N.sum())
-            held = float(N[~slipping[mine]].sum())
-            out[f"{self.c.pieces[0]}|{self.c.pieces[k]}"] = {
-                "between": [self.c.pieces[0], self.c.pieces[k]], "friction_force": force,
-                "sticking": held / total if total > 0 else 1.0}
+        names = self.c.pieces
+        for p in range(len(names)):
+            for q in range(p + 1, len(names)):
+                pair = ((slave == p) & (master == q)) | ((slave == q) & (master == p))
+                if not pair.any() or not (self.mu_s_pair[p, q] > 0 or self.mu_s_pair[q, p] > 0):
+                    continue
+                sign = np.where(force_on[0] == p, -1.0, 1.0)[:, None]         # on p: -f T as vertex, +f T as edge
+                rub = ((force_on[0] == p) & (force_on[1] == q)) | ((force_on[0] == q) & (force_on[1] == p))
+                force = (sign[rub] * f[rub][:, None] * self.T[on[rub]]).sum(axis=0)
+                N = self.N[mine[pair]]
+                total = float(N.sum())
+                held = float(N[~slipping[mine[pair]]].sum())
+                out[f"{names[p]}|{names[q]}"] = {"between": [names[p], names[q]], "friction_force": force,
+                                                 "sticking": held / total if total > 0 else 1.0}
         return out
 
     def readout(self, model) -> dict:
