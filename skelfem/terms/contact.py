@@ -73,7 +73,7 @@ def boundary_polygon(V) -> tuple[np.ndarray, np.ndarray]:
     return nodes.astype(np.int32), np.searchsorted(nodes, pairs).astype(np.int32)
 
 
-def _fortran(a) -> np.ndarray:
+def fortran_array(a) -> np.ndarray:
     return np.asfortranarray(a, dtype=float)
 
 
@@ -91,7 +91,7 @@ class SelfContact(Term):
         self.dhat, self.kappa, self.t = float(dhat), float(stiffness), float(thickness)
         self.project = project
         self.approach = 0.8       # fraction of the way to first contact a step may go
-        self.mesh = ipctk.CollisionMesh(_fortran(self.X), np.asfortranarray(self.edges))
+        self.mesh = ipctk.CollisionMesh(fortran_array(self.X), np.asfortranarray(self.edges))
         self.barrier = ipctk.BarrierPotential(self.dhat, self.kappa, True)
 
     # -- geometry ------------------------------------------------------------------------
@@ -102,7 +102,7 @@ class SelfContact(Term):
     def collisions(self, y: np.ndarray, dhat: float | None = None) -> ipctk.NormalCollisions:
         c = ipctk.NormalCollisions()
         c.use_area_weighting = True
-        c.build(self.mesh, _fortran(y), self.dhat if dhat is None else float(dhat))
+        c.build(self.mesh, fortran_array(y), self.dhat if dhat is None else float(dhat))
         return c
 
     def min_distance(self, u: np.ndarray) -> float:
@@ -114,11 +114,11 @@ class SelfContact(Term):
         """
         y = self.positions(u)
         reach = float(np.linalg.norm(np.ptp(y, axis=0)))
-        d2 = self.collisions(y, reach).compute_minimum_distance(self.mesh, _fortran(y))
+        d2 = self.collisions(y, reach).compute_minimum_distance(self.mesh, fortran_array(y))
         return float(np.sqrt(d2))
 
     def intersects(self, u: np.ndarray) -> bool:
-        return bool(ipctk.has_intersections(self.mesh, _fortran(self.positions(u))))
+        return bool(ipctk.has_intersections(self.mesh, fortran_array(self.positions(u))))
 
     # -- energy term interface -----------------------------------------------------------------
     def set_factor(self, a: float) -> None:
@@ -126,11 +126,11 @@ class SelfContact(Term):
 
     def energy(self, u: np.ndarray) -> float:
         y = self.positions(u)
-        return self.t * float(self.barrier(self.collisions(y), self.mesh, _fortran(y)))
+        return self.t * float(self.barrier(self.collisions(y), self.mesh, fortran_array(y)))
 
     def gradient(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         y = self.positions(u)
-        g = self.barrier.gradient(self.collisions(y), self.mesh, _fortran(y))
+        g = self.barrier.gradient(self.collisions(y), self.mesh, fortran_array(y))
         return self.dofs, self.t * np.asarray(g).ravel()
 
     def hessian(self, u: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -140,7 +140,7 @@ class SelfContact(Term):
         if len(c) == 0:
             return []
         method = ipctk.PSDProjectionMethod.CLAMP if self.project else ipctk.PSDProjectionMethod.NONE
-        H = self.barrier.hessian(c, self.mesh, _fortran(y), method).tocsr()
+        H = self.barrier.hessian(c, self.mesh, fortran_array(y), method).tocsr()
         active = np.flatnonzero(np.diff(H.indptr))
         block = H[active][:, active].toarray()
         return [(self.dofs[active], self.t * block)]
@@ -160,7 +160,7 @@ class SelfContact(Term):
         """
         y0 = self.positions(u0)
         y1 = y0 + p[self.dofs].reshape(-1, self.bs)
-        toi = float(ipctk.compute_collision_free_stepsize(self.mesh, _fortran(y0), _fortran(y1)))
+        toi = float(ipctk.compute_collision_free_stepsize(self.mesh, fortran_array(y0), fortran_array(y1)))
         return toi if toi >= 1.0 else self.approach * toi
 
     def admissible(self, u: np.ndarray) -> bool:
