@@ -79,3 +79,16 @@ def test_read_bounded_reads_no_more_than_its_limit(tmp_path):
         read_bounded(p, 3999, "target file")
     with pytest.raises(InputTooLarge):
         read_bounded("/dev/zero", 2 ** 20, "target file")
+
+
+def test_optimize_with_stiffness_damping_is_bad_input_before_meshing(tmp_path, monkeypatch):
+    """It used to mesh, run and exit 3 (an internal error) from inside the adjoint."""
+    import skelfem.mesh.geometry as geometry
+    from skelfem.cli.main import main
+    design = tmp_path / "finger.toml"
+    design.write_text((ROOT / "geometry" / "finger.toml").read_text()
+                      + "\n[dynamics]\ndt = 0.01\nduration = 0.1\ndamping = { stiffness = 0.01 }\n")
+    monkeypatch.setattr(geometry, "mesh_design", lambda *a, **k: pytest.fail("meshed"))
+    assert main(["optimize", str(design), "--marker", "tip", "--target", "0", "80",
+                 "--out", str(tmp_path / "o"), "-q"]) == 1
+    assert not (tmp_path / "o").exists()
