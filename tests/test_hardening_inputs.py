@@ -6,7 +6,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
+
+from skelfem.design import load_design
 
 ROOT = Path(__file__).resolve().parents[1]
 SKELFEM = os.fsencode(str(Path(sys.executable).parent / "skelfem"))
@@ -92,3 +95,25 @@ def test_optimize_with_stiffness_damping_is_bad_input_before_meshing(tmp_path, m
     assert main(["optimize", str(design), "--marker", "tip", "--target", "0", "80",
                  "--out", str(tmp_path / "o"), "-q"]) == 1
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("content", [
+    lambda key: {"key": key, "results": [{"target": [1, 2]}]},                 # an entry missing its fields
+    lambda key: {"key": key, "results": [{"target": "x"}] * 3, "poses": [0]},  # a pose file that is not there
+    lambda key: {"key": key, "results": 7},                                     # not a list
+    lambda key: [key],                                                           # not an object
+])
+def test_a_malformed_track_progress_file_starts_over(tmp_path, content):
+    """A resume from a broken progress.json used to exit 3; now the track starts from the first target."""
+    import json
+    from types import SimpleNamespace
+
+    from skelfem.cli.control import TrackProgress
+    design = load_design(ROOT / "geometry" / "finger.toml")
+    args = SimpleNamespace(marker="tip", max_contraction=[], reg=0.0, tol=None, max_solves=10)
+    targets = np.array([[0.0, 80.0], [1.0, 80.0]])
+    fresh = TrackProgress(tmp_path / "out", design, args, targets)
+    fresh.folder.mkdir()
+    (fresh.folder / "progress.json").write_text(json.dumps(content(fresh.key)))
+    again = TrackProgress(tmp_path / "out", design, args, targets)
+    assert again.entries == [] and again.results() == [] and not again.folder.exists()
