@@ -214,3 +214,19 @@ def test_friction_is_live():
         s.set({"grounds.floor.friction": 0.5})
         assert (term.mu_k, term.mu_s) == (0.5, 0.6)
         assert s.design.friction.ground("floor").static == 0.6
+
+
+def test_a_ramp_from_rest_forgets_the_history():
+    """After a pull-through, a solve ramped from rest (what a failed warm re-solve falls back to)
+    reaches the state of a first solve: the stick anchors start again where the body rests."""
+    with Session(block(mu=0.5, kp=1.0, steps=1)) as s:
+        assert s.solve().converged
+        first = s.model.readouts()["markers"]["c"]["position"].copy()
+        s.model.set_parameter("pins.pull.move", np.array([1.0, 0.0]))
+        assert s.solver.resolve(1).converged
+        assert s.model.readouts()["markers"]["c"]["position"][0] > first[0] + 0.9    # pulled through
+        s.model.set_parameter("pins.pull.move", np.array([0.0, 0.0]))
+        s.model.u.x.array[:] = 0.0
+        assert s.solver.solve(1).converged
+        again = s.model.readouts()["markers"]["c"]["position"]
+    assert np.allclose(again, first, rtol=0, atol=1e-9)

@@ -237,10 +237,15 @@ class GroundFriction(Term):
 
     # -- lag and history ---------------------------------------------------------------------------
     def set_factor(self, a: float) -> None:
-        """A new attempt at a step starts from the committed slip states."""
+        """A new attempt at a step starts from the committed slip states; a ramp from rest (u = 0
+        everywhere) from no history at all."""
         if self._ready:
+            u = self.ctx.u.x.array
+            if not self.ctx.comm.allreduce(bool(np.any(u)), op=MPI.LOR):
+                self.anchor = self.X @ self.T
+                self.N[:], self.run[:], self.sliding[:] = 0.0, 0.0, False
             self.trial = self.sliding.copy()
-            self.fresh = self._touching(self.ctx.u.x.array)
+            self.fresh = self._touching(u)
 
     def update_lag(self, model) -> bool:
         """Lagged normal forces (and breakaways past mu_s) to the state u; True if a re-solve is needed."""

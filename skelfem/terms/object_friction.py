@@ -258,7 +258,10 @@ class ObjectFriction(Term):
         return N
 
     def set_factor(self, a: float) -> None:
+        """A new attempt at a step starts from the committed states; a ramp from rest (u = 0) from none."""
         if self.active:
+            if not np.any(self.u_fn.x.array):
+                self.edge[:], self.N[:], self.run[:], self.sliding[:] = -1, 0.0, 0.0, False
             self.trial = self.sliding.copy()
             self._y0 = self.c.positions(self.u_fn.x.array)
             self._anchor_new(self._y0)
