@@ -191,3 +191,42 @@ def test_friction_serial_equals_two_ranks(tmp_path, mpirun):
     assert st1 == st2 == 1.0                                  # static friction holds it above mu_k
     assert np.allclose(x1, x2, rtol=0, atol=1e-9)
     assert np.allclose(f1, f2, rtol=1e-8, atol=1e-12) and np.allclose(r1, r2, rtol=1e-8, atol=1e-12)
+
+
+def test_friction_is_live():
+    """grounds.NAME.friction and contact.friction change without re-meshing; the static coefficient
+    follows the kinetic one unless it was written."""
+    raw = block(mu=0.0)
+    del raw["grounds"][0]["friction"]
+    with Session(raw) as s:
+        model = s.model
+        live = model.parameters()
+        assert {"grounds.floor.friction", "grounds.floor.friction_static", "contact.friction"} <= live.keys()
+        s.set({"contact.friction": 0.3})
+        assert s.model is model
+        term = next(t for t in model.terms_in("grounds") if t.has_ufl_energy() is False)
+        assert (term.mu_k, term.mu_s) == (0.3, 0.3)
+        r = s.solve()
+        assert r.converged and "friction_force" in r.to_dict()["grounds"]["floor"]
+        s.set({"grounds.floor.friction": 0.4})
+        assert (term.mu_k, term.mu_s) == (0.4, 0.4) and s.model is model
+        s.set({"grounds.floor.friction_static": 0.6})
+        s.set({"grounds.floor.friction": 0.5})
+        assert (term.mu_k, term.mu_s) == (0.5, 0.6)
+        assert s.design.friction.ground("floor").static == 0.6
+
+
+def test_a_ramp_from_rest_forgets_the_history():
+    """After a pull-through, a solve ramped from rest (what a failed warm re-solve falls back to)
+    reaches the state of a first solve: the stick anchors start again where the body rests."""
+    with Session(block(mu=0.5, kp=1.0, steps=1)) as s:
+        assert s.solve().converged
+        first = s.model.readouts()["markers"]["c"]["position"].copy()
+        s.model.set_parameter("pins.pull.move", np.array([1.0, 0.0]))
+        assert s.solver.resolve(1).converged
+        assert s.model.readouts()["markers"]["c"]["position"][0] > first[0] + 0.9    # pulled through
+        s.model.set_parameter("pins.pull.move", np.array([0.0, 0.0]))
+        s.model.u.x.array[:] = 0.0
+        assert s.solver.solve(1).converged
+        again = s.model.readouts()["markers"]["c"]["position"]
+    assert np.allclose(again, first, rtol=0, atol=1e-9)

@@ -175,3 +175,29 @@ def test_moving_an_object_re_meshes():
         r = s.solve()
         assert r.converged, r.status
         assert r.to_dict()["objects"]["box"]["position"][0] == pytest.approx(6.0, abs=0.05)
+
+
+def test_contact_friction_is_live_for_objects():
+    with Session(_base([_box(2, 10.5, 8, 13.5)], contact={"dhat": 0.2, "friction": 0.5,
+                                                           "pairs": {"pla:pla": 0.1}})) as s:
+        assert s.solve().converged
+        model = s.model
+        s.set({"contact.friction": 0.7})
+        assert s.model is model
+        term = model.term("contacts", "friction")
+        assert term.mu_k_pair[0, 1] == term.mu_s_pair[1, 0] == 0.7
+        assert s.solve().converged
+
+
+def test_self_contact_leaves_objects_to_their_own_barrier():
+    """With contact.self, the body's self-contact barrier sees each piece with itself only: the box's
+    contact with the block is counted once (the same rest state as without self-contact)."""
+    states = []
+    for self_contact in (False, True):
+        with Session(_base([_box(2, 10.5, 8, 13.5)], contact={"dhat": 0.2, "self": self_contact})) as s:
+            r = s.solve()
+            assert r.converged, r.status
+            states.append(r.to_dict()["objects"]["box"]["displacement"][1])
+            if self_contact:
+                assert s.model.term("contact", "self").energy(s.model.u.x.array) == 0.0
+    assert states[1] == pytest.approx(states[0], rel=1e-9)

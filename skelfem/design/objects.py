@@ -40,6 +40,7 @@ class Coulomb:
     """Kinetic and static Coulomb coefficients (static >= kinetic >= 0)."""
     kinetic: float = 0.0
     static: float = 0.0
+    static_given: bool = False     # friction_static written (else it follows friction)
 
     @property
     def active(self) -> bool:
@@ -82,10 +83,11 @@ def _coulomb(t, default: Coulomb | None) -> Coulomb | None:
         t.fail("friction", "missing: friction_static needs friction (the kinetic coefficient) beside it")
     if mu < 0:
         t.fail("friction", f"must be >= 0, got {mu:g}")
+    given = t.has("friction_static")
     mu_s = t.take("friction_static", "number", mu)
     if mu_s < mu:
         t.fail("friction_static", f"must be >= friction ({mu:g}), got {mu_s:g}")
-    return Coulomb(float(mu), float(mu_s))
+    return Coulomb(float(mu), float(mu_s), given)
 
 
 def _stripped(top, section: str, kind: str):

@@ -182,6 +182,9 @@ def build(ctx: Context) -> list[Term]:
         raise DesignError(f"{where}: self-contact needs solver.line_search = \"energy\" or \"curved\" "
                           f"(got {d.solver.line_search!r}): only it limits steps to collision-free ones")
     contact = SelfContact(ctx.V, d.contact.dhat, d.materials[d.body.material].E, float(d.thickness))
+    if d.objects:                      # contacts between the body and objects are terms/objects.py's
+        from .objects import piece_labels
+        contact.mesh.can_collide = ~ipctk.make_vertex_patches_filter(piece_labels(ctx, contact.nodes))
     d0 = contact.min_distance(np.zeros(len(ctx.u.x.array)))
     if d0 <= d.contact.dhat:
         raise DesignError(f"{d.source}: contact.dhat: {d.contact.dhat:g} mm is not below the "

@@ -44,9 +44,11 @@ potential, and the lag is iterated to a fixed point: after Newton
 converges, ``update_lag`` recomputes N_i(u) and asks for a re-solve until
 no N_i changes by more than ``lag_rtol`` times the largest one. The first
 solve of a step holds every node that touches the plane at its start by a
-plain tangential spring k t w_i (its N is not known yet; a lagged N from the
-last step would let a contact whose load grows slide away before N caught
-up). A node resists with mu_s until it has slipped by more than a
+tangential spring that cannot slip (its N is not known yet; a lagged N from
+the last step would let a contact whose load grows slide away before N
+caught up): of the last lag's stiffness mu N_i / eps, so that the solve
+starts where the last step ended, or of the ground's penalty k t w_i for a
+new contact. A node resists with mu_s until it has slipped by more than a
 breakaway distance D_c (``breakaway`` times the body's size, 1e-4 by
 default; checked in the same fixed-point loop) since it last stuck, and with
 mu_k from then on, until a step ends with it sticking again: a step
@@ -72,7 +74,7 @@ from dolfinx.fem import petsc as fem_petsc
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from .base import Context, Term, touched
+from .base import Context, Term
 from .grounds import nodal_ds
 
 
@@ -116,6 +118,8 @@ class GroundFriction(Term):
         self.point = np.asarray(spec.point, float).copy()
         self.k = float(spec.stiffness)
         self.mu_k, self.mu_s = float(coulomb.kinetic), float(coulomb.static)
+        self.static_given = bool(coulomb.static_given)
+        self.inherits = spec.name not in ctx.design.friction.grounds     # [contact]'s coefficients
         self.t = float(ctx.thickness.value)
         self.T = tangent_basis(self.normal)
         self._ready = False
@@ -163,8 +167,10 @@ class GroundFriction(Term):
         return self.k * self.t * self.w * np.maximum(-gap, 0.0)
 
     def _stiffness(self, F: np.ndarray) -> np.ndarray:
-        """K_i = F_i / eps; k t w_i (the ground's penalty) on the nodes held stuck in a first solve."""
-        return np.where(self.fresh, self.k * self.t * self.w, F / self.eps)
+        """K_i = F_i / eps. A node held stuck in a step's first solve keeps the stiffness of the last lag
+        (so that the solve starts where the last one ended), or k t w_i (the ground's penalty) if new."""
+        last = np.where(self.trial, self.mu_k, self.mu_s) * self.N / self.eps
+        return np.where(self.fresh, np.where(last > 0, last, self.k * self.t * self.w), F / self.eps)
 
     def _strength(self) -> np.ndarray:
         """F_i = mu_i N_i; inf (held by the spring alone) on the nodes that start the solve stuck."""
@@ -231,10 +237,15 @@ class GroundFriction(Term):
 
     # -- lag and history ---------------------------------------------------------------------------
     def set_factor(self, a: float) -> None:
-        """A new attempt at a step starts from the committed slip states."""
+        """A new attempt at a step starts from the committed slip states; a ramp from rest (u = 0
+        everywhere) from no history at all."""
         if self._ready:
+            u = self.ctx.u.x.array
+            if not self.ctx.comm.allreduce(bool(np.any(u)), op=MPI.LOR):
+                self.anchor = self.X @ self.T
+                self.N[:], self.run[:], self.sliding[:] = 0.0, 0.0, False
             self.trial = self.sliding.copy()
-            self.fresh = self._touching(self.ctx.u.x.array)
+            self.fresh = self._touching(u)
 
     def update_lag(self, model) -> bool:
         """Lagged normal forces (and breakaways past mu_s) to the state u; True if a re-solve is needed."""
@@ -282,16 +293,21 @@ class GroundFriction(Term):
     # -- parameters, following, read-out -------------------------------------------------------------
     def parameters(self) -> dict:
         p = f"grounds.{self.name}"
-        return {f"{p}.friction": self.mu_k, f"{p}.friction_static": self.mu_s,
-                f"{p}.point": self.point.copy(), f"{p}.stiffness": self.k}
+        out = {f"{p}.friction": self.mu_k, f"{p}.friction_static": self.mu_s,
+               f"{p}.point": self.point.copy(), f"{p}.stiffness": self.k}
+        if self.inherits:                        # a ground without coefficients of its own follows [contact]
+            out.update({"contact.friction": self.mu_k, "contact.friction_static": self.mu_s})
+        return out
 
     def set_parameter(self, key: str, value) -> None:
         which = key.rsplit(".", 1)[1]
-        if which == "friction":
+        if key.startswith("grounds.") and which.startswith("friction") and self.inherits:
+            self.inherits, self.static_given = False, False     # its own coefficients from now on
+        if which == "friction":                  # friction_static follows it unless it was written
             self.mu_k = float(value)
-            self.mu_s = max(self.mu_s, self.mu_k) if self.mu_s > 0 else self.mu_k
+            self.mu_s = self.mu_s if self.static_given else self.mu_k
         elif which == "friction_static":
-            self.mu_s = float(value)
+            self.mu_s, self.static_given = float(value), True
         elif which == "point":
             self.point = np.asarray(value, float).copy()
         elif which == "stiffness":
@@ -300,8 +316,8 @@ class GroundFriction(Term):
             raise KeyError(key)
 
     def follow(self, ctx: Context, changed: set) -> bool:
-        return not touched(changed, f"grounds.{self.name}", "grounds.#order", "contact.friction",
-                           "contact.friction_static")
+        """Built anew on every edit (it has no UFL energy): its node positions and weights may have moved."""
+        return False
 
     def _measure(self, u: np.ndarray) -> dict:
         """The read-out at a converged state u (before the return map moves the anchors)."""

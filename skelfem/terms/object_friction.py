@@ -21,9 +21,10 @@ the return map slides the anchor of a slipping node along the object's
 boundary to eps behind it (onto the next edge past an edge's end), a
 sticking node keeps it, a node that has left the barrier's reach loses it
 and a node that enters it is anchored where it is. As on grounds, a step's
-first solve holds every anchored node by a stiff spring (E t w_i / eps:
-it then starts the lag iteration inside the sticking zone, where Newton
-converges fast) until the lag gives its N, and mu_s drops to mu_k once a node has slipped
+first solve holds every anchored node by a spring (the last lag's
+stiffness mu N_i / eps, so that it starts where the last step ended; a new
+contact's E t w_i / eps, which keeps it inside the sticking zone, where
+Newton converges fast) until the lag gives its N, and mu_s drops to mu_k once a node has slipped
 by more than D_c.
 
 Newton uses the exact Hessian (zero along the slip of a slipping node in
@@ -77,6 +78,9 @@ class ObjectFriction(Term):
         self.mu_s_pair = np.array([[c.static for c in row] for row in coeff])
         np.fill_diagonal(self.mu_k_pair, 0.0)                # a piece does not rub on itself here
         np.fill_diagonal(self.mu_s_pair, 0.0)
+        listed = [[frozenset((a, b)) in design.friction.pairs for b in mats] for a in mats]
+        self.default_pair = ~np.array(listed, bool) & ~np.eye(len(mats), dtype=bool)   # [contact]'s pairs
+        self.default = design.friction.default
         # the vertices' boundary weights (half their edges' lengths): the fresh springs' areas
         L = np.linalg.norm(X[edges[:, 1]] - X[edges[:, 0]], axis=1)
         w = np.zeros(len(X))
@@ -161,7 +165,8 @@ class ObjectFriction(Term):
         F = np.where(self.fresh[on], np.inf, self._mu()[on] * self.N[on])
         keep = F > 0
         on, d, F = on[keep], d[keep], F[keep]
-        K = np.where(self.fresh[on], self.k_fresh * self.w[on], F / self.eps)
+        last = self._mu()[on] * self.N[on] / self.eps            # fresh: the last lag's stiffness, if any
+        K = np.where(self.fresh[on], np.where(last > 0, last, self.k_fresh * self.w[on]), F / self.eps)
         r = np.abs(d)
         stick = K * r <= F
         F = np.where(stick & np.isinf(F), K * r, F)
@@ -215,6 +220,24 @@ class ObjectFriction(Term):
     def pattern(self) -> list:
         return [(self.c.nodes, self.c.nodes)]
 
+    # -- parameters ---------------------------------------------------------------------------------
+    def parameters(self) -> dict:
+        """[contact]'s coefficients, for the pairs of pieces [contact.pairs] does not list."""
+        return {"contact.friction": self.default.kinetic, "contact.friction_static": self.default.static}
+
+    def set_parameter(self, key: str, value) -> None:
+        from ..objects_design import Coulomb
+        d = self.default
+        if key == "contact.friction":            # friction_static follows it unless it was written
+            d = Coulomb(float(value), d.static if d.static_given else float(value), d.static_given)
+        elif key == "contact.friction_static":
+            d = Coulomb(d.kinetic, float(value), True)
+        else:
+            raise KeyError(key)
+        self.default = d
+        self.mu_k_pair[self.default_pair] = d.kinetic
+        self.mu_s_pair[self.default_pair] = d.static
+
     # -- lag and history ---------------------------------------------------------------------------
     def _normal_forces(self, y: np.ndarray) -> np.ndarray:
         """N_i: the barrier's force on vertex i from the collisions in which i is the vertex (against
@@ -235,7 +258,10 @@ class ObjectFriction(Term):
         return N
 
     def set_factor(self, a: float) -> None:
+        """A new attempt at a step starts from the committed states; a ramp from rest (u = 0) from none."""
         if self.active:
+            if not np.any(self.u_fn.x.array):
+                self.edge[:], self.N[:], self.run[:], self.sliding[:] = -1, 0.0, 0.0, False
             self.trial = self.sliding.copy()
             self._y0 = self.c.positions(self.u_fn.x.array)
             self._anchor_new(self._y0)

@@ -63,6 +63,16 @@ def nodal_areas(V, cells: np.ndarray) -> np.ndarray:
     return out
 
 
+def piece_labels(ctx: Context, nodes: np.ndarray) -> np.ndarray:
+    """For local nodes: 0 on the body, k on the k-th object of the design (1-based)."""
+    tm, V = ctx.tagged, ctx.V
+    label = np.zeros(len(nodes), np.int32)
+    for k, spec in enumerate(ctx.design.objects, start=1):
+        cells = tm.cell_tags.find(tm.tags[object_tag_name(spec.name)])
+        label[np.isin(nodes, fem.locate_dofs_topological(V, ctx.mesh.topology.dim, cells))] = k
+    return label
+
+
 class RigidObject(Term):
     """One free rigid object: its weight, its tether, its kinematics and its read-out."""
 
