@@ -39,8 +39,10 @@ from __future__ import annotations
 
 import ipctk
 import numpy as np
+from dolfinx import fem as dolfinx_fem
 from dolfinx import mesh as dmesh
 
+from ..mesh.geometry import object_tag_name
 from .base import Context, Term
 
 
@@ -183,7 +185,6 @@ def build(ctx: Context) -> list[Term]:
                           f"(got {d.solver.line_search!r}): only it limits steps to collision-free ones")
     contact = SelfContact(ctx.V, d.contact.dhat, d.materials[d.body.material].E, float(d.thickness))
     if d.objects:                      # contacts between the body and objects are terms/objects.py's
-        from .objects import piece_labels
         contact.mesh.can_collide = ~ipctk.make_vertex_patches_filter(piece_labels(ctx, contact.nodes))
     d0 = contact.min_distance(np.zeros(len(ctx.u.x.array)))
     if d0 <= d.contact.dhat:
@@ -191,6 +192,16 @@ def build(ctx: Context) -> list[Term]:
                           f"smallest rest distance between boundary parts ({d0:.3g} mm); "
                           "lower dhat or coarsen the mesh")
     return [contact]
+
+
+def piece_labels(ctx: Context, nodes: np.ndarray) -> np.ndarray:
+    """For local nodes: 0 on the body, k on the k-th object of the design (1-based)."""
+    tm, V = ctx.tagged, ctx.V
+    label = np.zeros(len(nodes), np.int32)
+    for k, spec in enumerate(ctx.design.objects, start=1):
+        cells = tm.cell_tags.find(tm.tags[object_tag_name(spec.name)])
+        label[np.isin(nodes, dolfinx_fem.locate_dofs_topological(V, ctx.mesh.topology.dim, cells))] = k
+    return label
 
 
 # -- measuring interpenetration (for states reached without contact) -------------------------

@@ -226,7 +226,7 @@ class ObjectFriction(Term):
         return {"contact.friction": self.default.kinetic, "contact.friction_static": self.default.static}
 
     def set_parameter(self, key: str, value) -> None:
-        from ..objects_design import Coulomb
+        from ..design.objects import Coulomb
         d = self.default
         if key == "contact.friction":            # friction_static follows it unless it was written
             d = Coulomb(float(value), d.static if d.static_given else float(value), d.static_given)
