@@ -10,7 +10,7 @@ gets its dynamics here in Python: the flexor's contraction follows a
 schedule (0 to 8 mm in 50 ms, then held), BDF2 steps of 10 ms, and a little
 mass damping so that the finger settles within the 0.6 s of the run.
 
-:meth:`skelfem.Session.run` returns a Result whose ``report.trajectory`` has
+:meth:`skelfem.Session.run_in_time` returns a Result whose ``report.trajectory`` has
 one row per accepted step (``trajectory.csv`` of ``skelfem simulate``).
 """
 from pathlib import Path
@@ -33,7 +33,7 @@ flexor["schedule"] = [[0.0, 0.0], [0.05, 8.0]]          # [time s, contraction m
 design["dynamics"] = {"dt": 0.01, "duration": 0.6, "integrator": "bdf2", "damping": {"mass": 20.0}}
 
 with Session(design) as s:
-    run = s.run()
+    run = s.run_in_time()
     static = s.solve()        # the static equilibrium at the held contraction (8 mm), from rest
 
 rows = run.report.trajectory

@@ -304,7 +304,7 @@ class Session:
         return Result(result_dict(self.design, self.model, report, timings), report, self._state())
 
     @_exclusive
-    def run(self, on_step=None, progress=None) -> Result:
+    def run_in_time(self, on_step=None, progress=None) -> Result:
         """A run in time ([dynamics]): from rest, steps of dt to the duration (see skelfem.dynamics).
 
         The Result holds result.json's keys (the final state's read-outs, and a

@@ -46,7 +46,7 @@ def run(T: float = 0.03, dt: float = 0.0015, size: float = 3.0, knots: int = 4,
     with Session(FINGER4, dyn_sets) as s:
         knot_times = np.round(np.linspace(0.0, T, knots), 12)
         s.set(schedule_items(names, knot_times, [[u_ik[n] * t / T for t in knot_times] for n in names]))
-        quasi = s.run()
+        quasi = s.run_in_time()
         quasi_path = [[r["time"], r["tip_x"], r["tip_y"]] for r in quasi.report.trajectory]
         miss = float(np.linalg.norm(np.array(quasi.markers["tip"]["position"]) - target))
         gn = optimize_schedules(s, "tip", [(T, target)], knots=knots, max_evaluations=max_evaluations,
@@ -54,7 +54,7 @@ def run(T: float = 0.03, dt: float = 0.0015, size: float = 3.0, knots: int = 4,
         gauss_newton = {"error_at_T": gn.error, "reached": gn.reached, "forward_runs": gn.forward_runs,
                         "time": gn.time}
         opt = optimize_schedules(s, "tip", [(T, target)], knots=knots, max_evaluations=max_evaluations)
-        planned = s.run()
+        planned = s.run_in_time()
         planned_path = [[r["time"], r["tip_x"], r["tip_y"]] for r in planned.report.trajectory]
         dofs = s.dofs
     return {

@@ -66,7 +66,7 @@ def frequency(L=80.0, h=4.0, size=2.0, degree=2, dt=0.003, duration=0.5, integra
     f1 = 1.8751 ** 2 / (2 * np.pi * L ** 2) * np.sqrt(E_PLANE * I / (MASS_UNIT * RHO * A))
     with Session(cantilever(L, h, size, degree, dt, duration, integrator, load=P)) as s:
         static = s.solve().markers["tip"]["position"][1]
-        run = s.run()
+        run = s.run_in_time()
         dofs = s.dofs
     t = np.array([r["time"] for r in run.report.trajectory])
     y = np.array([r["tip_y"] for r in run.report.trajectory])
@@ -86,7 +86,7 @@ def tip_at_end(integrator: str, T: float, Ns) -> list:
                             integrator=integrator)) as s:
         for N in Ns:
             s.set({"dynamics.dt": T / N})
-            run = s.run()
+            run = s.run_in_time()
             if not run.converged:
                 raise RuntimeError(f"{integrator} dt = T/{N}: {run.status}")
             out.append(run.report.trajectory[-1]["tip_y"])
@@ -106,7 +106,7 @@ def energy(integrator="bdf2", damping=None, dt=0.002, duration=0.15) -> dict:
     from skelfem import Session
     with Session(cantilever(L=40.0, size=2.0, degree=1, gravity=9.81, dt=dt, duration=duration,
                             integrator=integrator, damping=damping)) as s:
-        run = s.run()
+        run = s.run_in_time()
     hist = run.dynamics["energy_history"]
     total = np.array(hist["total"])
     scale = float(np.abs(hist["potential"]).max())
@@ -128,7 +128,7 @@ def slow_schedule(u_end=3.0, ramp=1.0, hold=0.5, dt=0.01, mass_damping=10.0) -> 
     d["cables"][0]["schedule"] = [[0.0, 0.0], [ramp, u_end]]
     d["dynamics"] = {"dt": dt, "duration": ramp + hold, "integrator": "bdf2", "damping": {"mass": mass_damping}}
     with Session(d) as s:
-        run = s.run()
+        run = s.run_in_time()
     with Session(static) as s:
         ref = s.solve()
     motion = float(np.linalg.norm(ref.markers["tip"]["displacement"]))

@@ -63,7 +63,7 @@ def test_gradient_costs_at_most_one_and_a_half_forward_runs():
         ratios = []
         for _ in range(3):                               # best of three: the machine may be busy
             t0 = time.perf_counter()
-            s.run()
+            s.run_in_time()
             forward = time.perf_counter() - t0
             r = schedule_gradient(s, TARGETS)
             ratios.append((r.forward_time + r.adjoint_time) / forward)
@@ -91,7 +91,7 @@ def test_optimize_reaches_a_reachable_target_and_reports_an_unreachable_one(tmp_
     path, d = _design_file(tmp_path)
     with Session(d) as s:                                  # the target: a forward run of a known schedule
         s.set(schedule_items(["flexor"], np.linspace(0.0, 0.08, 4), [[0.5, 2.5, 1.0, 2.0]]))
-        tip = np.array(s.run().markers["tip"]["position"])
+        tip = np.array(s.run_in_time().markers["tip"]["position"])
     out = tmp_path / "reach"
     assert main(["optimize", str(path), "--marker", "tip", "--target", *map(str, tip), "--knots", "4",
                  "--out", str(out), "-q"]) == 0
@@ -169,7 +169,7 @@ def test_gauss_newton_reaches_a_reachable_target():
     d.pop("solver")
     with Session(d) as s:
         s.set(schedule_items(["flexor"], np.linspace(0.0, 0.08, 4), [[0.5, 2.5, 1.0, 2.0]]))
-        run = s.run()
+        run = s.run_in_time()
         end = np.array(run.markers["tip"]["position"])
         mid = np.array([run.report.trajectory[4]["tip_x"], run.report.trajectory[4]["tip_y"]])
         res = optimize_schedules(s, "tip", [(0.08, end), (0.04, mid)], knots=4, method="gauss-newton")
@@ -185,7 +185,7 @@ def test_optimize_follows_timed_targets_from_a_csv(tmp_path, capsys):
     path, d = _design_file(tmp_path)
     with Session(d) as s:
         s.set(schedule_items(["flexor"], np.linspace(0.0, 0.08, 4), [[0.5, 2.5, 1.0, 2.0]]))
-        rows = s.run().report.trajectory
+        rows = s.run_in_time().report.trajectory
     csv = tmp_path / "targets.csv"
     csv.write_text("t,x,y\n" + "".join(f"{r['time']},{r['tip_x']},{r['tip_y']}\n" for r in rows[4::4]))
     out = tmp_path / "csv"

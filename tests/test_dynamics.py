@@ -216,7 +216,7 @@ def test_failed_steps_are_cut_and_never_accepted():
     d = _flick(dt=0.05)
     d["solver"] = {"max_iterations": 3}
     with Session(d) as s:
-        run = s.run()
+        run = s.run_in_time()
     dyn = run.dynamics
     assert run.converged and dyn["time_reached"] == pytest.approx(0.1) and dyn["cuts"] >= 1
     failed = [a for a in run.attempts if a["status"] != "converged"]
@@ -249,7 +249,7 @@ def test_a_falling_cantilever_lands_on_a_ground():
     d["grounds"] = [{"name": "floor", "point": [0.0, -1.0], "normal": [0.0, 1.0], "stiffness": 10.0}]
     d["markers"]["corner"] = [40.0, 0.0]
     with Session(d) as s:
-        run = s.run()
+        run = s.run_in_time()
     assert run.converged
     corner = np.array([r["corner_y"] for r in run.report.trajectory])
     assert corner.min() < -0.95 and corner.min() > -1.1              # it reaches the floor and stays on it

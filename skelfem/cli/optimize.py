@@ -165,7 +165,7 @@ def optimize_command(args) -> int:
         except RuntimeError as exc:
             cli.error(f"{design.name}: {exc}; nothing written to {args.out}")
             return cli.EXIT_SOLVE
-        final = session.run()                        # the best schedules, for the picture
+        final = session.run_in_time()                        # the best schedules, for the picture
         timings.update(optimize=res.time, total=time.perf_counter() - t0)
         result = optimize_dict(session.design, args.marker, targets, res, timings, args.method)
         header = ["time"] + list(res.names)

@@ -13,7 +13,7 @@ t = 0 (a sudden load); the run starts at rest in the reference shape.
 
     from skelfem import Session
     with Session("flick.toml") as s:
-        run = s.run()                     # a DynamicResult
+        run = s.run_in_time()                     # a DynamicResult
         run.trajectory[-1]                # {"time": ..., "tip_x": ..., "flexor_tension": ...}
 """
 from __future__ import annotations

@@ -156,7 +156,7 @@ def write_dynamic_results(session, out: Path, t0: float, picture: bool = True, p
             if gif and (n % every == 0 or abs(t - spec.duration) <= 1e-9 * spec.duration):
                 frames.append((t, snap))
 
-        result = session.run(on_step, progress)
+        result = session.run_in_time(on_step, progress)
         data = result.to_dict()
         data.update(extra or {})
         if comm.rank == 0:
