@@ -140,6 +140,7 @@ def write_dynamic_results(session, out: Path, t0: float, picture: bool = True, p
     spec = design.dynamics
     every = max(1, int(np.ceil(spec.steps / MAX_GIF_FRAMES)))
     gif = picture and design.dim == 2
+    spent = {"write_xdmf": 0.0, "write_csv": 0.0, "write_gif": 0.0}    # s, each output's own cost
     with publish(out, comm) as stage:
         series, frames = None, []
 
@@ -148,10 +149,12 @@ def write_dynamic_results(session, out: Path, t0: float, picture: bool = True, p
             snap = snapshot(model)                     # collective; None off rank 0
             if comm.rank != 0:
                 return
+            tw = time.perf_counter()
             if series is None:
                 series = stage.run(XdmfSeries, stage.path / "trajectory.xdmf", snap)
             if series is not None:
                 stage.run(series.write, t, snap)
+            spent["write_xdmf"] += time.perf_counter() - tw
             n = len(report.times) - 1
             if gif and (n % every == 0 or abs(t - spec.duration) <= 1e-9 * spec.duration):
                 frames.append((t, snap))
@@ -160,12 +163,19 @@ def write_dynamic_results(session, out: Path, t0: float, picture: bool = True, p
         data = result.to_dict()
         data.update(extra or {})
         if comm.rank == 0:
+            tw = time.perf_counter()
             if series is not None:
                 stage.run(series.close)
+            spent["write_xdmf"] += time.perf_counter() - tw
+            tw = time.perf_counter()
             stage.run(write_csv, stage.path / "trajectory.csv", trajectory_columns(design),
                       result.report.trajectory)
+            spent["write_csv"] = time.perf_counter() - tw
+            tw = time.perf_counter()
             if gif and frames:
                 stage.run(write_motion_gif, stage.path / "motion.gif", frames, design.name)
+            spent["write_gif"] = time.perf_counter() - tw
+        data["timings"].update({k: round(v, 4) for k, v in spent.items()})
         if comm.size > 1:
             comm.Barrier()
         data["timings"]["total"] = round(time.perf_counter() - t0, 4)
