@@ -1,0 +1,470 @@
+"""Calibration: fit live parameters of a design to measured states (bounded Gauss-Newton / LM).
+
+    from skelfem import Session, calibrate
+    with Session("geometry/finger.toml") as s:
+        cal = calibrate(s, "geometry/finger_calibration.csv", fit=["materials.ecoflex.E"],
+                        sigma={"markers.*": 0.1})
+        print(cal.values, cal.std, cal.unidentifiable)
+
+The data contract (columns, experiments, offsets) is in :mod:`skelfem.analysis.caldata`.
+
+Misfit. With y_ij(p) the model's value of measurement column j in row i (at the
+equilibrium x*_i(p) of that row's conditions), d_ij the data and sigma_j the
+column's standard deviation, r_ij = (y_ij - d_ij) / sigma_j over the measured
+cells of the fitted rows, and the misfit is f(p) = 1/2 |r|^2.
+
+Sensitivities (exact up to round-off). At a converged row, R(x*, p) = 0, so
+
+    dx*/dp = -H^{-1} dR/dp,      H = dR/dx at x* (factorised once per row: Linearization).
+
+dR/dp is obtained for any live parameter by perturbing it and re-assembling the
+residual at fixed x*: a central difference, exact to round-off where R is
+linear in p (E, cable and spring stiffness, density, gravity, loads, a taut
+tendon's contraction or pretension) and with error h^2/6 d3R/dp3 otherwise
+(nu: lambda = E nu / ((1 + nu)(1 - 2 nu)) gives a relative error of about
+(h / (1 - 2 nu))^2, 1e-10 at nu = 0.45 with h = 1e-6). A measurement may also
+depend on p directly (a tension k (l - L), a reaction), so the read-outs are
+differenced along the joint path (x* + t dx*/dp, p + t): markers are linear in
+x, the rest smooth, so the central difference has the same h^2 error.
+
+Forward mode: one back-substitution per parameter and row. Adjoint mode would
+cost one per measurement column and row, and needs each read-out's gradient
+dy/dx as a vector, which the terms do not expose (they expose read-outs);
+forward mode gets the whole Jacobian the Gauss-Newton step needs from
+directional differences of the read-outs, and a back-substitution costs little
+next to the row's Newton solve and factorisation (see studies/calibration.py
+--bench: 2 -> 20 parameters).
+
+Step. In scaled parameters z = p / s (s = |p0|, 1 if p0 = 0) the LM step solves
+min |r + J D|^2 + mu |D|^2 within the bounds (scipy's lsq_linear), accepted if
+f decreases, mu by Nielsen's rule. Every trial solves every row, each from the
+same row's last accepted equilibrium (the first pass: from the previous row of
+its load path; a path's first row from rest), so a row stays on its branch.
+
+Uncertainty. Cov(p) = s2 (J^T J)^+ (J weighted): s2 = 1 when every column's
+sigma is given, else the reduced chi-square |r|^2 / (n - m). Groups of
+parameters the data cannot separate are read from the singular vectors of the
+weighted, scaled Jacobian whose singular values fall below rcond x the largest.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .caldata import AXES, Data, DataError, prepare_data
+from .sensitivity import Linearization
+from ..fem.newton import SolveError
+
+log = logging.getLogger("skelfem")
+
+RCOND = 1e-6          # singular values below this fraction of the largest: an unidentifiable direction
+GROUP = 0.2           # a parameter belongs to such a direction's group above this fraction of its largest entry
+
+
+@dataclass
+class Calibration:
+    """The outcome of a calibration (``to_dict()`` is calibration.json)."""
+    keys: list
+    initial: np.ndarray
+    values: np.ndarray
+    std: np.ndarray                   # inf for a parameter in an unidentifiable group
+    ci95: np.ndarray                  # (m, 2)
+    covariance: np.ndarray
+    correlation: np.ndarray
+    singular_values: np.ndarray       # of the weighted Jacobian in scaled parameters
+    unidentifiable: list              # [[key, ...], ...]
+    iterations: int
+    converged: bool
+    status: str
+    cost: float                       # f = |r|^2 / 2 at the estimate
+    history: list                     # cost at the start and after each accepted step
+    columns: list
+    rms: dict                         # {column: RMS of model - data over fitted rows}
+    holdout: dict | None              # {"rows": n, "rms": {column: ...}, "weighted_rms": ...}
+    model_values: np.ndarray          # (rows, columns) at the estimate
+    data: Data
+    offsets: list                     # keys fitted as offsets of a condition column
+    s2: float                         # variance factor of the covariance
+    solves: int = 0
+    newton_iterations: int = 0
+    time: float = 0.0
+    timings: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        params = {}
+        for i, k in enumerate(self.keys):
+            ident = math.isfinite(self.std[i])
+            params[k] = {"value": float(self.values[i]), "initial": float(self.initial[i]),
+                         "std": float(self.std[i]) if ident else None,
+                         "ci95": [float(v) for v in self.ci95[i]] if ident else None,
+                         "offset": k in self.offsets}
+        return {
+            "parameters": params,
+            "correlation": {"keys": list(self.keys), "matrix": [[float(v) if math.isfinite(v) else None
+                                                                for v in row] for row in self.correlation]},
+            "unidentifiable": self.unidentifiable,
+            "singular_values": [float(v) for v in self.singular_values],
+            "iterations": int(self.iterations), "converged": bool(self.converged), "status": self.status,
+            "cost": float(self.cost), "cost_history": [float(c) for c in self.history],
+            "residual_rms": {c: v for c, v in self.rms.items()},
+            "holdout": self.holdout,
+            "variance_factor": float(self.s2),
+            "rows": int(self.data.rows), "fitted_rows": int(self.data.train.sum()),
+            "sigma": {c: float(s) for c, s in zip(self.columns, self.data.sigma)},
+            "sigma_given": {c: bool(g) for c, g in zip(self.columns, self.data.sigma_given)},
+            "solves": int(self.solves), "newton_iterations": int(self.newton_iterations),
+            "time": round(float(self.time), 3),
+        }
+
+    def overrides(self, design) -> dict:
+        """{--set key: value} of the fitted design parameters (offsets excluded), vectors merged."""
+        from .caldata import live_keys
+        base = {k: (np.array(v, float) if np.ndim(v) else float(v)) for k, v in live_keys(design).items()}
+        out = {}
+        for p, v in zip(self.data.parameters, self.values):
+            if p.offset:
+                continue
+            if p.component is None:
+                out[p.base] = float(v)
+            else:
+                vec = out.get(p.base, base[p.base]).copy()
+                vec[p.component] = float(v)
+                out[p.base] = vec
+        return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in out.items()}
+
+
+# -- the forward model over all rows ------------------------------------------------------------
+class Rows:
+    """Solves every row of the data for given parameters, with measurements and their sensitivities."""
+
+    def __init__(self, session, data: Data, progress=None, step: float = 1e-6):
+        self.session, self.model, self.solver = session, session.model, session.solver
+        self.data, self.progress, self.h = data, progress, float(step)
+        live = self.model.parameters()
+        self.base = {k: (np.array(v, float) if np.ndim(v) else float(v)) for k, v in live.items()}
+        for p in data.parameters:
+            if p.base not in live:
+                raise DataError(f"fit: {p.key!r} is not a live parameter of the model")
+        for key in data.conditions:
+            if key not in live and key.rpartition(".")[0] not in live:
+                raise DataError(f"{data.source}: column {key!r} is not a live parameter of the model")
+        self.starts = data.starts()
+        self.states: list = [None] * data.rows          # each row's last accepted equilibrium
+        self.solves = self.newton_iterations = 0
+        self._sections = sorted({c.split(".", 1)[0] for c in data.columns})
+        self.iteration = 0
+
+    # parameters of a row
+    def _values(self, theta, i: int) -> dict:
+        """{live key: value} for row i under fitted values theta."""
+        vals = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in self.base.items()}
+
+        def put(key, value, add=False):
+            base, comp = (key, None) if key in vals else (key.rpartition(".")[0], AXES.index(key[-1]))
+            if comp is None:
+                vals[base] = vals[base] + value if add else value
+            else:
+                vals[base][comp] = vals[base][comp] + value if add else value
+        for key, col in self.data.conditions.items():
+            put(key, float(col[i]))
+        for p, v in zip(self.data.parameters, theta):
+            put(p.key, float(v), add=p.offset)
+        return vals
+
+    def _apply(self, vals: dict) -> None:
+        now = self.model.parameters()
+        for k, v in vals.items():
+            if not np.array_equal(np.asarray(now[k], float), np.asarray(v, float)):
+                self.model.set_parameter(k, v)
+
+    # measurements
+    def measure(self) -> np.ndarray:
+        """The measurement columns at the model's current state."""
+        model = self.model
+        out: dict = {}
+        for term in model.terms:
+            if term.section in self._sections:
+                values = term.readout(model)
+                if values:
+                    out.setdefault(term.section, {}).update(values)
+        y = np.empty(len(self.data.columns))
+        for j, col in enumerate(self.data.columns):
+            sec, name, rest = col.split(".", 2)
+            item = out[sec][name]
+            if sec == "markers":
+                y[j] = item["position"][AXES.index(rest)]
+            elif sec == "cables":
+                y[j] = item["tension"]
+            else:
+                what, ax = rest.split(".")
+                y[j] = np.asarray(item[what], float)[AXES.index(ax)]
+        return y
+
+    # one row
+    def _solve(self, i: int, theta, start) -> None:
+        model, solver = self.model, self.solver
+        self._apply(self._values(theta, i))
+        if start is not None:
+            model.u.x.array[:] = start
+            model.changes.clear()                    # no predictor from another row's factorisation
+            report = solver.resolve(1)
+        elif self.starts[i] or not self.session.solved:
+            model.u.x.array[:] = 0.0
+            report = solver.solve(self.session.design.solver.steps)
+        else:
+            report = solver.resolve(1)
+        self.solves += 1
+        self.newton_iterations += report.newton_iterations
+        self.session.solved = bool(report.converged)
+        if not report.converged:
+            raise SolveError(f"row {i + 1}: the equilibrium did not converge ({report.status})")
+
+    def _sensitivities(self, i: int, theta) -> np.ndarray:
+        """dy/dtheta at row i's equilibrium, (columns, parameters)."""
+        model = self.model
+        lin = Linearization(model, self.solver)
+        x0 = model.u.vector.copy()
+        bp, bm = x0.duplicate(), x0.duplicate()
+        vals = self._values(theta, i)
+        J = np.zeros((len(self.data.columns), len(theta)))
+        try:
+            for j, p in enumerate(self.data.parameters):
+                value = vals[p.base] if p.component is None else vals[p.base][p.component]
+                h = self.h * max(abs(value), self.data.parameters[j].scale)
+                for s, b in ((h, bp), (-h, bm)):
+                    self._apply(self._shifted(vals, p, s))
+                    model.residual(x0, b)
+                bp.axpy(-1.0, bm)
+                bp.scale(1.0 / (2.0 * h))               # dR/dp at fixed x*
+                dx = lin.solve(bp)                       # -dx*/dp
+                ys = []
+                for s in (h, -h):
+                    self._apply(self._shifted(vals, p, s))
+                    model.u.vector.waxpy(-s, dx, x0)     # x* + s dx*/dp
+                    model.sync(model.u.vector)
+                    ys.append(self.measure())
+                J[:, j] = (ys[0] - ys[1]) / (2.0 * h)
+                dx.destroy()
+        finally:
+            self._apply(vals)
+            x0.copy(model.u.vector)
+            model.sync(model.u.vector)
+            model.changes.clear()
+            for v in (x0, bp, bm):
+                v.destroy()
+            lin.destroy()
+        return J
+
+    @staticmethod
+    def _shifted(vals: dict, p, s: float) -> dict:
+        out = dict(vals)
+        if p.component is None:
+            out[p.base] = vals[p.base] + s
+        else:
+            v = vals[p.base].copy()
+            v[p.component] += s
+            out[p.base] = v
+        return out
+
+    def run(self, theta, jacobian: bool = True, states=None):
+        """(Y, J, states): every row solved for theta; J (rows, columns, parameters) or None.
+
+        states: each row's start (default: the accepted ones); SolveError if a row fails.
+        """
+        theta = np.asarray(theta, float)
+        states = self.states if states is None else states
+        n = self.data.rows
+        Y = np.empty((n, len(self.data.columns)))
+        J = np.zeros((n, len(self.data.columns), len(theta))) if jacobian else None
+        new = [None] * n
+        for i in range(n):
+            self._solve(i, theta, states[i])
+            Y[i] = self.measure()
+            if jacobian:
+                J[i] = self._sensitivities(i, theta)
+            new[i] = self.model.u.x.array.copy()
+            if self.progress is not None:
+                self.progress(self.iteration, i + 1, n)
+        return Y, J, new
+
+
+# -- the fit ---------------------------------------------------------------------------------------
+def _weighted(data: Data, Y, J):
+    """r and J_r of the fitted rows' measured cells, weighted by 1/sigma (J in raw parameters)."""
+    mask = np.isfinite(data.values) & data.train[:, None]
+    R = (Y - data.values) / data.sigma
+    r = R[mask]
+    Jr = (J / data.sigma[None, :, None])[mask] if J is not None else None
+    return r, Jr
+
+
+def calibrate(session, data, fit=None, sigma=None, bounds=None, holdout: float = 0.0, *,
+              max_iterations: int = 20, xtol: float = 1e-9, gtol: float = 1e-14, rcond: float = RCOND,
+              progress=None, seed: int = 0) -> Calibration:
+    """Fit the live parameters `fit` of the session's design to `data` (see the module doc).
+
+    data: a CSV path, CSV text, {column: values} or a prepared Data (then fit,
+    sigma, bounds and holdout are taken from it). progress(iteration, row, rows)
+    is called after every row solve. The session is left at the estimate's last row.
+    """
+    from scipy.optimize import lsq_linear
+    from scipy.stats import t as student
+
+    t0 = time.perf_counter()
+    if not isinstance(data, Data):
+        data = prepare_data(session.design, data, fit, sigma, bounds, holdout, seed)
+    rows = Rows(session, data, progress)
+    P = data.parameters
+    m = len(P)
+    scale = np.array([p.scale for p in P])
+    lo = np.array([p.lower for p in P]) / scale
+    hi = np.array([p.upper for p in P]) / scale
+    theta = np.array([p.initial for p in P])
+    try:
+        Y, J, states = rows.run(theta)
+    except SolveError as exc:
+        raise SolveError(f"at the start: {exc}") from None
+    rows.states = states
+    r, Jr = _weighted(data, Y, J)
+    cost = 0.5 * float(r @ r)
+    history, status, converged = [cost], "max_iterations", False
+    A = Jr * scale
+    mu = 1e-3 * float(np.max(np.sum(A * A, axis=0))) if m else 0.0
+    nu_, it = 2.0, 0
+    while it < max_iterations:
+        it += 1
+        rows.iteration = it
+        g = A.T @ r
+        if np.max(np.abs(g)) <= gtol * max(1.0, 2.0 * cost) or cost == 0.0:
+            status, converged = "gradient", True
+            break
+        z = theta / scale
+        K = np.vstack([A, math.sqrt(max(mu, 1e-300)) * np.eye(m)])
+        sol = lsq_linear(K, np.concatenate([-r, np.zeros(m)]), bounds=(lo - z, hi - z), method="bvls"
+                         if m <= 30 else "trf", lsmr_tol="auto")
+        D = sol.x
+        if np.max(np.abs(D)) <= xtol * (1.0 + np.max(np.abs(z))):
+            status, converged = "small step", True
+            break
+        pred = float(r @ r - np.sum((r + A @ D) ** 2))
+        if not np.all(np.isfinite(D)) or pred <= 1e-14 * max(float(r @ r), 1e-300):
+            status, converged = "no further decrease predicted", True
+            break
+        trial = (z + D) * scale
+        trial = np.clip(trial, [p.lower for p in P], [p.upper for p in P])
+        try:
+            Yt, Jt, st = rows.run(trial)
+        except SolveError as exc:
+            log.info("calibrate: trial step failed (%s); more damping", exc)
+            mu *= 4.0
+            continue
+        rt, Jrt = _weighted(data, Yt, Jt)
+        ct = 0.5 * float(rt @ rt)
+        rho = (2.0 * (cost - ct)) / pred
+        if rho > 0.0:
+            theta, Y, J, r, cost, A = trial, Yt, Jt, rt, ct, Jrt * scale
+            rows.states = st
+            history.append(cost)
+            mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            nu_ = 2.0
+            log.info("calibrate: iteration %d, cost %.6g, mu %.3g", it, cost, mu)
+        else:
+            mu *= nu_
+            nu_ *= 2.0
+    # uncertainty
+    n = len(r)
+    U, sv, Vt = np.linalg.svd(A, full_matrices=False) if m else (None, np.zeros(0), np.zeros((0, 0)))
+    keep = sv > rcond * (sv[0] if len(sv) else 0.0)
+    groups = []
+    for k in np.flatnonzero(~keep):
+        v = np.abs(Vt[k])
+        groups.append(sorted(np.flatnonzero(v >= GROUP * v.max()).tolist()))
+    groups = _merge(groups)
+    inv = (Vt[keep].T / sv[keep] ** 2) @ Vt[keep] if m else np.zeros((0, 0))
+    all_given = bool(np.all(data.sigma_given))
+    s2 = 1.0 if all_given else (2.0 * cost / (n - m) if n > m else math.nan)
+    cov = s2 * inv * np.outer(scale, scale)
+    std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    bad = sorted({i for g in groups for i in g})
+    std[bad] = math.inf
+    q = 1.959963984540054 if all_given or n <= m else float(student.ppf(0.975, n - m))
+    ci = np.column_stack([theta - q * std, theta + q * std])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(std, std)
+    corr[bad, :] = math.nan
+    corr[:, bad] = math.nan
+    np.fill_diagonal(corr, 1.0)
+    rms = _rms(data, Y, data.train)
+    hold = None
+    if (~data.train).any():
+        Rw = ((Y - data.values) / data.sigma)[~data.train]
+        hold = {"rows": int((~data.train).sum()), "rms": _rms(data, Y, ~data.train),
+                "weighted_rms": float(np.sqrt(np.nanmean(Rw ** 2)))}
+    return Calibration(
+        keys=[p.key for p in P], initial=np.array([p.initial for p in P]), values=theta, std=std, ci95=ci,
+        covariance=cov, correlation=corr, singular_values=sv,
+        unidentifiable=[[P[i].key for i in g] for g in groups], iterations=it, converged=converged,
+        status=status, cost=cost, history=history, columns=list(data.columns), rms=rms, holdout=hold,
+        model_values=Y, data=data, offsets=[p.key for p in P if p.offset], s2=s2, solves=rows.solves,
+        newton_iterations=rows.newton_iterations, time=time.perf_counter() - t0)
+
+
+def _rms(data: Data, Y, rows) -> dict:
+    out = {}
+    for j, c in enumerate(data.columns):
+        d = (Y[rows, j] - data.values[rows, j])
+        d = d[np.isfinite(d)]
+        out[c] = float(np.sqrt(np.mean(d ** 2))) if len(d) else None
+    return out
+
+
+def _merge(groups: list) -> list:
+    """Union of overlapping index groups."""
+    out: list = []
+    for g in groups:
+        g = set(g)
+        for h in [h for h in out if h & g]:
+            g |= h
+            out.remove(h)
+        out.append(g)
+    return [sorted(g) for g in out]
+
+
+def misfit(session, data: Data, theta, jacobian: bool = True):
+    """(f, grad f) of the misfit at theta (every row solved from its path's start; for checks)."""
+    rows = Rows(session, data)
+    Y, J, _ = rows.run(theta, jacobian)
+    r, Jr = _weighted(data, Y, J)
+    return 0.5 * float(r @ r), (Jr.T @ r if jacobian else None)
+
+
+def synthesize(session, conditions: dict, columns, experiments=None, noise: dict | None = None,
+               rng=None) -> dict:
+    """Synthetic measurements: {column: values} for each row of conditions ({key: values}), solved in order.
+
+    noise: {column or fnmatch pattern: std} of Gaussian noise added (rng: a numpy Generator).
+    Rows of one experiment form a load path from rest, as in a calibration.
+    """
+    import fnmatch
+    conditions = {k: np.asarray(v, float) for k, v in conditions.items()}
+    n = len(next(iter(conditions.values()))) if conditions else 1
+    experiments = list(experiments) if experiments is not None else ["1"] * n
+    cols = list(columns)
+    data = Data(cols, np.zeros((n, len(cols))), np.ones(len(cols)), np.zeros(len(cols), bool),
+                conditions, [str(e) for e in experiments], [], np.ones(n, bool))
+    Y, _, _ = Rows(session, data).run(np.zeros(0), jacobian=False)
+    if noise:
+        rng = rng if rng is not None else np.random.default_rng(0)
+        for j, c in enumerate(cols):
+            sd = [v for pat, v in noise.items() if fnmatch.fnmatchcase(c, pat)]
+            if sd:
+                Y[:, j] += rng.normal(0.0, sd[-1], n)
+    out = {k: v.copy() for k, v in conditions.items()}
+    if experiments is not None:
+        out["experiment"] = [str(e) for e in experiments]
+    out.update({c: Y[:, j].copy() for j, c in enumerate(cols)})
+    return out
