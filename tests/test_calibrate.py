@@ -103,3 +103,104 @@ def test_misfit_gradient_against_central_differences(heavy):
         assert abs(g[j] - fd) <= 1e-3 * abs(fd) + 1e-7 * np.max(np.abs(g * scale)) / scale[j], (key, g[j], fd)
         if key != "materials.pla.E":
             assert abs(g[j] - fd) <= 1e-4 * abs(fd) + 1e-7 * np.max(np.abs(g * scale)) / scale[j], (key, g[j], fd)
+
+
+@pytest.fixture(scope="module")
+def finger_data(finger):
+    """Noise-free tip positions and flexor tension of the coarse finger over four contractions."""
+    return synthesize(finger, {"cables.flexor.contraction": [2.0, 4.0, 6.0, 8.0]},
+                      TIP + ["cables.flexor.tension"])
+
+
+def test_noise_free_recovery_from_twice_off(finger, finger_data):
+    keys = ["materials.ecoflex.E", "cables.flexor.stiffness", "cables.lig1_dorsal.stiffness"]
+    true = np.array([finger.model.parameters()[k] for k in keys])
+    try:
+        finger.set(dict(zip(keys, true * np.array([2.0, 0.5, 2.0]))))
+        cal = calibrate(finger, finger_data, keys)
+    finally:
+        finger.set(dict(zip(keys, true)))
+    assert cal.converged and cal.iterations <= 10, (cal.iterations, cal.status)
+    assert np.max(np.abs(cal.values / true - 1)) < 1e-6, cal.values
+    assert list(cal.initial) == pytest.approx(true * [2.0, 0.5, 2.0])
+
+
+ACTIVE = ["materials.ecoflex.E", "materials.pla.E", "cables.flexor.stiffness",
+          "cables.lig1_dorsal.stiffness", "cables.lig2_dorsal.stiffness"]
+
+
+def test_scaling_every_stiffness_is_unidentifiable_from_positions(finger, finger_data):
+    positions = {k: v for k, v in finger_data.items() if k != "cables.flexor.tension"}
+    cal = calibrate(finger, positions, STIFFNESSES)
+    # the scaling direction: every taut cable and both materials; the slack palmar ligaments do nothing
+    assert sorted(map(sorted, cal.unidentifiable)) == sorted(
+        [sorted(ACTIVE), ["cables.lig1_palmar.stiffness"], ["cables.lig2_palmar.stiffness"]])
+    assert all(cal.to_dict()["parameters"][k]["std"] is None for k in STIFFNESSES)
+    # one tension column fixes the scale
+    cal = calibrate(finger, finger_data, ACTIVE)
+    assert cal.unidentifiable == [] and np.all(np.isfinite(cal.std))
+    assert np.max(np.abs(cal.values / cal.initial - 1)) < 1e-6
+
+
+def test_holdout_and_calibrated_design(finger, finger_data):
+    cal = calibrate(finger, finger_data, ["materials.ecoflex.E"], holdout=0.25)
+    assert cal.holdout["rows"] == 1 and cal.data.train.sum() == 3
+    assert cal.holdout["weighted_rms"] < 1e-6
+    assert set(cal.overrides(finger.design)) == {"materials.ecoflex.E"}
+    out = cal.to_dict()
+    assert set(out) >= {"parameters", "correlation", "unidentifiable", "iterations", "converged",
+                        "residual_rms", "holdout"}
+
+
+def _coverage(finger, seeds, rows=8):
+    keys = ["materials.ecoflex.E", "cables.flexor.stiffness"]
+    sigma = {"markers.*": 0.2, "cables.flexor.tension": 0.05}
+    clean = synthesize(finger, {"cables.flexor.contraction": np.linspace(1.0, 8.0, rows)},
+                       TIP + ["cables.flexor.tension"])
+    true = np.array([finger.model.parameters()[k] for k in keys])
+    est, std, inside = [], [], []
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        data = dict(clean)
+        for c in TIP:
+            data[c] = clean[c] + rng.normal(0, 0.2, rows)
+        data["cables.flexor.tension"] = clean["cables.flexor.tension"] + rng.normal(0, 0.05, rows)
+        cal = calibrate(finger, data, keys, sigma=sigma)
+        est.append(cal.values)
+        std.append(cal.std)
+        inside.append((cal.ci95[:, 0] <= true) & (true <= cal.ci95[:, 1]))
+    return true, np.array(est), np.array(std), np.array(inside)
+
+
+@pytest.mark.slow
+def test_noise_coverage_over_twenty_seeds(finger):
+    true, est, std, inside = _coverage(finger, range(20))
+    assert inside.mean() >= 0.85, inside.mean()
+    spread = est.std(axis=0, ddof=1)
+    assert np.all(np.abs(spread / std.mean(axis=0) - 1) < 0.3), (spread, std.mean(axis=0))
+
+
+# -- bad data: one line naming the problem -----------------------------------------------------------
+@pytest.mark.parametrize("data, fit, kw, message", [
+    ("markers.tip.x,foo\n1,2\n", ["materials.ecoflex.E"], {}, "column 'foo' names no marker"),
+    ("markers.tip.x\nabc\n", ["materials.ecoflex.E"], {}, "'abc' is not a number"),
+    ("markers.tip.x\n1\n", ["materials.ecoflex.E", "materials.pla.E"], {}, "fewer than the 2 parameters"),
+    ("markers.tip.x\n1\n", ["mesh.size"], {}, "'mesh.size' is not a live parameter"),
+    ("markers.tip.x\n1\n2\n", ["materials.ecoflex.E"], {"bounds": ["materials.ecoflex.E=0.2,0.3"]},
+     "excludes the start"),
+    ("markers.tip.x\n1\n2\n", ["materials.ecoflex.E"], {"sigma": ["markers.tip.q=1"]}, "names no measurement"),
+    ("markers.tip.x\n1\n2\n", ["materials.ecoflex.E"], {"sigma": ["markers.tip.x=-1"]}, "must be > 0"),
+    ("markers.tip.x,experiment\n1,a\n2,b\n3,a\n", ["materials.ecoflex.E"], {}, "consecutive"),
+])
+def test_bad_data_is_one_line(data, fit, kw, message):
+    design = load_design(FINGER)
+    with pytest.raises(DataError, match=message) as err:
+        prepare_data(design, data, fit, **kw)
+    assert "\n" not in str(err.value)
+
+
+def test_size_limit(tmp_path):
+    path = tmp_path / "big.csv"
+    path.write_text("markers.tip.x\n" + "1.0\n" * 100)
+    with pytest.raises(DataError, match="over the limit"):
+        prepare_data(load_design(FINGER), path, ["materials.ecoflex.E"], max_bytes=100)

@@ -306,7 +306,7 @@ def _weighted(data: Data, Y, J):
 
 
 def calibrate(session, data, fit=None, sigma=None, bounds=None, holdout: float = 0.0, *,
-              max_iterations: int = 20, xtol: float = 1e-9, gtol: float = 1e-14, rcond: float = RCOND,
+              max_iterations: int = 20, xtol: float = 1e-8, gtol: float = 1e-14, rcond: float = RCOND,
               progress=None, seed: int = 0) -> Calibration:
     """Fit the live parameters `fit` of the session's design to `data` (see the module doc).
 
@@ -336,19 +336,18 @@ def calibrate(session, data, fit=None, sigma=None, bounds=None, holdout: float =
     cost = 0.5 * float(r @ r)
     history, status, converged = [cost], "max_iterations", False
     A = Jr * scale
-    mu = 1e-3 * float(np.max(np.sum(A * A, axis=0))) if m else 0.0
-    nu_, it = 2.0, 0
+    mu, it, rejected = 1e-3, 0, 0                           # Marquardt: damping relative to diag(A^T A)
     while it < max_iterations:
-        it += 1
-        rows.iteration = it
+        rows.iteration = it + 1
         g = A.T @ r
         if np.max(np.abs(g)) <= gtol * max(1.0, 2.0 * cost) or cost == 0.0:
             status, converged = "gradient", True
             break
         z = theta / scale
-        K = np.vstack([A, math.sqrt(max(mu, 1e-300)) * np.eye(m)])
-        sol = lsq_linear(K, np.concatenate([-r, np.zeros(m)]), bounds=(lo - z, hi - z), method="bvls"
-                         if m <= 30 else "trf", lsmr_tol="auto")
+        d = np.sqrt(np.maximum(np.sum(A * A, axis=0), 1e-30 * max(float(np.max(np.sum(A * A, axis=0))), 1e-300)))
+        K = np.vstack([A, math.sqrt(mu) * np.diag(d)])
+        sol = lsq_linear(K, np.concatenate([-r, np.zeros(m)]), bounds=(lo - z, hi - z),
+                         method="bvls" if m <= 30 else "trf", lsmr_tol="auto")
         D = sol.x
         if np.max(np.abs(D)) <= xtol * (1.0 + np.max(np.abs(z))):
             status, converged = "small step", True
@@ -357,13 +356,13 @@ def calibrate(session, data, fit=None, sigma=None, bounds=None, holdout: float =
         if not np.all(np.isfinite(D)) or pred <= 1e-14 * max(float(r @ r), 1e-300):
             status, converged = "no further decrease predicted", True
             break
-        trial = (z + D) * scale
-        trial = np.clip(trial, [p.lower for p in P], [p.upper for p in P])
+        it += 1
+        trial = np.clip((z + D) * scale, [p.lower for p in P], [p.upper for p in P])
         try:
             Yt, Jt, st = rows.run(trial)
         except SolveError as exc:
             log.info("calibrate: trial step failed (%s); more damping", exc)
-            mu *= 4.0
+            mu *= 10.0
             continue
         rt, Jrt = _weighted(data, Yt, Jt)
         ct = 0.5 * float(rt @ rt)
@@ -372,12 +371,15 @@ def calibrate(session, data, fit=None, sigma=None, bounds=None, holdout: float =
             theta, Y, J, r, cost, A = trial, Yt, Jt, rt, ct, Jrt * scale
             rows.states = st
             history.append(cost)
-            mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
-            nu_ = 2.0
             log.info("calibrate: iteration %d, cost %.6g, mu %.3g", it, cost, mu)
+            rejected = 0
         else:
-            mu *= nu_
-            nu_ *= 2.0
+            rejected += 1
+            if rejected >= 6:
+                status, converged = "no decrease in 6 damped steps", cost <= 1e-20 * history[0]
+                break
+        mu = mu / 10.0 if rho > 0.75 else (mu if rho > 0.25 else mu * (2.0 if rho > 0.0 else 4.0))
+        mu = min(max(mu, 1e-12), 1e12)
     # uncertainty
     n = len(r)
     U, sv, Vt = np.linalg.svd(A, full_matrices=False) if m else (None, np.zeros(0), np.zeros((0, 0)))
