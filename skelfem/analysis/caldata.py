@@ -157,9 +157,10 @@ class Data:
         return out
 
 
-def read_table(source, max_bytes: int = MAX_BYTES) -> tuple[list, list]:
-    """(header, rows of strings) of a CSV path or text; DataError if unreadable or too large."""
+def read_table(source, max_bytes: int | None = None) -> tuple[list, list]:
+    """(header, rows of strings) of a CSV path or text; DataError if unreadable or over max_bytes (MAX_BYTES)."""
     name = str(source)
+    max_bytes = MAX_BYTES if max_bytes is None else int(max_bytes)
     if isinstance(source, (str, Path)) and not (isinstance(source, str) and "\n" in source):
         path = Path(source)
         try:
@@ -223,7 +224,7 @@ def parse_pairs(items, what: str) -> dict:
 
 
 def prepare_data(design, data, fit, sigma=None, bounds=None, holdout: float = 0.0,
-                 seed: int = 0, max_bytes: int = MAX_BYTES) -> Data:
+                 seed: int = 0, max_bytes: int | None = None) -> Data:
     """Read and check data (a CSV path, CSV text, or {column: values}) against design; DataError if bad.
 
     fit: live keys to fit; sigma: {column or pattern: std} or ["COL=VALUE"]; bounds:
