@@ -82,7 +82,7 @@ def test_sensitivities_of_every_parameter_kind(heavy):
     for j, key in enumerate(KINDS):
         err = np.abs(J[:, :, j] - fds[j]) * scale[j] / size
         # the differences carry the Newton tolerance (|R| ~ 1e-9 N at x*): /2h = 1e-4 of a reaction for nu
-        assert err[:, :4].max() < 2e-5 and err.max() < 5e-4, (key, err.max(), J[:, :, j], fds[j])
+        assert err[:, :4].max() < 2e-5 and err.max() < 5e-4, (key, err, J[:, :, j], fds[j])
 
 
 def test_misfit_gradient_against_central_differences(heavy):

@@ -18,9 +18,11 @@ Sensitivities (exact up to round-off). At a converged row, R(x*, p) = 0, so
     dx*/dp = -H^{-1} dR/dp,      H = dR/dx at x* (factorised once per row: Linearization).
 
 dR/dp is obtained for any live parameter by perturbing it and re-assembling the
-residual at fixed x*: a central difference, exact to round-off where R is
-linear in p (E, cable and spring stiffness, density, gravity, loads, a taut
-tendon's contraction or pretension) and with error h^2/6 d3R/dp3 otherwise
+residual at fixed x*: where R is linear in p (E, cable, spring and ground
+stiffness, density, gravity, loads, tractions, pin moves, a taut tendon's
+contraction or pretension) a one-sided difference (one assembly per
+parameter, R(x*, p) shared) is exact to round-off; otherwise (nu, a ground's
+point) a central difference, with error h^2/6 d3R/dp3
 (nu: lambda = E nu / ((1 + nu)(1 - 2 nu)) gives a relative error of about
 (h / (1 - 2 nu))^2, 2e-7 at nu = 0.45 with h = 1e-4 nu). The step is 1e-4 of
 the parameter, not smaller: the stiff bones' internal forces nearly cancel at
@@ -57,6 +59,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from petsc4py import PETSc
 
 from .caldata import AXES, Data, DataError, prepare_data
 from .sensitivity import Linearization
@@ -65,6 +68,8 @@ from ..fem.newton import SolveError
 log = logging.getLogger("skelfem")
 
 RCOND = 1e-6          # singular values below this fraction of the largest: an unidentifiable direction
+# parameters the residual is linear in (at a fixed active set): a one-sided difference of R is exact
+LINEAR = ("E", "stiffness", "density", "acceleration", "force", "traction", "move", "contraction", "pretension")
 GROUP = 0.2           # a parameter belongs to such a direction's group above this fraction of its largest entry
 
 
@@ -158,7 +163,17 @@ class Rows:
         self.starts = data.starts()
         self.states: list = [None] * data.rows          # each row's last accepted equilibrium
         self.solves = self.newton_iterations = 0
+        # parameters owned by hand-written terms only (cables, springs...): dR/dp from those terms'
+        # gradients, no assembly of the whole residual (serial, no rigid bones, no Dirichlet owners)
+        self._local = {}
+        for p in data.parameters:
+            owners = [t for t in self.model.terms if p.base in t.parameters()]
+            if (session.comm.size == 1 and not self.model.rigid and p.base.rsplit(".", 1)[-1] in LINEAR
+                    and not any(t.has_ufl_energy() or t.dirichlet() for t in owners)):
+                self._local[p.base] = owners
         self._sections = sorted({c.split(".", 1)[0] for c in data.columns})
+        self._linear = np.array([c.startswith("markers.") for c in data.columns])   # y = X + S x
+        self._nonlinear = [sec for sec in self._sections if sec != "markers"]
         self.iteration = 0
 
     # parameters of a row
@@ -185,18 +200,22 @@ class Rows:
                 self.model.set_parameter(k, v)
 
     # measurements
-    def measure(self) -> np.ndarray:
-        """The measurement columns at the model's current state."""
+    def measure(self, sections=None) -> np.ndarray:
+        """The measurement columns at the model's current state (NaN outside sections, if given)."""
         model = self.model
+        sections = self._sections if sections is None else sections
         out: dict = {}
         for term in model.terms:
-            if term.section in self._sections:
+            if term.section in sections:
                 values = term.readout(model)
                 if values:
                     out.setdefault(term.section, {}).update(values)
         y = np.empty(len(self.data.columns))
         for j, col in enumerate(self.data.columns):
             sec, name, rest = col.split(".", 2)
+            if sec not in sections:
+                y[j] = math.nan
+                continue
             item = out[sec][name]
             if sec == "markers":
                 y[j] = item["position"][AXES.index(rest)]
@@ -226,41 +245,76 @@ class Rows:
         if not report.converged:
             raise SolveError(f"row {i + 1}: the equilibrium did not converge ({report.status})")
 
-    def _sensitivities(self, i: int, theta) -> np.ndarray:
+    def _sensitivities(self, i: int, theta, y0) -> np.ndarray:
         """dy/dtheta at row i's equilibrium, (columns, parameters)."""
         model = self.model
         lin = Linearization(model, self.solver)
         x0 = model.u.vector.copy()
-        bp, bm = x0.duplicate(), x0.duplicate()
+        bp, bm, r0 = x0.duplicate(), x0.duplicate(), None
         vals = self._values(theta, i)
         J = np.zeros((len(self.data.columns), len(theta)))
         try:
             for j, p in enumerate(self.data.parameters):
                 value = vals[p.base] if p.component is None else vals[p.base][p.component]
                 h = self.h * max(abs(value), self.data.parameters[j].scale)
-                for s, b in ((h, bp), (-h, bm)):
-                    self._apply(self._shifted(vals, p, s))
-                    model.residual(x0, b)
-                bp.axpy(-1.0, bm)
-                bp.scale(1.0 / (2.0 * h))               # dR/dp at fixed x*
+                if p.base in self._local:                 # only hand-written terms: their gradients
+                    model.sync(x0)
+                    self._term_difference(self._local[p.base], vals, p, h, bp)
+                elif p.base.rsplit(".", 1)[-1] in LINEAR:   # R linear in p: one-sided is exact
+                    if r0 is None:
+                        r0 = x0.duplicate()
+                        model.residual(x0, r0)
+                    self._apply(self._shifted(vals, p, h))
+                    model.residual(x0, bp)
+                    bp.axpy(-1.0, r0)
+                    bp.scale(1.0 / h)
+                else:
+                    for s, b in ((h, bp), (-h, bm)):
+                        self._apply(self._shifted(vals, p, s))
+                        model.residual(x0, b)
+                    bp.axpy(-1.0, bm)
+                    bp.scale(1.0 / (2.0 * h))               # dR/dp at fixed x*
                 dx = lin.solve(bp)                       # -dx*/dp
                 ys = []
-                for s in (h, -h):
+                for s in (h, -h):                        # markers are linear in x: one side suffices
                     self._apply(self._shifted(vals, p, s))
                     model.u.vector.waxpy(-s, dx, x0)     # x* + s dx*/dp
                     model.sync(model.u.vector)
-                    ys.append(self.measure())
-                J[:, j] = (ys[0] - ys[1]) / (2.0 * h)
+                    ys.append(self.measure(None if s > 0 else self._nonlinear))
+                J[:, j] = np.where(self._linear, (ys[0] - y0) / h, (ys[0] - ys[1]) / (2.0 * h))
                 dx.destroy()
         finally:
             self._apply(vals)
             x0.copy(model.u.vector)
             model.sync(model.u.vector)
             model.changes.clear()
-            for v in (x0, bp, bm):
-                v.destroy()
+            for v in (x0, bp, bm, r0):
+                if v is not None:
+                    v.destroy()
             lin.destroy()
         return J
+
+    def _term_difference(self, owners, vals, p, h: float, out) -> None:
+        """(R(x*, p + h) - R(x*, p)) / h from the owning terms' hand-written gradients alone."""
+        model = self.model
+        u = model.u.x.array
+        g = np.zeros(model.n_local)
+        for sign, step in ((1.0, h), (-1.0, 0.0)):
+            self._apply(self._shifted(vals, p, step))
+            for term in owners:
+                res = term.gradient(u)
+                if res is None:
+                    continue
+                dofs, values = res
+                if term.gather is None:
+                    np.add.at(g, dofs, sign * np.asarray(values, float))
+                else:
+                    term.gather.scatter_add(sign * np.asarray(values, float), g)
+        g[model.fixed] = 0.0
+        with out.localForm() as local:
+            local.set(0.0)
+            local.array_w[:] = g / h
+        out.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
 
     @staticmethod
     def _shifted(vals: dict, p, s: float) -> dict:
@@ -288,7 +342,7 @@ class Rows:
             self._solve(i, theta, states[i])
             Y[i] = self.measure()
             if jacobian:
-                J[i] = self._sensitivities(i, theta)
+                J[i] = self._sensitivities(i, theta, Y[i])
             new[i] = self.model.u.x.array.copy()
             if self.progress is not None:
                 self.progress(self.iteration, i + 1, n)
