@@ -14,7 +14,8 @@ One row per measured state. Columns:
 
 Fitted parameters (``fit``) are live keys (or a vector key's component); a fitted key
 that is also a condition column is fitted as an *offset* added to every row's value
-(e.g. a tendon's contraction zero). ``sigma`` gives a column's (or an fnmatch pattern
+(e.g. a tendon's contraction zero). A key with wildcards (``cables.lig*.stiffness``,
+fnmatch) fits *one* value shared by every live key it matches (they must start equal). ``sigma`` gives a column's (or an fnmatch pattern
 of columns') measurement standard deviation; ``bounds`` a parameter's box.
 
 Everything here reads the Design only (no DOLFINx), so a command can refuse bad data
@@ -120,6 +121,11 @@ class Parameter:
     lower: float
     upper: float
     offset: bool = False       # added to the condition column of the same name
+    targets: list = field(default_factory=list)   # [(base, component)] it sets: several when tied (a pattern)
+
+    def __post_init__(self):
+        if not self.targets:
+            self.targets = [(self.base, self.component)]
 
     @property
     def scale(self) -> float:
@@ -273,27 +279,42 @@ def prepare_data(design, data, fit, sigma=None, bounds=None, holdout: float = 0.
     fit = list(fit or [])
     if not fit:
         raise DataError("fit: no parameter to fit (give --fit KEY)")
-    keys = []
+    keys, tied = [], {}
     for key in fit:
-        if key in vectors:
+        if any(ch in key for ch in "*?["):
+            hits = [k for k in live if fnmatch.fnmatchcase(k, key)]
+            if not hits:
+                raise DataError(f"fit: {key!r} matches no live parameter of {design.name}")
+            if len({live[k] for k in hits}) > 1:
+                raise DataError(f"fit: {key!r} ties parameters that start at different values "
+                                f"({', '.join(f'{k}={live[k]:g}' for k in hits)})")
+            if any(k in conds for k in hits):
+                raise DataError(f"fit: {key!r} matches a condition column")
+            tied[key] = hits
+            keys.append(key)
+        elif key in vectors:
             keys += [f"{key}.{AXES[i]}" for i in range(len(live_keys(design)[key]))]
         elif key in live:
             keys.append(key)
         else:
             raise DataError(f"fit: {key!r} is not a live parameter of {design.name} "
                             f"(live: {', '.join(live) or 'none'})")
-    if len(set(keys)) != len(keys):
+    targets_of = {k: tied.get(k, [k]) for k in keys}
+    flat = [t for k in keys for t in targets_of[k]]
+    if len(set(flat)) != len(flat):
         raise DataError("fit: a parameter is named twice")
     bounds = parse_pairs(bounds.items() if isinstance(bounds, dict) else bounds, "bounds")
     for b in bounds:
         if b not in keys:
             raise DataError(f"bounds: {b!r} is not a fitted parameter (fitted: {', '.join(keys)})")
     params = []
+    vector_keys = live_keys(design)
     for key in keys:
-        base, comp = split_key(key) if key not in live_keys(design) else (key, None)
+        targets = [(t, None) if t in vector_keys else split_key(t) for t in targets_of[key]]
+        base, comp = targets[0]
         offset = key in conds
-        initial = 0.0 if offset else live[key]
-        last = key.rsplit(".", 1)[-1]
+        initial = 0.0 if offset else live[targets_of[key][0]]
+        last = targets_of[key][0].rsplit(".", 1)[-1]
         lo, hi = -math.inf, math.inf
         if not offset and last in POSITIVE:
             lo = 1e-6 * abs(initial) if initial > 0 else lo
@@ -303,7 +324,7 @@ def prepare_data(design, data, fit, sigma=None, bounds=None, holdout: float = 0.
             lo, hi = _bounds(key, bounds[key])
             if not lo <= initial <= hi:
                 raise DataError(f"bounds: {key}={lo:g},{hi:g} excludes the start {initial:g}")
-        params.append(Parameter(key, base, comp, float(initial), float(lo), float(hi), offset))
+        params.append(Parameter(key, base, comp, float(initial), float(lo), float(hi), offset, targets))
 
     # weights
     sig = np.ones(len(names))

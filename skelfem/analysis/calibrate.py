@@ -136,12 +136,13 @@ class Calibration:
         for p, v in zip(self.data.parameters, self.values):
             if p.offset:
                 continue
-            if p.component is None:
-                out[p.base] = float(v)
-            else:
-                vec = out.get(p.base, base[p.base]).copy()
-                vec[p.component] = float(v)
-                out[p.base] = vec
+            for b, comp in p.targets:
+                if comp is None:
+                    out[b] = float(v)
+                else:
+                    vec = out.get(b, base[b]).copy()
+                    vec[comp] = float(v)
+                    out[b] = vec
         return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in out.items()}
 
 
@@ -155,7 +156,7 @@ class Rows:
         live = self.model.parameters()
         self.base = {k: (np.array(v, float) if np.ndim(v) else float(v)) for k, v in live.items()}
         for p in data.parameters:
-            if p.base not in live:
+            if any(b not in live for b, _ in p.targets):
                 raise DataError(f"fit: {p.key!r} is not a live parameter of the model")
         for key in data.conditions:
             if key not in live and key.rpartition(".")[0] not in live:
@@ -167,10 +168,10 @@ class Rows:
         # gradients, no assembly of the whole residual (serial, no rigid bones, no Dirichlet owners)
         self._local = {}
         for p in data.parameters:
-            owners = [t for t in self.model.terms if p.base in t.parameters()]
+            owners = [t for t in self.model.terms if any(b in t.parameters() for b, _ in p.targets)]
             if (session.comm.size == 1 and not self.model.rigid and p.base.rsplit(".", 1)[-1] in LINEAR
                     and not any(t.has_ufl_energy() or t.dirichlet() for t in owners)):
-                self._local[p.base] = owners
+                self._local[p.key] = owners
         self._sections = sorted({c.split(".", 1)[0] for c in data.columns})
         self._linear = np.array([c.startswith("markers.") for c in data.columns])   # y = X + S x
         self._nonlinear = [sec for sec in self._sections if sec != "markers"]
@@ -190,7 +191,8 @@ class Rows:
         for key, col in self.data.conditions.items():
             put(key, float(col[i]))
         for p, v in zip(self.data.parameters, theta):
-            put(p.key, float(v), add=p.offset)
+            for b, comp in p.targets:
+                put(b if comp is None else f"{b}.{AXES[comp]}", float(v), add=p.offset)
         return vals
 
     def _apply(self, vals: dict) -> None:
@@ -257,9 +259,9 @@ class Rows:
             for j, p in enumerate(self.data.parameters):
                 value = vals[p.base] if p.component is None else vals[p.base][p.component]
                 h = self.h * max(abs(value), self.data.parameters[j].scale)
-                if p.base in self._local:                 # only hand-written terms: their gradients
+                if p.key in self._local:                  # only hand-written terms: their gradients
                     model.sync(x0)
-                    self._term_difference(self._local[p.base], vals, p, h, bp)
+                    self._term_difference(self._local[p.key], vals, p, h, bp)
                 elif p.base.rsplit(".", 1)[-1] in LINEAR:   # R linear in p: one-sided is exact
                     if r0 is None:
                         r0 = x0.duplicate()
@@ -319,12 +321,13 @@ class Rows:
     @staticmethod
     def _shifted(vals: dict, p, s: float) -> dict:
         out = dict(vals)
-        if p.component is None:
-            out[p.base] = vals[p.base] + s
-        else:
-            v = vals[p.base].copy()
-            v[p.component] += s
-            out[p.base] = v
+        for b, comp in p.targets:
+            if comp is None:
+                out[b] = vals[b] + s
+            else:
+                v = out[b].copy()
+                v[comp] += s
+                out[b] = v
         return out
 
     def run(self, theta, jacobian: bool = True, states=None):
@@ -429,8 +432,9 @@ def calibrate(session, data, fit=None, sigma=None, bounds=None, holdout: float =
             rejected = 0
         else:
             rejected += 1
-            if rejected >= 6:
-                status, converged = "no decrease in 6 damped steps", cost <= 1e-20 * history[0]
+            if rejected >= 6:      # at the minimum within the solves' round-off, or stuck
+                status = "no decrease in 6 damped steps"
+                converged = cost <= 1e-20 * history[0] or pred <= 1e-6 * max(2.0 * cost, 1e-300)
                 break
         mu = mu / 10.0 if rho > 0.75 else (mu if rho > 0.25 else mu * (2.0 if rho > 0.0 else 4.0))
         mu = min(max(mu, 1e-12), 1e12)
