@@ -27,6 +27,7 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 export OMPI_ALLOW_RUN_AS_ROOT := 1
 export OMPI_ALLOW_RUN_AS_ROOT_CONFIRM := 1
 export OMPI_MCA_rmaps_base_oversubscribe := 1
+export OMPI_MCA_mpi_yield_when_idle := 1
 export OPENBLAS_NUM_THREADS := 1
 export OMP_NUM_THREADS := 1
 export MPLBACKEND := Agg
@@ -36,12 +37,14 @@ export MPLBACKEND := Agg
 demo: setup
 	$(VENV)/bin/skelfem simulate geometry/finger.toml --out results/finger
 
-# The whole suite on two workers, slowest tests listed; test-fast skips the slow tier (the edit loop).
+# The whole suite: two workers for everything but the mpirun tests, then those one at a time (two
+# ranks each use both cores); the slowest tests are listed. test-fast skips the slow tier (the edit loop).
 test: setup
-	$(PY) -m pytest -q -n 2 --durations=25
+	$(PY) -m pytest -q -n 2 -m "not mpi" --durations=20
+	$(PY) -m pytest -q -m mpi --durations=10
 
 test-fast: setup
-	$(PY) -m pytest -q -n 2 -m "not slow" --durations=10
+	$(PY) -m pytest -q -n 2 -m "not slow and not mpi" --durations=10
 
 # The documentation: MyST pages, the gallery of examples (each one runs), the API
 # from the docstrings and tables read from studies/output/; warnings are errors.

@@ -4,7 +4,7 @@ The public surface is ``__all__``; everything else is internal and may change.
 Importing skelfem changes no global state (no signal handlers, PETSc options,
 matplotlib backend or environment variable): the command line
 (``skelfem.cli``) does that for itself. Names that need DOLFINx or PETSc are
-imported on first use.
+imported on first use::
 
     from skelfem import Session
     with Session("geometry/finger.toml") as s:
@@ -23,7 +23,7 @@ __all__ = [
     "optimize_schedules", "OptimizeResult",                         # trajectory optimisation
     "calibrate", "Calibration",                                     # fitting to measurements
     "Term", "Context", "BUILDERS",                                  # the energy-term contract
-    "SolveError", "MeshingError", "FabricationError",               # failures beyond bad input
+    "SolveError", "SessionError", "MeshingError", "FabricationError",   # failures beyond bad input
 ]
 
 _LAZY = {
@@ -31,7 +31,7 @@ _LAZY = {
     "IKResult": "analysis.control", "track": "analysis.control", "line_targets": "analysis.control",
     "optimize_schedules": "analysis.optimize", "OptimizeResult": "analysis.optimize",
     "calibrate": "analysis.calibrate", "Calibration": "analysis.calibrate",
-    "Term": "terms", "Context": "terms", "BUILDERS": "terms", "SolveError": "fem.newton",
+    "Term": "terms", "Context": "terms", "BUILDERS": "terms", "SolveError": "fem.newton", "SessionError": "session",
     "MeshingError": "design.occ", "FabricationError": "fabricate",
 }
 

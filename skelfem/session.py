@@ -60,11 +60,42 @@ def as_design(design, overrides=()) -> Design:
     return load_design(design, overrides)
 
 
+class SessionError(RuntimeError):
+    """A Session used after close, or from a second thread while another is inside it."""
+
+
+def _exclusive(method):
+    """One thread at a time inside a Session, and none after close: a second thread gets a clear
+    SessionError at once instead of another thread's answers or a broken PETSc state."""
+    import functools
+
+    @functools.wraps(method)
+    def guarded(self, *args, **kwargs):
+        if not self._lock.acquire(blocking=False):
+            raise SessionError(f"{self.design.name}: this Session is busy in another thread "
+                               "(a Session is used by one thread at a time; make one per thread)")
+        try:
+            if self._closed:
+                raise SessionError(f"{self.design.name}: this Session is closed")
+            return method(self, *args, **kwargs)
+        finally:
+            self._lock.release()
+    return guarded
+
+
 class Session:
-    """A design bound to a mesh, a model and a Newton solver, kept alive between solves."""
+    """A design bound to a mesh, a model and a Newton solver, kept alive between solves.
+
+    One thread at a time may be inside it (a second one gets a SessionError), and after ``close``
+    every call but ``close`` raises SessionError. A failed ``set`` or ``edit`` leaves the session as
+    it was: the old design, mesh, model and solution.
+    """
 
     def __init__(self, design, overrides=(), comm=None):
+        import threading
+
         from mpi4py import MPI
+        self._lock, self._closed = threading.RLock(), False
         self.comm = comm if comm is not None else MPI.COMM_WORLD
         self.design = as_design(design, overrides)
         self.model = self.solver = None
@@ -74,8 +105,9 @@ class Session:
         self._build()
 
     # -- building -----------------------------------------------------------------------------
-    def _build(self, tm=None) -> None:
-        """A model and solver for self.design on tm (default: a new mesh of the design)."""
+    def _build(self, tm=None, destroy_old: bool = True) -> None:
+        """A model and solver for self.design on tm (default: a new mesh of the design).
+        destroy_old=False: the old solver is left for the caller (an edit that may still fail)."""
         from .mesh.geometry import mesh_design
         from .fem.model import Model
         from .fem.newton import NewtonSolver
@@ -87,7 +119,8 @@ class Session:
         t1 = time.perf_counter()
         model = Model(self.design, tm)
         solver = NewtonSolver(model, self.design.solver)
-        self.close()
+        if destroy_old and self.solver is not None:
+            self.solver.destroy()
         self.model, self.solver, self.solved = model, solver, False
         if fresh:
             self._meshed, self._morph = self.design, None     # the design the mesh was made for
@@ -98,6 +131,7 @@ class Session:
         return int(self.model.V.dofmap.index_map.size_global * self.model.bs)
 
     # -- changing the design ---------------------------------------------------------------------
+    @_exclusive
     def set(self, changes: dict, design: Design | None = None) -> None:
         """Apply ``{--set key: value}``: live parameters in place, anything else by re-meshing.
 
@@ -127,6 +161,7 @@ class Session:
         return design.dynamics is not None and \
             inertia.stiffness_damping == (design.dynamics.damping_stiffness > 0.0)
 
+    @_exclusive
     def edit(self, design, overrides=(), morph: bool = False, size=None) -> str:
         """Replace the design (a path, a dict or a Design); the last solution is the start.
 
@@ -153,11 +188,21 @@ class Session:
         if old_solved and self.comm.size == 1:
             start = (old_model.V.tabulate_dof_coordinates()[:, :old_model.dim].copy(),
                      old_model.u.x.array.reshape(-1, old_model.bs).copy(), old_model)
-        self.design, self.size = design, size
-        self._build()
-        if start is not None:
-            self._carry_over(*start)
-            self.solved = True
+        saved = (self.design, self.size, self.model, self.solver, self.solved, self._meshed, self._morph,
+                 self.timings)
+        try:
+            self.design, self.size = design, size
+            self._build(destroy_old=False)
+            if start is not None:
+                self._carry_over(*start)
+                self.solved = True
+        except BaseException:                    # as it was: the old design, mesh, model and solution
+            if self.solver is not saved[3]:
+                self.solver.destroy()
+            (self.design, self.size, self.model, self.solver, self.solved, self._meshed, self._morph,
+             self.timings) = saved
+            raise
+        saved[3].destroy()
         return "re-meshed"
 
     def _same_mesh(self, design, morph: bool) -> np.ndarray | None:
@@ -242,6 +287,7 @@ class Session:
         model.untangle(model.u.vector)
 
     # -- solving -----------------------------------------------------------------------------------
+    @_exclusive
     def solve(self, steps: int | None = None) -> Result:
         """Static equilibrium; warm-started from the last one after the first solve."""
         t0 = time.perf_counter()
@@ -257,6 +303,7 @@ class Session:
         self.timings = {"mesh": 0.0, "compile": 0.0}          # paid once per mesh
         return Result(result_dict(self.design, self.model, report, timings), report, self._state())
 
+    @_exclusive
     def run(self, on_step=None, progress=None) -> Result:
         """A run in time ([dynamics]): from rest, steps of dt to the duration (see skelfem.dynamics).
 
@@ -289,9 +336,16 @@ class Session:
 
     # -- clean-up ------------------------------------------------------------------------------------
     def close(self) -> None:
-        if self.solver is not None:
-            self.solver.destroy()
-            self.solver = None
+        """Free the solver (PETSc objects); the session can do nothing more. Closing twice is fine."""
+        if not self._lock.acquire(blocking=False):
+            raise SessionError(f"{self.design.name}: this Session is busy in another thread")
+        try:
+            if self.solver is not None:
+                self.solver.destroy()
+                self.solver = None
+            self._closed = True
+        finally:
+            self._lock.release()
 
     def __enter__(self):
         return self

@@ -27,7 +27,7 @@ FINGER4 = ROOT / "geometry" / "finger4.toml"
 def run(T: float = 0.03, dt: float = 0.0015, size: float = 3.0, knots: int = 4,
         pose: dict | None = None, max_evaluations: int = 60) -> dict:
     from skelfem import Session
-    from skelfem.analysis.control import SoftIK, finger_length
+    from skelfem.analysis.control import SoftIK, body_extent
     from skelfem.analysis.optimize import optimize_schedules, schedule_items
 
     t0 = time.perf_counter()
@@ -40,7 +40,7 @@ def run(T: float = 0.03, dt: float = 0.0015, size: float = 3.0, knots: int = 4,
         ik.settle()
         res = ik.solve(target)
         u_ik = dict(zip(ik.names, map(float, res.contractions)))
-        length = finger_length(s.model)
+        length = body_extent(s.model)
     names = list(u_ik)
     dyn_sets = static_sets + [f"dynamics.dt={dt}", f"dynamics.duration={T}"]
     with Session(FINGER4, dyn_sets) as s:
@@ -58,7 +58,7 @@ def run(T: float = 0.03, dt: float = 0.0015, size: float = 3.0, knots: int = 4,
         planned_path = [[r["time"], r["tip_x"], r["tip_y"]] for r in planned.report.trajectory]
         dofs = s.dofs
     return {
-        "T": T, "dt": dt, "size": size, "dofs": dofs, "knots": knots, "finger_length": length,
+        "T": T, "dt": dt, "size": size, "dofs": dofs, "knots": knots, "body_extent": length,
         "target": target.tolist(), "pose": pose,
         "soft_ik": {"contractions": u_ik, "static_error": float(res.error), "reached": bool(res.reached)},
         "quasi_static_plan": {"error_at_T": miss, "path": quasi_path},

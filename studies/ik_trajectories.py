@@ -122,7 +122,7 @@ def run(size: float = 2.0, targets: int = 13, random: int = 20, u_max: float = 1
     session, ik = build(size)
     lines = {name: track_line(ik, ends, targets) for name, ends in LINES.items()}
     rows = random_targets(ik, random, u_max, seed) if random else []
-    numbers = {"size": size, "dofs": session.dofs, "finger_length": ik.length, "tol": ik.tol,
+    numbers = {"size": size, "dofs": session.dofs, "body_extent": ik.length, "tol": ik.tol,
                **{name: _line_numbers(ik, res) for name, (res, _) in lines.items()},
                "random": _random_numbers(ik, rows)}
     if out is not None:

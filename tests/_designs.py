@@ -35,28 +35,41 @@ def variant(d, **changes):
 
 
 def toml_text(d: dict) -> str:
-    """TOML text of a design dict (tables, arrays of tables, inline tables); parsed back as a check."""
+    """TOML text of a design dict, written by tomlkit (the one TOML writer of the tests and the
+    editor's Save); parsed back as a check."""
     import tomllib
 
-    def value(v):
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, str):
-            return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-        if isinstance(v, (list, tuple)):
-            return "[" + ", ".join(value(x) for x in v) + "]"
+    import tomlkit
+
+    def inline(v):                        # below a section's own keys: inline tables and arrays
         if isinstance(v, dict):
-            return "{ " + ", ".join(f"{k} = {value(x)}" for k, x in v.items()) + " }"
-        return repr(float(v)) if isinstance(v, float) else str(v)
-    lines, tables = [], []
+            t = tomlkit.inline_table()
+            t.update({k: inline(x) for k, x in v.items()})
+            return t
+        if isinstance(v, (list, tuple)):
+            a = tomlkit.array()
+            a.extend(inline(x) for x in v)
+            return a
+        return v
+
+    def section(v: dict):
+        t = tomlkit.table()
+        for k, x in v.items():
+            t.add(k, inline(x))
+        return t
+
+    doc = tomlkit.document()
     for k, v in d.items():
         if isinstance(v, dict):
-            tables.append(f"[{k}]\n" + "\n".join(f'"{kk}" = {value(vv)}' for kk, vv in v.items()))
-        elif isinstance(v, list) and v and isinstance(v[0], dict):
-            tables += [f"[[{k}]]\n" + "\n".join(f"{kk} = {value(vv)}" for kk, vv in item.items()) for item in v]
+            doc.add(k, section(v))
+        elif isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
+            aot = tomlkit.aot()
+            for x in v:
+                aot.append(section(x))
+            doc.add(k, aot)
         else:
-            lines.append(f"{k} = {value(v)}")
-    text = "\n".join(lines) + "\n\n" + "\n\n".join(tables) + "\n"
+            doc.add(k, inline(v))
+    text = tomlkit.dumps(doc)
     tomllib.loads(text)
     return text
 

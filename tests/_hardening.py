@@ -2,11 +2,11 @@
 from __future__ import annotations
 
 import copy
-import math
 import os
-import re
 import sys
 from pathlib import Path
+
+from _designs import toml_text  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SKELFEM = str(Path(sys.executable).parent / "skelfem")
@@ -15,44 +15,9 @@ ENV = {**os.environ, "OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONF
        "MPLBACKEND": "Agg"}
 
 
-def toml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if math.isnan(v):
-            return "nan"
-        if math.isinf(v):
-            return "inf" if v > 0 else "-inf"
-        return repr(v)
-    if isinstance(v, str):
-        return '"' + "".join(c if c.isprintable() and c not in '"\\' else
-                             ("\\" + c if c in '"\\' else f"\\u{ord(c):04x}") for c in v) + '"'
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(toml_value(x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{ " + ", ".join(f"{toml_key(k)} = {toml_value(x)}" for k, x in v.items()) + " }"
-    raise TypeError(type(v))
-
-
-def toml_key(k: str) -> str:
-    return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else toml_value(k)
-
-
 def toml_dumps(d: dict) -> str:
-    """TOML text of a design dict (tables and arrays of tables at the top level)."""
-    lines, tables = [], []
-    for k, v in d.items():
-        if isinstance(v, dict):
-            tables.append(f"[{toml_key(k)}]\n" + "\n".join(f"{toml_key(kk)} = {toml_value(vv)}" for kk, vv in v.items()))
-        elif isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
-            for item in v:
-                tables.append(f"[[{toml_key(k)}]]\n"
-                              + "\n".join(f"{toml_key(kk)} = {toml_value(vv)}" for kk, vv in item.items()))
-        else:
-            lines.append(f"{toml_key(k)} = {toml_value(v)}")
-    return "\n".join(lines) + "\n\n" + "\n\n".join(tables) + "\n"
+    """TOML text of a design dict (the tests' one writer, tomlkit)."""
+    return toml_text(d)
 
 
 def strip2d(size=4.0, bones=True, contraction=1.0) -> dict:

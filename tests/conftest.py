@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 GEOMETRY = ROOT / "geometry"
 SKELFEM = str(Path(sys.executable).parent / "skelfem")
 MPI_ENV = {**os.environ, "OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
-           "OMPI_MCA_rmaps_base_oversubscribe": "1", "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
+           "OMPI_MCA_rmaps_base_oversubscribe": "1", "OMPI_MCA_mpi_yield_when_idle": "1", "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
            "MPLBACKEND": "Agg"}
 
 
@@ -120,3 +120,11 @@ def check_picture(path, min_width: int = 300, min_height: int = 200, min_ink: fl
 def picture():
     """check_picture(path, min_width, min_height, min_ink, min_colour): a real, non-blank PNG."""
     return check_picture
+
+
+def pytest_collection_modifyitems(config, items):
+    """A test that uses the mpirun fixture runs under mpirun: it is marked mpi (make test runs those
+    after the parallel phase, one at a time, so two ranks never compete with another test's worker)."""
+    for item in items:
+        if "mpirun" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.mpi)

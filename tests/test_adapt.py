@@ -100,6 +100,7 @@ def test_indicators_are_larger_at_the_anchor_than_far_from_it(anchored_indicator
     assert np.median(e[near]) > 5.0 * np.median(e[far]), (np.median(e[near]), np.median(e[far]))
 
 
+@pytest.mark.slow
 def test_a_round_of_adaptive_refinement_lowers_the_estimate_and_met_is_honest():
     session = Session(ladder_rules.first_level(_strip(size=4.0)))
     try:
@@ -122,6 +123,7 @@ def _run(tol, **kw):
         session.close()
 
 
+@pytest.mark.slow
 def test_met_only_when_the_final_estimate_says_so(monkeypatch):
     _, a = _run(0.5, max_rounds=2)
     assert a["met"] and ladder_rules.MARGIN * a["estimated_error"] <= 0.5
@@ -150,6 +152,7 @@ def test_an_untrusted_round_is_estimated_at_the_two_level_rate():
     assert not adapt.round_may_stop(ladder, 0.3)                       # ... it may not end the rounds
 
 
+@pytest.mark.slow
 def test_a_met_round_is_checked_by_a_twin_whose_scatter_can_send_it_on(monkeypatch):
     """Met: the answer is M_1's twin (0.95 of its field), its estimate max(E, scatter). A twin whose scatter is
     too large (faked, first time only) sends the rounds on; the next round's twin then decides."""
@@ -204,6 +207,7 @@ def test_no_round_coarsens_the_first_rounds_zones(monkeypatch):
     assert np.median(h[mid]) > 0.6 * h_cap, np.median(h[mid])            # grown to h_design / 2
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name, ratio", [("strip", 2.0), ("post3d", 2.0 ** 0.5)])
 def test_a_rounds_meshes_are_the_uniform_ladders_ratio_apart(monkeypatch, name, ratio):
     """2D: h0, h0/2, h0/4 (the field scaled by 4, 2, 1); 3D: h0, h0/sqrt 2, h0/2, as the uniform ladder."""
@@ -240,6 +244,7 @@ def test_the_last_rounds_answer_bounds_the_estimate():
     assert adapt.cross_round(prev, coarser, 2) == pytest.approx(0.5)
 
 
+@pytest.mark.slow
 def test_a_round_far_from_the_last_one_is_not_met(monkeypatch):
     """Round 2's three meshes may agree while its answer is far from round 1's: the estimate is then at
     least what cross_round says (faked: 10 mm), reported, and not met."""

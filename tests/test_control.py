@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from skelfem.cli.main import main
-from skelfem.analysis.control import SoftIK, finger_length, track
+from skelfem.analysis.control import SoftIK, body_extent, track
 from skelfem.analysis.sensitivity import set_contractions, tendons
 from skelfem.fem.newton import SolveReport
 
@@ -27,7 +27,7 @@ def _from_rest(session, **kw):
 
 
 def test_finger_length_is_the_longest_extent(finger4):
-    assert finger_length(finger4.model) == pytest.approx(100.0)
+    assert body_extent(finger4.model) == pytest.approx(100.0)
 
 
 def test_ik_recovers_targets_of_random_contractions(finger4):
@@ -43,7 +43,7 @@ def test_ik_recovers_targets_of_random_contractions(finger4):
         ik = _from_rest(finger4)
         res = ik.solve(target)
         assert res.reached and res.status == "reached"
-        assert res.error < 1e-3 * finger_length(model)
+        assert res.error < 1e-3 * body_extent(model)
         assert np.linalg.norm(_tip(model) - target) == pytest.approx(res.error)
         assert 1 <= res.forward_solves <= 15
         assert np.all(res.contractions >= 0.0)
@@ -91,7 +91,7 @@ def test_tracking_a_short_line(finger4):
     results = track(ik, targets, lambda i, r: seen.append(i))
     assert seen == [0, 1, 2, 3]
     errors = np.array([r.error for r in results])
-    assert errors.max() < 0.01 * finger_length(finger4.model)
+    assert errors.max() < 0.01 * body_extent(finger4.model)
     assert all(r.reached for r in results)
     assert sum(r.forward_solves for r in results[1:]) <= 4 * 3   # warm starts: a few solves each
 

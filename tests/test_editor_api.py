@@ -160,6 +160,7 @@ def test_internal_error_is_500_then_the_solver_starts_again(editor, design):
     assert status == 200 and a["converged"] and a["cables"]["flexor"]["contraction"] == 7.5
 
 
+@pytest.mark.slow
 def test_ik_reaches_a_target_with_tendons_only(editor, design):
     d = copy.deepcopy(design)
     d["cables"][0]["contraction"] = 5.5              # one tendon: reachable targets lie on its tip curve

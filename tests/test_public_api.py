@@ -76,3 +76,63 @@ def test_result_fields_arrays_and_plot_without_pyplot():
 def test_status_of_unknown_text_is_diverged():
     assert Status.of("diverged (-3)") is Status.DIVERGED
     assert Status.of("max_iterations") is Status.MAX_ITERATIONS
+
+
+# -- a Session is safe to misuse: closed, shared between threads, edited into something it cannot be ---
+@pytest.fixture(scope="module")
+def small():
+    s = Session(ROOT / "geometry" / "finger.toml", ["mesh.size=5"])
+    s.solve()
+    yield s
+    s.close()
+
+
+def test_a_closed_session_says_so():
+    from skelfem.session import SessionError
+    s = Session(ROOT / "geometry" / "finger.toml", ["mesh.size=6"])
+    s.close()
+    s.close()                                                       # twice is fine
+    for call in (lambda: s.solve(), lambda: s.set({"cables.flexor.contraction": 1.0}), lambda: s.edit(s.design)):
+        with pytest.raises(SessionError, match="closed"):
+            call()
+
+
+def test_a_second_thread_is_refused_while_the_first_is_inside(small):
+    import threading
+
+    from skelfem.session import SessionError
+    inside, release, errors = threading.Event(), threading.Event(), []
+    real = small.solver.solve
+
+    def slow_solve(*args, **kwargs):
+        inside.set()
+        release.wait(30)
+        return real(*args, **kwargs)
+
+    small.solved = False
+    small.solver.solve = slow_solve
+    try:
+        t = threading.Thread(target=lambda: errors.append(small.solve()))
+        t.start()
+        assert inside.wait(30)
+        with pytest.raises(SessionError, match="busy in another thread"):
+            small.set({"cables.flexor.contraction": 2.0})
+        with pytest.raises(SessionError, match="busy"):
+            small.solve()
+        release.set()
+        t.join(60)
+    finally:
+        del small.solver.solve
+    assert errors and errors[0].converged                           # the first thread's solve is intact
+    assert small.solve().converged                                  # and the session still works afterwards
+
+
+def test_a_failed_edit_leaves_the_session_as_it_was(small):
+    """A 2D session edited into a 3D design used to raise IndexError and stay switched to it."""
+    before = small.solve().marker("tip")
+    design, model = small.design, small.model
+    three_d = load_design(ROOT / "geometry" / "finger3d.toml", ["mesh.size=8"])
+    with pytest.raises(Exception):
+        small.edit(three_d)
+    assert small.design is design and small.model is model
+    assert np.allclose(small.solve().marker("tip"), before)

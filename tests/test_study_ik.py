@@ -15,7 +15,7 @@ def _load():
 def test_ik_trajectories_tiny(tmp_path, picture):
     study = _load()
     res = study.run(size=4.0, targets=3, random=1, out=tmp_path)
-    assert res["finger_length"] == 100.0 and res["tol"] == 0.1
+    assert res["body_extent"] == 100.0 and res["tol"] == 0.1
     h = res["horizontal"]
     assert h["targets"] == 3 and h["reached"] >= 2 and h["max_error_reached"] < res["tol"]
     assert res["vertical"]["reached"] >= 1 and res["vertical"]["reachable_from"] == [10.0, 97.0]

@@ -102,6 +102,7 @@ def test_killed_sweep_resumes(tmp_path):
     assert len(_summary(out)) == 8 and all(r["converged"] == "True" for r in _summary(out))
 
 
+@pytest.mark.mpi
 @pytest.mark.skipif(shutil.which("mpirun") is None, reason="needs mpirun")
 def test_sweep_under_mpirun_splits_cases_over_ranks(tmp_path):
     out = tmp_path / "out"

@@ -219,8 +219,7 @@ def anchor_spacing(model) -> float | None:
     singularity of the model, not an error. The sizes of a round stay at or above it.
     """
     from ..terms.cables import MAX_PER_RADIUS
-    radii = [float(r) for term in model.terms_in("cables") for r in (getattr(term, "anchors", None) or {}).values()
-             if r and r > 0]
+    radii = [float(r) for _, r in model.finite_anchors() if r and r > 0]
     return min(radii) / MAX_PER_RADIUS[model.dim] if radii else None
 
 

@@ -1,6 +1,6 @@
 """The uniform --tol ladder's rules: levels, observed rates, Richardson estimates, when to stop, graded zones.
 
-Model no more than the scene needs: refine the design's own mesh until its error estimate meets --tol.
+Model no more than the design needs: refine the design's own mesh until its error estimate meets --tol.
 
 ``skelfem simulate DESIGN --tol ABS_MM`` solves the design itself with P2 on
 a ladder of uniform meshes h_0 > h_1 > ... (each solve warm-started from the
@@ -255,8 +255,7 @@ def anchor_zones(model, h0: float):
     resolves the anchors at least as well as the first.
     """
     from ..mesh.geometry import ZoneField
-    disks = [(c, r) for term in model.terms_in("cables") for c, r in getattr(term, "disks", ())
-             if ZONE_SIZE * r < h0]
+    disks = [(c, r) for c, r in model.finite_anchors() if ZONE_SIZE * r < h0]
     if not disks:
         return None
     return ZoneField.around([c for c, _ in disks], [ZONE_RADIUS * r for _, r in disks],

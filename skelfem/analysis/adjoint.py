@@ -118,7 +118,7 @@ def schedule_gradient(session, targets: list[TimedTarget]) -> GradientResult:
         xbar[i] += (1 - w) * g
         xbar[j] += w * g
 
-    tendons = [t for t in model.terms_in("cables") if t.kind == "tendon"]
+    tendons = model.actuators()
     scheduled = {t.name: design.cable(t.name).schedule for t in tendons if design.cable(t.name).schedule is not None}
     grad = {name: np.zeros(len(s)) for name, s in scheduled.items()}
     M = inertia.mass_matrix()
@@ -222,7 +222,7 @@ def schedule_sensitivities(session, targets: list[TimedTarget], report=None) -> 
         raise RuntimeError(f"{design.name}: the forward run failed ({rep.status}) at t = {rep.t_end:g} s")
     inertia, markers = model.term("dynamics"), model.term("markers")
     names, d = list(markers.names), model.dim
-    tendons = [t for t in model.terms_in("cables") if t.kind == "tendon"]
+    tendons = model.actuators()
     scheduled = [(t.name, design.cable(t.name).schedule) for t in tendons if design.cable(t.name).schedule is not None]
     columns = [(n, k) for n, sched in scheduled for k in range(len(sched))]
     P = len(columns)

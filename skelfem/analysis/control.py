@@ -67,7 +67,7 @@ class IKResult:
     errors: list = field(default_factory=list)   # |y - y'| at the start and after each accepted step
 
 
-def finger_length(model) -> float:
+def body_extent(model) -> float:
     """Extent of the body along its longest axis, mm."""
     from mpi4py import MPI
     x = model.mesh.geometry.x[:, :model.dim]
@@ -98,8 +98,8 @@ class SoftIK:
                  tol: float | None = None, max_solves: int = 40, max_step: float | None = None,
                  damping: float = 1e-3):
         """upper: {tendon: u_max} (others unbounded); reg: rho, mm^2 per mm^2; tol: mm
-        (default 1e-3 x finger length); max_step: cap on |D|_inf, mm (default
-        0.05 x finger length); damping: initial mu relative to max diag(J^T J).
+        (default 1e-3 x the body's extent); max_step: cap on ``|D|_inf``, mm (default
+        0.05 x the body's extent); damping: initial mu relative to max diag(J^T J).
         """
         model = self.model = session.model
         self.session, self.solver = session, session.solver
@@ -111,7 +111,7 @@ class SoftIK:
         self.lower = np.zeros(len(self.names))
         self.upper = self._upper_bounds(upper or {})
         self.reg = float(reg)
-        self.length = finger_length(model)
+        self.length = body_extent(model)
         self.tol = TOL_FRACTION * self.length if tol is None else float(tol)
         self.max_solves = int(max_solves)
         self.max_step = STEP_FRACTION * self.length if max_step is None else float(max_step)
@@ -215,7 +215,7 @@ class SoftIK:
 
     # -- the objective and the step -----------------------------------------------------------
     def objective(self, r: np.ndarray, u: np.ndarray) -> float:
-        """O = |r|^2 + rho |u|^2 with r = y - y'."""
+        """O = ``|r|^2 + rho |u|^2`` with r = y - y'."""
         return float(r @ r + self.reg * u @ u)
 
     def step(self, J: np.ndarray, r: np.ndarray, mu: float) -> tuple[np.ndarray, float]:

@@ -85,7 +85,7 @@ def optimize_schedules(session, marker: str, targets, knots: int = 4, upper: dic
 
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r} (one of {', '.join(METHODS)})")
-    from .control import finger_length
+    from .control import body_extent
 
     t0 = time.perf_counter()
     design, model = session.design, session.model
@@ -97,7 +97,7 @@ def optimize_schedules(session, marker: str, targets, knots: int = 4, upper: dic
     lengths = {c.name: float(np.linalg.norm(np.diff(c.path, axis=0), axis=1).sum()) for c in design.tendons}
     ub = np.array([(upper or {}).get(n, UPPER_FRACTION * lengths[n]) for n in names])
     timed = [TimedTarget(marker, float(t), np.asarray(p, float)) for t, p in targets]
-    tol = TOL_FRACTION * finger_length(model) if tol is None else float(tol)
+    tol = TOL_FRACTION * body_extent(model) if tol is None else float(tol)
     m, K = len(names), knots
     if start is None:
         # from rest for L-BFGS-B; Gauss-Newton starts inside the box: at u = 0 the tendons go slack

@@ -42,7 +42,7 @@ KINK = 1e-12      # |s| <= KINK * L0 counts as a tendon exactly at its rest leng
 
 def tendons(model) -> list:
     """The tendon terms (the controls u), in design order."""
-    return [t for t in model.terms_in("cables") if t.kind == "tendon"]
+    return model.actuators()
 
 
 def contractions(model) -> np.ndarray:

@@ -28,7 +28,7 @@ import numpy as np
 from . import common as cli
 from ..io import outdir
 from ..viz.plots import ACHIEVED_COLOR, TARGET_COLOR, draw_track, include_points
-from ..io.files import FORMAT, atomic_write, write_json, write_text
+from ..io.files import FORMAT, InputTooLarge, atomic_write, read_bounded, write_json, write_text
 
 
 
@@ -66,6 +66,7 @@ def _control_arguments(p: argparse.ArgumentParser) -> None:
 # -- input ---------------------------------------------------------------------------------------
 MAX_SOLVES = 10_000        # forward solves per target
 MAX_TARGETS = 100_000      # targets of one track
+MAX_CSV_BYTES = 16 * 2 ** 20     # a target file is at most MAX_TARGETS short lines
 
 
 def contraction_bounds(items: list[str]) -> dict:
@@ -110,7 +111,7 @@ def _peek(args):
 
 
 def _setup(args):
-    """Design, scene and SoftIK from the arguments; InputError for bad input."""
+    """Design, model and SoftIK from the arguments; InputError for bad input."""
     from mpi4py import MPI
     if MPI.COMM_WORLD.size > 1:
         raise cli.InputError(f"{args.design}: {args.command} runs on one MPI process "
@@ -118,12 +119,12 @@ def _setup(args):
     from ..analysis.control import SoftIK
 
     design, session = cli.prepare(args, kind=args.command)
-    scene, timings = session.model, dict(session.timings)
+    model, timings = session.model, dict(session.timings)
     ik = SoftIK(session, args.marker, upper=contraction_bounds(args.max_contraction), reg=args.reg, tol=args.tol,
                 max_solves=args.max_solves)
     if not args.verbose:                        # one line per target, not per Newton solve
         cli.log.setLevel(logging.WARNING)
-    return design, scene, ik, timings
+    return design, model, ik, timings
 
 
 def coordinate_rows(values: list[float], dim: int, what: str) -> np.ndarray:
@@ -140,7 +141,9 @@ def coordinate_rows(values: list[float], dim: int, what: str) -> np.ndarray:
 def read_targets(path: Path, dim: int) -> np.ndarray:
     """Targets from a CSV file: one point per line, comma or whitespace separated."""
     try:
-        text = Path(path).read_text()
+        text = read_bounded(path, MAX_CSV_BYTES, "target file")
+    except InputTooLarge as exc:
+        raise cli.InputError(str(exc)) from None
     except OSError as exc:
         raise cli.InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
     except (UnicodeDecodeError, ValueError):
@@ -218,7 +221,7 @@ def ik_dict(design, ik, res, timings: dict) -> dict:
         "error": float(res.error), "tol": float(ik.tol), "reached": bool(res.reached), "status": res.status,
         "contractions": _named(ik.names, res.contractions),
         "max_contraction": {n: (None if np.isinf(v) else float(v)) for n, v in zip(ik.names, ik.upper)},
-        "reg": float(ik.reg), "finger_length": float(ik.length),
+        "reg": float(ik.reg), "body_extent": float(ik.length),
         "forward_solves": int(res.forward_solves), "failed_solves": int(res.failed_solves),
         "iterations": int(res.iterations), "errors": [float(e) for e in res.errors],
         "tensions": tensions(ik.model), "time": round(float(res.time), 4),
@@ -252,7 +255,7 @@ def track_summary(design, ik, results, timings: dict) -> dict:
     return {
         "format": FORMAT, "design": design.name, "marker": ik.marker, "targets": len(results),
         "reached": int(sum(r.reached for r in results)), "tol": float(ik.tol),
-        "finger_length": float(ik.length),
+        "body_extent": float(ik.length),
         "error": {"max": float(err.max()), "mean": float(err.mean()), "median": float(np.median(err)),
                   "max_relative": float(err.max() / ik.length)},
         "forward_solves": {"total": int(solves.sum()), "min": int(solves.min()),
@@ -266,18 +269,18 @@ def track_summary(design, ik, results, timings: dict) -> dict:
 
 
 # -- pictures -------------------------------------------------------------------------------------------
-def plot_ik(path: Path, scene, res, title: str = "") -> None:
+def plot_ik(path: Path, model, res, title: str = "") -> None:
     """The deformed pose with the target (cross) and the achieved marker (circle)."""
-    if scene.dim == 3:
+    if model.dim == 3:
         from ..viz.plots import plot_deformed_3d
-        plot_deformed_3d(path, scene, title, points=[(res.target, "red")])
+        plot_deformed_3d(path, model, title, points=[(res.target, "red")])
         return
     from matplotlib.figure import Figure
 
     from ..viz.plots import plot_deformed
     fig = Figure(figsize=(6, 7), dpi=120)
     ax = fig.subplots()
-    plot_deformed(None, scene, title, ax=ax)
+    plot_deformed(None, model, title, ax=ax)
     _mark(ax, res.target, res.position)
     include_points(ax, np.array([res.target]))
     fig.tight_layout()
@@ -289,19 +292,19 @@ def _mark(ax, target, achieved):
     ax.plot(*achieved[:2], "o", mfc="none", mec=ACHIEVED_COLOR, ms=11, mew=2, zorder=6, label="achieved")
 
 
-def plot_track(path: Path, scene, results, poses: list, title: str = "") -> None:
+def plot_track(path: Path, model, results, poses: list, title: str = "") -> None:
     """track.png: draw_track on its own figure (3D: the last pose with target and achieved paths)."""
-    if scene.dim == 3:
+    if model.dim == 3:
         from ..viz.plots import plot_deformed_3d
         targets = np.array([r.target for r in results])
         achieved = np.array([r.position for r in results])
-        plot_deformed_3d(path, scene, title, paths=[(targets, "red"), (achieved, "#1a7f37")])
+        plot_deformed_3d(path, model, title, paths=[(targets, "red"), (achieved, "#1a7f37")])
         return
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(6, 7), dpi=120)
     ax = fig.subplots()
-    draw_track(ax, scene, results, poses, title)
+    draw_track(ax, model, results, poses, title)
     fig.tight_layout()
     atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
 
@@ -314,7 +317,7 @@ def ik_command(args) -> int:
     target = coordinate_rows(args.target, dim, "--target")
     if len(target) != 1:
         raise cli.InputError(f"--target: expected {dim} numbers, got {len(args.target)}")
-    design, scene, ik, timings = _setup(args)
+    design, model, ik, timings = _setup(args)
     settle = _settle(design, ik, args.out)
     if settle is None:
         return cli.EXIT_SOLVE
@@ -324,7 +327,7 @@ def ik_command(args) -> int:
     u_text = ", ".join(f"{u:.2f}" for u in res.contractions)
     with outdir.publish(args.out, kind="ik") as stage:         # both files or neither
         stage.run(write_json, stage.path / "ik.json", result)
-        stage.run(plot_ik, stage.path / "ik.png", scene, res,
+        stage.run(plot_ik, stage.path / "ik.png", model, res,
                   f"{design.name}: Soft IK, error {res.error:.3g} mm\nu = ({u_text}) mm")
     if not args.quiet:
         _print_ik(result, args.out)
@@ -418,7 +421,7 @@ def track_command(args) -> int:
     t0 = time.perf_counter()
     _check_numbers(args)
     targets = _track_targets(args, _peek(args).dim)
-    design, scene, ik, timings = _setup(args)
+    design, model, ik, timings = _setup(args)
     progress = TrackProgress(args.out, design, args, targets)
     u0 = ik.u.copy()
     settle = _settle(design, ik, args.out)
@@ -441,7 +444,7 @@ def track_command(args) -> int:
 
     def on_target(i, res):
         j = len(done) + i
-        progress.add(res, scene.u.x.array.copy() if j in show else None)
+        progress.add(res, model.u.x.array.copy() if j in show else None)
         if talk:
             print(f"  {j + 1:3d}/{len(targets)} target ({', '.join(f'{v:.2f}' for v in res.target)}): "
                   f"error {res.error:.3g} mm {'' if res.reached else '(not reached) '}"
@@ -450,13 +453,13 @@ def track_command(args) -> int:
     results = done + track(ik, targets[len(done):], on_target)
     poses = [progress.poses[j] for j in show if j in progress.poses]
     timings.update(initial_solve=settle, track=sum(r.time for r in results), total=time.perf_counter() - t0)
-    header, rows = track_rows(ik.names, results, scene.dim)
+    header, rows = track_rows(ik.names, results, model.dim)
     summary = track_summary(design, ik, results, timings)
     summary["resumed_after"] = len(done)
     with outdir.publish(args.out, kind="track") as stage:     # the three files together or none
         stage.run(write_csv, stage.path / "track.csv", header, rows)
         stage.run(write_json, stage.path / "track.json", summary)
-        stage.run(plot_track, stage.path / "track.png", scene, results, poses,
+        stage.run(plot_track, stage.path / "track.png", model, results, poses,
                   f"{design.name}: tracking with Soft IK, max error {summary['error']['max']:.3g} mm")
     progress.remove()
     if talk:

@@ -74,6 +74,16 @@ def _stdio() -> None:
             pass
 
 
+def _printable_argv() -> None:
+    """sys.argv as valid UTF-8 for the libraries that read it (DOLFINx's logging takes it on import).
+
+    Python decodes bytes that are not UTF-8 (a path in another encoding) with the file system's error
+    handler (surrogate escapes); the command itself keeps those, so such paths still work, but a C++
+    library cannot take them. Its copy gets them backslash-escaped.
+    """
+    sys.argv = [a.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace") for a in sys.argv]
+
+
 def _import_gmsh() -> None:
     """Import gmsh now (it resets SIGINT to the default action on import) and put our handlers back.
 
@@ -136,6 +146,8 @@ def main(argv=None) -> int:
 
     interrupts.install()
     _stdio()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    _printable_argv()
     ctl = None
     try:
         if mpiguard.world_size_hint() > 1:

@@ -1,12 +1,5 @@
-"""The validated design: frozen dataclasses, the limits every value is held to, and DesignError.
-
-Design files: load a TOML design, apply ``--set`` overrides, validate.
-
-The contract is the design format (docs/guide/design-files.md). Every
-problem is raised as a :class:`DesignError` whose message names the file and
-the offending key, e.g. ``finger.toml: cables.flexor.stiffness: must be > 0``;
-the CLI prints it as one ``error:`` line. Nothing here imports DOLFINx, so a
-bad design is rejected before any heavy import or meshing.
+"""The validated design: frozen dataclasses, the limits every value is held to, and DesignError
+(raised with the file and the key; see skelfem.design.parse).
 """
 from __future__ import annotations
 

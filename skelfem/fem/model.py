@@ -216,6 +216,14 @@ class Model(MatrixAssembly):
                 return term
         raise KeyError(f"{section}.{name}" if name else section)
 
+    def actuators(self) -> list:
+        """The terms whose contraction is a control (tendons), in design order."""
+        return [t for t in self.terms if t.actuated]
+
+    def finite_anchors(self) -> list:
+        """[(centre, radius)] of every term's finite anchors (Term.finite_anchors)."""
+        return [a for t in self.terms for a in t.finite_anchors()]
+
     def terms_in(self, section: str) -> list:
         return [t for t in self.terms if t.section == section]
 

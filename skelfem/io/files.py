@@ -97,3 +97,18 @@ def write_csv(path: Path, fields, rows) -> None:
     atomic_write(path, write)
 
 
+
+
+class InputTooLarge(ValueError):
+    """A file given as input is larger than its kind may be."""
+
+
+def read_bounded(path, limit: int, what: str) -> str:
+    """The UTF-8 text of an input file, reading at most limit + 1 bytes: an endless or huge input
+    (/dev/zero, a pipe that never ends) is refused after limit bytes instead of filling memory.
+    OSError and UnicodeDecodeError pass through; InputTooLarge when the file is over the limit."""
+    with open(path, "rb") as fh:
+        raw = fh.read(limit + 1)
+    if len(raw) > limit:
+        raise InputTooLarge(f"{path}: larger than {limit // 2 ** 20} MB; not a {what}")
+    return raw.decode("utf-8")

@@ -74,6 +74,8 @@ def check_name(name: str, what: str = "name", max_len: int = 100) -> str | None:
     """Why name cannot be a folder name of its own (None if it can)."""
     if not isinstance(name, str) or not name:
         return f"{what} must be a non-empty name"
+    if any(0xD800 <= ord(c) <= 0xDFFF for c in name):
+        return f"{what} must be valid UTF-8 text (it holds a byte that is not)"
     bad = [c for c in name if c in "/\\" or ord(c) < 32 or ord(c) == 127]
     if bad:
         return f"{what} must not contain {bad[0]!r}"

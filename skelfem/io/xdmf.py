@@ -14,24 +14,24 @@ def _floats(a) -> list:
 
 
 # -- the state as numbers ------------------------------------------------------------------------
-def vertex_displacements(scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def vertex_displacements(model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(rest node coordinates, displacement at the nodes, triangles/tets) of the P1 geometry."""
-    mesh, V = scene.mesh, scene.V
+    mesh, V = model.mesh, model.V
     tdim, gdim = mesh.topology.dim, mesh.geometry.dim
     x = mesh.geometry.x[:, :gdim]
     geo = mesh.geometry.dofmap.array.reshape(-1, tdim + 1)
     dofs = V.dofmap.list.array.reshape(len(geo), -1)[:, :tdim + 1]   # vertex DOFs come first
     node_dof = np.empty(len(x), dtype=np.int64)
     node_dof[geo.ravel()] = dofs.ravel()
-    u = scene.u.x.array.reshape(-1, scene.bs)[node_dof]
+    u = model.u.x.array.reshape(-1, model.bs)[node_dof]
     return x, u, geo
 
 
-def cell_regions(scene) -> np.ndarray:
+def cell_regions(model) -> np.ndarray:
     """Tag value of every local cell (body = 1, bones after)."""
-    n = scene.mesh.topology.index_map(scene.mesh.topology.dim).size_local
+    n = model.mesh.topology.index_map(model.mesh.topology.dim).size_local
     tags = np.zeros(n, dtype=np.int32)
-    ct = scene.tm.cell_tags
+    ct = model.tm.cell_tags
     owned = ct.indices < n
     tags[ct.indices[owned]] = ct.values[owned]
     return tags
@@ -59,7 +59,7 @@ class Snapshot(SimpleNamespace):
     """The whole state gathered in one place: what files and pictures are made from."""
 
 
-def snapshot(scene, to=(0,)) -> Snapshot | None:
+def snapshot(model, to=(0,)) -> Snapshot | None:
     """The whole state on the ranks in `to` (collective; None on other ranks).
 
     Under MPI each rank holds its part of the mesh; nodes are matched by their
@@ -69,14 +69,14 @@ def snapshot(scene, to=(0,)) -> Snapshot | None:
     Returns a Snapshot with x (rest nodes), u (their displacement), cells,
     regions (tag per cell), cables (see cable_states), markers (name -> position).
     """
-    comm = scene.comm
-    x, u, cells = vertex_displacements(scene)
-    n_cells = scene.mesh.topology.index_map(scene.mesh.topology.dim).size_local
-    cells, regions = cells[:n_cells], cell_regions(scene)
-    cables = cable_states(scene)
-    markers = marker_positions(scene)
+    comm = model.comm
+    x, u, cells = vertex_displacements(model)
+    n_cells = model.mesh.topology.index_map(model.mesh.topology.dim).size_local
+    cells, regions = cells[:n_cells], cell_regions(model)
+    cables = cable_states(model)
+    markers = marker_positions(model)
     if comm.size > 1:
-        orig = np.asarray(scene.mesh.geometry.input_global_indices, dtype=np.int64)
+        orig = np.asarray(model.mesh.geometry.input_global_indices, dtype=np.int64)
         parts = comm.gather((orig, x, u, orig[cells], regions), root=0)
         if comm.rank == 0:
             orig_all = np.concatenate([p[0] for p in parts])
@@ -86,7 +86,7 @@ def snapshot(scene, to=(0,)) -> Snapshot | None:
             cells = np.searchsorted(numbers, np.concatenate([p[3] for p in parts]))
             regions = np.concatenate([p[4] for p in parts])
     snap = Snapshot(x=x, u=u, cells=cells, regions=regions, cables=cables, markers=markers,
-                    body_tag=scene.tm.tags["body"], design=scene.design) if comm.rank == 0 else None
+                    body_tag=model.tm.tags["body"], design=model.design) if comm.rank == 0 else None
     for rank in sorted(set(to) - {0}):
         if comm.rank == 0:
             comm.send(snap, dest=rank, tag=71)
@@ -101,10 +101,10 @@ def gathered_snapshot(state) -> Snapshot | None:
 
 
 # -- files ------------------------------------------------------------------------------------------
-def write_xdmf(path: Path, scene) -> None:
+def write_xdmf(path: Path, state) -> None:
     """Mesh (rest coordinates) with displacement, region tag, and cables as polylines.
 
-    `scene` is a model (collective) or a Snapshot of one.
+    `state` is a model (collective) or a Snapshot of one.
 
     Cables are extra points and line cells in the same grid, carrying their
     tension and an id (the cable's position in the design), so a single file
@@ -112,7 +112,7 @@ def write_xdmf(path: Path, scene) -> None:
     """
     import meshio
 
-    snap = gathered_snapshot(scene)
+    snap = gathered_snapshot(state)
     if snap is None:
         return
     x, u, cells = snap.x, snap.u, snap.cells

@@ -233,47 +233,47 @@ class NewtonTimer(LinearTimer):
         return out
 
 
-def fe_pattern_timer(scene, options: dict) -> LinearTimer:
+def fe_pattern_timer(model, options: dict) -> LinearTimer:
     """t_A and t_F of the UFL Hessian alone on its own pattern: the floor of a Newton iteration."""
     from dolfinx.fem import petsc as fem_petsc
 
-    A = fem_petsc.create_matrix(scene.jacobian_form)
+    A = fem_petsc.create_matrix(model.jacobian_form)
 
     def assemble():
         A.zeroEntries()
-        fem_petsc.assemble_matrix(A, scene.jacobian_form, bcs=scene.bcs)
+        fem_petsc.assemble_matrix(A, model.jacobian_form, bcs=model.bcs)
         A.assemble()
-    timer = LinearTimer(assemble, A, _new_ksp(scene.comm, options))
+    timer = LinearTimer(assemble, A, _new_ksp(model.comm, options))
     timer.first_factorization()
     return timer
 
 
-def residual_floor(scene, samples: int = 3) -> float:
+def residual_floor(model, samples: int = 3) -> float:
     """Round-off floor of |R| at the current state: |R(x (1 + eps s)) - R(x)| for random signs s.
 
     No iterate can be resolved better than x itself is represented, so a
     residual at this level is converged to machine precision.
     """
-    x = scene.u.vector.copy()
+    x = model.u.vector.copy()
     b0, b1 = x.duplicate(), x.duplicate()
-    scene.residual(x, b0)
+    model.residual(x, b0)
     rng = np.random.default_rng(0)
     eps = np.finfo(float).eps
     values = []
     for _ in range(samples):
         y = x.copy()
         y.array_w[:] *= 1.0 + eps * rng.choice([-1.0, 1.0], size=len(y.array_r))
-        scene.residual(y, b1)
+        model.residual(y, b1)
         b1.axpy(-1.0, b0)
         values.append(b1.norm())
         y.destroy()
-    scene.residual(x, b0)       # leave scene.u at x
+    model.residual(x, b0)       # leave model.u at x
     for v in (x, b0, b1):
         v.destroy()
     return _median(values)
 
 
-def newton_order(scene, solver, scales=(0.03, 0.01, 0.003, 0.001)) -> dict:
+def newton_order(model, solver, scales=(0.03, 0.01, 0.003, 0.001)) -> dict:
     """Order of one undamped Newton step from perturbed equilibria.
 
     From x0 = (1 + eps) u* (u* the equilibrium, pins kept), one full step
@@ -284,23 +284,23 @@ def newton_order(scene, solver, scales=(0.03, 0.01, 0.003, 0.001)) -> dict:
     stiffer than the silicone, C in the state norm is so large that the
     asymptotic range of |x - u*| lies near round-off.)
     """
-    u_star = scene.u.vector.copy()
+    u_star = model.u.vector.copy()
     x, r, p = u_star.duplicate(), u_star.duplicate(), u_star.duplicate()
     r0, r1 = [], []
     try:
         for eps in scales:
             u_star.copy(x)
             x.scale(1.0 + eps)
-            scene.apply_bcs(x)
-            scene.residual(x, r)
+            model.apply_bcs(x)
+            model.residual(x, r)
             r0.append(float(r.norm()))
             solver.jacobian(x)
             solver.lin.solve(r, p)
             x.axpy(-1.0, p)
-            scene.residual(x, r)
+            model.residual(x, r)
             r1.append(float(r.norm()))
     finally:
-        scene.sync(u_star)
+        model.sync(u_star)
         for v in (x, r, p, u_star):
             v.destroy()
     ok = [(a, b) for a, b in zip(r0, r1) if a > 0 and b > 0]
@@ -309,41 +309,41 @@ def newton_order(scene, solver, scales=(0.03, 0.01, 0.003, 0.001)) -> dict:
     return {"scales": list(scales), "r0": r0, "r1": r1, "slope": slope}
 
 
-def _reset(scene) -> None:
+def _reset(model) -> None:
     """Back to the rest state at load factor 0 (for a repeated solve)."""
-    scene.u.x.array[:] = 0.0
-    scene.set_factor(0.0)
+    model.u.x.array[:] = 0.0
+    model.set_factor(0.0)
 
 
-def _instrument(scene, solver) -> Probe:
+def _instrument(model, solver) -> Probe:
     from petsc4py import PETSc
     PETSc.Log.begin()
     probe = Probe()
     for name in PROBED:
-        if hasattr(scene, name):
-            probe.wrap(scene, name)
+        if hasattr(model, name):
+            probe.wrap(model, name)
     solver.snes.setMonitor(probe.monitor)
     return probe
 
 
-def _uninstrument(scene, solver) -> None:
+def _uninstrument(model, solver) -> None:
     solver.snes.cancelMonitor()
     for name in PROBED:
-        scene.__dict__.pop(name, None)
+        model.__dict__.pop(name, None)
 
 
-def measure(scene, solver, steps: int, repeats: int, options: dict) -> dict:
+def measure(model, solver, steps: int, repeats: int, options: dict) -> dict:
     """Solve `repeats` times from rest; after each solve sample t_A, t_F at the equilibrium.
 
     Interleaving keeps the iteration times and their floor under the same
     machine load. Newton iteration times come from the SNES monitor stamps.
     """
-    probe = _instrument(scene, solver)
+    probe = _instrument(model, solver)
     timer, fe_timer = None, None
     solve_times, its, iteration_times, breakdowns, errors, paired = [], [], [], [], [], []
     try:
         for k in range(repeats):
-            _reset(scene)
+            _reset(model)
             probe.reset()
             report = solver.solve(steps)
             solve_times.append(report.time)
@@ -352,18 +352,18 @@ def measure(scene, solver, steps: int, repeats: int, options: dict) -> dict:
             iteration_times += mine
             breakdowns.append(probe.breakdown())
             errors = probe.state_errors()
-            _uninstrument(scene, solver)
+            _uninstrument(model, solver)
             if timer is None:
-                timer, fe_timer = NewtonTimer(scene, solver), fe_pattern_timer(scene, options)
+                timer, fe_timer = NewtonTimer(model, solver), fe_pattern_timer(model, options)
             timer.sample(FLOOR_SAMPLES)
             fe_timer.sample(FLOOR_SAMPLES)
             floor = _median(fe_timer.t_a[-FLOOR_SAMPLES:]) + _median(fe_timer.t_f[-FLOOR_SAMPLES:])
             paired.append(_median(mine) / floor)
             if not report.converged or k == repeats - 1:
                 break
-            probe = _instrument(scene, solver)
+            probe = _instrument(model, solver)
     finally:
-        _uninstrument(scene, solver)
+        _uninstrument(model, solver)
     keys = [k for k in breakdowns[0] if k != "calls_per_iteration"] if breakdowns[0] else []
     breakdown = {k: _median([b[k] for b in breakdowns if b]) for k in keys}
     if keys:
@@ -399,18 +399,18 @@ def bench_size(path, size: float, degree: int | None = None, overrides=(), repea
     t0 = time.perf_counter()
     session = Session(path, sets)
     t_scene = time.perf_counter() - t0
-    design, scene = session.design, session.model
+    design, model = session.design, session.model
     if petsc_options:
         from ..fem.newton import NewtonSolver
         session.solver.destroy()
-        session.solver = NewtonSolver(scene, design.solver, petsc_options=petsc_options)
+        session.solver = NewtonSolver(model, design.solver, petsc_options=petsc_options)
     solver = session.solver
     options = {**default_petsc_options(), **(petsc_options or {})}
     n_steps = int(steps or design.solver.steps)
     row = {"size": float(size), "degree": int(design.mesh.degree), "dofs": session.dofs,
-           "cells": int(scene.mesh.topology.index_map(scene.mesh.topology.dim).size_global),
+           "cells": int(model.mesh.topology.index_map(model.mesh.topology.dim).size_global),
            "steps": n_steps, "mesh_and_model_time": t_scene}
-    row.update(measure(scene, solver, n_steps, repeats, options))
+    row.update(measure(model, solver, n_steps, repeats, options))
     row["floor_time"] = row["assembly_time"] + row["refactorization_time"]
     nm = row["newton_matrix"]
     nm["floor_time"] = nm["assembly_time"] + nm["refactorization_time"]
@@ -419,11 +419,11 @@ def bench_size(path, size: float, degree: int | None = None, overrides=(), repea
     row["ratio_mean"] = row["iteration_time_mean"] / row["floor_time"]
     last = row["residual_history"][-1] if row["residual_history"] else []
     row["last_residuals"] = last[-5:]
-    row["residual_floor"] = residual_floor(scene)
-    row["convergence_orders"] = convergence_orders(row["state_errors"], noise=1e-14 * scene.size)
+    row["residual_floor"] = residual_floor(model)
+    row["convergence_orders"] = convergence_orders(row["state_errors"], noise=1e-14 * model.size)
     if row["converged"]:
-        row["newton_order"] = newton_order(scene, solver)
-    row = _reduce(scene.comm, row)
+        row["newton_order"] = newton_order(model, solver)
+    row = _reduce(model.comm, row)
     session.close()
     return row
 

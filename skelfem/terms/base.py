@@ -50,6 +50,7 @@ class Term:
     name: str = ""               # entry name within the section
     gather = None                # DofGather: DOFs are global numbers; None: local indices
     bounds_steps: bool = False   # whether max_step can return < 1
+    actuated: bool = False       # an actuator: its contraction is a control of Soft IK, tracking and optimisation
 
     def __init_subclass__(cls, **kwargs):
         """A method named almost like a hook (``end_steps``, ``readouts``) is a misspelt hook that the
@@ -146,6 +147,11 @@ class Term:
     # -- constraints, read-outs, history ------------------------------------------------------------
     def dirichlet(self) -> list:
         """[(DirichletBC, unrolled local DOFs)] this term imposes."""
+        return []
+
+    def finite_anchors(self) -> list:
+        """[(centre, radius)]: where the term acts on a small disk (2D) or ball (3D) of material, a near
+        point force that --tol grades the mesh around (cables' ends and bends in silicone)."""
         return []
 
     def readout(self, model) -> dict:

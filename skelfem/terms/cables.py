@@ -499,9 +499,13 @@ class CableTerm(Term):
             from ..design.spec import DesignError
             raise DesignError(f"{ctx.design.source}: cables.{spec.name}.path: {exc}") from None
         self.name, self.kind, self.bs = spec.name, spec.kind, ctx.bs
+        self.actuated = spec.kind == "tendon"
         self.disks = [(np.asarray(spec.path[k], dtype=float), r) for k, r in self.anchors.items()]   # (centre, r)
         self.gather = self.cable.gather
         self.factor = 0.0
+
+    def finite_anchors(self) -> list:
+        return list(self.disks)
 
     @property
     def rest_length(self) -> float:

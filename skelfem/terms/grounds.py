@@ -17,7 +17,7 @@ wherever it has crossed the plane. The force the body exerts on the plane
 which points into the plane (-n) when the body presses on it. As k grows the
 penetration shrinks like 1/k and F_g converges to the contact force of the
 rigid constraint. Pi_g is a UFL form: the residual and Jacobian follow from
-ufl.derivative, compiled once with the rest of the scene's energy.
+ufl.derivative, compiled once with the rest of the model's energy.
 
 Quadrature: the boundary integrals use Gauss-Lobatto points, which are the
 displacement's nodes on each facet (trapezoidal rule for P1, Simpson for P2).

@@ -14,13 +14,13 @@ REGION_COLORS = {"body": "#f4b6a6", "bone": "#e8e4d8"}
 CABLE_COLORS = {"tendon": "#1f5fbf", "ligament": "#d9822b"}
 
 
-def plot_deformed(path: Path, scene, title: str = "", ax=None, show_rest: bool = True):
+def plot_deformed(path: Path, state, title: str = "", ax=None, show_rest: bool = True):
     """Rest outline, deformed mesh coloured by region, cables, markers and pins (2D)."""
     from matplotlib.figure import Figure
     from matplotlib.patches import Rectangle
     from matplotlib.collections import PolyCollection
 
-    snap = gathered_snapshot(scene)
+    snap = gathered_snapshot(state)
     if snap is None:
         return
     design = snap.design
@@ -76,7 +76,7 @@ def plot_deformed(path: Path, scene, title: str = "", ax=None, show_rest: bool =
         atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
 
 
-def plot_deformed_3d(path: Path, scene, title: str = "", window_size=(900, 900),
+def plot_deformed_3d(path: Path, state, title: str = "", window_size=(900, 900),
                      points=(), paths=()) -> None:
     """Off-screen PNG of a 3D result: translucent body, opaque bones, cables, markers.
 
@@ -87,7 +87,7 @@ def plot_deformed_3d(path: Path, scene, title: str = "", window_size=(900, 900),
     os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
     import pyvista as pv
 
-    snap = gathered_snapshot(scene)
+    snap = gathered_snapshot(state)
     if snap is None:
         return
     x, u, tets = snap.x, snap.u, snap.cells
