@@ -434,7 +434,7 @@ def calibrate(session, data, fit=None, sigma=None, bounds=None, holdout: float =
             rejected += 1
             if rejected >= 6:      # at the minimum within the solves' round-off, or stuck
                 status = "no decrease in 6 damped steps"
-                converged = cost <= 1e-20 * history[0] or pred <= 1e-6 * max(2.0 * cost, 1e-300)
+                converged = cost <= 1e-14 * history[0] or pred <= 1e-6 * max(2.0 * cost, 1e-300)
                 break
         mu = mu / 10.0 if rho > 0.75 else (mu if rho > 0.25 else mu * (2.0 if rho > 0.0 else 4.0))
         mu = min(max(mu, 1e-12), 1e12)
