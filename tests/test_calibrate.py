@@ -61,28 +61,49 @@ def _problem(session, values=None):
     return prepare_data(session.design, data, KINDS)
 
 
-def test_sensitivities_of_every_parameter_kind(heavy):
-    data = _problem(heavy)
+def _check_sensitivities(session, data, keys, markers_and_tensions):
+    """J of Rows against central differences (step 1e-5) of the solved measurements, per parameter."""
     theta = np.array([p.initial for p in data.parameters])
-    assert data.parameters[KINDS.index("cables.flexor.contraction")].offset
-    Y, J, _ = Rows(heavy, data).run(theta)
+    Y, J, _ = Rows(session, data).run(theta)
     scale = np.array([p.scale for p in data.parameters])
     fds = []
-    for j, key in enumerate(KINDS):
+    for j, key in enumerate(keys):
         h = 1e-5 * scale[j]
         e = np.zeros(len(theta))
         e[j] = h
-        yp = Rows(heavy, data).run(theta + e, jacobian=False)[0]
-        ym = Rows(heavy, data).run(theta - e, jacobian=False)[0]
+        yp = Rows(session, data).run(theta + e, jacobian=False)[0]
+        ym = Rows(session, data).run(theta - e, jacobian=False)[0]
         fds.append((yp - ym) / (2 * h))
         assert np.abs(fds[-1]).max() > 1e-9, key              # the parameter moves something
     fds = np.array(fds)                                         # (parameters, rows, columns)
     # each column's size: its largest change per relative change of a parameter
     size = np.max(np.abs(fds) * scale[:, None, None], axis=(0, 1))
-    for j, key in enumerate(KINDS):
+    for j, key in enumerate(keys):
         err = np.abs(J[:, :, j] - fds[j]) * scale[j] / size
         # the differences carry the Newton tolerance (|R| ~ 1e-9 N at x*): /2h = 1e-4 of a reaction for nu
-        assert err[:, :4].max() < 2e-5 and err.max() < 5e-4, (key, err, J[:, :, j], fds[j])
+        assert err[:, :markers_and_tensions].max() < 2e-5 and err.max() < 5e-4, (key, err, J[:, :, j], fds[j])
+
+
+def test_sensitivities_of_every_parameter_kind(heavy):
+    data = _problem(heavy)
+    assert data.parameters[KINDS.index("cables.flexor.contraction")].offset
+    _check_sensitivities(heavy, data, KINDS, 4)
+
+
+def test_sensitivities_with_a_sensor_loads_and_pin_moves():
+    """A ground plane as force sensor, a point load and the base driven onto the sensor."""
+    raw = load_design(FINGER, ["mesh.size=4.0"]).raw
+    raw["cables"] = [c for c in raw["cables"] if c["kind"] == "ligament"]
+    raw["loads"] = [{"name": "side", "at": [10.0, 96.0], "force": [0.05, 0.0]}]
+    raw["grounds"] = [{"name": "fsr", "point": [10.0, 100.3], "normal": [-0.0175, -0.9998], "stiffness": 10.0}]
+    keys = ["grounds.fsr.stiffness", "grounds.fsr.point.y", "loads.side.force.x", "pins.base.move.y",
+            "materials.ecoflex.E"]
+    columns = ["markers.tip.x", "markers.tip.y", "grounds.fsr.force.y", "pins.base.reaction.y"]
+    with Session(parse_design(raw, str(FINGER))) as s:
+        s.solver.rtol, s.solver.atol = 0.0, 1e-11
+        data = prepare_data(s.design, {"pins.base.move.y": [0.5, 1.0], **{c: [0.0, 0.0] for c in columns}}, keys)
+        assert [p.offset for p in data.parameters] == [False, False, False, True, False]
+        _check_sensitivities(s, data, keys, 3)
 
 
 def test_misfit_gradient_against_central_differences(heavy):

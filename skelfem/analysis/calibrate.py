@@ -19,15 +19,22 @@ Sensitivities (exact up to round-off). At a converged row, R(x*, p) = 0, so
 
 dR/dp is obtained for any live parameter by perturbing it and re-assembling the
 residual at fixed x*: where R is linear in p (E, cable, spring and ground
-stiffness, density, gravity, loads, tractions, pin moves, a taut tendon's
-contraction or pretension) a one-sided difference (one assembly per
-parameter, R(x*, p) shared) is exact to round-off; otherwise (nu, a ground's
-point) a central difference, with error h^2/6 d3R/dp3
+stiffness, density, gravity, loads, tractions, a taut tendon's contraction or
+pretension) a one-sided difference (one assembly per parameter, R(x*, p)
+shared) is exact to round-off; otherwise (nu, a ground's point, a pin's move)
+a central difference, with error h^2/6 d3R/dp3
 (nu: lambda = E nu / ((1 + nu)(1 - 2 nu)) gives a relative error of about
 (h / (1 - 2 nu))^2, 2e-7 at nu = 0.45 with h = 1e-4 nu). The step is 1e-4 of
 the parameter, not smaller: the stiff bones' internal forces nearly cancel at
 equilibrium, and with h = 1e-6 their round-off, amplified by H^-1 along the
-soft modes, put 1.5 % into dx*/dE of PLA bones (E = 3000 MPa against 0.1). A measurement may also
+soft modes, put 1.5 % into dx*/dE of PLA bones (E = 3000 MPa against 0.1).
+A ground's point is the exception (1e-7 of it): the one-sided contact penalty
+has a kink where a node's gap changes sign, and a plane moved by 1e-4 of its
+position (0.01 mm) switched a node of a pushed fingertip (a J entry of 148
+instead of -1.06). A parameter that moves a fixed pin (its ``move``) changes
+the prescribed values g: the residual is taken at x* with the pinned DOFs at
+g(p +- h), so that dR/dp holds the coupling K_fD dg/dp that H's eliminated
+columns leave out, and dx*/dp = -H^-1 dR/dp + dg/dp. A measurement may also
 depend on p directly (a tension k (l - L), a reaction), so the read-outs are
 differenced along the joint path (x* + t dx*/dp, p + t): markers are linear in
 x, the rest smooth, so the central difference has the same h^2 error.
@@ -69,7 +76,11 @@ log = logging.getLogger("skelfem")
 
 RCOND = 1e-6          # singular values below this fraction of the largest: an unidentifiable direction
 # parameters the residual is linear in (at a fixed active set): a one-sided difference of R is exact
-LINEAR = ("E", "stiffness", "density", "acceleration", "force", "traction", "move", "contraction", "pretension")
+# (a pin's move is not: it lifts the pinned DOFs, and R at the lifted state is not linear in it)
+LINEAR = ("E", "stiffness", "density", "acceleration", "force", "traction", "contraction", "pretension")
+# parameters that move where a contact starts (a node's gap changes sign within 1e-4 of a ground's
+# position): differenced with 1e-3 of the usual step
+KINKED = ("point",)
 GROUP = 0.2           # a parameter belongs to such a direction's group above this fraction of its largest entry
 
 
@@ -259,6 +270,9 @@ class Rows:
             for j, p in enumerate(self.data.parameters):
                 value = vals[p.base] if p.component is None else vals[p.base][p.component]
                 h = self.h * max(abs(value), self.data.parameters[j].scale)
+                if p.base.rsplit(".", 1)[-1] in KINKED:   # contact switches within a step: a tiny one
+                    h *= 1e-3
+                dg = None
                 if p.key in self._local:                  # only hand-written terms: their gradients
                     model.sync(x0)
                     self._term_difference(self._local[p.key], vals, p, h, bp)
@@ -270,13 +284,26 @@ class Rows:
                     model.residual(x0, bp)
                     bp.axpy(-1.0, r0)
                     bp.scale(1.0 / h)
-                else:
+                else:           # central; the pins' prescribed values moved with p (lifted: x_D = g(p))
+                    moved = []
                     for s, b in ((h, bp), (-h, bm)):
                         self._apply(self._shifted(vals, p, s))
-                        model.residual(x0, b)
+                        xs = x0.copy()
+                        model.apply_bcs(xs)
+                        model.residual(xs, b)
+                        moved.append(xs)
                     bp.axpy(-1.0, bm)
-                    bp.scale(1.0 / (2.0 * h))               # dR/dp at fixed x*
-                dx = lin.solve(bp)                       # -dx*/dp
+                    bp.scale(1.0 / (2.0 * h))               # dR/dp, Dirichlet rows zero
+                    dg = moved[0]
+                    dg.axpy(-1.0, moved[1])
+                    dg.scale(1.0 / (2.0 * h))               # dx_D/dp = dg/dp on the pinned DOFs
+                    moved[1].destroy()
+                dx = lin.solve(bp)                       # -dx*/dp (free DOFs)
+                if dg is not None:
+                    dx.axpy(-1.0, dg)
+                    dx.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+                    dg.destroy()
+                    dg = None
                 ys = []
                 for s in (h, -h):                        # markers are linear in x: one side suffices
                     self._apply(self._shifted(vals, p, s))
