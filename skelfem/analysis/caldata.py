@@ -49,7 +49,7 @@ class DataError(ValueError):
 def live_keys(design) -> dict:
     """{key: value} of the live parameters a model of design exposes (scalars or 1D arrays)."""
     out: dict = {}
-    used = [design.body.material] + [b.material for b in design.bones if not b.rigid]
+    used = [design.body.material] + [b.material for b in design.bones]      # rigid ones too (inert)
     for name in dict.fromkeys(used):
         m = design.materials[name]
         out[f"materials.{name}.E"] = float(m.E)

@@ -273,6 +273,7 @@ class Rows:
                 if p.base.rsplit(".", 1)[-1] in KINKED:   # contact switches within a step: a tiny one
                     h *= 1e-3
                 dg = None
+                self._apply(vals)                         # the last parameter's read-outs left it shifted
                 if p.key in self._local:                  # only hand-written terms: their gradients
                     model.sync(x0)
                     self._term_difference(self._local[p.key], vals, p, h, bp)
