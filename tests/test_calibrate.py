@@ -251,3 +251,23 @@ def test_size_limit(tmp_path):
     path.write_text("markers.tip.x\n" + "1.0\n" * 100)
     with pytest.raises(DataError, match="over the limit"):
         prepare_data(load_design(FINGER), path, ["materials.ecoflex.E"], max_bytes=100)
+
+
+def test_solve_many_is_solve_column_by_column(finger):
+    from skelfem.analysis.sensitivity import Linearization
+    finger.solve()
+    lin = Linearization(finger.model, finger.solver)
+    try:
+        rng = np.random.default_rng(0)
+        B = rng.standard_normal((len(finger.model.u.vector.array_r), 3))
+        B[finger.model.fixed[:len(B)]] = 0.0
+        X = lin.solve_many(B)
+        for j in range(3):
+            b = finger.model.u.vector.duplicate()
+            b.array_w[:] = B[:, j]
+            x = lin.solve(b)
+            assert np.allclose(X[:, j], x.array_r, rtol=1e-10, atol=1e-12 * np.abs(x.array_r).max())
+            b.destroy()
+            x.destroy()
+    finally:
+        lin.destroy()

@@ -49,7 +49,8 @@ BAD = [
 ]
 
 
-@pytest.mark.parametrize("text, extra, message", BAD)
+@pytest.mark.parametrize("text, extra, message", BAD,
+                         ids=["unknown column", "non-numeric", "too few rows", "not live", "bounds", "holdout"])
 def test_bad_input_one_line_nothing_written_no_meshing(tmp_path, capsys, monkeypatch, text, extra, message):
     import skelfem.jobs.run as run
 
@@ -76,3 +77,26 @@ def test_csv_over_the_size_limit(tmp_path, capsys, monkeypatch):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "over the limit of 200" in err[0]
     assert not (tmp_path / "never").exists()
+
+
+def test_interrupted_calibration_writes_nothing(tmp_path, capsys, monkeypatch):
+    import skelfem.analysis.calibrate as calibrate
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(calibrate, "calibrate", interrupted)
+    data = tmp_path / "data.csv"
+    data.write_text(HEADER + ROWS)
+    code = main(["calibrate", str(FINGER), "--set", "mesh.size=4.0", "--data", str(data),
+                 "--fit", "materials.ecoflex.E", "--out", str(tmp_path / "cal"), "-q"])
+    assert code == 130 and "interrupted" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data.csv"]          # no folder, lock or staging
+
+
+def test_progress_line(capsys):
+    from skelfem.cli.calibrate import _progress
+    show = _progress(True)
+    show(2, 3, 8)
+    show(2, 8, 8)
+    err = capsys.readouterr().err
+    assert "iteration  2" in err and "row 3/8" in err and err.endswith("\r")

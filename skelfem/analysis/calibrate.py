@@ -177,13 +177,18 @@ class Rows:
         self.solves = self.newton_iterations = 0
         # parameters owned by hand-written terms only (cables, springs...): dR/dp from those terms'
         # gradients, no assembly of the whole residual (serial, no rigid bones, no Dirichlet owners)
-        self._local = {}
+        self._local, self._ufl = {}, {}
         for p in data.parameters:
             owners = [t for t in self.model.terms if any(b in t.parameters() for b, _ in p.targets)]
             if (session.comm.size == 1 and not self.model.rigid and p.base.rsplit(".", 1)[-1] in LINEAR
                     and not any(t.has_ufl_energy() or t.dirichlet() for t in owners)):
                 self._local[p.key] = owners
+            elif (session.comm.size == 1 and not self.model.rigid and p.base.rsplit(".", 1)[-1] in LINEAR
+                    and all(t.has_ufl_energy() and t.gradient(self.model.u.x.array) is None
+                            and not t.dirichlet() for t in owners)):
+                self._ufl[p.key] = owners                 # E, densities, gravity: the UFL form alone
         self._sections = sorted({c.split(".", 1)[0] for c in data.columns})
+        self._names = {c.split(".")[1] for c in data.columns}            # whose read-outs are needed
         self._linear = np.array([c.startswith("markers.") for c in data.columns])   # y = X + S x
         self._nonlinear = [sec for sec in self._sections if sec != "markers"]
         self.iteration = 0
@@ -219,7 +224,7 @@ class Rows:
         sections = self._sections if sections is None else sections
         out: dict = {}
         for term in model.terms:
-            if term.section in sections:
+            if term.section in sections and (term.section == "markers" or term.name in self._names):
                 values = term.readout(model)
                 if values:
                     out.setdefault(term.section, {}).update(values)
@@ -259,70 +264,92 @@ class Rows:
             raise SolveError(f"row {i + 1}: the equilibrium did not converge ({report.status})")
 
     def _sensitivities(self, i: int, theta, y0) -> np.ndarray:
-        """dy/dtheta at row i's equilibrium, (columns, parameters)."""
+        """dy/dtheta at row i's equilibrium, (columns, parameters).
+
+        Every parameter's dR/dp first, then dx*/dp for all of them in one solve
+        phase (Linearization.solve_many), then the read-outs along each path.
+        """
         model = self.model
         lin = Linearization(model, self.solver)
         x0 = model.u.vector.copy()
-        bp, bm, r0 = x0.duplicate(), x0.duplicate(), None
+        bp, bm, r0, u0 = x0.duplicate(), x0.duplicate(), None, None
         vals = self._values(theta, i)
-        J = np.zeros((len(self.data.columns), len(theta)))
+        params = self.data.parameters
+        m, n = len(params), len(x0.array_r)
+        J = np.zeros((len(self.data.columns), m))
+        dR, dG, steps = np.zeros((n, m)), np.zeros((n, m)), np.zeros(m)
         try:
-            for j, p in enumerate(self.data.parameters):
+            for j, p in enumerate(params):
                 value = vals[p.base] if p.component is None else vals[p.base][p.component]
-                h = self.h * max(abs(value), self.data.parameters[j].scale)
+                h = self.h * max(abs(value), p.scale)
                 if p.base.rsplit(".", 1)[-1] in KINKED:   # contact switches within a step: a tiny one
                     h *= 1e-3
-                dg = None
-                self._apply(vals)                         # the last parameter's read-outs left it shifted
+                steps[j] = h
                 if p.key in self._local:                  # only hand-written terms: their gradients
                     model.sync(x0)
                     self._term_difference(self._local[p.key], vals, p, h, bp)
+                elif p.key in self._ufl:                  # only the compiled energy: its residual alone
+                    if u0 is None:
+                        u0 = x0.duplicate()
+                        self._ufl_residual(x0, u0)
+                    self._set(p, vals, h)
+                    self._ufl_residual(x0, bp)
+                    bp.axpy(-1.0, u0)
+                    bp.scale(1.0 / h)
                 elif p.base.rsplit(".", 1)[-1] in LINEAR:   # R linear in p: one-sided is exact
                     if r0 is None:
                         r0 = x0.duplicate()
                         model.residual(x0, r0)
-                    self._apply(self._shifted(vals, p, h))
+                    self._set(p, vals, h)
                     model.residual(x0, bp)
                     bp.axpy(-1.0, r0)
                     bp.scale(1.0 / h)
                 else:           # central; the pins' prescribed values moved with p (lifted: x_D = g(p))
                     moved = []
                     for s, b in ((h, bp), (-h, bm)):
-                        self._apply(self._shifted(vals, p, s))
+                        self._set(p, vals, s)
                         xs = x0.copy()
                         model.apply_bcs(xs)
                         model.residual(xs, b)
-                        moved.append(xs)
+                        moved.append(xs.array_r.copy())
+                        xs.destroy()
                     bp.axpy(-1.0, bm)
                     bp.scale(1.0 / (2.0 * h))               # dR/dp, Dirichlet rows zero
-                    dg = moved[0]
-                    dg.axpy(-1.0, moved[1])
-                    dg.scale(1.0 / (2.0 * h))               # dx_D/dp = dg/dp on the pinned DOFs
-                    moved[1].destroy()
-                dx = lin.solve(bp)                       # -dx*/dp (free DOFs)
-                if dg is not None:
-                    dx.axpy(-1.0, dg)
-                    dx.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-                    dg.destroy()
-                    dg = None
-                ys = []
+                    dG[:, j] = (moved[0] - moved[1]) / (2.0 * h)   # dx_D/dp = dg/dp on the pinned DOFs
+                self._set(p, vals, 0.0)
+                dR[:, j] = bp.array_r
+            DX = dG - lin.solve_many(dR) if m else dR      # dx*/dp, every parameter (owned entries)
+            x0a = x0.array_r.copy()
+            for j, p in enumerate(params):
+                h, ys = steps[j], []
                 for s in (h, -h):                        # markers are linear in x: one side suffices
-                    self._apply(self._shifted(vals, p, s))
-                    model.u.vector.waxpy(-s, dx, x0)     # x* + s dx*/dp
-                    model.sync(model.u.vector)
+                    self._set(p, vals, s)
+                    model.u.vector.array_w[:] = x0a + s * DX[:, j]     # x* + s dx*/dp
+                    model.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
                     ys.append(self.measure(None if s > 0 else self._nonlinear))
                 J[:, j] = np.where(self._linear, (ys[0] - y0) / h, (ys[0] - ys[1]) / (2.0 * h))
-                dx.destroy()
+                self._set(p, vals, 0.0)
         finally:
             self._apply(vals)
             x0.copy(model.u.vector)
             model.sync(model.u.vector)
             model.changes.clear()
-            for v in (x0, bp, bm, r0):
+            for v in (x0, bp, bm, r0, u0):
                 if v is not None:
                     v.destroy()
             lin.destroy()
         return J
+
+    def _ufl_residual(self, x, b) -> None:
+        """The compiled energy's part of grad Pi at x, Dirichlet rows zero (no hand-written terms)."""
+        from dolfinx.fem import petsc as fem_petsc
+        model = self.model
+        model.sync(x)
+        with b.localForm() as local:
+            local.set(0.0)
+        fem_petsc.assemble_vector(b, model.residual_form)
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        b.array_w[model.fixed[:len(b.array_r)]] = 0.0
 
     def _term_difference(self, owners, vals, p, h: float, out) -> None:
         """(R(x*, p + h) - R(x*, p)) / h from the owning terms' hand-written gradients alone."""
@@ -330,7 +357,7 @@ class Rows:
         u = model.u.x.array
         g = np.zeros(model.n_local)
         for sign, step in ((1.0, h), (-1.0, 0.0)):
-            self._apply(self._shifted(vals, p, step))
+            self._set(p, vals, step)
             for term in owners:
                 res = term.gradient(u)
                 if res is None:
@@ -346,17 +373,15 @@ class Rows:
             local.array_w[:] = g / h
         out.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
 
-    @staticmethod
-    def _shifted(vals: dict, p, s: float) -> dict:
-        out = dict(vals)
+    def _set(self, p, vals: dict, s: float) -> None:
+        """Set p's live keys to their row values + s (the others stay as they are)."""
         for b, comp in p.targets:
             if comp is None:
-                out[b] = vals[b] + s
+                self.model.set_parameter(b, vals[b] + s)
             else:
-                v = out[b].copy()
+                v = vals[b].copy()
                 v[comp] += s
-                out[b] = v
-        return out
+                self.model.set_parameter(b, v)
 
     def run(self, theta, jacobian: bool = True, states=None):
         """(Y, J, states): every row solved for theta; J (rows, columns, parameters) or None.
