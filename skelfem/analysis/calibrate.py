@@ -39,13 +39,14 @@ depend on p directly (a tension k (l - L), a reaction), so the read-outs are
 differenced along the joint path (x* + t dx*/dp, p + t): markers are linear in
 x, the rest smooth, so the central difference has the same h^2 error.
 
-Forward mode: one back-substitution per parameter and row. Adjoint mode would
-cost one per measurement column and row, and needs each read-out's gradient
-dy/dx as a vector, which the terms do not expose (they expose read-outs);
-forward mode gets the whole Jacobian the Gauss-Newton step needs from
-directional differences of the read-outs, and a back-substitution costs little
-next to the row's Newton solve and factorisation (see studies/calibration.py
---bench: 2 -> 20 parameters).
+Forward mode: one right-hand side per parameter and row, all of a row's
+solved in one MUMPS solve phase (Linearization.solve_many). Adjoint mode would
+need one per measurement column and row, and each read-out's gradient dy/dx
+as a vector, which the terms do not expose (they expose read-outs); forward
+mode gets the whole Jacobian the Gauss-Newton step needs from directional
+differences of the read-outs, and a block solve costs little next to the
+row's Newton solve and factorisation (studies/calibration.py --bench-only:
+2 -> 20 parameters).
 
 Step. In scaled parameters z = p / s (s = |p0|, 1 if p0 = 0) the LM step solves
 min |r + J D|^2 + mu |D|^2 within the bounds (scipy's lsq_linear), accepted if
