@@ -271,3 +271,14 @@ def test_solve_many_is_solve_column_by_column(finger):
             x.destroy()
     finally:
         lin.destroy()
+
+
+def test_the_session_gets_its_design_values_back(finger, finger_data):
+    before = finger.model.parameters()
+    cal = calibrate(finger, finger_data, ["materials.ecoflex.E"], sigma={"markers.*": 0.1})
+    after = finger.model.parameters()
+    assert all(np.array_equal(np.asarray(before[k]), np.asarray(after[k])) for k in before)
+    finger.set(cal.overrides(finger.design))
+    r = finger.solve()
+    assert r.converged and finger.model.parameters()["materials.ecoflex.E"] == pytest.approx(0.1, rel=1e-6)
+    assert r.marker("tip") == pytest.approx([-35.5159494, 82.5264545], abs=1e-5)    # contraction 8 (design)

@@ -384,6 +384,16 @@ class Rows:
                 v[comp] += s
                 self.model.set_parameter(b, v)
 
+    def restore(self) -> None:
+        """Give the model back the design's values of every live parameter (after the last row)."""
+        self._apply(self.base)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.restore()
+
     def run(self, theta, jacobian: bool = True, states=None):
         """(Y, J, states): every row solved for theta; J (rows, columns, parameters) or None.
 
@@ -423,15 +433,23 @@ def calibrate(session, data, fit=None, sigma=None, bounds=None, holdout: float =
 
     data: a CSV path, CSV text, {column: values} or a prepared Data (then fit,
     sigma, bounds and holdout are taken from it). progress(iteration, row, rows)
-    is called after every row solve. The session is left at the estimate's last row.
+    is called after every row solve. The session's model is given back its
+    design's parameter values (its state is the last row's equilibrium, from
+    which the next solve warm-starts); apply the estimate with
+    ``session.set(cal.overrides(session.design))``.
     """
-    from scipy.optimize import lsq_linear
-    from scipy.stats import t as student
-
     t0 = time.perf_counter()
     if not isinstance(data, Data):
         data = prepare_data(session.design, data, fit, sigma, bounds, holdout, seed)
-    rows = Rows(session, data, progress)
+    with Rows(session, data, progress) as rows:
+        return _fit(rows, data, t0, max_iterations, xtol, gtol, rcond)
+
+
+def _fit(rows, data: Data, t0: float, max_iterations: int, xtol: float, gtol: float, rcond: float) -> Calibration:
+    """The Levenberg-Marquardt iterations and the uncertainty at the estimate (see calibrate)."""
+    from scipy.optimize import lsq_linear
+    from scipy.stats import t as student
+
     P = data.parameters
     m = len(P)
     scale = np.array([p.scale for p in P])
@@ -553,8 +571,8 @@ def _merge(groups: list) -> list:
 
 def misfit(session, data: Data, theta, jacobian: bool = True):
     """(f, grad f) of the misfit at theta (every row solved from its path's start; for checks)."""
-    rows = Rows(session, data)
-    Y, J, _ = rows.run(theta, jacobian)
+    with Rows(session, data) as rows:
+        Y, J, _ = rows.run(theta, jacobian)
     r, Jr = _weighted(data, Y, J)
     return 0.5 * float(r @ r), (Jr.T @ r if jacobian else None)
 
@@ -573,7 +591,8 @@ def synthesize(session, conditions: dict, columns, experiments=None, noise: dict
     cols = list(columns)
     data = Data(cols, np.zeros((n, len(cols))), np.ones(len(cols)), np.zeros(len(cols), bool),
                 conditions, [str(e) for e in experiments], [], np.ones(n, bool))
-    Y, _, _ = Rows(session, data).run(np.zeros(0), jacobian=False)
+    with Rows(session, data) as rows:
+        Y, _, _ = rows.run(np.zeros(0), jacobian=False)
     if noise:
         rng = rng if rng is not None else np.random.default_rng(0)
         for j, c in enumerate(cols):
