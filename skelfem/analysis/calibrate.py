@@ -64,12 +64,11 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 from petsc4py import PETSc
 
-from .caldata import AXES, Data, DataError, prepare_data
+from .caldata import AXES, Calibration, Data, DataError, prepare_data  # noqa: F401 (Calibration re-exported)
 from .sensitivity import Linearization
 from ..fem.newton import SolveError
 
@@ -83,79 +82,6 @@ LINEAR = ("E", "stiffness", "density", "acceleration", "force", "traction", "con
 # position): differenced with 1e-3 of the usual step
 KINKED = ("point",)
 GROUP = 0.2           # a parameter belongs to such a direction's group above this fraction of its largest entry
-
-
-@dataclass
-class Calibration:
-    """The outcome of a calibration (``to_dict()`` is calibration.json)."""
-    keys: list
-    initial: np.ndarray
-    values: np.ndarray
-    std: np.ndarray                   # inf for a parameter in an unidentifiable group
-    ci95: np.ndarray                  # (m, 2)
-    covariance: np.ndarray
-    correlation: np.ndarray
-    singular_values: np.ndarray       # of the weighted Jacobian in scaled parameters
-    unidentifiable: list              # [[key, ...], ...]
-    iterations: int
-    converged: bool
-    status: str
-    cost: float                       # f = |r|^2 / 2 at the estimate
-    history: list                     # cost at the start and after each accepted step
-    columns: list
-    rms: dict                         # {column: RMS of model - data over fitted rows}
-    holdout: dict | None              # {"rows": n, "rms": {column: ...}, "weighted_rms": ...}
-    model_values: np.ndarray          # (rows, columns) at the estimate
-    data: Data
-    offsets: list                     # keys fitted as offsets of a condition column
-    s2: float                         # variance factor of the covariance
-    solves: int = 0
-    newton_iterations: int = 0
-    time: float = 0.0
-    timings: dict = field(default_factory=dict)
-
-    def to_dict(self) -> dict:
-        params = {}
-        for i, k in enumerate(self.keys):
-            ident = math.isfinite(self.std[i])
-            params[k] = {"value": float(self.values[i]), "initial": float(self.initial[i]),
-                         "std": float(self.std[i]) if ident else None,
-                         "ci95": [float(v) for v in self.ci95[i]] if ident else None,
-                         "offset": k in self.offsets}
-        return {
-            "parameters": params,
-            "correlation": {"keys": list(self.keys), "matrix": [[float(v) if math.isfinite(v) else None
-                                                                for v in row] for row in self.correlation]},
-            "unidentifiable": self.unidentifiable,
-            "singular_values": [float(v) for v in self.singular_values],
-            "iterations": int(self.iterations), "converged": bool(self.converged), "status": self.status,
-            "cost": float(self.cost), "cost_history": [float(c) for c in self.history],
-            "residual_rms": {c: v for c, v in self.rms.items()},
-            "holdout": self.holdout,
-            "variance_factor": float(self.s2),
-            "rows": int(self.data.rows), "fitted_rows": int(self.data.train.sum()),
-            "sigma": {c: float(s) for c, s in zip(self.columns, self.data.sigma)},
-            "sigma_given": {c: bool(g) for c, g in zip(self.columns, self.data.sigma_given)},
-            "solves": int(self.solves), "newton_iterations": int(self.newton_iterations),
-            "time": round(float(self.time), 3),
-        }
-
-    def overrides(self, design) -> dict:
-        """{--set key: value} of the fitted design parameters (offsets excluded), vectors merged."""
-        from .caldata import live_keys
-        base = {k: (np.array(v, float) if np.ndim(v) else float(v)) for k, v in live_keys(design).items()}
-        out = {}
-        for p, v in zip(self.data.parameters, self.values):
-            if p.offset:
-                continue
-            for b, comp in p.targets:
-                if comp is None:
-                    out[b] = float(v)
-                else:
-                    vec = out.get(b, base[b]).copy()
-                    vec[comp] = float(v)
-                    out[b] = vec
-        return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in out.items()}
 
 
 # -- the forward model over all rows ------------------------------------------------------------
