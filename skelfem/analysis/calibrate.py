@@ -408,7 +408,7 @@ def _fit(rows, data: Data, t0: float, max_iterations: int, xtol: float, gtol: fl
             status, converged = "small step", True
             break
         pred = float(r @ r - np.sum((r + A @ D) ** 2))
-        if not np.all(np.isfinite(D)) or pred <= 1e-14 * max(float(r @ r), 1e-300):
+        if not np.all(np.isfinite(D)) or pred <= 1e-10 * max(float(r @ r), 1e-300):
             status, converged = "no further decrease predicted", True
             break
         it += 1
