@@ -365,6 +365,8 @@ def calibrate(session, data, fit=None, sigma=None, bounds=None, holdout: float =
     ``session.set(cal.overrides(session.design))``.
     """
     t0 = time.perf_counter()
+    if session.comm.size > 1:
+        raise ValueError(f"calibration runs on one MPI process (got {session.comm.size})")
     if not isinstance(data, Data):
         data = prepare_data(session.design, data, fit, sigma, bounds, holdout, seed)
     with Rows(session, data, progress) as rows:
