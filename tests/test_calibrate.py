@@ -282,3 +282,13 @@ def test_the_session_gets_its_design_values_back(finger, finger_data):
     r = finger.solve()
     assert r.converged and finger.model.parameters()["materials.ecoflex.E"] == pytest.approx(0.1, rel=1e-6)
     assert r.marker("tip") == pytest.approx([-35.5159494, 82.5264545], abs=1e-5)    # contraction 8 (design)
+
+
+@pytest.mark.slow
+def test_3d_design_recovery():
+    with Session(GEOMETRY / "finger3d.toml", ["mesh.size=6.0"]) as s:
+        cols = ["markers.tip.x", "markers.tip.y", "markers.tip.z", "cables.flexor.tension"]
+        data = synthesize(s, {"cables.flexor.contraction": [3.0, 6.0]}, cols)
+        s.set({"materials.ecoflex.E": 0.2})
+        cal = calibrate(s, data, ["materials.ecoflex.E"])
+    assert cal.converged and cal.values[0] == pytest.approx(0.1, rel=1e-6)
