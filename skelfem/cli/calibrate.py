@@ -35,7 +35,8 @@ def add_parsers(subparsers) -> None:
                         "(markers.M.x, cables.C.tension, grounds.G.force.x, pins.P.reaction.x); optional experiment")
     p.add_argument("--fit", action="append", required=True, metavar="KEY",
                    help="a live parameter to fit (repeatable), e.g. materials.ecoflex.E; a key that is also a "
-                        "condition column is fitted as an offset added to it")
+                        "condition column is fitted as an offset added to it; a pattern such as "
+                        "'cables.lig*.stiffness' fits one value shared by the keys it matches")
     p.add_argument("--sigma", action="append", default=[], metavar="COLUMN=VALUE",
                    help="a measurement column's standard deviation (repeatable; COLUMN may be a pattern such "
                         "as 'markers.*'); default 1 in the column's unit, the covariance then scaled by the fit")
