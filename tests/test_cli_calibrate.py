@@ -100,3 +100,13 @@ def test_progress_line(capsys):
     show(2, 8, 8)
     err = capsys.readouterr().err
     assert "iteration  2" in err and "row 3/8" in err and err.endswith("\r")
+
+
+def test_a_row_that_does_not_converge_exits_2_and_writes_nothing(tmp_path, capsys):
+    data = tmp_path / "data.csv"
+    data.write_text(HEADER + ROWS)
+    code = main(["calibrate", str(FINGER), "--set", "mesh.size=4.0", "--set", "solver.max_iterations=1",
+                 "--data", str(data), "--fit", "materials.ecoflex.E", "--out", str(tmp_path / "cal"), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "row 1: the equilibrium did not converge" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data.csv"]
