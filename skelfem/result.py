@@ -30,15 +30,18 @@ class Status(StrEnum):
     TRUST_REGION_COLLAPSED = "trust_region_collapsed"
     INNER_SOLVE_FAILED = "inner_solve_failed"
     LOCAL_MINIMUM_OF_RESIDUAL = "local_minimum_of_residual"
+    FRICTION_NOT_CONVERGED = "friction_not_converged"
+    NOT_HELD = "not_held"
     DIVERGED = "diverged"
 
     @classmethod
     def of(cls, text: str) -> "Status":
-        """The status of result.json's text ("diverged (-3)" is DIVERGED)."""
+        """The status of result.json's text: "diverged (-3)" is DIVERGED, "no equilibrium: object X is
+        not held" is NOT_HELD."""
         try:
             return cls(text)
         except ValueError:
-            return cls.DIVERGED
+            return cls.NOT_HELD if text.startswith("no equilibrium") else cls.DIVERGED
 
 
 def plain(value):
@@ -79,6 +82,8 @@ def result_dict(design, model, report, timings: dict) -> dict:
     for section in STANDARD_SECTIONS:
         res[section] = readouts.pop(section, {}) if converged else None
     res.update(readouts)
+    if isinstance(res.get("contacts"), dict):                # contacts between pieces: a list of pairs
+        res["contacts"] = list(res["contacts"].values())
     res["attempts"] = report.attempts
     res["residual_history"] = [[float(r) for r in step] for step in report.residual_history]
     res["timings"] = {k: round(float(v), 4) for k, v in timings.items()}
@@ -88,7 +93,8 @@ def result_dict(design, model, report, timings: dict) -> dict:
 class Result:
     """One solve's outcome (see the module doc).
 
-    Typed fields: ``design`` (name), ``converged``, ``status`` (:class:`Status`),
+    Typed fields: ``design`` (name), ``converged``, ``status`` (result.json's text, with the reason),
+    ``outcome`` (the same as a :class:`Status`),
     ``newton_iterations``, ``load_steps``, ``energy`` (N mm, None unless
     converged), ``dofs``, ``cells``, ``degree``, ``min_jacobian``, ``markers``,
     ``cables``, ``pins``, ``grounds`` (dicts of read-outs, None unless
@@ -109,7 +115,11 @@ class Result:
         return bool(self._data["converged"])
 
     @property
-    def status(self) -> Status:
+    def status(self) -> str:
+        return self._data["status"]
+
+    @property
+    def outcome(self) -> Status:
         return Status.of(self._data["status"])
 
     @property

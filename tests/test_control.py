@@ -26,7 +26,7 @@ def _from_rest(session, **kw):
     return ik
 
 
-def test_finger_length_is_the_longest_extent(finger4):
+def test_body_extent_is_the_longest_extent(finger4):
     assert body_extent(finger4.model) == pytest.approx(100.0)
 
 
@@ -181,3 +181,22 @@ def test_cli_track_csv_targets_and_bad_csv(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: ") and "line 3" in err[0]
     assert not out2.exists()
+
+
+def test_ik_never_asks_for_more_contraction_than_a_tendon_can_give():
+    """A soft, long strip pulled towards a point far below its base: the answer stays within
+    MAX_SHORTENING of the tendon's length (it used to exceed the whole cable), and simulate takes it."""
+    from _designs import strip
+
+    from skelfem import Session, parse_design
+    from skelfem.analysis.control import MAX_SHORTENING
+    d = strip(length=30.0, size=4.0, contraction=0.0, tendon_offset=4.0, k=50.0)
+    with Session(d) as s:
+        s.solve()
+        ik = SoftIK(s, "tip", max_solves=12)
+        assert ik.upper[0] == pytest.approx(MAX_SHORTENING * 30.0)                  # it used to be inf
+        assert SoftIK(s, "tip", upper={"flexor": 1e3}).upper[0] == pytest.approx(MAX_SHORTENING * 30.0)
+        assert SoftIK(s, "tip", upper={"flexor": 5.0}).upper[0] == 5.0
+        res = ik.solve(np.array([60.0, -200.0]))
+    assert res.contractions[0] <= MAX_SHORTENING * 30.0 + 1e-9
+    parse_design(d, overrides=[f"cables.flexor.contraction={res.contractions[0]!r}"])   # simulate accepts it

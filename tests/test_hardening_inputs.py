@@ -6,7 +6,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
+
+from skelfem.design import load_design
 
 ROOT = Path(__file__).resolve().parents[1]
 SKELFEM = os.fsencode(str(Path(sys.executable).parent / "skelfem"))
@@ -79,3 +82,38 @@ def test_read_bounded_reads_no_more_than_its_limit(tmp_path):
         read_bounded(p, 3999, "target file")
     with pytest.raises(InputTooLarge):
         read_bounded("/dev/zero", 2 ** 20, "target file")
+
+
+def test_optimize_with_stiffness_damping_is_bad_input_before_meshing(tmp_path, monkeypatch):
+    """It used to mesh, run and exit 3 (an internal error) from inside the adjoint."""
+    import skelfem.mesh.geometry as geometry
+    from skelfem.cli.main import main
+    design = tmp_path / "finger.toml"
+    design.write_text((ROOT / "geometry" / "finger.toml").read_text()
+                      + "\n[dynamics]\ndt = 0.01\nduration = 0.1\ndamping = { stiffness = 0.01 }\n")
+    monkeypatch.setattr(geometry, "mesh_design", lambda *a, **k: pytest.fail("meshed"))
+    assert main(["optimize", str(design), "--marker", "tip", "--target", "0", "80",
+                 "--out", str(tmp_path / "o"), "-q"]) == 1
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("content", [
+    lambda key: {"key": key, "results": [{"target": [1, 2]}]},                 # an entry missing its fields
+    lambda key: {"key": key, "results": [{"target": "x"}] * 3, "poses": [0]},  # a pose file that is not there
+    lambda key: {"key": key, "results": 7},                                     # not a list
+    lambda key: [key],                                                           # not an object
+])
+def test_a_malformed_track_progress_file_starts_over(tmp_path, content):
+    """A resume from a broken progress.json used to exit 3; now the track starts from the first target."""
+    import json
+    from types import SimpleNamespace
+
+    from skelfem.cli.control import TrackProgress
+    design = load_design(ROOT / "geometry" / "finger.toml")
+    args = SimpleNamespace(marker="tip", max_contraction=[], reg=0.0, tol=None, max_solves=10)
+    targets = np.array([[0.0, 80.0], [1.0, 80.0]])
+    fresh = TrackProgress(tmp_path / "out", design, args, targets)
+    fresh.folder.mkdir()
+    (fresh.folder / "progress.json").write_text(json.dumps(content(fresh.key)))
+    again = TrackProgress(tmp_path / "out", design, args, targets)
+    assert again.entries == [] and again.results() == [] and not again.folder.exists()

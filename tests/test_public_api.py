@@ -56,7 +56,7 @@ def test_result_fields_arrays_and_plot_without_pyplot():
         X, u, cells = r.displacement()
         s.set({"cables.flexor.contraction": 2.0})
         s.solve()
-    assert isinstance(r, Result) and r.converged and r.status is Status.CONVERGED and r.status == "converged"
+    assert isinstance(r, Result) and r.converged and r.outcome is Status.CONVERGED and r.status == "converged"
     assert isinstance(r.newton_iterations, int) and r.dofs == 2 * len(X) or r.degree == 2
     tip = r.marker("tip")
     assert tip.shape == (2,) and np.isfinite(tip).all()
@@ -76,6 +76,7 @@ def test_result_fields_arrays_and_plot_without_pyplot():
 def test_status_of_unknown_text_is_diverged():
     assert Status.of("diverged (-3)") is Status.DIVERGED
     assert Status.of("max_iterations") is Status.MAX_ITERATIONS
+    assert Status.of("no equilibrium: object ball is not held") is Status.NOT_HELD
 
 
 # -- a Session is safe to misuse: closed, shared between threads, edited into something it cannot be ---

@@ -8,11 +8,14 @@ checked through their compiled energy, gradient and Hessian forms.
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 import ufl
 from dolfinx import fem
 
 from skelfem import Session
 from skelfem.terms import BUILDERS
+from skelfem.terms.friction import GroundFriction
+from skelfem.terms.object_friction import ObjectFriction
 
 from _designs import strip
 
@@ -41,7 +44,13 @@ def _designs():
     dynamic = dict(base, dynamics={"dt": 0.01, "duration": 0.1, "integrator": "bdf2",
                                    "damping": {"mass": 5.0, "stiffness": 0.01}})
     rigid = dict(full, bones=[dict(full["bones"][0], rigid=True)])
-    return {"full": full, "spring": spring, "contact": contact, "dynamic": dynamic, "rigid": rigid}
+    friction = dict(base, grounds=[{"name": "wall", "point": [0.0, 0.0], "normal": [1.0, 0.0], "stiffness": 5.0,
+                                    "friction": 0.4, "friction_static": 0.6}])
+    objects = dict(base, objects=[{"name": "box", "outline": [[8.25, 10], [12, 10], [12, 20], [8.25, 20]],
+                                   "material": "hard"}], contact={"dhat": 0.2, "friction": 0.4},
+                   gravity={"acceleration": [1.0, -9.81]})
+    return {"full": full, "spring": spring, "contact": contact, "dynamic": dynamic, "rigid": rigid,
+            "friction": friction, "objects": objects}
 
 
 def _perturbed_state(model, scale):
@@ -72,8 +81,8 @@ def _dense_hessian(model, term, u, hform):
     n = model.n_local
     H = np.zeros((n, n))
     for dofs, block in term.hessian(u):
-        block = block.toarray() if hasattr(block, "toarray") else np.asarray(block)
-        H[np.ix_(dofs, dofs)] += block
+        block = block.tocoo() if hasattr(block, "tocoo") else sp.coo_matrix(np.asarray(block))
+        np.add.at(H, (np.asarray(dofs)[block.row], np.asarray(dofs)[block.col]), block.data)   # repeated DOFs add up
     for c, dofs, g in term.low_rank(u):
         H[np.ix_(dofs, dofs)] += c * np.outer(g, g)
     if hform is not None:
@@ -95,7 +104,7 @@ def _gradient(model, term, u, gform):
     return g
 
 
-@pytest.mark.parametrize("name", ["full", "spring", "contact", "dynamic", "rigid"])
+@pytest.mark.parametrize("name", ["full", "spring", "contact", "dynamic", "rigid", "friction", "objects"])
 def test_every_term_gradient_and_hessian_match_central_differences(name):
     import dolfinx.fem.petsc  # noqa: F401
     design = _designs()[name]
@@ -103,7 +112,13 @@ def test_every_term_gradient_and_hessian_match_central_differences(name):
     model = s.model
     model.set_factor(0.7)
     seen = set()
-    u0 = _perturbed_state(model, 0.02 if name != "contact" else 1e-3)
+    u0 = _perturbed_state(model, 0.02 if name not in ("contact", "objects") else 1e-3)
+    if name == "objects":                             # the box 0.12 mm from the strip: in the barrier's reach
+        box = model.term("objects", "box")
+        u0[box.dofs[:, 0]] = -0.13
+        model.u.x.array[:] = u0
+        contact = model.term("contacts", "pieces")
+        assert contact.min_distance(u0) < 0.2 and not contact.intersects(u0)
     if name == "contact":                             # close the notch so that contacts are active
         y = model.V.tabulate_dof_coordinates()[:, 1]
         uy = -0.45 * np.clip(y - 15.0, 0.0, 2.0)
@@ -122,6 +137,25 @@ def test_every_term_gradient_and_hessian_match_central_differences(name):
             model.u.x.array[:] = 0.6 * u0
             term.end_step(model)
             term.prepare(0.005)
+        if isinstance(term, GroundFriction) and term.active:   # pressed into the wall, half the nodes sticking
+            u0 = u0.copy()
+            u0.reshape(-1, 2)[:, 0] -= 0.05 * ~model.fixed.reshape(-1, 2)[:, 0]
+            model.u.x.array[:] = u0
+            term.update_lag(model)
+            assert np.count_nonzero(term.N) >= 4
+            s_now = term.positions(u0) @ term.T
+            term.anchor = s_now + 0.5 * term.eps * np.where(np.arange(len(s_now)) % 2 == 0, 1.0, 3.0)[:, None]
+            term.trial[::3] = True                    # some kinetic nodes too
+        if isinstance(term, ObjectFriction):          # anchored, half the nodes sticking, some kinetic
+            term.set_factor(model.factor)
+            term.update_lag(model)
+            on = np.flatnonzero(term.edge >= 0)
+            assert len(on) >= 3 and np.count_nonzero(term.N[on]) >= 3
+            e = term.obj_edges[term.edge[on]]
+            y = term.c.positions(u0)
+            L = np.linalg.norm(y[e[:, 1]] - y[e[:, 0]], axis=1)
+            term.s[on] = np.clip(term.s[on] + np.where(np.arange(len(on)) % 2 == 0, 0.5, 1.5) * term.eps / L, 0, 1)
+            term.trial[on[::3]] = True
         eform, gform, hform = _term_derivatives(model, term)
         if eform is None and term.gradient(u0) is None:
             continue                                  # a read-out only term (markers)
@@ -157,12 +191,16 @@ def test_every_term_gradient_and_hessian_match_central_differences(name):
         assert "Inertia" in seen
     if name == "rigid":
         assert "RigidBone" in seen
+    if name == "friction":
+        assert "GroundFriction" in seen
+    if name == "objects":
+        assert {"RigidObject", "PieceContact", "ObjectFriction"} <= seen
 
 
 def test_every_builder_is_exercised():
     names = {b.__module__.rsplit(".", 1)[1] for b in BUILDERS}
     assert names == {"elasticity", "pins", "cables", "loads", "grounds", "contact", "markers", "gravity",
-                     "tractions", "inertia", "rigid"}
+                     "tractions", "inertia", "rigid", "friction", "objects"}
 
 
 def test_woodbury_direction_equals_the_full_hessian_direction():

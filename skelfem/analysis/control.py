@@ -51,6 +51,9 @@ STEP_FRACTION = 0.05    # default cap on one step's |D|_inf: this fraction of th
 STALL_FRACTION = 0.1    # an accepted step gaining less than this x tol (while |r| >= tol) ends the IK
 
 
+MAX_SHORTENING = 0.9    # a tendon's contraction is at most this share of its sketch's length
+
+
 @dataclass
 class IKResult:
     """One Soft IK solve: the pose found for one target."""
@@ -125,13 +128,19 @@ class SoftIK:
         self.newton_iterations = 0
 
     def _upper_bounds(self, upper: dict) -> np.ndarray:
-        hi = np.full(len(self.names), np.inf)
+        """Each tendon's largest contraction: the user's bound, and never more than MAX_SHORTENING of
+        its sketch's length (the design refuses a contraction of the whole length, so an IK answer
+        beyond it could not be simulated)."""
+        design = self.session.design
+        hi = np.array([MAX_SHORTENING * float(np.linalg.norm(np.diff(design.cable(n).path, axis=0), axis=1).sum())
+                       for n in self.names])
         for name, value in upper.items():
             if name not in self.names:
                 raise KeyError(f"'{name}' is not a tendon of the design (tendons: {', '.join(self.names)})")
             if not value > 0.0:
                 raise ValueError(f"maximum contraction of '{name}' must be > 0, got {value}")
-            hi[self.names.index(name)] = float(value)
+            i = self.names.index(name)
+            hi[i] = min(hi[i], float(value))
         return hi
 
     # -- equilibria -------------------------------------------------------------------------

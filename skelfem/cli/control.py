@@ -363,13 +363,14 @@ class TrackProgress:
         self.key = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()
         self.entries, self.poses = [], {}
         try:
-            data = json.loads((self.folder / "progress.json").read_text())
+            data = json.loads(read_bounded(self.folder / "progress.json", MAX_CSV_BYTES * 4, "progress file"))
             if isinstance(data, dict) and data.get("key") == self.key:
                 self.entries = list(data["results"])
                 for j in data.get("poses", []):
-                    self.poses[int(j)] = np.load(self.folder / f"pose-{int(j)}.npy")
-        except (OSError, ValueError, KeyError, TypeError):
-            self.entries, self.poses = [], {}
+                    self.poses[int(j)] = np.load(self.folder / f"pose-{int(j)}.npy", allow_pickle=False)
+                self.results()                    # every entry readable, or none is used
+        except (OSError, ValueError, KeyError, TypeError, IndexError, AttributeError, EOFError):
+            self.entries, self.poses = [], {}     # a broken progress file: start over
         if not self.entries and self.folder.exists():
             self.remove()                         # another run's (or a broken) progress
 

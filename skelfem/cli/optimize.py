@@ -60,6 +60,9 @@ def _check(args, design) -> list:
     if design.dynamics is None:
         raise cli.InputError(f"{args.design}: dynamics: missing (optimize plans motions in time: add a "
                              "[dynamics] section)")
+    if design.dynamics.damping_stiffness > 0.0:
+        raise cli.InputError(f"{args.design}: dynamics.damping.stiffness: optimize's adjoint does not "
+                             "differentiate stiffness damping (set it to 0, or use mass damping)")
     if args.marker not in design.markers:
         have = ", ".join(design.markers) or "none"
         raise cli.InputError(f"{args.design}: marker '{args.marker}' not in design (have: {have})")

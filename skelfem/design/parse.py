@@ -16,6 +16,7 @@ from pathlib import Path
 
 
 from . import polygons
+from .objects import take as take_objects
 from .sections import read_cables, read_contact, read_dynamics, check_energy_line_search, read_fabrication, read_gravity, read_grounds, read_loads, read_markers, read_pins, read_solver, read_tractions
 from .shapes import read_body, read_bones, read_materials
 from .spec import Design, DesignError, FORMAT, MeshSpec, SECTIONS_BY_NAME
@@ -54,6 +55,7 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     cables = read_cables(top, dim, region, tol)
     pins = read_pins(top, dim)
     loads = read_loads(top, dim, region)
+    friction, objects = take_objects(top, dim, materials, body)   # [[objects]], friction keys
     grounds = read_grounds(top, dim, body, tol)
     contact = read_contact(top, dim)
     markers = read_markers(top, dim, region)
@@ -81,7 +83,7 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
         source=str(source), name=name, dim=dim, thickness=thickness, mesh=mesh,
         materials=materials, body=body, bones=bones, cables=cables, pins=pins, loads=loads,
         grounds=grounds, contact=contact, markers=markers, solver=solver, gravity=gravity,
-        tractions=tractions, fabrication=fabrication, dynamics=dynamics, data=data, measure=float(measure), vertices=int(vertices),
+        tractions=tractions, fabrication=fabrication, dynamics=dynamics, friction=friction, objects=objects, data=data, measure=float(measure), vertices=int(vertices),
     )
 
 

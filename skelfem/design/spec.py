@@ -10,6 +10,8 @@ from types import MappingProxyType
 
 import numpy as np
 
+from .objects import FrictionSpec
+
 
 
 FORMAT = 1
@@ -199,6 +201,8 @@ class Design:
     tractions: tuple = ()
     fabrication: FabricationSpec = field(default_factory=FabricationSpec)
     dynamics: DynamicsSpec | None = None   # None: a static run
+    friction: FrictionSpec = field(default_factory=FrictionSpec)   # Coulomb coefficients (design.objects)
+    objects: tuple = ()                    # ObjectSpec: free rigid bodies (design.objects)
     format: int = FORMAT
     data: Mapping = field(default_factory=dict)   # the TOML data after overrides, read-only (see raw)
     measure: float = 0.0      # body area (2D, mm^2) or volume (3D, mm^3), bones included

@@ -269,6 +269,14 @@ class Model(MatrixAssembly):
         for term in self.terms:
             term.end_step(self)
 
+    def failure(self, converged: bool = True) -> str | None:
+        """The first term's reason why the state (converged or where Newton gave up) is no equilibrium."""
+        return next((why for why in (term.failure(self, converged) for term in self.terms) if why), None)
+
+    def update_lag(self) -> bool:
+        """Let every term refresh its lagged quantities at the converged state; True: solve again."""
+        return any([term.update_lag(self) for term in self.terms])
+
     # -- state ----------------------------------------------------------------------------------
     def sync(self, x: PETSc.Vec) -> np.ndarray:
         """Make self.u hold x (ghosts updated); returns its local array."""
@@ -454,8 +462,10 @@ class Model(MatrixAssembly):
         out: dict = {}
         for term in self.terms:
             values = term.readout(self)
-            if values:
-                out.setdefault(term.section, {}).update(values)
+            section = out.setdefault(term.section, {}) if values else None
+            for name, value in (values or {}).items():      # two terms may report on one entry (friction)
+                both = isinstance(value, dict) and isinstance(section.get(name), dict)
+                section[name] = {**section[name], **value} if both else value
         return out
 
 

@@ -41,7 +41,7 @@ from .linear import LowRankSolver, default_petsc_options  # noqa: F401 (re-expor
 log = logging.getLogger("skelfem")
 
 
-
+MAX_LAG_UPDATES = 30   # re-solves with updated lagged quantities (friction's normal forces) per step
 
 
 def resolve_strategy(design) -> str:
@@ -226,13 +226,53 @@ class NewtonSolver(LineSearch):
         self.model.sync(self.x)
         reason = self.snes.getConvergedReason()
         its = self.snes.getIterationNumber()
+        if self.model.update_lag():     # lagged friction (or contacts a failed solve ran into): solve again
+            return self._relag(its)
         if reason > 0:
             if not self.model.admissible(self.x):
                 return False, "inverted_elements", its
             self._factorised = self._factorised or its > 0
-            return True, "converged", its
+            why = self.model.failure()                     # e.g. a free object that nothing holds
+            return (False, why, its) if why else (True, "converged", its)
         log.debug("SNES reason %s", reason)
-        return False, self._failure or _REASONS.get(reason, f"diverged ({reason})"), its
+        why = self.model.failure(converged=False)          # e.g. a free object sliding away
+        return False, why or self._failure or _REASONS.get(reason, f"diverged ({reason})"), its
+
+    def _relag(self, its: int) -> tuple[bool, str, int]:
+        """Newton again after each change of the terms' lagged quantities, until none changes."""
+        if self._history:                       # the re-solves keep the first solve's force scale
+            self.reference_residual = max(self.reference_residual, self._history[0])
+        for _ in range(MAX_LAG_UPDATES):
+            self._failure, self._newton_step, self._decrement_converged = None, np.inf, False
+            self._watch, self._watch_allowed, self._last_trial = None, True, None
+            ok, status, more = self._newton_once()
+            its += more
+            changed = self.model.update_lag()
+            if not ok and not changed:
+                return False, status, its
+            if ok and not changed:
+                if not self.model.admissible(self.x):
+                    return False, "inverted_elements", its
+                self._factorised = True
+                why = self.model.failure()
+                return (False, why, its) if why else (True, "converged", its)
+        return False, "friction_not_converged", its
+
+    def _newton_once(self) -> tuple[bool, str, int]:
+        """One SNES solve from self.x (no lag update); the model's state follows it."""
+        try:
+            self.snes.solve(None, self.x)
+        except np.linalg.LinAlgError as exc:
+            log.debug("%s", exc)
+            self.lin.reset()
+            self.model.sync(self.model.u.vector)
+            return False, "linear_solve_failed", 0
+        self.model.sync(self.x)
+        reason = self.snes.getConvergedReason()
+        if reason > 0:
+            return True, "converged", self.snes.getIterationNumber()
+        why = self.model.failure(converged=False)
+        return False, why or self._failure or _REASONS.get(reason, f"diverged ({reason})"), self.snes.getIterationNumber()
 
     def _predict(self, prev, a_prev: float, a: float, target: float) -> None:
         """Secant predictor: extrapolate the last increment to the new load factor."""
@@ -294,7 +334,7 @@ class NewtonSolver(LineSearch):
             model.set_factor(a)
             model.sync(model.u.vector)
             cuts += 1
-            if cuts > self.max_cuts:
+            if cuts > self.max_cuts or status.startswith("no equilibrium"):   # smaller steps cannot help
                 report.status = status
                 report.residual_history.append(self._history)
                 break

@@ -21,6 +21,10 @@ def bone_tag_name(name: str) -> str:
     return f"bone:{name}"
 
 
+def object_tag_name(name: str) -> str:
+    return f"object:{name}"
+
+
 @dataclass
 class TaggedMesh:
     """A DOLFINx mesh with its cell tags and the names of the tags."""
@@ -73,10 +77,11 @@ def _build_model(gmsh, design) -> dict:
         body = fuse(occ, 3, [add_solid(occ, s) for s in design.body.solids])
         bones = {b.name: fuse(occ, 3, [add_solid(occ, s) for s in b.solids])
                  for b in design.bones}
+    objects = {object_tag_name(o.name): [add_polygon(occ, o.outline)] for o in design.objects}   # apart
     bone_list = [(name, t) for name, tags in bones.items() for t in tags]
     if not bone_list:
         occ.synchronize()
-        return {BODY: body}
+        return {BODY: body, **objects}
     _, children = occ.fragment([(dim, t) for t in body], [(dim, t) for _, t in bone_list])
     occ.synchronize()
     groups = {bone_tag_name(name): [] for name in bones}
@@ -84,7 +89,7 @@ def _build_model(gmsh, design) -> dict:
         groups[bone_tag_name(name)] += [t for _, t in kids]
     in_bones = {t for tags in groups.values() for t in tags}
     groups[BODY] = sorted({t for kids in children[:len(body)] for _, t in kids} - in_bones)
-    return groups
+    return {**groups, **objects}
 
 
 @dataclass
@@ -246,7 +251,7 @@ def mesh_design(design, comm=MPI.COMM_WORLD, verbose: bool = False, size=None) -
     from ..design import resources
     resources.check(design)         # refuse a mesh that would not fit (unless --force), on every rank
     dim = design.dim
-    names = [BODY] + [bone_tag_name(b.name) for b in design.bones]
+    names = [BODY] + [bone_tag_name(b.name) for b in design.bones] + [object_tag_name(o.name) for o in design.objects]
     tags = {name: i + 1 for i, name in enumerate(names)}
     if comm.rank == 0:
         ensure_gmsh(gmsh)

@@ -161,6 +161,15 @@ class Term:
     def end_step(self, model) -> None:
         """Called after every accepted load or time step (history: friction, inertia)."""
 
+    def failure(self, model, converged: bool = True) -> str | None:
+        """Why the state is no equilibrium (a free object that nothing holds), or None; converged=False:
+        the state where Newton gave up."""
+        return None
+
+    def update_lag(self, model) -> bool:
+        """Refresh lagged quantities (friction's normal forces) at a converged state; True: solve again."""
+        return False
+
 
 def touched(changed: set, *prefixes: str) -> bool:
     """Whether any dotted key in changed is one of prefixes, lies under one or holds one."""

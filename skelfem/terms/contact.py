@@ -39,8 +39,10 @@ from __future__ import annotations
 
 import ipctk
 import numpy as np
+from dolfinx import fem as dolfinx_fem
 from dolfinx import mesh as dmesh
 
+from ..mesh.geometry import object_tag_name
 from .base import Context, Term
 
 
@@ -73,7 +75,7 @@ def boundary_polygon(V) -> tuple[np.ndarray, np.ndarray]:
     return nodes.astype(np.int32), np.searchsorted(nodes, pairs).astype(np.int32)
 
 
-def _fortran(a) -> np.ndarray:
+def fortran_array(a) -> np.ndarray:
     return np.asfortranarray(a, dtype=float)
 
 
@@ -91,7 +93,7 @@ class SelfContact(Term):
         self.dhat, self.kappa, self.t = float(dhat), float(stiffness), float(thickness)
         self.project = project
         self.approach = 0.8       # fraction of the way to first contact a step may go
-        self.mesh = ipctk.CollisionMesh(_fortran(self.X), np.asfortranarray(self.edges))
+        self.mesh = ipctk.CollisionMesh(fortran_array(self.X), np.asfortranarray(self.edges))
         self.barrier = ipctk.BarrierPotential(self.dhat, self.kappa, True)
 
     # -- geometry ------------------------------------------------------------------------
@@ -102,7 +104,7 @@ class SelfContact(Term):
     def collisions(self, y: np.ndarray, dhat: float | None = None) -> ipctk.NormalCollisions:
         c = ipctk.NormalCollisions()
         c.use_area_weighting = True
-        c.build(self.mesh, _fortran(y), self.dhat if dhat is None else float(dhat))
+        c.build(self.mesh, fortran_array(y), self.dhat if dhat is None else float(dhat))
         return c
 
     def min_distance(self, u: np.ndarray) -> float:
@@ -114,11 +116,11 @@ class SelfContact(Term):
         """
         y = self.positions(u)
         reach = float(np.linalg.norm(np.ptp(y, axis=0)))
-        d2 = self.collisions(y, reach).compute_minimum_distance(self.mesh, _fortran(y))
+        d2 = self.collisions(y, reach).compute_minimum_distance(self.mesh, fortran_array(y))
         return float(np.sqrt(d2))
 
     def intersects(self, u: np.ndarray) -> bool:
-        return bool(ipctk.has_intersections(self.mesh, _fortran(self.positions(u))))
+        return bool(ipctk.has_intersections(self.mesh, fortran_array(self.positions(u))))
 
     # -- energy term interface -----------------------------------------------------------------
     def set_factor(self, a: float) -> None:
@@ -126,11 +128,11 @@ class SelfContact(Term):
 
     def energy(self, u: np.ndarray) -> float:
         y = self.positions(u)
-        return self.t * float(self.barrier(self.collisions(y), self.mesh, _fortran(y)))
+        return self.t * float(self.barrier(self.collisions(y), self.mesh, fortran_array(y)))
 
     def gradient(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         y = self.positions(u)
-        g = self.barrier.gradient(self.collisions(y), self.mesh, _fortran(y))
+        g = self.barrier.gradient(self.collisions(y), self.mesh, fortran_array(y))
         return self.dofs, self.t * np.asarray(g).ravel()
 
     def hessian(self, u: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -140,7 +142,7 @@ class SelfContact(Term):
         if len(c) == 0:
             return []
         method = ipctk.PSDProjectionMethod.CLAMP if self.project else ipctk.PSDProjectionMethod.NONE
-        H = self.barrier.hessian(c, self.mesh, _fortran(y), method).tocsr()
+        H = self.barrier.hessian(c, self.mesh, fortran_array(y), method).tocsr()
         active = np.flatnonzero(np.diff(H.indptr))
         block = H[active][:, active].toarray()
         return [(self.dofs[active], self.t * block)]
@@ -160,7 +162,7 @@ class SelfContact(Term):
         """
         y0 = self.positions(u0)
         y1 = y0 + p[self.dofs].reshape(-1, self.bs)
-        toi = float(ipctk.compute_collision_free_stepsize(self.mesh, _fortran(y0), _fortran(y1)))
+        toi = float(ipctk.compute_collision_free_stepsize(self.mesh, fortran_array(y0), fortran_array(y1)))
         return toi if toi >= 1.0 else self.approach * toi
 
     def admissible(self, u: np.ndarray) -> bool:
@@ -182,12 +184,24 @@ def build(ctx: Context) -> list[Term]:
         raise DesignError(f"{where}: self-contact needs solver.line_search = \"energy\" or \"curved\" "
                           f"(got {d.solver.line_search!r}): only it limits steps to collision-free ones")
     contact = SelfContact(ctx.V, d.contact.dhat, d.materials[d.body.material].E, float(d.thickness))
+    if d.objects:                      # contacts between the body and objects are terms/objects.py's
+        contact.mesh.can_collide = ~ipctk.make_vertex_patches_filter(piece_labels(ctx, contact.nodes))
     d0 = contact.min_distance(np.zeros(len(ctx.u.x.array)))
     if d0 <= d.contact.dhat:
         raise DesignError(f"{d.source}: contact.dhat: {d.contact.dhat:g} mm is not below the "
                           f"smallest rest distance between boundary parts ({d0:.3g} mm); "
                           "lower dhat or coarsen the mesh")
     return [contact]
+
+
+def piece_labels(ctx: Context, nodes: np.ndarray) -> np.ndarray:
+    """For local nodes: 0 on the body, k on the k-th object of the design (1-based)."""
+    tm, V = ctx.tagged, ctx.V
+    label = np.zeros(len(nodes), np.int32)
+    for k, spec in enumerate(ctx.design.objects, start=1):
+        cells = tm.cell_tags.find(tm.tags[object_tag_name(spec.name)])
+        label[np.isin(nodes, dolfinx_fem.locate_dofs_topological(V, ctx.mesh.topology.dim, cells))] = k
+    return label
 
 
 # -- measuring interpenetration (for states reached without contact) -------------------------

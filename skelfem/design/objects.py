@@ -1,0 +1,199 @@
+"""Design sections for touching the world: free objects and Coulomb friction coefficients.
+
+Keys read here (everything else of these sections is read by skelfem.design)::
+
+    [[objects]]               # free rigid bodies the robot touches (2D); no pins needed
+    name = "ball"
+    outline = [[40, 30], [60, 30], [60, 50], [40, 50]]   # simple polygon, clear of the body at rest
+    material = "pla"          # its density gives the weight under [gravity]
+    rigid = true              # the only kind so far (3 DOFs)
+
+    [contact]
+    friction = 0.5            # kinetic Coulomb coefficient, default for every contact (>= 0; default 0)
+    friction_static = 0.6     # static coefficient, >= friction (default: friction)
+    [contact.pairs]           # per material pair (either order): the kinetic coefficient, static = it
+    "ecoflex:pla" = 0.8       # or { friction = 0.8, friction_static = 0.9 }
+
+    [[grounds]]
+    friction = 0.4            # this ground's coefficients (default: [contact]'s)
+    friction_static = 0.5
+
+:func:`take` runs before the sections it reads from are parsed: it removes
+these keys from the tables that skelfem.design goes on to check (so they
+are not unknown keys there), leaving the design's raw data untouched. It
+needs only the ``_Table`` it is given (``take``, ``fail``, its class), so it
+imports nothing from skelfem.design.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import polygons
+
+FRICTION_KEYS = ("friction", "friction_static")
+
+
+@dataclass(frozen=True)
+class Coulomb:
+    """Kinetic and static Coulomb coefficients (static >= kinetic >= 0)."""
+    kinetic: float = 0.0
+    static: float = 0.0
+    static_given: bool = False     # friction_static written (else it follows friction)
+
+    @property
+    def active(self) -> bool:
+        return self.static > 0.0
+
+
+@dataclass(frozen=True, eq=False)
+class FrictionSpec:
+    default: Coulomb = field(default_factory=Coulomb)     # [contact]
+    grounds: dict = field(default_factory=dict)           # ground name -> Coulomb
+    pairs: dict = field(default_factory=dict)             # frozenset({material, material}) -> Coulomb
+
+    def ground(self, name: str) -> Coulomb:
+        return self.grounds.get(name, self.default)
+
+    def between(self, a: str, b: str) -> Coulomb:
+        """The coefficients between two materials."""
+        return self.pairs.get(frozenset((a, b)), self.default)
+
+    @property
+    def active(self) -> bool:
+        return self.default.active or any(c.active for c in self.grounds.values())
+
+
+@dataclass(frozen=True, eq=False)
+class ObjectSpec:
+    name: str
+    outline: np.ndarray       # (n, 2) mm, counter-clockwise or not
+    material: str
+    rigid: bool = True
+
+
+def _coulomb(t, default: Coulomb | None) -> Coulomb | None:
+    """The (friction, friction_static) pair of table t, or default if it has neither."""
+    if not any(t.has(k) for k in FRICTION_KEYS):
+        return default
+    base = default or Coulomb()
+    mu = t.take("friction", "number", base.kinetic if not t.has("friction_static") else None)
+    if mu is None:
+        t.fail("friction", "missing: friction_static needs friction (the kinetic coefficient) beside it")
+    if mu < 0:
+        t.fail("friction", f"must be >= 0, got {mu:g}")
+    given = t.has("friction_static")
+    mu_s = t.take("friction_static", "number", mu)
+    if mu_s < mu:
+        t.fail("friction_static", f"must be >= friction ({mu:g}), got {mu_s:g}")
+    return Coulomb(float(mu), float(mu_s), given)
+
+
+def _stripped(top, section: str, kind: str):
+    """A _Table over a copy of top's section (the original, shared with the raw data, stays)."""
+    value = top.data.get(section)
+    if value is None:
+        return None
+    Table = type(top)
+    if kind == "table":
+        if not isinstance(value, dict):
+            return None                               # skelfem.design reports the type
+        t = Table(dict(value), section, top.source)
+        top.data[section] = t.data
+        return t
+    if not isinstance(value, list) or not all(isinstance(e, dict) for e in value):
+        return None
+    out = []
+    for i, e in enumerate(value):
+        name = e.get("name")
+        label = name if isinstance(name, str) and name else str(i)
+        out.append((name, Table(dict(e), f"{section}.{label}", top.source)))
+    top.data[section] = [t.data for _, t in out]
+    return out
+
+
+def _pairs(contact, materials: dict, default: Coulomb) -> dict:
+    if contact is None or not contact.has("pairs"):
+        return {}
+    Table = type(contact)
+    t = Table(contact.take("pairs", "table"), f"{contact.where}.pairs", contact.source)
+    out = {}
+    for key in list(t.data):
+        names = key.split(":")
+        if len(names) != 2 or not all(n in materials for n in names):
+            t.fail(f'"{key}"', f"unknown material pair (write \"a:b\" with a, b among {', '.join(materials)})")
+        value = t.data[key]
+        if isinstance(value, dict):
+            c = _coulomb(Table(t.take(key, "table"), t.key(f'"{key}"'), t.source), default)
+        else:
+            mu = t.take(key, "number")
+            if mu < 0:
+                t.fail(f'"{key}"', f"must be >= 0, got {mu:g}")
+            c = Coulomb(mu, mu)
+        out[frozenset(names)] = c
+    return out
+
+
+def _objects(top, dim: int, materials: dict, body) -> tuple:
+    entries = top.data.pop("objects", None)
+    if entries is None:
+        return ()
+    Table = type(top)
+    if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
+        top.fail("objects", "must be an array of tables ([[...]])")
+    if dim != 2:
+        top.fail("objects", "objects are implemented for dim = 2 only")
+    if top.has("dynamics"):
+        top.fail("objects", "objects are not implemented with [dynamics] yet (static runs only)")
+    out, seen = [], set()
+    loops = [body.outline, *body.holes]
+    tol = 1e-9 * max(float(np.ptp(body.outline, axis=0).max()), 1.0)
+    for i, e in enumerate(entries):
+        name = e.get("name")
+        t = Table(e, f"objects.{name if isinstance(name, str) and name else i}", top.source)
+        name = t.take("name", "str")
+        if not name or "." in name or "=" in name:
+            t.fail("name", "must be a non-empty name without '.' or '='")
+        if name in seen:
+            t.fail("name", f"duplicate name {name!r} in objects")
+        seen.add(name)
+        outline = t.take("outline", "points", dim=2)
+        if len(outline) < 3:
+            t.fail("outline", "a polygon needs at least 3 points")
+        if not polygons.is_simple(outline, tol) or abs(polygons.signed_area(outline)) <= tol:
+            t.fail("outline", "polygon is not simple or has zero area")
+        material = t.take("material", "str")
+        if material not in materials:
+            t.fail("material", f"unknown material {material!r} (defined: {', '.join(materials)})")
+        rigid = t.take("rigid", "bool", True)
+        if not rigid:
+            t.fail("rigid", "only rigid objects are implemented (rigid = true)")
+        t.done()
+        if (polygons.meeting_loops([outline, *loops], tol) & {(0, j) for j in range(1, len(loops) + 1)}
+                or polygons.region_contains(loops, outline[:1], tol).any()
+                or polygons.contains(outline, body.outline[:1], tol).any()):
+            t.fail("outline", "overlaps the body at rest (an object must start clear of it)")
+        for other in out:
+            if polygons.overlap(outline, other.outline, tol):
+                t.fail("outline", f"overlaps object {other.name!r} at rest")
+        if top.has("gravity") and materials[material].density is None:
+            top.fail(f"materials.{material}.density", f"missing (required with [gravity]: object {name!r})")
+        out.append(ObjectSpec(name, outline, material, rigid))
+    return tuple(out)
+
+
+def take(top, dim: int, materials: dict, body) -> tuple[FrictionSpec, tuple]:
+    """Read (and remove from top's tables) [[objects]] and the friction keys of [contact] and [[grounds]]."""
+    objects = _objects(top, dim, materials, body)
+    contact = _stripped(top, "contact", "table")
+    default = Coulomb()
+    if contact is not None:
+        default = _coulomb(contact, default)
+    pairs = _pairs(contact, materials, default)
+    grounds = {}
+    for name, t in _stripped(top, "grounds", "tables") or ():
+        c = _coulomb(t, None)
+        if c is not None and isinstance(name, str):
+            grounds[name] = c
+    return FrictionSpec(default, grounds, pairs), objects

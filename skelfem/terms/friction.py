@@ -1,0 +1,345 @@
+"""Coulomb friction on grounds, anchored in displacement (no creep while sticking).
+
+A ground (:mod:`.grounds`) pushes each boundary node i (current position
+y_i = X_i + u_i) back along its normal n with the nodal force
+
+    N_i = k t w_i max(-gap_i, 0),      gap_i = (y_i - p) . n,
+
+w_i the node's Gauss-Lobatto weight on the boundary (the ground's own
+quadrature, so N_i is exactly the ground's nodal force). Friction acts in
+the tangent plane (T: the dim x (dim - 1) orthonormal tangent basis). Each
+node keeps a *stick anchor* s_i, a tangential position, and within a load
+step has the dissipation potential of a Coulomb slider of strength
+F_i = mu_i N_i, regularised only over a tiny slip length eps:
+
+    d_i = T^T y_i - s_i,   r = |d_i|,
+    e_i = F_i r^2 / (2 eps)          if r <= eps   (sticking)
+          F_i (r - eps / 2)          otherwise     (slipping),
+
+    Pi_f(u) = sum_i e_i,
+
+convex and C^1 in y_i, with the tangential force min(r / eps, 1) F_i d / r
+(the force the node drags the plane with). Every contact node sticks within
+the same distance eps, so a rigid block starts to slide when, and only when,
+its tangential load reaches mu_s sum N_i, however its normal load is
+distributed (a tangential spring of one stiffness for all nodes would let
+lightly loaded nodes slip first). After every accepted step (``end_step``)
+the return map moves the anchor of a node that slipped to eps behind it; a
+sticking node keeps its anchor. So a sticking contact does not creep: its
+offset from where it stuck stays below eps (``slip_length`` times the size
+of the body, 1e-6 by default), whatever the number of steps. Re-anchoring
+every node at the start of each step instead (``anchored = False``) is a
+friction regularised on the step's increment, the quasi-static counterpart
+of a velocity mollifier: it slips by up to eps at every step and drifts
+without bound; it is kept to measure that drift.
+
+Newton uses the exact Hessian (none along the slip of a slipping node), so
+a block that slides is carried to its new place in a step or two;
+``project = True`` replaces it with the secant stiffness F_i / r in every
+tangential direction (positive; it slows a long slide to a crawl and is
+kept for comparison).
+
+N_i is *lagged* (held fixed while Newton solves), which keeps Pi_f a
+potential, and the lag is iterated to a fixed point: after Newton
+converges, ``update_lag`` recomputes N_i(u) and asks for a re-solve until
+no N_i changes by more than ``lag_rtol`` times the largest one. The first
+solve of a step holds every node that touches the plane at its start by a
+tangential spring that cannot slip (its N is not known yet; a lagged N from
+the last step would let a contact whose load grows slide away before N
+caught up): of the last lag's stiffness mu N_i / eps, so that the solve
+starts where the last step ended, or of the ground's penalty k t w_i for a
+new contact. A node resists with mu_s until it has slipped by more than a
+breakaway distance D_c (``breakaway`` times the body's size, 1e-4 by
+default; checked in the same fixed-point loop) since it last stuck, and with
+mu_k from then on, until a step ends with it sticking again: a step
+function of slip, the limit of linear slip-weakening. (Switching at the
+first micro-slip instead lets the few micrometres of partial slip that an
+elastic body shows at its edges well below the threshold drop those nodes
+to mu_k, and the load they shed breaks the rest away.)
+
+Parameters ``grounds.NAME.friction`` (mu_k) and ``.friction_static`` (mu_s)
+change live (with ``.point`` and ``.stiffness``, shared with the ground).
+Read-out beside the ground's ``force``: ``friction_force`` (the tangential
+force the body exerts on the plane, N) and ``sticking`` (the share of the
+normal force carried by nodes that did not slip in the last step; 1
+without contact).
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+import ufl
+from dolfinx import fem
+from dolfinx.fem import petsc as fem_petsc
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from .base import Context, Term
+from .grounds import nodal_ds
+
+
+def tangent_basis(normal: np.ndarray) -> np.ndarray:
+    """Orthonormal (dim, dim - 1) basis of the plane normal to a unit vector."""
+    n = np.asarray(normal, float)
+    if len(n) == 2:
+        return np.array([[-n[1]], [n[0]]])
+    a = np.eye(3)[int(np.argmin(np.abs(n)))]
+    t1 = np.cross(n, a)
+    t1 /= np.linalg.norm(t1)
+    return np.column_stack([t1, np.cross(n, t1)])
+
+
+def boundary_weights(V) -> np.ndarray:
+    """Gauss-Lobatto boundary weight of every owned node (0 off the boundary), mm^(dim-1)."""
+    v = ufl.TestFunction(V)
+    dim = V.mesh.geometry.dim
+    u = fem.Function(V)
+    b = fem_petsc.assemble_vector(fem.form(ufl.inner(ufl.as_vector([1.0] * dim), v) * nodal_ds(u)))
+    b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+    w = b.array_r.reshape(-1, V.dofmap.index_map_bs)[:, 0].copy()
+    b.destroy()
+    return w
+
+
+class GroundFriction(Term):
+    """Coulomb friction between the body's boundary and one ground."""
+
+    section = "grounds"
+    touch_tol = 1e-9           # a node within this fraction of the contact's size from the plane touches it
+    lag_rtol = 1e-7            # fixed point of the lagged normal forces: relative change below this
+    anchored = True            # False: re-anchor every node at every step (regularised, creeps)
+    slip_length = 1e-6         # eps, as a fraction of the body's size
+    project = False            # True: Newton's Hessian of a slipping node is its secant F / r along d too
+    breakaway = 1e-4           # D_c: slip (fraction of the body's size) after which mu_s drops to mu_k
+
+    def __init__(self, ctx: Context, spec, coulomb):
+        self.ctx, self.name = ctx, spec.name
+        self.normal = np.asarray(spec.normal, float)
+        self.point = np.asarray(spec.point, float).copy()
+        self.k = float(spec.stiffness)
+        self.mu_k, self.mu_s = float(coulomb.kinetic), float(coulomb.static)
+        self.static_given = bool(coulomb.static_given)
+        self.inherits = spec.name not in ctx.design.friction.grounds     # [contact]'s coefficients
+        self.t = float(ctx.thickness.value)
+        self.T = tangent_basis(self.normal)
+        self._ready = False
+        self._report = None        # read-out at the last accepted step
+        self.nodal = None          # (nodes, friction force on the plane, slipping, N) at the last accepted step
+        if self.active:
+            self._setup()
+
+    # -- set-up (only once friction is switched on: designs without it build nothing) --------------
+    def _setup(self) -> None:
+        if self._ready:
+            return
+        ctx = self.ctx
+        w = boundary_weights(ctx.V)
+        self.nodes = np.flatnonzero(w > 0.0).astype(np.int32)       # owned boundary nodes
+        self.w = w[self.nodes]
+        bs = ctx.bs
+        self.dofs = (self.nodes[:, None] * bs + np.arange(bs)).astype(np.int32)
+        self.X = ctx.V.tabulate_dof_coordinates()[self.nodes, :ctx.dim]
+        self.anchor = self.X @ self.T                                # stick anchors s_i (tangential)
+        x = ctx.mesh.geometry.x[:, :ctx.dim]
+        parts = ctx.comm.allgather((x.max(axis=0), x.min(axis=0)) if len(x) else None)
+        size = np.linalg.norm(np.max([p[0] for p in parts if p is not None], axis=0)
+                              - np.min([p[1] for p in parts if p is not None], axis=0))
+        self.eps = self.slip_length * float(size)                      # mm
+        self.dc = self.breakaway * float(size)                          # mm
+        self.run = np.zeros(len(self.nodes))                            # slip since the node last stuck, mm
+        self.sliding = np.zeros(len(self.nodes), bool)               # committed: kinetic (slid past D_c)
+        self.trial = self.sliding.copy()                              # this step's kinetic nodes
+        self.N = np.zeros(len(self.nodes))                            # lagged normal forces
+        self.fresh = self._touching(self.ctx.u.x.array)                # stuck in a step's first solve
+        self._ready = True
+
+    @property
+    def active(self) -> bool:
+        return self.mu_s > 0.0 or self.mu_k > 0.0
+
+    # -- kinematics ----------------------------------------------------------------------------
+    def positions(self, u: np.ndarray) -> np.ndarray:
+        return self.X + u[self.dofs]
+
+    def normal_forces(self, u: np.ndarray) -> np.ndarray:
+        """N_i(u) = k t w_i max(-gap_i, 0), N: the ground's nodal forces on the body."""
+        gap = (self.positions(u) - self.point) @ self.normal
+        return self.k * self.t * self.w * np.maximum(-gap, 0.0)
+
+    def _stiffness(self, F: np.ndarray) -> np.ndarray:
+        """K_i = F_i / eps. A node held stuck in a step's first solve keeps the stiffness of the last lag
+        (so that the solve starts where the last one ended), or k t w_i (the ground's penalty) if new."""
+        last = np.where(self.trial, self.mu_k, self.mu_s) * self.N / self.eps
+        return np.where(self.fresh, np.where(last > 0, last, self.k * self.t * self.w), F / self.eps)
+
+    def _strength(self) -> np.ndarray:
+        """F_i = mu_i N_i; inf (held by the spring alone) on the nodes that start the solve stuck."""
+        F = np.where(self.trial, self.mu_k, self.mu_s) * self.N
+        return np.where(self.fresh, np.inf, F)
+
+    def _touching(self, u: np.ndarray) -> np.ndarray:
+        """Nodes that touch or cross the plane at u. A step's first solve holds them stuck (a lagged N
+        from the last step would let a contact whose load grows slide off before N catches up); the
+        lag iteration then limits them to mu N."""
+        gap = (self.positions(u) - self.point) @ self.normal
+        return gap <= self.touch_tol * max(1.0, self.eps / self.slip_length)
+
+    def _parts(self, u: np.ndarray):
+        """(active nodes, d, r, K, F, sticking) at u for the nodes with F > 0 (F finite where slipping)."""
+        F = self._strength()
+        on = np.flatnonzero(F > 0.0)
+        d = self.positions(u)[on] @ self.T - self.anchor[on]
+        r = np.linalg.norm(d, axis=1)
+        K = self._stiffness(F)[on]
+        stick = K * r <= F[on]
+        return on, d, r, K, np.where(stick & np.isinf(F[on]), K * r, F[on]), stick
+
+    # -- energy ----------------------------------------------------------------------------------
+    def energy(self, u: np.ndarray) -> float:
+        if not (self.active and self._ready):
+            return 0.0
+        _, _, r, K, F, stick = self._parts(u)
+        local = float(np.sum(np.where(stick, 0.5 * K * r ** 2, F * r - 0.5 * F ** 2 / K)))
+        return self.ctx.comm.allreduce(local) if self.ctx.comm.size > 1 else local     # Pi is global
+
+    def _forces(self, u: np.ndarray):
+        """(active nodes, tangential force min(K r, F) d / r as (n, dim-1))."""
+        on, d, r, K, F, stick = self._parts(u)
+        scale = np.where(stick, K, F / np.where(stick, 1.0, r))
+        return on, scale[:, None] * d
+
+    def gradient(self, u: np.ndarray):
+        if not (self.active and self._ready):
+            return None
+        on, f = self._forces(u)
+        return self.dofs[on].ravel(), (f @ self.T.T).ravel()
+
+    def hessian(self, u: np.ndarray) -> list:
+        """One block-diagonal (per node) sparse block: K T T^T sticking, F/r T (I - e e^T) T^T slipping."""
+        if not (self.active and self._ready):
+            return []
+        on, d, r, K, F, stick = self._parts(u)
+        if not len(on):
+            return []
+        m = self.T.shape[1]
+        e = d / np.where(r > 0, r, 1.0)[:, None]
+        along = np.where(stick | self.project, 0.0, 1.0)                 # exact: no stiffness along the slip
+        P = np.eye(m)[None] - along[:, None, None] * e[:, :, None] * e[:, None, :]
+        c = np.where(stick, K, F / np.where(stick, 1.0, r))
+        H = np.einsum("ia,nab,jb->nij", self.T, c[:, None, None] * P, self.T)        # (n, dim, dim)
+        H = sp.block_diag(list(H), format="coo")
+        return [(self.dofs[on].ravel(), H)]
+
+    def pattern(self) -> list:
+        if not self._ready:
+            return []
+        return [(self.nodes[i:i + 1], self.nodes[i:i + 1]) for i in range(len(self.nodes))]
+
+    # -- lag and history ---------------------------------------------------------------------------
+    def set_factor(self, a: float) -> None:
+        """A new attempt at a step starts from the committed slip states; a ramp from rest (u = 0
+        everywhere) from no history at all."""
+        if self._ready:
+            u = self.ctx.u.x.array
+            if not self.ctx.comm.allreduce(bool(np.any(u)), op=MPI.LOR):
+                self.anchor = self.X @ self.T
+                self.N[:], self.run[:], self.sliding[:] = 0.0, 0.0, False
+            self.trial = self.sliding.copy()
+            self.fresh = self._touching(u)
+
+    def update_lag(self, model) -> bool:
+        """Lagged normal forces (and breakaways past mu_s) to the state u; True if a re-solve is needed."""
+        if not self.active:
+            return False
+        self._setup()
+        comm = self.ctx.comm
+        u = model.u.x.array
+        N = self.normal_forces(u)
+        scale = comm.allreduce(float(N.max()) if len(N) else 0.0, op=MPI.MAX)
+        change = comm.allreduce(float(np.abs(N - self.N).max()) if len(N) else 0.0, op=MPI.MAX)
+        changed = change > self.lag_rtol * scale or bool(self.fresh.any())
+        self.N, self.fresh = N, np.zeros_like(self.fresh)
+        if self.mu_s > self.mu_k:             # a sticking node pulled past mu_s N slides from now on
+            r = np.linalg.norm(self.positions(u) @ self.T - self.anchor, axis=1)
+            broke = ~self.trial & (N > 0.0) & (self.run + np.maximum(r - self.eps, 0.0) > self.dc)
+            if broke.any():
+                self.trial |= broke
+                changed = True
+        return bool(comm.allreduce(changed, op=MPI.LOR))
+
+    def end_step(self, model) -> None:
+        """Return map: a node that slipped keeps its anchor eps behind it; sticking nodes keep theirs,
+        nodes off the plane take their current place."""
+        if not (self.active and self._ready):
+            return
+        u = model.u.x.array
+        self._report = self._measure(u)
+        s = self.positions(u) @ self.T
+        d = s - self.anchor
+        r = np.linalg.norm(d, axis=1)
+        F = self._strength()
+        slip = (F > 0.0) & (r > self.eps * (1 + 1e-12))
+        if self.anchored:
+            keep = np.where(slip, self.eps / np.where(slip, r, 1.0), 1.0)     # |d| -> eps on slipping nodes
+            self.anchor = np.where(slip[:, None], s - keep[:, None] * d, self.anchor)
+            self.anchor = np.where((F > 0.0)[:, None], self.anchor, s)
+        else:
+            self.anchor = s.copy()
+        self.run = np.where(slip, self.run + np.maximum(r - self.eps, 0.0), 0.0)
+        self.sliding = self.run > self.dc
+        self.trial = self.sliding.copy()
+        self.fresh = self._touching(u)
+
+    # -- parameters, following, read-out -------------------------------------------------------------
+    def parameters(self) -> dict:
+        p = f"grounds.{self.name}"
+        out = {f"{p}.friction": self.mu_k, f"{p}.friction_static": self.mu_s,
+               f"{p}.point": self.point.copy(), f"{p}.stiffness": self.k}
+        if self.inherits:                        # a ground without coefficients of its own follows [contact]
+            out.update({"contact.friction": self.mu_k, "contact.friction_static": self.mu_s})
+        return out
+
+    def set_parameter(self, key: str, value) -> None:
+        which = key.rsplit(".", 1)[1]
+        if key.startswith("grounds.") and which.startswith("friction") and self.inherits:
+            self.inherits, self.static_given = False, False     # its own coefficients from now on
+        if which == "friction":                  # friction_static follows it unless it was written
+            self.mu_k = float(value)
+            self.mu_s = self.mu_s if self.static_given else self.mu_k
+        elif which == "friction_static":
+            self.mu_s, self.static_given = float(value), True
+        elif which == "point":
+            self.point = np.asarray(value, float).copy()
+        elif which == "stiffness":
+            self.k = float(value)
+        else:
+            raise KeyError(key)
+
+    def follow(self, ctx: Context, changed: set) -> bool:
+        """Built anew on every edit (it has no UFL energy): its node positions and weights may have moved."""
+        return False
+
+    def _measure(self, u: np.ndarray) -> dict:
+        """The read-out at a converged state u (before the return map moves the anchors)."""
+        comm = self.ctx.comm
+        on, f = self._forces(u)
+        force = comm.allreduce((f @ self.T.T).sum(axis=0) if len(on) else np.zeros(self.ctx.dim))
+        _, _, r, _, _, _ = self._parts(u)
+        slipping = np.zeros(len(self.N), bool)
+        slipping[on] = r > self.eps * (1 + 1e-12)
+        total = comm.allreduce(float(self.N.sum()))
+        held = comm.allreduce(float(self.N[~slipping].sum()))
+        nodal = np.zeros((len(self.N), self.ctx.dim))
+        nodal[on] = f @ self.T.T
+        self.nodal = (self.nodes, nodal, slipping, self.N.copy())   # per node, for per-piece read-outs
+        return {"friction_force": force, "sticking": held / total if total > 0 else 1.0}
+
+    def readout(self, model) -> dict:
+        if not (self.active and self._ready):
+            return {}                  # frictionless: result.json as before friction existed
+        return {self.name: dict(self._report or self._measure(model.u.x.array))}
+
+
+def build(ctx: Context) -> list[Term]:
+    friction = ctx.design.friction
+    return [GroundFriction(ctx, spec, friction.ground(spec.name)) for spec in ctx.design.grounds]

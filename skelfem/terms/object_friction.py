@@ -1,0 +1,368 @@
+"""Coulomb friction between the body and rigid objects (2D), anchored on the object's surface.
+
+The body's boundary nodes touch the objects' boundary edges through the IPC
+barrier (:class:`.objects.PieceContact`). A body node i in contact sticks
+to a point of an object edge (a, b): the *anchor*, at the edge parameter
+s_i, which moves with the object. With T_i the edge's unit tangent (lagged,
+like the normal force) the tangential slip of the node is
+
+    d_i = T_i . (y_i - (1 - s_i) y_a - s_i y_b),
+
+linear in the positions of the three nodes, and the node has the same
+dissipation potential as on a ground (:mod:`.friction`): a Coulomb slider
+of strength F_i = mu N_i regularised over the slip length eps,
+
+    e_i = F_i d_i^2 / (2 eps)      if |d_i| <= eps,     F_i (|d_i| - eps / 2) otherwise,
+
+with N_i the barrier's force on node i (lagged and iterated to a fixed
+point with the solver, ``update_lag``), mu the pair's coefficient
+(``[contact.pairs]``, else ``[contact] friction``). After each accepted step
+the return map slides the anchor of a slipping node along the object's
+boundary to eps behind it (onto the next edge past an edge's end), a
+sticking node keeps it, a node that has left the barrier's reach loses it
+and a node that enters it is anchored where it is. As on grounds, a step's
+first solve holds every anchored node by a spring (the last lag's
+stiffness mu N_i / eps, so that it starts where the last step ended; a new
+contact's E t w_i / eps, which keeps it inside the sticking zone, where
+Newton converges fast) until the lag gives its N, and mu_s drops to mu_k once a node has slipped
+by more than D_c.
+
+Newton uses the exact Hessian (zero along the slip of a slipping node in
+2D). ``project = True`` replaces it with the secant stiffness F_i / |d_i|
+(positive, like self-contact's projected barrier Hessian); measured on the
+pinch near its limit it is ten times slower (359 Newton iterations against
+31) and it slows a sliding object to a crawl, so it is off.
+
+Every boundary vertex of a piece (the body, each object) anchors on the
+edges of the other pieces, so friction acts both where the body's nodes
+press on an object's side and where an object's corner presses into the
+body; N_i counts only the collisions in which vertex i is the vertex
+(against an edge; half of a vertex-vertex one), so the two sides of one
+contact are not both counted. Pairs of objects rub too (their coefficient
+from their materials).
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from .base import Term
+
+
+class ObjectFriction(Term):
+    """Friction of every body boundary node against the objects' boundary edges."""
+
+    section, name = "contacts", "friction"
+    slip_length = 1e-6      # eps, as a fraction of the body's size
+    project = False         # True: Newton's Hessian of a slipping node is its secant F / |d| (exact: 0)
+    breakaway = 1e-4        # D_c, as a fraction of the body's size
+
+    def __init__(self, ctx, contact, objects):
+        design = ctx.design
+        self.u_fn = ctx.u
+        self.c = contact
+        self.t = contact.t
+        self.bs = contact.bs
+        X = contact.X
+        size = float(np.linalg.norm(np.ptp(X, axis=0)))
+        self.eps, self.dc = self.slip_length * size, self.breakaway * size
+        self.body_vertices = np.arange(len(X))               # every boundary vertex (body and objects) ...
+        self.vertex_piece = contact.label                    # ... of its piece, anchored on other pieces' edges
+        edges = contact.edges
+        self.obj_edges = edges                               # (m, 2) vertex indices: every boundary edge
+        self.edge_piece = contact.label[edges[:, 0]]
+        body_mat = design.body.material
+        mats = [body_mat] + [design.materials[o.spec.material].name for o in objects]
+        coeff = [[design.friction.between(a, b) for b in mats] for a in mats]
+        self.mu_k_pair = np.array([[c.kinetic for c in row] for row in coeff])
+        self.mu_s_pair = np.array([[c.static for c in row] for row in coeff])
+        np.fill_diagonal(self.mu_k_pair, 0.0)                # a piece does not rub on itself here
+        np.fill_diagonal(self.mu_s_pair, 0.0)
+        listed = [[frozenset((a, b)) in design.friction.pairs for b in mats] for a in mats]
+        self.default_pair = ~np.array(listed, bool) & ~np.eye(len(mats), dtype=bool)   # [contact]'s pairs
+        self.default = design.friction.default
+        # the vertices' boundary weights (half their edges' lengths): the fresh springs' areas
+        L = np.linalg.norm(X[edges[:, 1]] - X[edges[:, 0]], axis=1)
+        w = np.zeros(len(X))
+        np.add.at(w, edges.ravel(), np.repeat(0.5 * L, 2))
+        self.w = w
+        self.k_fresh = design.materials[body_mat].E * self.t / self.eps      # stuck within eps: N/mm per mm
+        n = len(self.body_vertices)
+        self.edge = np.full(n, -1)                           # anchor edge (row of obj_edges), -1: none
+        self.s = np.zeros(n)                                 # anchor parameter on it
+        self.T = np.zeros((n, 2))                            # lagged unit tangent of the anchor edge
+        self.N = np.zeros(n)                                 # lagged normal force
+        self.fresh = np.zeros(n, bool)
+        self.sliding = np.zeros(n, bool)
+        self.trial = np.zeros(n, bool)
+        self.run = np.zeros(n)
+        self._report = None
+        self._y0 = contact.X.copy()                          # vertex positions at the step's start
+
+    @property
+    def active(self) -> bool:
+        return bool(self.mu_s_pair.max() > 0.0)
+
+    # -- geometry -------------------------------------------------------------------------------
+    def _closest(self, P: np.ndarray, piece: np.ndarray):
+        """For points P (n, 2) of pieces `piece`: (edge, parameter s in [0, 1], distance) of the closest
+        edge of another piece."""
+        y = self._y
+        a, b = y[self.obj_edges[:, 0]], y[self.obj_edges[:, 1]]
+        ab = b - a
+        s = np.clip(np.einsum("nek,ek->ne", P[:, None, :] - a[None], ab) / np.einsum("ek,ek->e", ab, ab), 0, 1)
+        q = a[None] + s[..., None] * ab[None]
+        dist = np.linalg.norm(P[:, None, :] - q, axis=2)
+        dist[piece[:, None] == self.edge_piece[None, :]] = np.inf
+        j = np.argmin(dist, axis=1)
+        k = np.arange(len(P))
+        return j, s[k, j], dist[k, j]
+
+    def _tangents(self, y: np.ndarray, edge: np.ndarray) -> np.ndarray:
+        e = self.obj_edges[edge]
+        t = y[e[:, 1]] - y[e[:, 0]]
+        return t / np.linalg.norm(t, axis=1)[:, None]
+
+    def _anchor_new(self, y: np.ndarray, which: np.ndarray | None = None, start: np.ndarray | None = None) -> None:
+        """Anchor the unanchored vertices (of which, default all) within dhat of another piece's edge: where
+        they are, or (start: the positions at the step's start) where they were relative to that edge
+        when the step began -- a contact made during a step has not slipped yet."""
+        if not len(self.obj_edges):
+            return
+        self._y = y
+        free = np.flatnonzero((self.edge < 0) & (True if which is None else which))
+        if not len(free):
+            return
+        j, s, dist = self._closest(y[self.body_vertices[free]], self.vertex_piece[free])
+        near = dist <= self.c.dhat
+        idx = free[near]
+        if start is not None and len(idx):
+            e = self.obj_edges[j[near]]
+            a, b, v = start[e[:, 0]], start[e[:, 1]], start[self.body_vertices[idx]]
+            s = s.copy()
+            s[near] = np.clip(np.einsum("nk,nk->n", v - a, b - a) / np.einsum("nk,nk->n", b - a, b - a), 0, 1)
+        self.edge[idx], self.s[idx] = j[near], s[near]
+        self.T[idx] = self._tangents(y, j[near])
+
+    def _slip(self, y: np.ndarray):
+        """(anchored nodes, d) at positions y."""
+        on = np.flatnonzero(self.edge >= 0)
+        e = self.obj_edges[self.edge[on]]
+        s = self.s[on][:, None]
+        P = (1 - s) * y[e[:, 0]] + s * y[e[:, 1]]
+        d = np.einsum("nk,nk->n", self.T[on], y[self.body_vertices[on]] - P)
+        return on, d
+
+    # -- the potential ----------------------------------------------------------------------------
+    def _mu(self) -> np.ndarray:
+        master = np.where(self.edge >= 0, self.edge_piece[np.maximum(self.edge, 0)], self.vertex_piece)
+        return np.where(self.trial, self.mu_k_pair[self.vertex_piece, master],
+                        self.mu_s_pair[self.vertex_piece, master])
+
+    def _parts(self, u: np.ndarray):
+        y = self.c.positions(u)
+        on, d = self._slip(y)
+        F = np.where(self.fresh[on], np.inf, self._mu()[on] * self.N[on])
+        keep = F > 0
+        on, d, F = on[keep], d[keep], F[keep]
+        last = self._mu()[on] * self.N[on] / self.eps            # fresh: the last lag's stiffness, if any
+        K = np.where(self.fresh[on], np.where(last > 0, last, self.k_fresh * self.w[on]), F / self.eps)
+        r = np.abs(d)
+        stick = K * r <= F
+        F = np.where(stick & np.isinf(F), K * r, F)
+        return on, d, K, F, stick
+
+    def _dofs(self, on: np.ndarray) -> np.ndarray:
+        """(n, 3 vertices x 2) DOFs: the body node, then the anchor edge's two nodes."""
+        e = self.obj_edges[self.edge[on]]
+        verts = np.column_stack([self.body_vertices[on], e[:, 0], e[:, 1]])
+        nodes = self.c.nodes[verts]
+        return (nodes[:, :, None] * self.bs + np.arange(self.bs)).reshape(len(on), -1)
+
+    def _coefficients(self, on: np.ndarray) -> np.ndarray:
+        """dd/dy for the 3 nodes: (n, 6) = [T, -(1 - s) T, -s T]."""
+        T, s = self.T[on], self.s[on][:, None]
+        return np.hstack([T, -(1 - s) * T, -s * T])
+
+    def energy(self, u: np.ndarray) -> float:
+        if not self.active:
+            return 0.0
+        on, d, K, F, stick = self._parts(u)
+        r = np.abs(d)
+        return float(np.sum(np.where(stick, 0.5 * K * r ** 2, F * r - 0.5 * F ** 2 / np.where(stick, 1.0, K))))
+
+    def _force(self, u: np.ndarray):
+        on, d, K, F, stick = self._parts(u)
+        return on, np.where(stick, K * d, F * np.sign(d))          # de/dd
+
+    def gradient(self, u: np.ndarray):
+        if not self.active:
+            return None
+        on, f = self._force(u)
+        if not len(on):
+            return None
+        return self._dofs(on).ravel(), (f[:, None] * self._coefficients(on)).ravel()
+
+    def hessian(self, u: np.ndarray) -> list:
+        if not self.active:
+            return []
+        on, d, K, F, stick = self._parts(u)
+        if self.project:                                             # slipping: F / |d| instead of 0
+            K = np.where(stick, K, F / np.where(stick, 1.0, np.abs(d)))
+        else:
+            on, K = on[stick], K[stick]
+        if not len(on):
+            return []
+        g = self._coefficients(on)
+        H = sp.block_diag(list(K[:, None, None] * g[:, :, None] * g[:, None, :]), format="coo")
+        return [(self._dofs(on).ravel(), H)]
+
+    def pattern(self) -> list:
+        return [(self.c.nodes, self.c.nodes)]
+
+    # -- parameters ---------------------------------------------------------------------------------
+    def parameters(self) -> dict:
+        """[contact]'s coefficients, for the pairs of pieces [contact.pairs] does not list."""
+        return {"contact.friction": self.default.kinetic, "contact.friction_static": self.default.static}
+
+    def set_parameter(self, key: str, value) -> None:
+        from ..design.objects import Coulomb
+        d = self.default
+        if key == "contact.friction":            # friction_static follows it unless it was written
+            d = Coulomb(float(value), d.static if d.static_given else float(value), d.static_given)
+        elif key == "contact.friction_static":
+            d = Coulomb(d.kinetic, float(value), True)
+        else:
+            raise KeyError(key)
+        self.default = d
+        self.mu_k_pair[self.default_pair] = d.kinetic
+        self.mu_s_pair[self.default_pair] = d.static
+
+    # -- lag and history ---------------------------------------------------------------------------
+    def _normal_forces(self, y: np.ndarray) -> np.ndarray:
+        """N_i: the barrier's force on vertex i from the collisions in which i is the vertex (against
+        an edge; half of each vertex-vertex one), so that the two sides of a contact are not both counted."""
+        N = np.zeros(len(self.body_vertices))
+        cs = self.c.collisions(y)
+        if len(cs) == 0:
+            return N
+        mesh, Y = self.c.mesh, np.asfortranarray(y)
+        for col in cs.ev_collisions:
+            g = np.asarray(self.c.barrier.gradient(col, col.dof(Y, mesh.edges, mesh.faces))).reshape(-1, 2)
+            N[col.vertex_id] += self.t * float(np.linalg.norm(g[0]))
+        for col in cs.vv_collisions:
+            ids = [i for i in col.vertex_ids(mesh.edges, mesh.faces) if i >= 0]
+            g = np.asarray(self.c.barrier.gradient(col, col.dof(Y, mesh.edges, mesh.faces))).reshape(-1, 2)
+            for i in ids:
+                N[i] += 0.5 * self.t * float(np.linalg.norm(g[0]))
+        return N
+
+    def set_factor(self, a: float) -> None:
+        """A new attempt at a step starts from the committed states; a ramp from rest (u = 0) from none."""
+        if self.active:
+            if not np.any(self.u_fn.x.array):
+                self.edge[:], self.N[:], self.run[:], self.sliding[:] = -1, 0.0, 0.0, False
+            self.trial = self.sliding.copy()
+            self._y0 = self.c.positions(self.u_fn.x.array)
+            self._anchor_new(self._y0)
+            self.fresh = self.edge >= 0
+
+    def update_lag(self, model) -> bool:
+        if not self.active:
+            return False
+        u = model.u.x.array
+        y = self.c.positions(u)
+        N = self._normal_forces(y)
+        scale = float(N.max()) if len(N) else 0.0
+        changed = bool(np.abs(N - self.N).max() > 1e-7 * scale) if len(N) else False
+        changed = changed or bool(self.fresh.any())
+        self.N, self.fresh = N, np.zeros_like(self.fresh)
+        new = (N > 0) & (self.edge < 0)              # came into contact during the solve: stuck where they are
+        if new.any():
+            before = int(np.count_nonzero(self.edge >= 0))
+            self._anchor_new(y, new, start=self._y0)
+            changed = changed or int(np.count_nonzero(self.edge >= 0)) > before
+        on = self.edge >= 0
+        if on.any():
+            T = self._tangents(y, self.edge[on])
+            changed = changed or bool(np.abs(T - self.T[on]).max() > 1e-9)
+            self.T[on] = T
+        if (self.mu_s_pair > self.mu_k_pair).any():
+            idx, d = self._slip(y)
+            broke = np.zeros(len(N), bool)
+            broke[idx] = self.run[idx] + np.maximum(np.abs(d) - self.eps, 0.0) > self.dc
+            broke &= ~self.trial & (N > 0)
+            if broke.any():
+                self.trial |= broke
+                changed = True
+        return changed
+
+    def end_step(self, model) -> None:
+        if not self.active:
+            return
+        u = model.u.x.array
+        self._report = self._measure(u)
+        y = self.c.positions(u)
+        self._y = y
+        on, d = self._slip(y)
+        F = self._mu()[on] * self.N[on]
+        slip = (F > 0) & (np.abs(d) > self.eps * (1 + 1e-12))
+        # slide the anchors of slipping nodes to eps behind them (re-projected onto the object's boundary)
+        idx = on[slip]
+        if len(idx):
+            e = self.obj_edges[self.edge[idx]]
+            s = self.s[idx][:, None]
+            P = (1 - s) * y[e[:, 0]] + s * y[e[:, 1]]
+            back = (np.abs(d[slip]) - self.eps) * np.sign(d[slip])
+            j, s_new, _ = self._closest(P + back[:, None] * self.T[idx], self.vertex_piece[idx])
+            self.edge[idx], self.s[idx] = j, s_new
+            self.T[idx] = self._tangents(y, j)
+        run = np.zeros(len(self.N))
+        run[idx] = self.run[idx] + np.abs(d[slip]) - self.eps
+        self.run = run
+        self.sliding = self.run > self.dc
+        # nodes that left the barrier's reach lose their anchor; new ones are anchored where they are
+        _, _, dist = self._closest(y[self.body_vertices], self.vertex_piece) if len(self.obj_edges) \
+            else (None, None, None)
+        if dist is not None:
+            gone = dist > self.c.dhat
+            self.edge[gone] = -1
+            self.run[gone], self.sliding[gone] = 0.0, False
+        self._anchor_new(y)
+        self._y0 = y
+        self.trial = self.sliding.copy()
+        self.fresh = self.edge >= 0
+
+    # -- read-out ------------------------------------------------------------------------------------
+    def _measure(self, u: np.ndarray) -> dict:
+        """Per pair of pieces rubbing: the friction force on the first (N) and the share of the normal
+        force carried by vertices that did not slip in this step (at a converged state, before the
+        return map). A vertex of piece p anchored on an edge of piece q feels -f T; the edge, +f T."""
+        on, f = self._force(u)
+        anchored, d = self._slip(self.c.positions(u))
+        slipping = np.zeros(len(self.N), bool)
+        slipping[anchored] = np.abs(d) > self.eps * (1 + 1e-12)
+        mine = np.flatnonzero(self.edge >= 0)
+        slave, master = self.vertex_piece[mine], self.edge_piece[self.edge[mine]]
+        force_on = self.vertex_piece[on], self.edge_piece[self.edge[on]]
+        out = {}
+        names = self.c.pieces
+        for p in range(len(names)):
+            for q in range(p + 1, len(names)):
+                pair = ((slave == p) & (master == q)) | ((slave == q) & (master == p))
+                if not pair.any() or not (self.mu_s_pair[p, q] > 0 or self.mu_s_pair[q, p] > 0):
+                    continue
+                sign = np.where(force_on[0] == p, -1.0, 1.0)[:, None]         # on p: -f T as vertex, +f T as edge
+                rub = ((force_on[0] == p) & (force_on[1] == q)) | ((force_on[0] == q) & (force_on[1] == p))
+                force = (sign[rub] * f[rub][:, None] * self.T[on[rub]]).sum(axis=0)
+                N = self.N[mine[pair]]
+                total = float(N.sum())
+                held = float(N[~slipping[mine[pair]]].sum())
+                out[f"{names[p]}|{names[q]}"] = {"between": [names[p], names[q]], "friction_force": force,
+                                                 "sticking": held / total if total > 0 else 1.0}
+        return out
+
+    def readout(self, model) -> dict:
+        if not self.active:
+            return {}
+        return self._report if self._report is not None else self._measure(model.u.x.array)

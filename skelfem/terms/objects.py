@@ -1,0 +1,253 @@
+"""Free rigid objects (2D): their rigid motion, weight, contact with the body and the "not held" verdict.
+
+An object (``[[objects]]``, :mod:`skelfem.design.objects`) is meshed as its
+own region, apart from the body (``object:<name>``); its cells carry no
+strain (Elasticity gives them no material) and its nodes follow three rigid
+DOFs through the machinery of rigid bones (:class:`.rigid.RigidBody`).
+Its boundary is part of the mesh boundary, so grounds (:mod:`.grounds`,
+:mod:`.friction`) push it and hold it by friction like the body.
+
+Energy of an object o with nodes i (displacement u_i):
+
+    Pi_o(u; a) = -a sum_i f_i . u_i + k_o / (2 n) sum_i |u_i|^2,
+
+f_i = 1e-9 rho g t int phi_i dx its consistent nodal weights (rho in
+kg/m^3, g in m/s^2, a the load factor), and a tether k_o (N/mm, summed over
+its n nodes) to its rest place, ``tether`` = 1e-9 times the body's E t: far
+below any contact stiffness, it only keeps the Newton matrix regular while
+the object touches nothing. The verdict (``failure``): in an equilibrium
+the tether's pull must be a negligible part (``held_tol``) of the forces
+on the object (weight and contacts); if it is not (and the object has
+moved beyond round-off), nothing holds the object and the solve reports
+``no equilibrium: object NAME is not held``.
+
+Contact between the body and the objects (and between objects) is the IPC
+barrier of :mod:`.contact` on the same boundary polygon, with a collision
+filter that lets only parts of different pieces (body, each object)
+collide. Read-outs: ``objects.NAME`` (``position`` of the centroid,
+``rotation`` in rad, ``displacement`` of the centroid, ``weight``) and
+``contacts``: per pair of pieces in contact, the ``normal_force`` acting on
+the first one (N, summed: opposite pads cancel) and ``normal_magnitude``,
+the sum of the magnitudes of the barrier's nodal forces on the second
+piece (N: what a pinch's friction limit mu sum N is made of), and
+``min_distance``, the smallest distance between different pieces (mm,
+asserted positive).
+"""
+from __future__ import annotations
+
+import ipctk
+import numpy as np
+from dolfinx import fem
+from mpi4py import MPI
+
+from ..mesh.geometry import object_tag_name
+from .base import Context, Term
+from .contact import SelfContact, fortran_array, piece_labels  # noqa: F401 (piece_labels: used by tests too)
+from .gravity import KG_PER_M3_TIMES_M_PER_S2
+from .rigid import RigidBody
+
+BODY = "body"
+
+
+def nodal_areas(V, cells: np.ndarray) -> np.ndarray:
+    """int phi_i dx over the cells for every local node (P1: a third of each cell's area at its vertices;
+    P2: at its edge midpoints, the vertex functions integrating to zero)."""
+    npc = V.dofmap.dof_layout.num_dofs
+    nodes = V.dofmap.list.array.reshape(-1, npc)[cells]
+    x = V.tabulate_dof_coordinates()[:, :2]
+    a, b, c = x[nodes[:, 0]], x[nodes[:, 1]], x[nodes[:, 2]]
+    area = 0.5 * np.abs((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+    carriers = nodes[:, :3] if npc == 3 else nodes[:, 3:6]
+    out = np.zeros(len(x))
+    np.add.at(out, carriers.ravel(), np.repeat(area / 3.0, 3))
+    return out
+
+
+class RigidObject(Term):
+    """One free rigid object: its weight, its tether, its kinematics and its read-out."""
+
+    section = "objects"
+    tether = 1e-9        # k_o / (E_body t)
+    held_tol = 1e-3      # the tether may carry at most this share of the forces on the object
+
+    def __init__(self, ctx: Context, spec):
+        self.ctx, self.name, self.spec = ctx, spec.name, spec
+        tm, V, bs = ctx.tagged, ctx.V, ctx.bs
+        design = ctx.design
+        cells = tm.cell_tags.find(tm.tags[object_tag_name(spec.name)])
+        self.nodes = fem.locate_dofs_topological(V, ctx.mesh.topology.dim, cells)
+        owned = self.nodes[self.nodes < V.dofmap.index_map.size_local]
+        self.dofs = owned[:, None] * bs + np.arange(bs)
+        self.X = V.tabulate_dof_coordinates()[owned, :ctx.dim]
+        self.body = RigidBody(spec.name, self.dofs, self.X, ctx.comm)
+        t = float(ctx.thickness.value)
+        w = nodal_areas(V, cells)[owned]
+        self.area = float(ctx.comm.allreduce(w.sum()))
+        self.centroid0 = ctx.comm.allreduce(w @ self.X) / self.area
+        self.w = KG_PER_M3_TIMES_M_PER_S2 * t * w                 # nodal volumes x (N/mm^3 per kg/m^3 m/s^2)
+        self.rho = float(design.materials[spec.material].density or 0.0)
+        self.g = np.zeros(ctx.dim) if design.gravity is None else np.asarray(design.gravity, float).copy()
+        self._weights()
+        self.factor = 0.0
+        self.k = self.tether * design.materials[design.body.material].E * t
+        self.n = self.body.count
+        self.size = float(np.linalg.norm(np.ptp(np.asarray(spec.outline, float), axis=0)))
+
+    def _weights(self) -> None:
+        self.f = self.rho * self.w[:, None] * self.g                   # (k, dim) N at a = 1
+
+    def rigid_body(self):
+        return self.body
+
+    def parameters(self) -> dict:
+        out = {f"materials.{self.spec.material}.density": self.rho}
+        if self.ctx.design.gravity is not None:
+            out["gravity.acceleration"] = self.g.copy()
+        return out
+
+    def set_parameter(self, key: str, value) -> None:
+        if key == "gravity.acceleration":
+            self.g = np.asarray(value, float).reshape(self.g.shape).copy()
+        elif key == f"materials.{self.spec.material}.density":
+            self.rho = float(value)
+        else:
+            raise KeyError(key)
+        self._weights()
+
+    def pattern(self) -> list:
+        return [(self.nodes[i:i + 1], self.nodes[i:i + 1]) for i in range(len(self.nodes))]
+
+    def set_factor(self, a: float) -> None:
+        self.factor = float(a)
+
+    def energy(self, u: np.ndarray) -> float:
+        ub = u[self.dofs]
+        return float(-self.factor * np.sum(self.f * ub) + 0.5 * self.k / self.n * np.sum(ub * ub))
+
+    def gradient(self, u: np.ndarray):
+        return self.dofs.ravel(), (-self.factor * self.f + self.k / self.n * u[self.dofs]).ravel()
+
+    def hessian(self, u: np.ndarray) -> list:
+        import scipy.sparse as sp
+        d = self.dofs.ravel()
+        return [(d, sp.identity(len(d), format="coo") * (self.k / self.n))]
+
+    def weight(self) -> np.ndarray:
+        return self.ctx.comm.allreduce(self.f.sum(axis=0))
+
+    def failure(self, model, converged: bool = True) -> str | None:
+        """'no equilibrium: object NAME is not held' when the tether carries the object (converged), or
+        when Newton gave up with the object gone further than its own size."""
+        u = model.u.x.array
+        pull = self.ctx.comm.allreduce((self.k / self.n * u[self.dofs]).sum(axis=0))
+        g = model.full_gradient()[self.dofs] - self.k / self.n * u[self.dofs]       # weight and contacts
+        loads = self.ctx.comm.allreduce(float(np.linalg.norm(g, axis=1).sum()))
+        moved = self.ctx.comm.allreduce(float(np.abs(u[self.dofs]).max(initial=0.0)), op=MPI.MAX)
+        if not converged:
+            return f"no equilibrium: object {self.name} is not held" if moved > self.size else None
+        if np.linalg.norm(pull) > self.held_tol * loads and moved > 1e-9 * self.size:   # not round-off
+            return f"no equilibrium: object {self.name} is not held"
+        return None
+
+    def readout(self, model) -> dict:
+        t, R = self.body.fit(model.u.x.array)
+        c = self.centroid0 + t + (R - np.eye(self.ctx.dim)) @ (self.centroid0 - self.body.c0)
+        return {self.name: {"position": c, "rotation": float(np.arctan2(R[1, 0], R[0, 0])),
+                            "displacement": c - self.centroid0, "weight": self.weight()}}
+
+
+class PieceContact(SelfContact):
+    """The IPC barrier between different pieces (the body, each object) of the mesh boundary."""
+
+    section, name = "contacts", "pieces"
+
+    def __init__(self, ctx: Context, objects: list, dhat: float, stiffness: float, project: bool = True):
+        super().__init__(ctx.V, dhat, stiffness, float(ctx.thickness.value), project)
+        self.pieces = [BODY] + [o.name for o in objects]
+        self.objects = objects
+        self._weights = None          # boundary weights of the nodes (grounds' quadrature), on demand
+        label = np.zeros(len(self.nodes), np.int32)
+        for k, o in enumerate(objects, start=1):
+            label[np.isin(self.nodes, o.nodes)] = k
+        self.label = label
+        self.mesh.can_collide = ipctk.make_vertex_patches_filter(label)
+
+    def min_distance(self, u: np.ndarray) -> float:
+        """Smallest distance between different pieces, mm (inf if none within the boundary's extent)."""
+        y = self.positions(u)
+        reach = float(np.linalg.norm(np.ptp(y, axis=0)))
+        c = self.collisions(y, reach)
+        if len(c) == 0:
+            return float("inf")
+        return float(np.sqrt(c.compute_minimum_distance(self.mesh, fortran_array(y))))
+
+    def _on_grounds(self, model, u: np.ndarray) -> dict:
+        """Per ground and object on it: the force the object exerts on the ground (normal, and friction
+        if the ground has it), from the ground's nodal penalty forces on the object's nodes."""
+        from .friction import GroundFriction, boundary_weights
+        from .grounds import Ground
+        if self._weights is None:
+            self._weights = boundary_weights(model.V)
+        X = model.V.tabulate_dof_coordinates()[:, :2]
+        out = {}
+        for ground in model.terms_in("grounds"):
+            if not isinstance(ground, Ground):
+                continue
+            k = float(ground.parameters()[f"grounds.{ground.name}.stiffness"])
+            friction = next((t for t in model.terms_in("grounds") if isinstance(t, GroundFriction)
+                             and t.name == ground.name and t.nodal is not None), None)
+            for obj in self.objects:
+                nodes = obj.nodes[self._weights[obj.nodes] > 0]
+                y = X[nodes] + u[(nodes[:, None] * self.bs + np.arange(self.bs))]
+                N = k * self.t * self._weights[nodes] * np.maximum(-((y - ground.point) @ ground.normal), 0.0)
+                if not N.sum() > 0:
+                    continue
+                entry = {"between": [ground.name, obj.name], "normal_force": -N.sum() * ground.normal}
+                if friction is not None:
+                    fn, ff, slipping, Nf = friction.nodal
+                    mine = np.isin(fn, nodes)
+                    held = float(Nf[mine & ~slipping].sum())
+                    entry.update(friction_force=ff[mine].sum(axis=0),
+                                 sticking=held / float(Nf[mine].sum()) if Nf[mine].sum() > 0 else 1.0)
+                out[f"{ground.name}|{obj.name}"] = entry
+        return out
+
+    def readout(self, model) -> dict:
+        """Per pair of pieces in contact: the barrier's force on the first piece (the one named first);
+        per ground and object on it, the object's force on the ground."""
+        u = model.u.x.array
+        y = self.positions(u)
+        c = self.collisions(y)
+        out = self._on_grounds(model, u)
+        gap = self.min_distance(u)
+        if not gap > 0.0:                               # the barrier keeps every accepted state apart
+            raise AssertionError(f"pieces interpenetrate (distance {gap:g} mm)")
+        if len(c):
+            g = self.t * np.asarray(self.barrier.gradient(c, self.mesh, fortran_array(y))).reshape(-1, 2)
+            force = -g                                   # the barrier's force on each boundary node
+            for k in range(1, len(self.pieces)):
+                on = self.label == k
+                f = force[on].sum(axis=0)
+                if np.linalg.norm(f) > 0:
+                    a, b = self.pieces[0], self.pieces[k]
+                    out[f"{a}|{b}"] = {"between": [a, b], "normal_force": -f,     # on the body: minus that on b
+                                       "normal_magnitude": float(np.linalg.norm(force[on], axis=1).sum()),
+                                       "min_distance": gap}
+        return out
+
+
+def build(ctx: Context) -> list[Term]:
+    from ..design.spec import DesignError
+    d = ctx.design
+    if not d.objects:
+        return []
+    if ctx.comm.size > 1:
+        raise DesignError(f"{d.source}: objects: objects run on one MPI process (got {ctx.comm.size})")
+    objects = [RigidObject(ctx, spec) for spec in d.objects]
+    contact = PieceContact(ctx, objects, d.contact.dhat, d.materials[d.body.material].E)
+    d0 = contact.min_distance(np.zeros(len(ctx.u.x.array)))
+    if d0 <= d.contact.dhat:
+        raise DesignError(f"{d.source}: contact.dhat: {d.contact.dhat:g} mm is not below the smallest rest "
+                          f"distance between the body and the objects ({d0:.3g} mm); lower dhat or move them apart")
+    from .object_friction import ObjectFriction
+    return objects + [contact, ObjectFriction(ctx, contact, objects)]

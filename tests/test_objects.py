@@ -1,0 +1,203 @@
+"""Free rigid objects: resting on the body, held or not, on grounds with friction, pinched by two pads;
+design errors of [[objects]] and [contact.pairs]."""
+import json
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from skelfem import Session
+from skelfem.design import DesignError, parse_design
+
+from _designs import toml_text
+
+G = 9.81
+
+
+def _base(objects, **extra):
+    d = {"format": 1, "name": "objects", "dim": 2, "thickness": 10.0, "mesh": {"size": 1.0, "degree": 1},
+         "materials": {"soft": {"E": 1.0, "nu": 0.3, "density": 1000.0},
+                       "pla": {"E": 1000.0, "nu": 0.35, "density": 1250.0}},
+         "body": {"outline": [[0, 0], [10, 0], [10, 10], [0, 10]], "material": "soft"},
+         "pins": [{"name": "base", "region": [[-1, -1], [11, 1e-6]], "kind": "fixed"}],
+         "objects": objects, "gravity": {"acceleration": [0, -G]}, "contact": {"dhat": 0.2}}
+    d.update(extra)
+    return d
+
+
+def _box(x0, y0, x1, y1, name="box"):
+    return {"name": name, "outline": [[x0, y0], [x1, y0], [x1, y1], [x0, y1]], "material": "pla"}
+
+
+def test_object_rests_on_the_body():
+    """A box dropped 0.5 mm onto a pinned block: it comes to rest within dhat of the block, clear of it,
+    the block carries its weight and the pin both weights."""
+    with Session(_base([_box(2, 10.5, 8, 13.5)])) as s:
+        r = s.solve()
+        assert r.converged, r.status
+        d = r.to_dict()
+        contact = s.model.term("contacts", "pieces")
+        gap = contact.min_distance(s.model.u.x.array)
+        assert 0.0 < gap < 0.2 and not contact.intersects(s.model.u.x.array)
+    W = 1250e-9 * G * 6 * 3 * 10
+    W_body = 1000e-9 * G * 10 * 10 * 10
+    box = d["objects"]["box"]
+    assert box["weight"][1] == pytest.approx(-W)
+    assert box["displacement"][1] == pytest.approx(-(0.5 - gap), abs=1e-3)
+    assert box["position"][1] == pytest.approx(12.0 + box["displacement"][1])
+    assert abs(box["rotation"]) < 1e-3
+    (pair,) = d["contacts"]
+    assert pair["between"] == ["body", "box"]
+    assert pair["normal_force"][1] == pytest.approx(-W, rel=1e-5)          # the box presses the block down
+    assert d["pins"]["base"]["reaction"][1] == pytest.approx(W + W_body, rel=1e-5)
+
+
+def test_an_object_nothing_holds_is_no_equilibrium(tmp_path):
+    """A box beside the block, over nothing: exit 2, 'no equilibrium: object box is not held'."""
+    d = _base([_box(12, 10.5, 18, 13.5)])
+    with Session(d) as s:
+        r = s.solve()
+        assert not r.converged and r.status == "no equilibrium: object box is not held"
+    path = tmp_path / "float.toml"
+    path.write_text(toml_text(d))
+    run = subprocess.run([sys.executable, "-m", "skelfem", "simulate", str(path), "--out", str(tmp_path / "out"),
+                          "--no-picture"], capture_output=True, text=True)
+    assert run.returncode == 2
+    assert "no equilibrium: object box is not held" in run.stderr
+    assert json.loads((tmp_path / "out" / "result.json").read_text())["converged"] is False
+
+
+@pytest.mark.parametrize("theta, held", [(24.0, True), (29.0, False)])
+def test_object_on_a_ground_sticks_iff_tan_theta_below_mu(theta, held):
+    """A box on a floor with friction 0.5 (atan 0.5 = 26.6 deg) under gravity tilted away from the block."""
+    th = math.radians(theta)
+    d = _base([_box(20, 0, 26, 3)], gravity={"acceleration": [G * math.sin(th), -G * math.cos(th)]},
+              grounds=[{"name": "floor", "point": [0, 0], "normal": [0, 1], "stiffness": 100.0,
+                        "friction": 0.5}])
+    with Session(d) as s:
+        r = s.solve()
+    if held:
+        assert r.converged, r.status
+        box = r.to_dict()["objects"]["box"]
+        assert abs(box["displacement"][0]) < 1e-3
+        floor = r.to_dict()["grounds"]["floor"]
+        W = 1250e-9 * G * 6 * 3 * 10
+        assert floor["friction_force"][0] == pytest.approx(W * math.sin(th), rel=1e-3)
+        (pair,) = r.to_dict()["contacts"]                      # the box on the floor: forces on the floor
+        assert pair["between"] == ["floor", "box"]
+        assert pair["normal_force"][1] == pytest.approx(-W * math.cos(th), rel=1e-3)
+        assert pair["friction_force"][0] == pytest.approx(W * math.sin(th), rel=1e-3)
+        assert pair["sticking"] > 0.5
+    else:
+        assert r.status == "no equilibrium: object box is not held"
+
+
+def _pinch(mu):
+    """An inverted U pinned at its top; its prongs, pinned on their outer faces, move in by 0.45 mm and
+    press two bumps (8 mm tall) on a box 20 mm tall (0.5 mm away at rest), its corners clear of the body."""
+    d = _base([_box(7.5, 2, 32.5, 22)], contact={"dhat": 0.2, "friction": mu})
+    d["materials"]["soft"]["E"] = 0.01
+    d["materials"]["pla"]["density"] = 500.0
+    d["body"] = {"outline": [[0, 0], [6, 0], [6, 8], [7, 8], [7, 16], [6, 16], [6, 30], [34, 30], [34, 16],
+                             [33, 16], [33, 8], [34, 8], [34, 0], [40, 0], [40, 36], [0, 36]], "material": "soft"}
+    d["pins"] = [{"name": "top", "region": [[-1, 35.99], [41, 37]], "kind": "fixed"},
+                 {"name": "left", "region": [[-1, -1], [0.01, 30]], "kind": "fixed", "move": [0.45, 0]},
+                 {"name": "right", "region": [[39.99, -1], [41, 30]], "kind": "fixed", "move": [-0.45, 0]}]
+    d["mesh"]["size"] = 1.5
+    d["gravity"] = {"acceleration": [0.0, 0.0]}               # squeezed first, then weighed
+    d["solver"] = {"steps": 4, "max_iterations": 300}
+    with Session(d) as s:
+        assert s.solve().converged
+        s.set({"gravity.acceleration": [0.0, -G]})
+        r = s.solve()
+    return r
+
+
+def test_pinch_holds_above_mu_min_and_loses_below():
+    """mu_min = W / (sum of the pads' normal forces), read at a firm grip (mu = 0.6): the box is held at
+    1.1 mu_min (and the friction carries its weight), lost at 0.9 mu_min."""
+    r = _pinch(0.6)
+    assert r.converged, r.status
+    d = r.to_dict()
+    W = -d["objects"]["box"]["weight"][1]
+    (pair,) = d["contacts"]
+    mu_min = W / pair["normal_magnitude"]
+    assert 0.3 < mu_min < 0.6
+    held = _pinch(1.1 * mu_min)
+    assert held.converged, held.status
+    (pair,) = held.to_dict()["contacts"]
+    assert pair["friction_force"][1] + pair["normal_force"][1] == pytest.approx(-W, rel=1e-4)   # on the body
+    assert pair["sticking"] < 1.0                              # partly slipping so near the limit
+    lost = _pinch(0.9 * mu_min)
+    assert lost.status == "no equilibrium: object box is not held"
+    print(f"\npinch: W = {W:.4g} N, sum N = {W / mu_min:.4g} N, mu_min = {mu_min:.4f}; "
+          f"held at {1.1 * mu_min:.4f} (sticking {pair['sticking']:.2f}), lost at {0.9 * mu_min:.4f}")
+
+
+# -- bad input ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("change, key", [
+    (lambda d: d["objects"][0].update(outline=[[2, 9], [8, 9], [8, 12], [2, 12]]), "objects.box.outline"),
+    (lambda d: d["objects"].append(_box(3, 11, 5, 12, name="b2")), "objects.b2.outline"),
+    (lambda d: d["materials"]["pla"].pop("density"), "materials.pla.density"),
+    (lambda d: d["objects"][0].update(material="steel"), "objects.box.material"),
+    (lambda d: d["objects"][0].update(rigid=False), "objects.box.rigid"),
+    (lambda d: d["objects"][0].update(mass=1.0), "objects.box.mass"),
+    (lambda d: d.update(contact={"pairs": {"soft:steel": 0.3}}), 'contact.pairs."soft:steel"'),
+    (lambda d: d.update(contact={"pairs": {"soft:pla": -0.3}}), 'contact.pairs."soft:pla"'),
+    (lambda d: d.update(contact={"friction": 0.5, "friction_static": 0.4}), "contact.friction_static"),
+    (lambda d: d.update(dynamics={"dt": 0.01, "duration": 0.1}), "objects"),
+])
+def test_bad_objects_input_is_one_error_naming_the_key(change, key):
+    d = _base([_box(2, 10.5, 8, 13.5)])
+    change(d)
+    with pytest.raises(DesignError) as e:
+        parse_design(d, "d.toml")
+    assert str(e.value).startswith(f"d.toml: {key}: ") and "\n" not in str(e.value), str(e.value)
+
+
+def test_pairs_and_defaults():
+    d = parse_design(_base([_box(2, 10.5, 8, 13.5)], contact={"friction": 0.2, "pairs": {
+        "pla:soft": 0.7, "soft:soft": {"friction": 0.3, "friction_static": 0.4}}}))
+    assert d.friction.between("soft", "pla").kinetic == 0.7
+    assert (d.friction.between("soft", "soft").kinetic, d.friction.between("soft", "soft").static) == (0.3, 0.4)
+    assert d.friction.between("pla", "pla").kinetic == 0.2
+    assert d.objects[0].name == "box" and "objects" in d.raw
+
+
+def test_moving_an_object_re_meshes():
+    """An edit of an object's outline is a new mesh (the old one's object would stay where it was).
+    With friction: off centre, the block tilts under the box, and a frictionless box slides off."""
+    with Session(_base([_box(2, 10.5, 8, 13.5)], contact={"dhat": 0.2, "friction": 0.5})) as s:
+        assert s.solve().converged
+        s.set({"objects.box.outline": [[3, 10.5], [9, 10.5], [9, 13.5], [3, 13.5]]})
+        r = s.solve()
+        assert r.converged, r.status
+        assert r.to_dict()["objects"]["box"]["position"][0] == pytest.approx(6.0, abs=0.05)
+
+
+def test_contact_friction_is_live_for_objects():
+    with Session(_base([_box(2, 10.5, 8, 13.5)], contact={"dhat": 0.2, "friction": 0.5,
+                                                           "pairs": {"pla:pla": 0.1}})) as s:
+        assert s.solve().converged
+        model = s.model
+        s.set({"contact.friction": 0.7})
+        assert s.model is model
+        term = model.term("contacts", "friction")
+        assert term.mu_k_pair[0, 1] == term.mu_s_pair[1, 0] == 0.7
+        assert s.solve().converged
+
+
+def test_self_contact_leaves_objects_to_their_own_barrier():
+    """With contact.self, the body's self-contact barrier sees each piece with itself only: the box's
+    contact with the block is counted once (the same rest state as without self-contact)."""
+    states = []
+    for self_contact in (False, True):
+        with Session(_base([_box(2, 10.5, 8, 13.5)], contact={"dhat": 0.2, "self": self_contact})) as s:
+            r = s.solve()
+            assert r.converged, r.status
+            states.append(r.to_dict()["objects"]["box"]["displacement"][1])
+            if self_contact:
+                assert s.model.term("contact", "self").energy(s.model.u.x.array) == 0.0
+    assert states[1] == pytest.approx(states[0], rel=1e-9)
