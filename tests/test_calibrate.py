@@ -44,6 +44,18 @@ def finger():
 def test_live_keys_are_the_model_parameters(heavy, finger):
     for s in (heavy, finger):
         assert set(live_keys(s.design)) == set(s.model.parameters())
+    # a free object on the body, a ground with its own friction and one following [contact]'s
+    d = {"format": 1, "name": "objects", "dim": 2, "thickness": 10.0, "mesh": {"size": 2.0, "degree": 1},
+         "materials": {"soft": {"E": 1.0, "nu": 0.3, "density": 1000.0},
+                       "pla": {"E": 1000.0, "nu": 0.35, "density": 1250.0}},
+         "body": {"outline": [[0, 0], [10, 0], [10, 10], [0, 10]], "material": "soft"},
+         "pins": [{"name": "base", "region": [[-1, -1], [11, 1e-6]], "kind": "fixed"}],
+         "objects": [{"name": "box", "outline": [[2, 10.5], [8, 10.5], [8, 13.5], [2, 13.5]], "material": "pla"}],
+         "grounds": [{"name": "wall", "point": [12, 0], "normal": [-1, 0], "stiffness": 10.0, "friction": 0.4},
+                     {"name": "other", "point": [-2, 0], "normal": [1, 0], "stiffness": 10.0}],
+         "gravity": {"acceleration": [0, -9.81]}, "contact": {"dhat": 0.2, "friction": 0.2}}
+    with Session(d) as s:
+        assert set(live_keys(s.design)) == set(s.model.parameters())
 
 
 # every kind: E, nu, stiffness, pretension, a contraction offset, density, gravity

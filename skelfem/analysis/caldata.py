@@ -67,9 +67,24 @@ def live_keys(design) -> dict:
         out[f"loads.{load.name}.force"] = np.asarray(load.force, float).copy()
     for t in design.tractions:
         out[f"tractions.{t.name}.traction"] = np.asarray(t.traction, float).copy()
+    friction = getattr(design, "friction", None)
     for g in design.grounds:
         out[f"grounds.{g.name}.point"] = np.asarray(g.point, float).copy()
         out[f"grounds.{g.name}.stiffness"] = float(g.stiffness)
+        if friction is not None:                     # Coulomb coefficients: the ground's own or [contact]'s
+            c = friction.ground(g.name)
+            out[f"grounds.{g.name}.friction"] = float(c.kinetic)
+            out[f"grounds.{g.name}.friction_static"] = float(c.static)
+            if g.name not in friction.grounds:
+                out["contact.friction"] = float(c.kinetic)
+                out["contact.friction_static"] = float(c.static)
+    objects = getattr(design, "objects", ())
+    if objects:                                      # free rigid objects: their densities, [contact]'s friction
+        out["contact.friction"] = float(friction.default.kinetic)
+        out["contact.friction_static"] = float(friction.default.static)
+        for o in objects:
+            if design.materials[o.material].density is not None:
+                out[f"materials.{o.material}.density"] = float(design.materials[o.material].density)
     dens = design.gravity is not None or design.dynamics is not None
     if design.gravity is not None:
         out["gravity.acceleration"] = np.asarray(design.gravity, float).copy()
