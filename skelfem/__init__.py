@@ -21,6 +21,7 @@ __all__ = [
     "Session", "Result", "Status",                                  # solving
     "Linearization", "SoftIK", "IKResult", "track", "line_targets",  # control
     "optimize_schedules", "OptimizeResult",                         # trajectory optimisation
+    "calibrate", "Calibration",                                     # fitting to measurements
     "Term", "Context", "BUILDERS",                                  # the energy-term contract
     "SolveError", "SessionError", "MeshingError", "FabricationError",   # failures beyond bad input
 ]
@@ -29,6 +30,7 @@ _LAZY = {
     "Session": "session", "Linearization": "analysis.sensitivity", "SoftIK": "analysis.control",
     "IKResult": "analysis.control", "track": "analysis.control", "line_targets": "analysis.control",
     "optimize_schedules": "analysis.optimize", "OptimizeResult": "analysis.optimize",
+    "calibrate": "analysis.calibrate", "Calibration": "analysis.calibrate",
     "Term": "terms", "Context": "terms", "BUILDERS": "terms", "SolveError": "fem.newton", "SessionError": "session",
     "MeshingError": "design.occ", "FabricationError": "fabricate",
 }

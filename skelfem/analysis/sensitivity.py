@@ -124,6 +124,10 @@ class Linearization:
         x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         return x
 
+    def solve_many(self, B: np.ndarray) -> np.ndarray:
+        """H^-1 B for a block of right-hand sides (owned entries, one per column; zero on Dirichlet rows)."""
+        return self.solver.lin.solve_many(B)
+
     def state_sensitivities(self) -> list[PETSc.Vec]:
         """dx*/du_c = -H^-1 dR/du_c for every tendon c (forward mode)."""
         out = []

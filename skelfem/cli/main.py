@@ -14,11 +14,11 @@ from pathlib import Path
 from .common import EXIT_INPUT, EXIT_INTERNAL, InputError, print_error, common_arguments, error, setup_logging
 from .fabricate import fabricate
 from .simulate import simulate
-from . import bench, control, edit, optimize, sweep
+from . import bench, calibrate, control, edit, optimize, sweep
 
 # Modules that add sub-commands: each has add_parsers(subparsers), and every
 # parser it adds sets `handler` (a function args -> exit status).
-COMMAND_MODULES = (sweep, bench, control, edit, optimize)
+COMMAND_MODULES = (sweep, bench, control, edit, optimize, calibrate)
 
 
 

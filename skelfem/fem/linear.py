@@ -183,14 +183,8 @@ class LowRankSolver:
         bf = b.array_r if border is None else b.array_r * ~border.rows
         if self.Z is None:                      # first solve: K^{-1} [G | E | b] in one go
             Y = self._multi_solve(np.column_stack([self.G, E, bf]))
-            self.Z, y = Y[:, :k + m], Y[:, k + m]
-            ZG, ZE = self.Z[:, :k], self.Z[:, k:]
-            C = np.zeros((m + k, m + k))
-            C[:m, :m] = (border.C if m else 0.0) - self._dots(E, ZE)
-            C[:m, m:] = self.H - self._dots(E, ZG)
-            C[m:, :m] = C[:m, m:].T
-            C[m:, m:] = -(np.diag(1.0 / self.c) + self._dots(self.G, ZG))
-            self.C = 0.5 * (C + C.T)
+            self._take_z(Y[:, :k + m], E, border)
+            y = Y[:, k + m]
         elif border is None:
             self.ksp.solve(b, x)
             self.solves += 1
@@ -212,6 +206,50 @@ class LowRankSolver:
         if m:
             out = out + border.T @ z
         x.array_w[:] = out
+
+    def _take_z(self, Z: np.ndarray, E: np.ndarray, border: Border | None) -> None:
+        """Keep Z = K^{-1} [G | E] and the small system's matrix C made from it."""
+        k, m = len(self.c), E.shape[1]
+        self.Z = Z
+        ZG, ZE = Z[:, :k], Z[:, k:]
+        C = np.zeros((m + k, m + k))
+        C[:m, :m] = (border.C if m else 0.0) - self._dots(E, ZE)
+        C[:m, m:] = self.H - self._dots(E, ZG)
+        C[m:, :m] = C[:m, m:].T
+        C[m:, m:] = -(np.diag(1.0 / self.c) + self._dots(self.G, ZG))
+        self.C = 0.5 * (C + C.T)
+
+    def solve_many(self, B: np.ndarray) -> np.ndarray:
+        """(K + G D G^T)^{-1} B for a block of right-hand sides (owned rows, one per column).
+
+        One MUMPS solve phase for all the columns (forward sensitivities to
+        many parameters), the same answers as solve() column by column.
+        """
+        B = np.asarray(B, dtype=float)
+        border = self.border
+        if border is not None and border.hosts is not None:
+            Y = self._solve_block(border.embed(B), None)
+            return Y * ~border.rows[:, None] + border.T @ Y[border.hosts]
+        return self._solve_block(B, border)
+
+    def _solve_block(self, B: np.ndarray, border: Border | None) -> np.ndarray:
+        k = len(self.c)
+        E = border.E if border is not None else np.zeros((len(B), 0))
+        m = E.shape[1]
+        if k == 0 and border is None:
+            return self._multi_solve(B)
+        Bf = B if border is None else B * ~border.rows[:, None]
+        if self.Z is None:
+            Y = self._multi_solve(np.column_stack([self.G, E, Bf]))
+            self._take_z(Y[:, :k + m], E, border)
+            Y = Y[:, k + m:]
+        else:
+            Y = self._multi_solve(Bf)
+        ZG, ZE = self.Z[:, :k], self.Z[:, k:]
+        top = (self._dots(border.T, B) if m else np.zeros((0, B.shape[1]))) - self._dots(E, Y)
+        ZW = np.linalg.solve(self.C, np.vstack([top, -self._dots(self.G, Y)]))
+        out = Y - ZE @ ZW[:m] - ZG @ ZW[m:]
+        return out + border.T @ ZW[:m] if m else out
 
     def as_pc(self, pc: PETSc.PC) -> None:
         """Make pc apply this solver (for SNES's KSP of type preonly)."""

@@ -1,0 +1,456 @@
+"""The calibration data contract: a measurement CSV read and checked against a design, before any meshing.
+
+One row per measured state. Columns:
+
+- **conditions**: a column named by a live ``--set`` key (``cables.flexor.contraction``,
+  ``loads.pull.force.y``, ``pins.base.move.x``, ``gravity.acceleration.y``...) is that
+  row's value of the key; a vector key is given per component (``.x``, ``.y``, ``.z``);
+  a component without a column keeps the design's value;
+- **measurements**: ``markers.<m>.x|y|z`` (position, mm), ``cables.<c>.tension`` (N),
+  ``grounds.<g>.force.x|y|z`` and ``pins.<p>.reaction.x|y|z`` (N); an empty cell is a
+  value not measured in that row;
+- ``experiment`` (optional): rows with the same label form one load path, solved in
+  the order of the file from rest; without it every row is one path.
+
+Fitted parameters (``fit``) are live keys (or a vector key's component); a fitted key
+that is also a condition column is fitted as an *offset* added to every row's value
+(e.g. a tendon's contraction zero). A key with wildcards (``cables.lig*.stiffness``,
+fnmatch) fits *one* value shared by every live key it matches (they must start equal). ``sigma`` gives a column's (or an fnmatch pattern
+of columns') measurement standard deviation; ``bounds`` a parameter's box.
+
+Everything here reads the Design only (no DOLFINx), so a command can refuse bad data
+with one line before meshing. The outcome of a fit, :class:`Calibration`, is here too. ``live_keys`` lists what a built model's
+``parameters()`` will list (checked against it in the tests).
+"""
+from __future__ import annotations
+
+import csv
+import fnmatch
+import io
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+MAX_BYTES = 20_000_000      # a larger CSV is refused (a calibration needs rows, not a log)
+MAX_ROWS = 100_000
+AXES = "xyz"
+EXPERIMENT = "experiment"
+POSITIVE = ("E", "stiffness", "density")      # parameter names kept > 0 by default
+NU_BOUNDS = (-0.999, 0.4999)
+
+
+class DataError(ValueError):
+    """Bad calibration input: one line naming the problem."""
+
+
+# -- what the design makes live -----------------------------------------------------------------
+def live_keys(design) -> dict:
+    """{key: value} of the live parameters a model of design exposes (scalars or 1D arrays)."""
+    out: dict = {}
+    used = [design.body.material] + [b.material for b in design.bones]      # rigid ones too (inert)
+    for name in dict.fromkeys(used):
+        m = design.materials[name]
+        out[f"materials.{name}.E"] = float(m.E)
+        out[f"materials.{name}.nu"] = float(m.nu)
+    for pin in design.pins:
+        move = pin.move if pin.move is not None else np.zeros(design.dim)
+        out[f"pins.{pin.name}.move"] = np.asarray(move, float).copy()
+        if pin.kind == "spring":
+            out[f"pins.{pin.name}.stiffness"] = float(pin.stiffness)
+    for c in design.cables:
+        which = "contraction" if c.kind == "tendon" else "pretension"
+        out[f"cables.{c.name}.{which}"] = float(getattr(c, which))
+        out[f"cables.{c.name}.stiffness"] = float(c.stiffness)
+    for load in design.loads:
+        out[f"loads.{load.name}.force"] = np.asarray(load.force, float).copy()
+    for t in design.tractions:
+        out[f"tractions.{t.name}.traction"] = np.asarray(t.traction, float).copy()
+    friction = getattr(design, "friction", None)
+    for g in design.grounds:
+        out[f"grounds.{g.name}.point"] = np.asarray(g.point, float).copy()
+        out[f"grounds.{g.name}.stiffness"] = float(g.stiffness)
+        if friction is not None:                     # Coulomb coefficients: the ground's own or [contact]'s
+            c = friction.ground(g.name)
+            out[f"grounds.{g.name}.friction"] = float(c.kinetic)
+            out[f"grounds.{g.name}.friction_static"] = float(c.static)
+            if g.name not in friction.grounds:
+                out["contact.friction"] = float(c.kinetic)
+                out["contact.friction_static"] = float(c.static)
+    objects = getattr(design, "objects", ())
+    if objects:                                      # free rigid objects: their densities, [contact]'s friction
+        out["contact.friction"] = float(friction.default.kinetic)
+        out["contact.friction_static"] = float(friction.default.static)
+        for o in objects:
+            if design.materials[o.material].density is not None:
+                out[f"materials.{o.material}.density"] = float(design.materials[o.material].density)
+    dens = design.gravity is not None or design.dynamics is not None
+    if design.gravity is not None:
+        out["gravity.acceleration"] = np.asarray(design.gravity, float).copy()
+    if dens:
+        allm = [design.body.material] + [b.material for b in design.bones]
+        for name in dict.fromkeys(allm):
+            if design.materials[name].density is not None:
+                out[f"materials.{name}.density"] = float(design.materials[name].density)
+    return out
+
+
+def scalar_keys(design) -> dict:
+    """live_keys with every vector split into components: {"loads.pull.force.y": value, ...}."""
+    out = {}
+    for key, value in live_keys(design).items():
+        if np.ndim(value) == 0:
+            out[key] = float(value)
+        else:
+            out.update({f"{key}.{AXES[i]}": float(v) for i, v in enumerate(value)})
+    return out
+
+
+def split_key(key: str) -> tuple[str, int | None]:
+    """("loads.pull.force", 1) for "loads.pull.force.y"; (key, None) for a scalar key."""
+    base, _, last = key.rpartition(".")
+    if last in AXES and base.count(".") >= 1 and not base.endswith((".E", ".nu")):
+        return base, AXES.index(last)
+    return key, None
+
+
+def measurement_columns(design) -> list[str]:
+    """Every measurement column the design can answer."""
+    ax = AXES[:design.dim]
+    cols = [f"markers.{m}.{a}" for m in design.markers for a in ax]
+    cols += [f"cables.{c.name}.tension" for c in design.cables]
+    cols += [f"grounds.{g.name}.force.{a}" for g in design.grounds for a in ax]
+    cols += [f"pins.{p.name}.reaction.{a}" for p in design.pins for a in ax]
+    return cols
+
+
+# -- the problem --------------------------------------------------------------------------------
+@dataclass
+class Parameter:
+    """One fitted scalar: a live key (and component), its start and box; an offset if a condition column."""
+    key: str                   # as given to fit (component included: "gravity.acceleration.y")
+    base: str                  # the live key ("gravity.acceleration")
+    component: int | None
+    initial: float
+    lower: float
+    upper: float
+    offset: bool = False       # added to the condition column of the same name
+    targets: list = field(default_factory=list)   # [(base, component)] it sets: several when tied (a pattern)
+
+    def __post_init__(self):
+        if not self.targets:
+            self.targets = [(self.base, self.component)]
+
+    @property
+    def scale(self) -> float:
+        """The size the optimiser measures steps in."""
+        return abs(self.initial) if self.initial != 0.0 else 1.0
+
+
+@dataclass
+class Data:
+    """A checked calibration problem: conditions, measurements, weights, the fitted parameters."""
+    columns: list                       # measurement column names
+    values: np.ndarray                  # (rows, columns), NaN where not measured
+    sigma: np.ndarray                   # (columns,) standard deviations
+    sigma_given: np.ndarray             # (columns,) bool: from --sigma (else 1 in the column's unit)
+    conditions: dict                    # {scalar key: (rows,) values}
+    experiments: list                   # (rows,) labels
+    parameters: list                    # [Parameter]
+    train: np.ndarray                   # (rows,) bool: fitted; the others are held out
+    source: str = "<data>"
+    header: list = field(default_factory=list)
+
+    @property
+    def rows(self) -> int:
+        return len(self.values)
+
+    @property
+    def keys(self) -> list:
+        return [p.key for p in self.parameters]
+
+    def starts(self) -> np.ndarray:
+        """(rows,) bool: the first row of each load path."""
+        out = np.zeros(self.rows, bool)
+        for i in range(self.rows):
+            out[i] = i == 0 or self.experiments[i] != self.experiments[i - 1]
+        return out
+
+
+def read_table(source, max_bytes: int | None = None) -> tuple[list, list]:
+    """(header, rows of strings) of a CSV path or text; DataError if unreadable or over max_bytes (MAX_BYTES)."""
+    name = str(source)
+    max_bytes = MAX_BYTES if max_bytes is None else int(max_bytes)
+    if isinstance(source, (str, Path)) and not (isinstance(source, str) and "\n" in source):
+        path = Path(source)
+        try:
+            size = path.stat().st_size
+        except OSError as exc:
+            raise DataError(f"{name}: cannot read ({exc.strerror or exc})") from None
+        if not path.is_file():
+            raise DataError(f"{name}: not a file")
+        if size > max_bytes:
+            raise DataError(f"{name}: {size} bytes, over the limit of {max_bytes} for a calibration CSV")
+        try:
+            text = path.read_text(encoding="utf-8-sig")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise DataError(f"{name}: cannot read as UTF-8 text ({exc})") from None
+    else:
+        text, name = str(source), "<data>"
+        if len(text.encode()) > max_bytes:
+            raise DataError(f"{name}: over the limit of {max_bytes} bytes for a calibration CSV")
+    try:
+        rows = [r for r in csv.reader(io.StringIO(text)) if any(c.strip() for c in r)]
+    except csv.Error as exc:
+        raise DataError(f"{name}: not CSV ({exc})") from None
+    if not rows:
+        raise DataError(f"{name}: empty (expected a header and one row per measured state)")
+    header = [h.strip() for h in rows[0]]
+    if len(rows) - 1 > MAX_ROWS:
+        raise DataError(f"{name}: {len(rows) - 1} rows, over the limit of {MAX_ROWS}")
+    dup = sorted({h for h in header if header.count(h) > 1})
+    if dup:
+        raise DataError(f"{name}: column {dup[0]!r} appears twice")
+    for i, r in enumerate(rows[1:], start=2):
+        if len(r) != len(header):
+            raise DataError(f"{name}: line {i}: {len(r)} cells, the header has {len(header)}")
+    return header, [[c.strip() for c in r] for r in rows[1:]]
+
+
+def _number(text: str, where: str, allow_empty: bool) -> float:
+    if text == "" and allow_empty:
+        return math.nan
+    try:
+        v = float(text)
+    except ValueError:
+        raise DataError(f"{where}: {text!r} is not a number") from None
+    if not math.isfinite(v):
+        raise DataError(f"{where}: {text!r} is not a finite number")
+    return v
+
+
+def parse_pairs(items, what: str) -> dict:
+    """{"A": "B"} of ["A=B", ...]; DataError on a malformed item."""
+    out = {}
+    for item in items or ():
+        if isinstance(item, tuple):
+            key, value = item
+        elif "=" in str(item):
+            key, value = str(item).split("=", 1)
+        else:
+            raise DataError(f"{what} {item!r}: expected KEY=VALUE")
+        out[key.strip()] = value.strip() if isinstance(value, str) else value
+    return out
+
+
+def prepare_data(design, data, fit, sigma=None, bounds=None, holdout: float = 0.0,
+                 seed: int = 0, max_bytes: int | None = None) -> Data:
+    """Read and check data (a CSV path, CSV text, or {column: values}) against design; DataError if bad.
+
+    fit: live keys to fit; sigma: {column or pattern: std} or ["COL=VALUE"]; bounds:
+    {key: (lo, hi)} or ["KEY=LO,HI"]; holdout: the fraction of rows kept out of the fit.
+    """
+    if isinstance(data, dict):
+        header = list(data)
+        n = len(next(iter(data.values()))) if data else 0
+        rows = [[("" if (isinstance(data[h][i], float) and math.isnan(data[h][i])) else str(data[h][i]))
+                 if not isinstance(data[h][i], str) else data[h][i] for h in header] for i in range(n)]
+        source = "<data>"
+    else:
+        header, rows = read_table(data, max_bytes)
+        source = str(data) if not (isinstance(data, str) and "\n" in data) else "<data>"
+    if not rows:
+        raise DataError(f"{source}: no rows (expected one row per measured state)")
+    live = scalar_keys(design)
+    vectors = {k for k, v in live_keys(design).items() if np.ndim(v) > 0}
+    measures = measurement_columns(design)
+    cols, conds = [], {}
+    for j, h in enumerate(header):
+        if h == EXPERIMENT:
+            continue
+        values = [_number(r[j], f"{source}: row {i + 1}, column {h!r}", h in measures)
+                  for i, r in enumerate(rows)]
+        if h in measures:
+            cols.append((h, values))
+        elif h in live:
+            conds[h] = np.array(values)
+        elif h in vectors:
+            raise DataError(f"{source}: column {h!r}: a vector; give its components ({h}.x, {h}.y...)")
+        else:
+            raise DataError(f"{source}: column {h!r} names no marker, cable, ground, pin or live parameter "
+                            f"of {design.name} (measurements: {', '.join(measures) or 'none'})")
+    if not cols:
+        raise DataError(f"{source}: no measurement column (markers.<m>.x, cables.<c>.tension, ...)")
+    experiments = [r[header.index(EXPERIMENT)] for r in rows] if EXPERIMENT in header else ["1"] * len(rows)
+    for lab in dict.fromkeys(experiments):
+        at = [i for i, e in enumerate(experiments) if e == lab]
+        if at != list(range(at[0], at[-1] + 1)):
+            raise DataError(f"{source}: experiment {lab!r}: its rows must be consecutive (one load path)")
+    names = [c for c, _ in cols]
+    values = np.array([v for _, v in cols], float).T
+
+    # fitted parameters
+    fit = list(fit or [])
+    if not fit:
+        raise DataError("fit: no parameter to fit (give --fit KEY)")
+    keys, tied = [], {}
+    for key in fit:
+        if any(ch in key for ch in "*?["):
+            hits = [k for k in live if fnmatch.fnmatchcase(k, key)]
+            if not hits:
+                raise DataError(f"fit: {key!r} matches no live parameter of {design.name}")
+            if len({live[k] for k in hits}) > 1:
+                raise DataError(f"fit: {key!r} ties parameters that start at different values "
+                                f"({', '.join(f'{k}={live[k]:g}' for k in hits)})")
+            if any(k in conds for k in hits):
+                raise DataError(f"fit: {key!r} matches a condition column")
+            tied[key] = hits
+            keys.append(key)
+        elif key in vectors:
+            keys += [f"{key}.{AXES[i]}" for i in range(len(live_keys(design)[key]))]
+        elif key in live:
+            keys.append(key)
+        else:
+            raise DataError(f"fit: {key!r} is not a live parameter of {design.name} "
+                            f"(live: {', '.join(live) or 'none'})")
+    targets_of = {k: tied.get(k, [k]) for k in keys}
+    flat = [t for k in keys for t in targets_of[k]]
+    if len(set(flat)) != len(flat):
+        raise DataError("fit: a parameter is named twice")
+    bounds = parse_pairs(bounds.items() if isinstance(bounds, dict) else bounds, "bounds")
+    for b in bounds:
+        if b not in keys:
+            raise DataError(f"bounds: {b!r} is not a fitted parameter (fitted: {', '.join(keys)})")
+    params = []
+    vector_keys = live_keys(design)
+    for key in keys:
+        targets = [(t, None) if t in vector_keys else split_key(t) for t in targets_of[key]]
+        base, comp = targets[0]
+        offset = key in conds
+        initial = 0.0 if offset else live[targets_of[key][0]]
+        last = targets_of[key][0].rsplit(".", 1)[-1]
+        lo, hi = -math.inf, math.inf
+        if not offset and last in POSITIVE:
+            lo = 1e-6 * abs(initial) if initial > 0 else lo
+        if not offset and last == "nu":
+            lo, hi = NU_BOUNDS
+        if key in bounds:
+            lo, hi = _bounds(key, bounds[key])
+            if not lo <= initial <= hi:
+                raise DataError(f"bounds: {key}={lo:g},{hi:g} excludes the start {initial:g}")
+        params.append(Parameter(key, base, comp, float(initial), float(lo), float(hi), offset, targets))
+
+    # weights
+    sig = np.ones(len(names))
+    given = np.zeros(len(names), bool)
+    for pattern, text in parse_pairs(sigma.items() if isinstance(sigma, dict) else sigma, "sigma").items():
+        v = _number(str(text), f"sigma {pattern}", False)
+        if not v > 0:
+            raise DataError(f"sigma {pattern}={text}: must be > 0")
+        hit = [j for j, c in enumerate(names) if fnmatch.fnmatchcase(c, pattern)]
+        if not hit:
+            raise DataError(f"sigma {pattern}: names no measurement column (have: {', '.join(names)})")
+        sig[hit], given[hit] = v, True
+
+    # hold-out rows
+    if not 0.0 <= float(holdout) < 1.0:
+        raise DataError(f"holdout {holdout}: must be a fraction in [0, 1)")
+    train = np.ones(len(rows), bool)
+    k = int(round(float(holdout) * len(rows)))
+    if holdout > 0 and k == 0:
+        k = 1
+    if k:
+        train[np.random.default_rng(seed).choice(len(rows), size=k, replace=False)] = False
+    count = int(np.isfinite(values[train]).sum())
+    if count < len(params) or train.sum() < 1:
+        raise DataError(f"{source}: {int(train.sum())} fitted rows hold {count} measurements, fewer than the "
+                        f"{len(params)} parameters to fit")
+    return Data(names, values, sig, given, conds, experiments, params, train, source, header)
+
+
+def _bounds(key: str, value) -> tuple[float, float]:
+    if isinstance(value, str):
+        parts = value.split(",")
+        if len(parts) != 2:
+            raise DataError(f"bounds: {key}={value}: expected LO,HI")
+        lo, hi = (_number(p.strip(), f"bounds {key}", False) if p.strip() not in ("-inf", "inf")
+                  else float(p) for p in parts)
+    else:
+        lo, hi = (float(v) for v in value)
+    if not lo < hi:
+        raise DataError(f"bounds: {key}: lower {lo:g} is not below upper {hi:g}")
+    return lo, hi
+
+
+# -- the outcome -------------------------------------------------------------------------------------
+@dataclass
+class Calibration:
+    """The outcome of a calibration (``to_dict()`` is calibration.json)."""
+    keys: list
+    initial: np.ndarray
+    values: np.ndarray
+    std: np.ndarray                   # inf for a parameter in an unidentifiable group
+    ci95: np.ndarray                  # (m, 2)
+    covariance: np.ndarray
+    correlation: np.ndarray
+    singular_values: np.ndarray       # of the weighted Jacobian in scaled parameters
+    unidentifiable: list              # [[key, ...], ...]
+    iterations: int
+    converged: bool
+    status: str
+    cost: float                       # f = |r|^2 / 2 at the estimate
+    history: list                     # cost at the start and after each accepted step
+    columns: list
+    rms: dict                         # {column: RMS of model - data over fitted rows}
+    holdout: dict | None              # {"rows": n, "rms": {column: ...}, "weighted_rms": ...}
+    model_values: np.ndarray          # (rows, columns) at the estimate
+    data: Data
+    offsets: list                     # keys fitted as offsets of a condition column
+    s2: float                         # variance factor of the covariance
+    solves: int = 0
+    newton_iterations: int = 0
+    time: float = 0.0
+    timings: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        params = {}
+        for i, k in enumerate(self.keys):
+            ident = math.isfinite(self.std[i])
+            params[k] = {"value": float(self.values[i]), "initial": float(self.initial[i]),
+                         "std": float(self.std[i]) if ident else None,
+                         "ci95": [float(v) for v in self.ci95[i]] if ident else None,
+                         "offset": k in self.offsets}
+        return {
+            "parameters": params,
+            "correlation": {"keys": list(self.keys), "matrix": [[float(v) if math.isfinite(v) else None
+                                                                for v in row] for row in self.correlation]},
+            "unidentifiable": self.unidentifiable,
+            "singular_values": [float(v) for v in self.singular_values],
+            "iterations": int(self.iterations), "converged": bool(self.converged), "status": self.status,
+            "cost": float(self.cost), "cost_history": [float(c) for c in self.history],
+            "residual_rms": {c: v for c, v in self.rms.items()},
+            "holdout": self.holdout,
+            "variance_factor": float(self.s2),
+            "rows": int(self.data.rows), "fitted_rows": int(self.data.train.sum()),
+            "sigma": {c: float(s) for c, s in zip(self.columns, self.data.sigma)},
+            "sigma_given": {c: bool(g) for c, g in zip(self.columns, self.data.sigma_given)},
+            "solves": int(self.solves), "newton_iterations": int(self.newton_iterations),
+            "time": round(float(self.time), 3),
+        }
+
+    def overrides(self, design) -> dict:
+        """{--set key: value} of the fitted design parameters (offsets excluded), vectors merged."""
+        base = {k: (np.array(v, float) if np.ndim(v) else float(v)) for k, v in live_keys(design).items()}
+        out = {}
+        for p, v in zip(self.data.parameters, self.values):
+            if p.offset:
+                continue
+            for b, comp in p.targets:
+                if comp is None:
+                    out[b] = float(v)
+                else:
+                    vec = out.get(b, base[b]).copy()
+                    vec[comp] = float(v)
+                    out[b] = vec
+        return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in out.items()}

@@ -1,0 +1,152 @@
+"""``skelfem calibrate``: fit live parameters of a design to measured states (skelfem.analysis.calibrate).
+
+    skelfem calibrate DESIGN --data DATA.csv --fit KEY [--fit KEY ...] [--sigma COLUMN=VALUE ...]
+                      [--bounds KEY=LO,HI ...] [--holdout FRACTION] [--max-iterations N] [--out DIR]
+
+The CSV has one row per measured state (the contract: skelfem.analysis.caldata
+and docs/guide/calibration.md). Writes calibration.json (estimates, initial
+values, std, 95 % intervals, correlations, unidentifiable groups, iterations,
+residual RMS per column, the held-out error), calibrated.toml (the design file
+with the fitted values, its comments kept), fit.csv (data and model per row),
+fit.png, residuals.png and parameters.png. Bad input: one ``error:`` line,
+exit 1, nothing written, before any meshing. A row that does not converge at
+the start: exit 2, nothing written.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import sys
+import time
+from pathlib import Path
+
+from . import common as cli
+from ..io import outdir
+from ..io.files import FORMAT, write_csv, write_json, write_text
+
+MAX_ITERATIONS = 1000
+
+
+def add_parsers(subparsers) -> None:
+    p = subparsers.add_parser("calibrate", help="fit live parameters (E, nu, stiffnesses, ...) to measurements")
+    cli.common_arguments(p)
+    p.add_argument("--data", type=Path, required=True, metavar="DATA.csv",
+                   help="one row per measured state: condition columns (--set keys) and measurement columns "
+                        "(markers.M.x, cables.C.tension, grounds.G.force.x, pins.P.reaction.x); optional experiment")
+    p.add_argument("--fit", action="append", required=True, metavar="KEY",
+                   help="a live parameter to fit (repeatable), e.g. materials.ecoflex.E; a key that is also a "
+                        "condition column is fitted as an offset added to it; a pattern such as "
+                        "'cables.lig*.stiffness' fits one value shared by the keys it matches")
+    p.add_argument("--sigma", action="append", default=[], metavar="COLUMN=VALUE",
+                   help="a measurement column's standard deviation (repeatable; COLUMN may be a pattern such "
+                        "as 'markers.*'); default 1 in the column's unit, the covariance then scaled by the fit")
+    p.add_argument("--bounds", action="append", default=[], metavar="KEY=LO,HI", help="box for a fitted parameter")
+    p.add_argument("--holdout", type=float, default=0.0, metavar="FRACTION",
+                   help="fraction of rows kept out of the fit to measure the prediction error (default 0)")
+    p.add_argument("--max-iterations", type=int, default=20, metavar="N",
+                   help="Levenberg-Marquardt iterations allowed (default 20)")
+    p.set_defaults(handler=calibrate_command)
+
+
+def _progress(enabled: bool):
+    """A progress line on stderr: iteration and row."""
+    if not enabled:
+        return None
+    t0 = time.perf_counter()
+
+    def show(iteration: int, row: int, rows: int) -> None:
+        width = 24
+        done = int(width * row / rows)
+        sys.stderr.write(f"\rcalibrate: iteration {iteration:2d} [{'#' * done}{'.' * (width - done)}] "
+                         f"row {row}/{rows}  {time.perf_counter() - t0:6.1f} s")
+        if row == rows:
+            sys.stderr.write("\r" + " " * 72 + "\r")
+        sys.stderr.flush()
+    return show
+
+
+def calibrated_text(source, fitted: dict, overrides=()) -> str:
+    """The design file's text with the fitted values (comments and layout kept).
+
+    The run's --set overrides are kept too, except mesh and solver settings
+    (how the calibration was computed, not what was calibrated).
+    """
+    from ..design.parse import load_design
+    from ..editor.savefile import render
+    text = Path(source).read_text(encoding="utf-8")
+    kept = [o for o in overrides if not o.strip().startswith(("mesh.", "solver."))]
+    new = load_design(source, kept + [f"{k}={_toml(v)}" for k, v in fitted.items()]).raw
+    return render(text, new, default_name=Path(source).stem)
+
+
+def _toml(v) -> str:
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml(x) for x in v) + "]"
+    return repr(float(v))
+
+
+def calibrate_command(args) -> int:
+    from mpi4py import MPI
+
+    from ..analysis.caldata import DataError, prepare_data
+
+    t0 = time.perf_counter()
+    if MPI.COMM_WORLD.size > 1:
+        raise cli.InputError(f"{args.design}: calibrate runs on one MPI process (got {MPI.COMM_WORLD.size})")
+    if not 1 <= args.max_iterations <= MAX_ITERATIONS:
+        raise cli.InputError(f"--max-iterations {args.max_iterations}: must be >= 1 and <= {MAX_ITERATIONS}")
+    if not (math.isfinite(args.holdout) and 0.0 <= args.holdout < 1.0):
+        raise cli.InputError(f"--holdout {args.holdout:g}: must be a fraction in [0, 1)")
+    design = cli.load(args)
+    try:
+        data = prepare_data(design, args.data, args.fit, args.sigma, args.bounds, args.holdout)
+    except DataError as exc:
+        raise cli.InputError(str(exc)) from None
+    design, session = cli.prepare(args, kind="calibrate")
+    timings = dict(session.timings)
+    if not args.verbose:
+        cli.log.setLevel(logging.WARNING)
+    from ..analysis.calibrate import calibrate
+    from ..fem.newton import SolveError
+    from ..viz.calplots import calibration_figures
+    with session:
+        try:
+            cal = calibrate(session, data, max_iterations=args.max_iterations,
+                            progress=_progress(not args.quiet and sys.stderr.isatty()))
+        except SolveError as exc:
+            cli.error(f"{design.name}: {exc}; nothing written to {args.out}")
+            return cli.EXIT_SOLVE
+        timings.update(calibrate=cal.time, total=time.perf_counter() - t0)
+        fitted = cal.overrides(design)
+        result = {"format": FORMAT, "design": design.name, "data": str(args.data), **cal.to_dict(),
+                  "calibrated": fitted, "timings": {k: round(float(v), 4) for k, v in timings.items()}}
+        text = calibrated_text(args.design, fitted, args.overrides)
+        header = ["row", "experiment", "fitted"] + [f"{c}{s}" for c in cal.columns for s in ("", ":model")]
+        rows = [dict(zip(header, [i + 1, data.experiments[i], int(data.train[i])]
+                         + [v for j in range(len(cal.columns))
+                            for v in (_cell(data.values[i, j]), float(cal.model_values[i, j]))]))
+                for i in range(data.rows)]
+        with outdir.publish(args.out, kind="calibrate") as stage:    # every file or none
+            stage.run(write_json, stage.path / "calibration.json", result)
+            stage.run(write_text, stage.path / "calibrated.toml", text)
+            stage.run(write_csv, stage.path / "fit.csv", header, rows)
+            stage.run(calibration_figures, stage.path, cal, f"{design.name}: calibration")
+    if not args.quiet:
+        state = "converged" if cal.converged else f"not converged ({cal.status})"
+        print(f"{design.name}: {len(cal.keys)} parameters from {data.rows} rows, {state} in "
+              f"{cal.iterations} iterations, {cal.solves} solves, {cal.time:.1f} s")
+        for i, k in enumerate(cal.keys):
+            ci = (f"95 % [{cal.ci95[i][0]:.6g}, {cal.ci95[i][1]:.6g}]" if math.isfinite(cal.std[i])
+                  else "unidentifiable")
+            print(f"  {k} = {cal.values[i]:.6g} (start {cal.initial[i]:.6g}), {ci}")
+        for group in cal.unidentifiable:
+            print(f"  the data cannot separate: {', '.join(group)}")
+        if cal.holdout:
+            print(f"  held-out rows: {cal.holdout['rows']}, weighted RMS {cal.holdout['weighted_rms']:.3g}")
+        print(f"  results in {args.out}/ (calibration.json, calibrated.toml, fit.csv, fit.png, residuals.png, "
+              "parameters.png)")
+    return cli.EXIT_OK
+
+
+def _cell(v: float):
+    return float(v) if math.isfinite(v) else ""

@@ -1,0 +1,112 @@
+"""skelfem calibrate: a fit from CSV to calibrated design, and bad input refused before meshing."""
+import json
+import tomllib
+
+import pytest
+
+from skelfem.cli.main import main
+
+from conftest import GEOMETRY
+
+FINGER = GEOMETRY / "finger.toml"
+HEADER = "cables.flexor.contraction,markers.tip.x,markers.tip.y,cables.flexor.tension\n"
+ROWS = ("2.0,-1.9933223151859956,97.65964934214473,1.472393274892454\n"
+        "4.0,-13.862069783258399,94.43972635675517,3.054206648346849\n"
+        "6.0,-25.16956577563269,89.35530109028294,4.727845989792172\n"
+        "8.0,-35.51594940410135,82.52645450860332,6.479869387406723\n")     # finger.toml at mesh.size 4
+
+
+@pytest.mark.slow
+def test_calibrate_writes_every_file(tmp_path, capsys):
+    data = tmp_path / "data.csv"
+    data.write_text(HEADER + ROWS)
+    out = tmp_path / "cal"
+    code = main(["calibrate", str(FINGER), "--set", "mesh.size=4.0", "--set", "materials.ecoflex.E=0.2",
+                 "--data", str(data), "--fit", "materials.ecoflex.E", "--fit", "cables.flexor.stiffness",
+                 "--sigma", "markers.*=0.1", "--sigma", "cables.flexor.tension=0.01", "--holdout", "0.25",
+                 "--out", str(out), "-q"])
+    assert code == 0, capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["calibrated.toml", "calibration.json", "fit.csv", "fit.png",
+                                                     "parameters.png", "residuals.png"]
+    res = json.loads((out / "calibration.json").read_text())
+    e = res["parameters"]["materials.ecoflex.E"]
+    assert res["converged"] and e["initial"] == 0.2 and e["value"] == pytest.approx(0.1, rel=1e-6)
+    assert e["ci95"][0] <= e["value"] <= e["ci95"][1] and res["holdout"]["rows"] == 1
+    text = (out / "calibrated.toml").read_text()
+    assert "# A cable-driven finger" in text and "size = 2.0" in text      # comments kept, mesh not
+    cal = tomllib.loads(text)
+    assert cal["materials"]["ecoflex"]["E"] == pytest.approx(0.1, rel=1e-6)
+
+
+BAD = [
+    (HEADER.replace("markers.tip.y", "markers.nail.y") + ROWS, [], "'markers.nail.y' names no marker"),
+    (HEADER + ROWS.replace("97.65964934214473", "ninety"), [], "'ninety' is not a number"),
+    (HEADER + ROWS.splitlines()[0] + "\n", ["--fit", "cables.lig1_dorsal.stiffness", "--fit", "materials.pla.E",
+                                           "--fit", "materials.ecoflex.nu"], "fewer than the 5 parameters"),
+    (HEADER + ROWS, ["--fit", "mesh.size"], "'mesh.size' is not a live parameter"),
+    (HEADER + ROWS, ["--bounds", "materials.ecoflex.E=0.5,1"], "excludes the start 0.1"),
+    (HEADER + ROWS, ["--holdout", "1.5"], "--holdout 1.5"),
+]
+
+
+@pytest.mark.parametrize("text, extra, message", BAD,
+                         ids=["unknown column", "non-numeric", "too few rows", "not live", "bounds", "holdout"])
+def test_bad_input_one_line_nothing_written_no_meshing(tmp_path, capsys, monkeypatch, text, extra, message):
+    import skelfem.jobs.run as run
+
+    def no_meshing(*a, **k):
+        raise AssertionError("meshed")
+    monkeypatch.setattr(run, "open_session", no_meshing)
+    data = tmp_path / "data.csv"
+    data.write_text(text)
+    out = tmp_path / "never"
+    code = main(["calibrate", str(FINGER), "--data", str(data), "--fit", "materials.ecoflex.E",
+                 "--fit", "cables.flexor.stiffness", *extra, "--out", str(out), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len(err) == 1 and err[0].startswith("error:") and message in err[0], err
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["data.csv"]
+
+
+def test_csv_over_the_size_limit(tmp_path, capsys, monkeypatch):
+    import skelfem.analysis.caldata as caldata
+    monkeypatch.setattr(caldata, "MAX_BYTES", 200)
+    data = tmp_path / "data.csv"
+    data.write_text(HEADER + ROWS * 3)
+    assert main(["calibrate", str(FINGER), "--data", str(data), "--fit", "materials.ecoflex.E",
+                 "--out", str(tmp_path / "never"), "-q"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "over the limit of 200" in err[0]
+    assert not (tmp_path / "never").exists()
+
+
+def test_interrupted_calibration_writes_nothing(tmp_path, capsys, monkeypatch):
+    import skelfem.analysis.calibrate as calibrate
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(calibrate, "calibrate", interrupted)
+    data = tmp_path / "data.csv"
+    data.write_text(HEADER + ROWS)
+    code = main(["calibrate", str(FINGER), "--set", "mesh.size=4.0", "--data", str(data),
+                 "--fit", "materials.ecoflex.E", "--out", str(tmp_path / "cal"), "-q"])
+    assert code == 130 and "interrupted" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data.csv"]          # no folder, lock or staging
+
+
+def test_progress_line(capsys):
+    from skelfem.cli.calibrate import _progress
+    show = _progress(True)
+    show(2, 3, 8)
+    show(2, 8, 8)
+    err = capsys.readouterr().err
+    assert "iteration  2" in err and "row 3/8" in err and err.endswith("\r")
+
+
+def test_a_row_that_does_not_converge_exits_2_and_writes_nothing(tmp_path, capsys):
+    data = tmp_path / "data.csv"
+    data.write_text(HEADER + ROWS)
+    code = main(["calibrate", str(FINGER), "--set", "mesh.size=4.0", "--set", "solver.max_iterations=1",
+                 "--data", str(data), "--fit", "materials.ecoflex.E", "--out", str(tmp_path / "cal"), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "row 1: the equilibrium did not converge" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data.csv"]
