@@ -29,6 +29,12 @@ def test_design_raw_is_a_copy_and_the_design_is_read_only():
     with pytest.raises(TypeError):
         d.data["materials"]["ecoflex"]["E"] = 1.0                 # its data is read-only
     assert isinstance(d, Design)
+    import copy
+    import pickle
+    again = pickle.loads(pickle.dumps(d))                           # MPI sends designs between ranks
+    assert again.raw == d.raw and copy.deepcopy(d).raw == d.raw
+    with pytest.raises(TypeError):
+        again.data["name"] = "x"
 
 
 @pytest.mark.slow

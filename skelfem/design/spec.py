@@ -6,7 +6,6 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from types import MappingProxyType
 
 import numpy as np
 
@@ -160,10 +159,22 @@ class FabricationSpec:
     split_normal: np.ndarray | None = None
 
 
+class FrozenDict(dict):
+    """A dict that refuses every change (TypeError), and pickles (MPI sends designs between ranks)."""
+
+    def _refuse(self, *args, **kwargs):
+        raise TypeError("a Design's data is read-only: change a copy (Design.raw) and parse it again")
+
+    __setitem__ = __delitem__ = clear = pop = popitem = setdefault = update = __ior__ = _refuse
+
+    def __reduce__(self):
+        return (FrozenDict, (dict(self),))
+
+
 def freeze(value):
-    """A read-only deep view of TOML-like data: dicts as mappingproxy, lists as tuples."""
+    """A read-only deep copy of TOML-like data: dicts as FrozenDict, lists as tuples."""
     if isinstance(value, Mapping):
-        return MappingProxyType({k: freeze(v) for k, v in value.items()})
+        return FrozenDict({k: freeze(v) for k, v in value.items()})
     if isinstance(value, (list, tuple)):
         return tuple(freeze(v) for v in value)
     if isinstance(value, np.ndarray):
