@@ -469,3 +469,112 @@ def test_malformed_http_is_one_log_line(ed, raw):
         logger.removeHandler(handler)
     assert data.startswith(b"HTTP/1.1 400"), data
     assert handler.texts and all("\n" not in t and "Traceback" not in t for t in handler.texts), handler.texts
+
+
+# == 8. a full, read-only or over-quota disk is bad output (exit 1, one line) in every command ========
+def _enospc(code=errno.ENOSPC, name="summary.csv"):
+    def write(*a, **k):
+        raise OSError(code, __import__("os").strerror(code), name)
+    return write
+
+
+def _sweep_files(tmp_path, design_text=None, cases=1) -> "Path":
+    (tmp_path / "strip.toml").write_text(design_text if design_text is not None else toml_dumps(strip2d(size=6.0)))
+    values = ", ".join(str(0.5 + 0.25 * i) for i in range(cases))
+    (tmp_path / "sw.toml").write_text(f'design = "strip.toml"\nname = "sw"\n'
+                                      f'[parameters]\n"cables.flexor.contraction" = [{values}]\n')
+    return tmp_path / "sw.toml"
+
+
+@pytest.mark.parametrize("code", [errno.ENOSPC, errno.EDQUOT, errno.EROFS])
+def test_sweep_summary_on_a_full_disk_is_exit_1(code, tmp_path, capsys, monkeypatch):
+    # before: the summary's OSError escaped as an internal error, exit 3
+    import skelfem.io.files as files
+    sweep = _sweep_files(tmp_path)
+    monkeypatch.setattr(files, "write_csv", _enospc(code))
+    status, _, err = run_cli(capsys, "sweep", sweep, "--out", tmp_path / "out", "-q")
+    assert status == 1, err
+    assert_one_error(err, __import__("os").strerror(code))
+
+
+def test_sweep_case_on_a_full_disk_is_bad_output(tmp_path, capsys, monkeypatch):
+    # before: an ENOSPC raised while a case ran (outside a stage) was recorded as an internal error, exit 3
+    import skelfem.jobs.run as run
+    sweep = _sweep_files(tmp_path)
+    monkeypatch.setattr(run, "write_results", _enospc(errno.ENOSPC, "result.json"))
+    status, _, err = run_cli(capsys, "sweep", sweep, "--out", tmp_path / "out", "-q")
+    assert status == 1, err
+    assert_one_error(err)
+    rows = (tmp_path / "out" / "summary.csv").read_text()
+    assert "bad_output" in rows and "internal_error" not in rows
+
+
+@pytest.mark.parametrize("code", [errno.ENOSPC, errno.EDQUOT, errno.EROFS])
+def test_any_command_writing_to_a_full_disk_is_exit_1(code, tmp_path, capsys, monkeypatch):
+    # before: an OSError out of a command's writer was exit 3 ("internal error: OSError ...")
+    import skelfem.jobs.run as run
+    path = tmp_path / "strip.toml"
+    path.write_text(toml_dumps(strip2d(size=6.0)))
+    monkeypatch.setattr(run, "write_results", _enospc(code, "result.json"))
+    status, _, err = run_cli(capsys, "simulate", path, "--out", tmp_path / "out", "-q")
+    assert status == 1, err
+    line = assert_one_error(err, "result.json")
+    assert "internal error" not in line
+
+
+def test_other_os_errors_are_still_internal(tmp_path, capsys, monkeypatch):
+    # a guard: only the file system's own refusals are mapped; EBADF stays exit 3
+    import skelfem.jobs.run as run
+    path = tmp_path / "strip.toml"
+    path.write_text(toml_dumps(strip2d(size=6.0)))
+    monkeypatch.setattr(run, "write_results", _enospc(errno.EBADF, "result.json"))
+    status, _, err = run_cli(capsys, "simulate", path, "--out", tmp_path / "out", "-q")
+    assert status == 3
+    assert_one_error(err, "internal error")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("code", [errno.ENOSPC, errno.EROFS])
+def test_fabricate_on_a_full_disk_is_exit_1(code, tmp_path, capsys, monkeypatch):
+    # before: Gmsh's STEP writer raised a plain Exception on a full disk: exit 3
+    import os
+
+    import gmsh
+
+    def failing_write(*a, **k):
+        raise Exception("Could not open file")
+    monkeypatch.setattr(gmsh, "write", failing_write)
+    monkeypatch.setattr(os, "fsync", _enospc(code, "bone_proximal.step"))
+    out = tmp_path / "fab"
+    status, _, err = run_cli(capsys, "fabricate", FINGER, "--out", out, "-q", "--no-picture")
+    assert status == 1, err
+    assert_one_error(err, os.strerror(code))
+    assert not out.exists() and listing(tmp_path) == []
+
+
+# == 9. a sweep whose design is not a design is refused before any case ================================
+NOT_DESIGNS = {"text": "hello world\n", "json": '{"format": 1}', "sweep": 'design = "x.toml"\n',
+               "bad value": toml_dumps(dict(strip2d(), thickness=-1.0)), "binary": b"\x00\xff\x00\xfe"}
+
+
+@pytest.mark.parametrize("kind", sorted(NOT_DESIGNS))
+def test_sweep_of_a_file_that_is_not_a_design_is_refused_at_once(kind, tmp_path, capsys):
+    # before: every case ran and was written as bad input, with a generic "N of M case(s) failed"
+    content = NOT_DESIGNS[kind]
+    sweep = _sweep_files(tmp_path, cases=3)
+    (tmp_path / "strip.toml").write_bytes(content if isinstance(content, bytes) else content.encode())
+    before = listing(tmp_path)
+    status, _, err = run_cli(capsys, "sweep", sweep, "--out", tmp_path / "out", "-q")
+    assert status == 1, err
+    line = assert_one_error(err, ": design: 'strip.toml' is not a usable design file:")
+    assert "case" not in line.split("design file:")[0]
+    assert listing(tmp_path) == before
+
+
+def test_sweep_whose_cases_make_the_design_valid_still_runs(tmp_path, capsys):
+    # a guard: a design that is valid only with the sweep's overrides is accepted
+    d = strip2d(size=6.0)
+    d["cables"][0]["contraction"] = 100.0            # more than the tendon's length: refused alone
+    sweep = _sweep_files(tmp_path, toml_dumps(d))
+    status, _, err = run_cli(capsys, "sweep", sweep, "--out", tmp_path / "out", "-q")
+    assert status == 0, err

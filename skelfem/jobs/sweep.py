@@ -198,9 +198,24 @@ def load_sweep(path) -> Sweep:
     picture = data.get("picture", False)
     if not isinstance(picture, bool):
         _fail(source, "picture", "must be true or false")
+    _check_design(source, data["design"], design, cases, common)
     all_keys = keys + tuple(k for c in cases for k in c.params if k not in keys)
     return Sweep(source, name, design, tuple(cases), tuple(dict.fromkeys(all_keys)), rpc, picture,
                  hashlib.sha256(design_bytes).hexdigest())
+
+
+def _check_design(source: str, given: str, design: Path, cases, common) -> None:
+    """The sweep's design must be a design: checked once, before any case (with the common ``set``,
+    then with the first case's overrides, which may be what makes it valid). A file that is not a
+    design used to run every case and record each as bad input."""
+    first = None
+    for overrides in dict.fromkeys((tuple(o for o in cases[0].overrides if o in common), cases[0].overrides)):
+        try:
+            load_design(design, list(overrides))
+            return
+        except DesignError as exc:
+            first = first or exc
+    _fail(source, "design", f"{given!r} is not a usable design file: {first}")
 
 
 # -- running -----------------------------------------------------------------------------------------
@@ -262,9 +277,12 @@ def run_case(sweep: Sweep, case: Case, out: Path, comm, force: bool = False) -> 
     except OutputError as exc:
         status, message = "bad_output", str(exc)
     except Exception as exc:  # recorded, and the sweep goes on
+        from ..io.files import disk_error
         if received() is not None:            # an interrupt that surfaced as another error (a C callback)
             raise Interrupted(received()) from None
-        status, message = "internal_error", f"{type(exc).__name__}: {exc}"
+        full = disk_error(exc)                # a full or read-only disk: the user's to fix, not a bug
+        status, message = ("bad_output", f"{folder}: {full}") if full else \
+            ("internal_error", f"{type(exc).__name__}: {exc}")
         in_step = False
     if received() is not None:
         raise Interrupted(received())
