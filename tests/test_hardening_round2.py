@@ -578,3 +578,43 @@ def test_sweep_whose_cases_make_the_design_valid_still_runs(tmp_path, capsys):
     sweep = _sweep_files(tmp_path, toml_dumps(d))
     status, _, err = run_cli(capsys, "sweep", sweep, "--out", tmp_path / "out", "-q")
     assert status == 0, err
+
+
+# == 10. long dynamics: rows streamed to trajectory.csv, bounded memory and result.json ================
+def test_decimated_history_keeps_evenly_spaced_entries_and_the_last():
+    # before: DynamicsReport kept plain lists: one row (~12 KB with its arrays' share) per step for ever
+    from skelfem.fem.dynamics import Decimated
+    h = Decimated(8)
+    for i in range(1000):
+        h.append(i)
+    kept = h.values()
+    assert len(kept) <= 9 and kept[0] == 0 and kept[-1] == 999 and h[-1] == 999 and h.count == 1000
+    steps = {b - a for a, b in zip(kept[:-2], kept[1:-1])}
+    assert steps == {h.stride}
+
+
+@pytest.mark.slow
+def test_a_long_dynamics_run_keeps_bounded_history_and_streams_every_row(tmp_path, capsys, monkeypatch):
+    # before: result.json held every step's energies and attempts (280 B a step; 1e6 steps allowed) and
+    # the trajectory rows were all kept in memory until trajectory.csv was written at the end
+    import skelfem.fem.dynamics as dyn
+    monkeypatch.setattr(dyn, "KEEP_ROWS", 10, raising=False)
+    monkeypatch.setattr(dyn, "KEEP_HISTORY", 10, raising=False)
+    d = strip2d(size=6.0, bones=False, contraction=0.0)
+    for m in d["materials"].values():
+        m["density"] = 1100.0
+    d["cables"][0]["schedule"] = [[0.0, 0.0], [0.05, 1.0]]
+    d["dynamics"] = {"dt": 0.001, "duration": 0.1, "integrator": "bdf2"}
+    path = tmp_path / "long.toml"
+    path.write_text(toml_dumps(d))
+    out = tmp_path / "out"
+    status, _, err = run_cli(capsys, "simulate", path, "--out", out, "-q", "--no-picture")
+    assert status == 0, err
+    res = json.loads((out / "result.json").read_text())
+    hist = res["dynamics"]["energy_history"]
+    assert res["dynamics"]["steps"] == 100
+    assert len(hist["time"]) <= 11 and hist["time"][-1] == pytest.approx(0.1) and hist["time"][0] == 0.0
+    assert len(res["attempts"]) <= 11 and len(res["residual_history"]) <= 11
+    lines = (out / "trajectory.csv").read_text().splitlines()
+    assert len(lines) == 1 + 101
+    assert float(lines[-1].split(",")[0]) == pytest.approx(0.1)

@@ -113,6 +113,29 @@ def write_csv(path: Path, fields, rows) -> None:
 
 
 
+class CsvStream:
+    """A CSV file written a row at a time (a long run's rows never all in memory); close() ends it."""
+
+    def __init__(self, path: Path, fields):
+        import csv
+        self.fields = list(fields)
+        self.file = open(path, "w", newline="")
+        try:
+            self.writer = csv.DictWriter(self.file, self.fields, extrasaction="ignore")
+            self.writer.writeheader()
+        except BaseException:
+            self.file.close()
+            raise
+
+    def write(self, row: dict) -> None:
+        self.writer.writerow({k: row.get(k, "") for k in self.fields})
+
+    def close(self) -> None:
+        if not self.file.closed:
+            self.file.flush()
+            self.file.close()
+
+
 class InputTooLarge(ValueError):
     """A file given as input is larger than its kind may be."""
 

@@ -132,7 +132,7 @@ def write_dynamic_results(session, out: Path, t0: float, picture: bool = True, p
     from ..fem.dynamics import trajectory_columns
     from ..io.outdir import publish
     from ..io.xdmf import XdmfSeries, snapshot
-    from ..io.files import write_csv, write_json
+    from ..io.files import CsvStream, write_json
     from ..viz.animation import write_motion_gif
 
     design, model = session.design, session.model
@@ -141,29 +141,37 @@ def write_dynamic_results(session, out: Path, t0: float, picture: bool = True, p
     every = max(1, int(np.ceil(spec.steps / MAX_GIF_FRAMES)))
     gif = picture and design.dim == 2
     with publish(out, comm) as stage:
-        series, frames = None, []
+        series, frames, rows = None, [], None
+        if comm.rank == 0:                             # every row streamed as it is made
+            rows = stage.run(CsvStream, stage.path / "trajectory.csv", trajectory_columns(design))
 
         def on_step(t, report):
             nonlocal series
             snap = snapshot(model)                     # collective; None off rank 0
             if comm.rank != 0:
                 return
+            if rows is not None:
+                stage.run(rows.write, report.trajectory[-1])
             if series is None:
                 series = stage.run(XdmfSeries, stage.path / "trajectory.xdmf", snap)
             if series is not None:
                 stage.run(series.write, t, snap)
-            n = len(report.times) - 1
+            n = report.load_steps
             if gif and (n % every == 0 or abs(t - spec.duration) <= 1e-9 * spec.duration):
                 frames.append((t, snap))
 
-        result = session.run(on_step, progress)
+        try:
+            result = session.run(on_step, progress)
+        finally:
+            if rows is not None:
+                rows.close()
         data = result.to_dict()
         data.update(extra or {})
         if comm.rank == 0:
             if series is not None:
                 stage.run(series.close)
-            stage.run(write_csv, stage.path / "trajectory.csv", trajectory_columns(design),
-                      result.report.trajectory)
+            if rows is not None:
+                stage.run(rows.close)
             if gif and frames:
                 stage.run(write_motion_gif, stage.path / "motion.gif", frames, design.name)
         if comm.size > 1:
