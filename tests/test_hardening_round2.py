@@ -618,3 +618,59 @@ def test_a_long_dynamics_run_keeps_bounded_history_and_streams_every_row(tmp_pat
     lines = (out / "trajectory.csv").read_text().splitlines()
     assert len(lines) == 1 + 101
     assert float(lines[-1].split(",")[0]) == pytest.approx(0.1)
+
+
+# == 4. answers do not depend on the unit scale ========================================================
+def _strip_at(s: float) -> dict:
+    """strip2d (mesh 3) with lengths times s, cable stiffness times s (forces scale as s^2, moduli stay)."""
+    d = _scaled_strip(s)
+    d["mesh"]["size"] = 3.0 * s
+    for c in d["cables"]:
+        c["stiffness"] *= s
+    return d
+
+
+def _tip(s: float):
+    import numpy as np
+
+    from skelfem import Session
+    from skelfem.design.parse import parse_design
+    with Session(parse_design(_strip_at(s), f"strip{s:g}")) as session:
+        r = session.solve()
+        assert r.converged, r.status
+        return np.array(r.markers["tip"]["position"]) / s, r.newton_iterations
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("pair", [(1.0, 2e-5), (1e-3, 1e3)], ids=["1um-vs-mm", "um-vs-m"])
+def test_the_same_design_at_another_unit_scale_gives_the_same_answer(pair):
+    # before: the default Newton atol was 1e-10 N, absolute: the 1.2 um strip "converged" at its start
+    # (0 iterations, the tip where it was drawn, 17 % off); now it is relative to the design's force scale
+    (a, ia), (b, ib) = _tip(pair[0]), _tip(pair[1])
+    assert ia > 0 and ib > 0
+    assert abs(a - b).max() <= 1e-6 * abs(a).max(), (a, b)
+
+
+@pytest.mark.parametrize("scale", [1e-7, 1e-6, 2e4])
+def test_a_body_out_of_the_unit_range_is_refused_in_one_line(scale, tmp_path, capsys):
+    # before: a 6 nm strip aborted the process inside Gmsh (SIGABRT, no line), a 60 nm one solved with the
+    # absolute tolerance, and a 1.2 km one went on to DOLFINx's point location (GJK errors, exit 3 at 1e7 mm)
+    path = tmp_path / "scaled.toml"
+    path.write_text(toml_dumps(_strip_at(scale)))
+    p = subprocess.run([sys.executable, "-m", "skelfem", "simulate", str(path), "--out", str(tmp_path / "o"), "-q"],
+                       cwd=tmp_path, env={**MPI_ENV, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True,
+                       timeout=120)
+    assert p.returncode == 1, (p.returncode, p.stderr[-500:])
+    assert_one_error(p.stderr, ": body: its largest extent")
+    assert not (tmp_path / "o").exists()
+
+
+def test_the_default_tolerance_follows_the_force_scale():
+    from skelfem.design.parse import parse_design
+    from skelfem.design.spec import ATOL_RELATIVE, force_scale
+    small, big = parse_design(_strip_at(1e-3), "a"), parse_design(_strip_at(1e3), "b")
+    assert small.solver.atol is None
+    assert force_scale(big) / force_scale(small) == pytest.approx(1e12)
+    # E (1 MPa) x sqrt(area) x thickness: 600 ** 0.5 x 10 = 245 N; the default atol is 2.4e-10 N there
+    assert force_scale(parse_design(_strip_at(1.0), "c")) == pytest.approx(600 ** 0.5 * 10)
+    assert ATOL_RELATIVE == 1e-12

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from . import polygons
 from .objects import take as take_objects
-from .sections import read_cables, read_contact, read_dynamics, check_energy_line_search, read_fabrication, read_gravity, read_grounds, read_loads, read_markers, read_pins, read_solver, read_tractions
+from .sections import check_body_scale, read_cables, read_contact, read_dynamics, check_energy_line_search, read_fabrication, read_gravity, read_grounds, read_loads, read_markers, read_pins, read_solver, read_tractions
 from .shapes import read_body, read_bones, read_materials
 from .spec import Design, DesignError, FORMAT, MeshSpec, SECTIONS_BY_NAME
 from .table import Table, plain_name, positive, apply_override
@@ -51,6 +51,7 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     mt.done()
     materials = read_materials(top)
     body, region, tol, body_t = read_body(top, dim, materials)
+    check_body_scale(str(source), body, dim, thickness)
     bones = read_bones(top, dim, materials, region, tol, body_t)
     cables = read_cables(top, dim, region, tol)
     pins = read_pins(top, dim)

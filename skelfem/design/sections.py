@@ -336,6 +336,24 @@ def fabrication_bounds(spec: FabricationSpec, extent) -> list[tuple[str, str]]:
     return out
 
 
+MIN_BODY, MAX_BODY = 1e-3, 1e6     # mm: the body's largest extent, 1 um to 1 km
+
+
+def check_body_scale(source: str, body: Body, dim: int, thickness: float) -> None:
+    """The body's largest extent must lie in [MIN_BODY, MAX_BODY] mm, before any meshing.
+
+    Below, Gmsh's absolute tolerances break (a 6 nm strip aborted the process
+    from inside Gmsh); above, DOLFINx's point location fails (GJK) on a body
+    1e7 mm long. Between, answers do not depend on the unit scale (tolerances
+    are relative to the design's force and length scales).
+    """
+    lo, hi = _body_box(body, dim, thickness)
+    big = float(np.max(hi - lo))
+    if not MIN_BODY <= big <= MAX_BODY:
+        raise DesignError(f"{source}: body: its largest extent ({big:.3g} mm) must lie in [{MIN_BODY:g}, "
+                          f"{MAX_BODY:g}] mm (1 um to 1 km); check the units (mm)")
+
+
 def fabrication_extent(design) -> np.ndarray:
     """The extents (x, y, z; mm) of the box around a design's body (2D: the slab)."""
     lo, hi = _body_box(design.body, design.dim, design.thickness)
@@ -377,7 +395,7 @@ def read_solver(top: Table) -> SolverSpec:
     if ls not in LINE_SEARCHES:
         t.fail("line_search", f"must be one of {', '.join(LINE_SEARCHES)}; got {ls!r}")
     rtol = positive(t, "rtol", t.take("rtol", "number", d.rtol))
-    atol = positive(t, "atol", t.take("atol", "number", d.atol))
+    atol = positive(t, "atol", t.take("atol", "number")) if t.has("atol") else None
     t.done()
     return SolverSpec(steps, its, ls, rtol, atol)
 

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from petsc4py import PETSc
 
-from ..design.spec import ENERGY_LINE_SEARCHES, LINE_SEARCHES as STRATEGIES
+from ..design.spec import ATOL_RELATIVE, ENERGY_LINE_SEARCHES, LINE_SEARCHES as STRATEGIES, force_scale
 from .linesearch import WATCHDOG, LineSearch
 from .linear import LowRankSolver, default_petsc_options  # noqa: F401 (re-exported)
 
@@ -105,6 +105,8 @@ class NewtonSolver(LineSearch):
             raise ValueError(f"line search {self.strategy!r} cannot limit steps to the model's "
                              "admissible ones; use 'energy'")
         self.max_iterations, self.rtol, self.atol = spec.max_iterations, spec.rtol, spec.atol
+        if self.atol is None:                  # relative to the design's force scale (any unit scale)
+            self.atol = ATOL_RELATIVE * force_scale(model.design)
         self.xtol = 1e-11             # relative size of a full Newton step that ends the solve
         self.max_cuts = 8
         self._newton_step = np.inf    # |p| of the last undamped Newton step
