@@ -728,3 +728,18 @@ def test_200_re_meshing_edits_grow_rss_by_less_than_2_mb():
         _edits(s, 200, start=20)
         gc.collect()
         assert _rss_kb() - r0 < 2048
+
+
+# == other unbounded readers ===========================================================================
+def test_a_sweep_never_reads_an_endless_result_file(tmp_path):
+    # before: a case's result.json was read whole: a link to /dev/zero filled memory (MemoryError, exit 3)
+    import os
+    case = tmp_path / "out" / "c1"
+    case.mkdir(parents=True)
+    os.symlink("/dev/zero", case / "result.json")
+    code = ("import resource, sys; resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30));"
+            "from pathlib import Path; from skelfem.jobs.sweep import Case, completed;"
+            f"print(completed(Path({str(tmp_path / 'out')!r}), Case('c1', (), {{}})))")
+    p = subprocess.run([sys.executable, "-c", code], env={**MPI_ENV, "PYTHONPATH": str(ROOT)},
+                       capture_output=True, text=True, timeout=60)
+    assert p.returncode == 0 and p.stdout.strip() == "False", p.stderr[-300:]

@@ -358,9 +358,11 @@ class Editor:
         path = target(self.folder, self.path, name)
         if name is not None and path.exists() and path != self.path and not overwrite:
             raise SaveError(f"{path.name} exists; save with overwrite to replace it", 409)
+        from ..design.parse import MAX_FILE
+        from ..io.files import read_bounded
         try:
-            base = self.path.read_text()
-        except (OSError, UnicodeDecodeError):
+            base = read_bounded(self.path, MAX_FILE, "design file")     # the file on disk may have grown
+        except (OSError, ValueError):
             base = ""
         try:
             text = render(base, d.raw, default_name=self.path.stem)

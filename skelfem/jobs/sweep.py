@@ -41,7 +41,8 @@ from pathlib import Path
 import numpy as np
 
 from ..design.spec import DesignError
-from ..design.parse import load_design, read_toml
+from ..design.parse import MAX_FILE, load_design, read_toml
+from ..io.files import read_bounded
 
 MAX_CASES = 100_000
 FAILED = ("bad_input", "bad_output", "internal_error")
@@ -140,7 +141,12 @@ def load_sweep(path) -> Sweep:
         _fail(source, "design", "missing: the design file to sweep (path relative to the sweep file)")
     try:
         design = (path.parent / data["design"]).resolve()
-        design_bytes = design.read_bytes() if design.is_file() else None
+        design_bytes = None
+        if design.is_file():
+            with open(design, "rb") as fh:      # at most what a design may be (an endless file is not one)
+                design_bytes = fh.read(MAX_FILE + 1)
+            if len(design_bytes) > MAX_FILE:
+                _fail(source, "design", f"{data['design']!r} is larger than {MAX_FILE // 2 ** 20} MB; not a design file")
     except (OSError, ValueError, RuntimeError) as exc:
         _fail(source, "design", f"cannot read {data['design']!r} ({exc})")
     if design_bytes is None:
@@ -229,7 +235,7 @@ def case_hash(sweep: Sweep, case: Case) -> str:
 
 def _read_result(out: Path, case: Case):
     try:
-        res = json.loads((out / case.name / "result.json").read_text())
+        res = json.loads(read_bounded(out / case.name / "result.json", MAX_FILE, "result file"))
     except (OSError, ValueError, RecursionError):
         return None
     return res if isinstance(res, dict) else None
