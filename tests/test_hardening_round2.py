@@ -743,3 +743,16 @@ def test_a_sweep_never_reads_an_endless_result_file(tmp_path):
     p = subprocess.run([sys.executable, "-c", code], env={**MPI_ENV, "PYTHONPATH": str(ROOT)},
                        capture_output=True, text=True, timeout=60)
     assert p.returncode == 0 and p.stdout.strip() == "False", p.stderr[-300:]
+
+
+# == tolerances that ask for no equilibrium ============================================================
+@pytest.mark.parametrize("setting,key", [("solver.rtol=1e300", "solver.rtol"), ("solver.rtol=0.5", "solver.rtol"),
+                                         ("solver.atol=1e300", "solver.atol"), ("solver.atol=1e3", "solver.atol")])
+def test_a_tolerance_that_asks_for_no_equilibrium_is_refused(setting, key, tmp_path, capsys):
+    # before: Newton stopped at the unsolved start and reported it "converged" (exit 0)
+    path = tmp_path / "strip.toml"
+    path.write_text(toml_dumps(strip2d(size=6.0)))
+    status, _, err = run_cli(capsys, "simulate", path, "--out", tmp_path / "o", "-q", "--set", setting)
+    assert status == 1, err
+    assert_one_error(err, f": {key}: must be at most")
+    assert not (tmp_path / "o").exists()
