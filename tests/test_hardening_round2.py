@@ -756,3 +756,22 @@ def test_a_tolerance_that_asks_for_no_equilibrium_is_refused(setting, key, tmp_p
     assert status == 1, err
     assert_one_error(err, f": {key}: must be at most")
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("command", ["ik", "track"])
+@pytest.mark.parametrize("tol", ["1e300", "100", "1e-300"])
+def test_an_ik_tolerance_out_of_scale_is_refused(command, tol, tmp_path, capsys):
+    # before: --tol 1e300 counted every target as reached (exit 0 beside a useless result), 1e-300 was
+    # never met; both went on to mesh and solve
+    path = tmp_path / "strip.toml"
+    path.write_text(toml_dumps(strip2d(size=6.0)))
+    args = ["--marker", "tip", "--tol", tol]
+    if command == "ik":
+        args += ["--target", "5", "59"]
+    else:
+        (tmp_path / "t.csv").write_text("x,y\n5,59\n5,58\n")
+        args += ["--csv", tmp_path / "t.csv"]
+    status, _, err = run_cli(capsys, command, path, "--out", tmp_path / "o", "-q", *args)
+    assert status == 1, err
+    assert_one_error(err, f"--tol {float(tol):g}: must lie in")
+    assert not (tmp_path / "o").exists()

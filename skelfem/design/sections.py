@@ -354,10 +354,13 @@ def check_body_scale(source: str, body: Body, dim: int, thickness: float) -> Non
                           f"{MAX_BODY:g}] mm (1 um to 1 km); check the units (mm)")
 
 
-def fabrication_extent(design) -> np.ndarray:
+def body_extent(design) -> np.ndarray:
     """The extents (x, y, z; mm) of the box around a design's body (2D: the slab)."""
     lo, hi = _body_box(design.body, design.dim, design.thickness)
     return hi - lo
+
+
+fabrication_extent = body_extent
 
 
 def read_markers(top: Table, dim: int, region) -> dict:
