@@ -784,3 +784,18 @@ def test_an_ik_tolerance_out_of_scale_is_refused(command, tol, tmp_path, capsys)
     assert status == 1, err
     assert_one_error(err, f"--tol {float(tol):g}: must lie in")
     assert not (tmp_path / "o").exists()
+
+
+# == bench: unbounded counts and non-finite sizes ======================================================
+@pytest.mark.parametrize("args,match", [(["--sizes", "nan"], "--sizes"), (["--sizes", "inf"], "--sizes"),
+                                        (["--sizes"] + ["3"] * 21, "--sizes: at most"),
+                                        (["--repeats", "1000000000"], "--repeats"),
+                                        (["--steps", "1000000000"], "--steps")])
+def test_bench_refuses_unbounded_or_non_finite_arguments(args, match, tmp_path, capsys):
+    # before: --sizes nan passed "h <= 0" and went on to Gmsh; --repeats / --steps 1e9 ran for ever
+    path = tmp_path / "strip.toml"
+    path.write_text(toml_dumps(strip2d(size=6.0)))
+    status, _, err = run_cli(capsys, "bench", path, "--out", tmp_path / "o", "-q", *args)
+    assert status == 1, err
+    assert_one_error(err, match)
+    assert not (tmp_path / "o").exists()
