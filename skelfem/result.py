@@ -84,7 +84,7 @@ def result_dict(design, model, report, timings: dict) -> dict:
     res.update(readouts)
     if isinstance(res.get("contacts"), dict):                # contacts between pieces: a list of pairs
         res["contacts"] = list(res["contacts"].values())
-    res["attempts"] = report.attempts
+    res["attempts"] = list(report.attempts)           # a dynamics run keeps a bounded, evenly spaced part
     res["residual_history"] = [[float(r) for r in step] for step in report.residual_history]
     res["timings"] = {k: round(float(v), 4) for k, v in timings.items()}
     return plain(res)

@@ -121,10 +121,18 @@ class Session:
         solver = NewtonSolver(model, self.design.solver)
         if destroy_old and self.solver is not None:
             self.solver.destroy()
+            self._release(self.model)
         self.model, self.solver, self.solved = model, solver, False
         if fresh:
             self._meshed, self._morph = self.design, None     # the design the mesh was made for
         self.timings = {"mesh": t1 - t0, "compile": time.perf_counter() - t1}
+
+    @staticmethod
+    def _release(model) -> None:
+        """Destroy the PETSc vectors DOLFINx made for a model being dropped (see fem.newton.release_vectors)."""
+        from .fem.newton import release_vectors
+        if model is not None:
+            release_vectors(model)
 
     @property
     def dofs(self) -> int:
@@ -203,6 +211,7 @@ class Session:
              self.timings) = saved
             raise
         saved[3].destroy()
+        self._release(old_model)
         return "re-meshed"
 
     def _same_mesh(self, design, morph: bool) -> np.ndarray | None:
@@ -343,6 +352,7 @@ class Session:
             if self.solver is not None:
                 self.solver.destroy()
                 self.solver = None
+                self._release(self.model)
             self._closed = True
         finally:
             self._lock.release()

@@ -101,8 +101,14 @@ def skelfem_solve(size: float, degree: int) -> tuple[dict, dict]:
                "path": np.asarray(cable["path"], float), "k": cable["stiffness"],
                "contraction": cable["contraction"], "marker": np.asarray(raw["markers"]["tip"], float),
                "pinned_y": raw["pins"][0]["region"][1][1], "degree": degree,
-               "rtol": design.solver.rtol, "atol": design.solver.atol}
+               "rtol": design.solver.rtol, "atol": effective_atol(design)}
     return row, problem
+
+
+def effective_atol(design) -> float:
+    """The Newton atol skelfem uses for the design: its own, or relative to its force scale."""
+    from skelfem.design.spec import ATOL_RELATIVE, force_scale
+    return design.solver.atol if design.solver.atol is not None else ATOL_RELATIVE * force_scale(design)
 
 
 # -- scikit-fem -------------------------------------------------------------------------------------------

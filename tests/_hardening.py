@@ -92,3 +92,59 @@ def assert_one_error(stderr: str, match: str | None = None) -> str:
     if match is not None:
         assert match in lines[0], lines[0]
     return lines[0]
+
+
+# -- raw sockets against an editor (tests/test_hardening_round2.py) -------------------------------------
+def ws_connect(port: int, timeout: float = 30.0):
+    """A socket past the websocket handshake to the editor's /api/live."""
+    import base64
+    import socket
+    s = socket.create_connection(("127.0.0.1", port), timeout=timeout)
+    key = base64.b64encode(os.urandom(16)).decode()
+    s.sendall((f"GET /api/live HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
+               f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n").encode())
+    head = b""
+    while b"\r\n\r\n" not in head:
+        chunk = s.recv(1)
+        if not chunk:
+            raise ConnectionError(head)
+        head += chunk
+    assert head.startswith(b"HTTP/1.1 101"), head
+    return s
+
+
+def ws_send(s, payload: bytes, opcode: int = 1) -> None:
+    """One masked frame (opcode 1 text, 2 binary)."""
+    import struct
+    mask = os.urandom(4)
+    n = len(payload)
+    head = bytes([0x80 | opcode])
+    if n < 126:
+        head += bytes([0x80 | n])
+    elif n < 65536:
+        head += bytes([0x80 | 126]) + struct.pack(">H", n)
+    else:
+        head += bytes([0x80 | 127]) + struct.pack(">Q", n)
+    s.sendall(head + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(payload)))
+
+
+def _recv_exact(s, n: int) -> bytes:
+    data = b""
+    while len(data) < n:
+        chunk = s.recv(n - len(data))
+        if not chunk:
+            raise ConnectionError("closed")
+        data += chunk
+    return data
+
+
+def ws_recv(s) -> tuple[int, bytes]:
+    """(opcode, payload) of the next frame from the server."""
+    import struct
+    b0, b1 = _recv_exact(s, 2)
+    n = b1 & 0x7F
+    if n == 126:
+        n = struct.unpack(">H", _recv_exact(s, 2))[0]
+    elif n == 127:
+        n = struct.unpack(">Q", _recv_exact(s, 8))[0]
+    return b0 & 0x0F, _recv_exact(s, n)

@@ -38,14 +38,22 @@ def add_parsers(subparsers) -> None:
     p.set_defaults(handler=bench)
 
 
+MAX_SIZES, MAX_REPEATS = 20, 100
+
+
 def _check(args) -> None:
+    import math
+
+    from ..design.spec import MAX_STEPS
     from .common import InputError
-    if any(h <= 0 for h in args.sizes):
-        raise InputError(f"--sizes: must be > 0, got {' '.join(f'{h:g}' for h in args.sizes)}")
-    if args.repeats < 1:
-        raise InputError(f"--repeats: must be >= 1, got {args.repeats}")
-    if args.steps is not None and args.steps < 1:
-        raise InputError(f"--steps: must be >= 1, got {args.steps}")
+    if not all(0 < h < math.inf for h in args.sizes):     # nan and inf too (nan passed "h <= 0")
+        raise InputError(f"--sizes: must be finite and > 0, got {' '.join(f'{h:g}' for h in args.sizes[:8])}")
+    if len(args.sizes) > MAX_SIZES:
+        raise InputError(f"--sizes: at most {MAX_SIZES} sizes, got {len(args.sizes)}")
+    if not 1 <= args.repeats <= MAX_REPEATS:
+        raise InputError(f"--repeats: must be >= 1 and <= {MAX_REPEATS}, got {args.repeats}")
+    if args.steps is not None and not 1 <= args.steps <= MAX_STEPS:
+        raise InputError(f"--steps: must be >= 1 and <= {MAX_STEPS}, got {args.steps}")
 
 
 def bench(args) -> int:

@@ -84,6 +84,9 @@ def contraction_bounds(items: list[str]) -> dict:
     return out
 
 
+TOL_RANGE = (1e-9, 0.5)     # --tol relative to the body's largest extent
+
+
 def _check_numbers(args) -> None:
     if not 0 <= args.reg < math.inf:
         raise cli.InputError(f"--reg {args.reg:g}: must be a finite number >= 0")
@@ -103,6 +106,14 @@ def _peek(args):
     if not tendons:
         raise cli.InputError(f"{args.design}: cables: {args.command} needs at least one tendon to steer the "
                              "marker (the design has none)")
+    if args.tol is not None:
+        from ..design.sections import body_extent
+        big = float(np.max(body_extent(design)))
+        if not TOL_RANGE[0] * big <= args.tol <= TOL_RANGE[1] * big:
+            # a larger one counted every target as reached; a smaller one lies below what Newton resolves
+            raise cli.InputError(f"--tol {args.tol:g}: must lie in [{TOL_RANGE[0] * big:.3g}, {TOL_RANGE[1] * big:.3g}] "
+                                 f"mm for this design ({TOL_RANGE[0]:g} to {TOL_RANGE[1]:g} x its largest extent, "
+                                 f"{big:.3g} mm)")
     for name in contraction_bounds(args.max_contraction):
         if name not in tendons:
             raise cli.InputError(f"--max-contraction: '{name}' is not a tendon of the design "

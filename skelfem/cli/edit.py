@@ -8,6 +8,8 @@ http://127.0.0.1:PORT/ (loopback only) and opens it in the browser unless
 from __future__ import annotations
 
 import logging
+import os
+import sys
 from pathlib import Path
 
 from . import common as cli
@@ -25,6 +27,9 @@ def add_parsers(subparsers) -> None:
     p.add_argument("--port", type=int, default=DEFAULT_PORT,
                    help=f"port on 127.0.0.1 (default {DEFAULT_PORT}; 0: any free port)")
     p.add_argument("--no-browser", action="store_true", help="do not open the page in a browser")
+    p.add_argument("--max-dofs", type=int, default=None, metavar="N",
+                   help="refuse designs estimated beyond N unknowns (default: 60,000 in 2D, 30,000 in 3D: "
+                        "about a second a solve)")
     p.add_argument("-q", "--quiet", action="store_true", help="print only errors")
     p.add_argument("-v", "--verbose", action="store_true", help="print every solve")
     p.set_defaults(handler=edit)
@@ -36,6 +41,7 @@ def edit(args) -> int:
     from ..design import resources
     from ..design.spec import DesignError
     from ..design.parse import load_design
+    from ..editor.engine import EditError, budget, check_budget
     from ..editor.server import Editor, EditorError
     from ..mesh.geometry import MeshingError
 
@@ -43,15 +49,21 @@ def edit(args) -> int:
         raise cli.InputError("edit runs on one process; start it without mpirun")
     if not 0 <= args.port <= 65535:
         raise cli.InputError(f"--port {args.port}: must be between 0 and 65535")
+    if args.max_dofs is not None and not 1 <= args.max_dofs <= resources.MAX_DOFS[2]:
+        raise cli.InputError(f"--max-dofs {args.max_dofs}: must be between 1 and {resources.MAX_DOFS[2]:,}")
     try:
         design = load_design(args.design)
         resources.check(design)
     except DesignError as exc:
         raise cli.InputError(str(exc)) from None
+    try:
+        check_budget(design, budget(args.max_dofs))
+    except EditError as exc:
+        raise cli.InputError(exc.message) from None
     if not args.verbose:
         cli.log.setLevel(logging.WARNING)       # one line per solve would flood the terminal
     try:
-        editor = Editor(args.design, args.port)
+        editor = Editor(args.design, args.port, max_dofs=args.max_dofs)
     except (DesignError, MeshingError, EditorError) as exc:
         raise cli.InputError(str(exc)) from None
     if not args.quiet:
@@ -60,4 +72,9 @@ def edit(args) -> int:
     editor.run(open_browser=not args.no_browser)
     if not args.quiet:
         print("skelfem editor: stopped", flush=True)
+    if editor.busy:
+        # a solve is still running on the solver thread; nobody waits for it, and finalising
+        # MPI/PETSc under it is unsafe: leave now (everything the editor writes is written atomically)
+        sys.stdout.flush(), sys.stderr.flush()
+        os._exit(cli.EXIT_OK)
     return cli.EXIT_OK

@@ -98,6 +98,18 @@ def _import_gmsh() -> None:
             pass
 
 
+def _internal(exc: BaseException, verbosity: int) -> tuple[int, str, bool]:
+    """A bug, not bad input: one line, and the traceback with -v (an interrupt that surfaced as it: 128+N)."""
+    from ..runtime.interrupts import received
+    if received() is not None:            # an interrupt that surfaced as another error
+        return 128 + received(), "interrupted", False
+    if verbosity >= 2:
+        import traceback
+        traceback.print_exc()
+    hint = "" if verbosity >= 2 else " (run with -v for the traceback)"
+    return EXIT_INTERNAL, f"internal error: {type(exc).__name__}: {exc}{hint}", False
+
+
 def _run(argv) -> tuple[int, str | None, bool]:
     """(exit status, message to print or None, whether the command ended normally)."""
     from ..io import outdir
@@ -123,17 +135,16 @@ def _run(argv) -> tuple[int, str | None, bool]:
         return EXIT_INPUT, str(exc), False
     except Interrupted as exc:
         return exc.code, "interrupted", False
+    except OSError as exc:
+        from ..io.files import disk_error
+        message = disk_error(exc)
+        if message is None:
+            return _internal(exc, verbosity)
+        return EXIT_INPUT, message, False
     except KeyboardInterrupt:
         return 130, "interrupted", False
     except Exception as exc:  # a bug, not bad input: one line, and the traceback with -v
-        from ..runtime.interrupts import received
-        if received() is not None:            # an interrupt that surfaced as another error
-            return 128 + received(), "interrupted", False
-        if verbosity >= 2:
-            import traceback
-            traceback.print_exc()
-        hint = "" if verbosity >= 2 else " (run with -v for the traceback)"
-        return EXIT_INTERNAL, f"internal error: {type(exc).__name__}: {exc}{hint}", False
+        return _internal(exc, verbosity)
     finally:
         outdir.ON_COMMIT = None
         outdir.release()                      # every output lock this process still holds

@@ -39,11 +39,32 @@ def gmsh_model(name: str):
     """A fresh Gmsh model for the duration of the block (this rank only); removed after."""
     import gmsh
     ensure_gmsh(gmsh)
-    gmsh.model.add(name)
+    with forget_array_types():
+        gmsh.model.add(name)
+        try:
+            yield gmsh.model
+        finally:
+            gmsh.model.remove()
+
+
+@contextmanager
+def forget_array_types():
+    """Drop the ctypes array types Gmsh's Python API made in the block, once nothing uses them.
+
+    gmsh.py hands out arrays through numpy.ctypeslib.as_array, which makes a ctypes
+    array type for each length and ctypes.POINTER keeps it (and its pointer type) in
+    a process-wide cache for ever: every re-meshing left a few distinct lengths there,
+    60-120 KB per edit of finger.toml. Arrays still alive keep their types.
+    """
+    import ctypes
+    cache = ctypes._pointer_type_cache
+    before = set(cache)
     try:
-        yield gmsh.model
+        yield
     finally:
-        gmsh.model.remove()
+        for key in [k for k in list(cache) if k not in before and isinstance(k, type)
+                    and issubclass(k, ctypes.Array)]:
+            cache.pop(key, None)
 
 
 def add_polygon(occ, points) -> int:

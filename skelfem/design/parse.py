@@ -17,9 +17,9 @@ from pathlib import Path
 
 from . import polygons
 from .objects import take as take_objects
-from .sections import read_cables, read_contact, read_dynamics, check_energy_line_search, read_fabrication, read_gravity, read_grounds, read_loads, read_markers, read_pins, read_solver, read_tractions
+from .sections import check_body_scale, read_cables, read_contact, read_dynamics, check_energy_line_search, read_fabrication, read_gravity, read_grounds, read_loads, read_markers, read_pins, read_solver, read_tractions
 from .shapes import read_body, read_bones, read_materials
-from .spec import Design, DesignError, FORMAT, MeshSpec, SECTIONS_BY_NAME
+from .spec import Design, DesignError, FORMAT, MeshSpec, SECTIONS_BY_NAME, force_scale
 from .table import Table, plain_name, positive, apply_override
 
 
@@ -51,6 +51,7 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     mt.done()
     materials = read_materials(top)
     body, region, tol, body_t = read_body(top, dim, materials)
+    check_body_scale(str(source), body, dim, thickness)
     bones = read_bones(top, dim, materials, region, tol, body_t)
     cables = read_cables(top, dim, region, tol)
     pins = read_pins(top, dim)
@@ -79,12 +80,31 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
         measure = result.volume
         vertices = sum(len(next(iter(s.values())).get("outline", ())) + 8 for s in body.solids) \
             + sum(len(next(iter(s.values())).get("outline", ())) + 8 for b in bones for s in b.solids)
-    return Design(
+    design = Design(
         source=str(source), name=name, dim=dim, thickness=thickness, mesh=mesh,
         materials=materials, body=body, bones=bones, cables=cables, pins=pins, loads=loads,
         grounds=grounds, contact=contact, markers=markers, solver=solver, gravity=gravity,
         tractions=tractions, fabrication=fabrication, dynamics=dynamics, friction=friction, objects=objects, data=data, measure=float(measure), vertices=int(vertices),
     )
+    check_tolerances(design)
+    return design
+
+
+MAX_RTOL = 1e-3          # a looser relative tolerance ends Newton before it has solved anything
+MAX_ATOL_RELATIVE = 1e-3  # ... and an absolute one above this share of the design's force scale
+
+
+def check_tolerances(design) -> None:
+    """[solver] rtol and atol must ask for an equilibrium: rtol = 1e300 or atol = 1e300 N reported the
+    unsolved start as "converged" (exit 0)."""
+    s = design.solver
+    if s.rtol > MAX_RTOL:
+        raise DesignError(f"{design.source}: solver.rtol: must be at most {MAX_RTOL:g} (relative to the first "
+                          f"residual), got {s.rtol:g}")
+    limit = MAX_ATOL_RELATIVE * force_scale(design)
+    if s.atol is not None and s.atol > limit:
+        raise DesignError(f"{design.source}: solver.atol: must be at most {limit:.3g} N for this design "
+                          f"({MAX_ATOL_RELATIVE:g} x its force scale, E x cross-section), got {s.atol:g}")
 
 
 MAX_FILE = 64 * 2 ** 20      # bytes: a design is text, not a data set

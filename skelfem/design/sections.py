@@ -246,6 +246,7 @@ def read_fabrication(top: Table, dim: int, thickness: float, body: Body) -> Fabr
             t.fail(name, f"must be at most {MAX_COORDINATE:g} mm, got {value:g}")
         return value
 
+    given = {k for k in FABRICATION_LIMITS if t.has(k)}
     channel = length("channel_diameter", d.channel_diameter)
     anchor = length("anchor_diameter", d.anchor_diameter)
     if dim == 2:
@@ -282,8 +283,84 @@ def read_fabrication(top: Table, dim: int, thickness: float, body: Body) -> Fabr
         normal = normal / float(np.linalg.norm(normal))
         s.done()
     t.done()
-    return FabricationSpec(channel, anchor, depth, min_wall, wall, clearance, pour, vent, vents, peg, socket,
+    spec = FabricationSpec(channel, anchor, depth, min_wall, wall, clearance, pour, vent, vents, peg, socket,
                            point, normal)
+    for key, message in fabrication_bounds(spec, extent):
+        if key in given:               # a default out of range is refused by skelfem fabricate only
+            t.fail(key, message)
+    return spec
+
+
+PRINTER_RESOLUTION = 0.1     # mm: the smallest step a desktop FDM / resin printer reproduces
+FEATURE_RATIO = 1e-3         # ... and no feature smaller than this fraction of the body's largest extent
+MIN_MOULD_WALL = 1.0         # mm: a thinner mould wall does not hold the pour (and gives broken STL normals)
+MAX_MOULD_WALL_RATIO = 2.0   # the mould wall is at most this many times the body's largest extent
+MIN_PRINT, MAX_PRINT = 1.0, 2000.0   # mm: the body's largest extent that a printed mould can cast
+# [fabrication] keys: (kind, zero allowed); kinds: hole (diameters, depths), gap (clearance, min_wall), wall
+FABRICATION_LIMITS = {"channel_diameter": "hole", "anchor_diameter": "hole", "pour_diameter": "hole",
+                      "vent_diameter": "hole", "peg_diameter": "hole", "socket_depth": "hole",
+                      "bone_depth": "depth", "min_wall": "gap", "clearance": "gap", "wall": "wall"}
+
+
+def fabrication_bounds(spec: FabricationSpec, extent) -> list[tuple[str, str]]:
+    """[(key, message)] of every [fabrication] length out of its bounds for a body of this extent (mm).
+
+    Features are at least the printer's resolution (2 x PRINTER_RESOLUTION for
+    holes and pegs, which Gmsh must resolve) and FEATURE_RATIO of the body's
+    largest extent, and at most the body's smallest extent; gaps (clearance,
+    min_wall) are 0 or at least PRINTER_RESOLUTION / 2, at most a quarter of the smallest extent;
+    the mould wall lies in [MIN_MOULD_WALL, MAX_MOULD_WALL_RATIO x largest extent].
+    Gmsh hung (ignoring signals) on a 0.01 mm channel and on a 1e5 mm wall.
+    """
+    extent = np.asarray(extent, dtype=float)
+    big, small = float(extent.max()), float(extent.min())
+    floor = max(2 * PRINTER_RESOLUTION, FEATURE_RATIO * big)
+    out = []
+    for key, kind in FABRICATION_LIMITS.items():
+        value = float(getattr(spec, key))
+        if kind == "hole":
+            lo, hi = floor, small
+        elif kind == "depth":
+            if value == 0.0:
+                continue
+            lo, hi = floor, small
+        elif kind == "gap":
+            if value == 0.0:
+                continue
+            lo, hi = max(PRINTER_RESOLUTION / 2, FEATURE_RATIO * big), max(small / 4, PRINTER_RESOLUTION)
+        else:
+            lo, hi = MIN_MOULD_WALL, max(MAX_MOULD_WALL_RATIO * big, 2 * MIN_MOULD_WALL)
+        if not lo <= value <= hi:
+            out.append((key, f"must lie in [{lo:.3g}, {hi:.3g}] mm for this body (largest extent {big:.3g} mm, "
+                             f"printer resolution {PRINTER_RESOLUTION:g} mm), got {value:g}"))
+    return out
+
+
+MIN_BODY, MAX_BODY = 1e-3, 1e6     # mm: the body's largest extent, 1 um to 1 km
+
+
+def check_body_scale(source: str, body: Body, dim: int, thickness: float) -> None:
+    """The body's largest extent must lie in [MIN_BODY, MAX_BODY] mm, before any meshing.
+
+    Below, Gmsh's absolute tolerances break (a 6 nm strip aborted the process
+    from inside Gmsh); above, DOLFINx's point location fails (GJK) on a body
+    1e7 mm long. Between, answers do not depend on the unit scale (tolerances
+    are relative to the design's force and length scales).
+    """
+    lo, hi = _body_box(body, dim, thickness)
+    big = float(np.max(hi - lo))
+    if not MIN_BODY <= big <= MAX_BODY:
+        raise DesignError(f"{source}: body: its largest extent ({big:.3g} mm) must lie in [{MIN_BODY:g}, "
+                          f"{MAX_BODY:g}] mm (1 um to 1 km); check the units (mm)")
+
+
+def body_extent(design) -> np.ndarray:
+    """The extents (x, y, z; mm) of the box around a design's body (2D: the slab)."""
+    lo, hi = _body_box(design.body, design.dim, design.thickness)
+    return hi - lo
+
+
+fabrication_extent = body_extent
 
 
 def read_markers(top: Table, dim: int, region) -> dict:
@@ -321,7 +398,7 @@ def read_solver(top: Table) -> SolverSpec:
     if ls not in LINE_SEARCHES:
         t.fail("line_search", f"must be one of {', '.join(LINE_SEARCHES)}; got {ls!r}")
     rtol = positive(t, "rtol", t.take("rtol", "number", d.rtol))
-    atol = positive(t, "atol", t.take("atol", "number", d.atol))
+    atol = positive(t, "atol", t.take("atol", "number")) if t.has("atol") else None
     t.done()
     return SolverSpec(steps, its, ls, rtol, atol)
 

@@ -123,7 +123,26 @@ class SolverSpec:
     max_iterations: int = 50
     line_search: str = "auto"
     rtol: float = 1e-9
-    atol: float = 1e-10
+    atol: float | None = None     # N, absolute, when given; None: ATOL_RELATIVE x the design's force scale
+
+
+ATOL_RELATIVE = 1e-12     # the default |R| that ends Newton, relative to force_scale (1e-10 N on finger.toml)
+
+
+def force_scale(design) -> float:
+    """N: the body's modulus times its cross-section (2D: sqrt(area) x thickness; 3D: volume^(2/3)).
+
+    A residual tolerance in newtons is meaningless across unit scales: the old
+    absolute 1e-10 N let a 1 um body "converge" at its start, 17 % off.
+    """
+    E = float(design.materials[design.body.material].E)
+    measure = max(float(design.measure or 0.0), 0.0)
+    if design.dim == 2:
+        area = math.sqrt(measure) * float(design.thickness)
+    else:
+        area = measure ** (2.0 / 3.0)
+    scale = E * area
+    return scale if math.isfinite(scale) and scale > 0 else 1.0
 
 
 @dataclass(frozen=True, eq=False)

@@ -50,6 +50,31 @@ TOP_KEYS = ("format", "name", "dim", "thickness", "mesh", "materials", "body", "
             "loads", "grounds", "contact", "markers", "solver", "gravity", "tractions", "fabrication")
 
 
+# The interactive budget: a design whose mesh is estimated (skelfem.design.resources) beyond this many
+# unknowns is refused (422, key mesh.size) instead of keeping the solver busy for minutes with no way
+# to cancel; about 1 s a solve on 2 cores (finger.toml at mesh.size 2 has 2,300). `skelfem edit --max-dofs`.
+MAX_DOFS = {2: 60_000, 3: 30_000}
+
+
+def budget(max_dofs=None) -> dict:
+    """{dim: DOF limit}: MAX_DOFS, or one number for both dimensions, or a dict of some."""
+    if isinstance(max_dofs, (int, float)) and not isinstance(max_dofs, bool):
+        max_dofs = {2: int(max_dofs), 3: int(max_dofs)}
+    return {**MAX_DOFS, **(max_dofs or {})}
+
+
+def check_budget(d, limits: dict) -> None:
+    """EditError 422 (key mesh.size) for a design estimated beyond the interactive budget."""
+    from ..design.resources import estimate
+    dofs, limit = estimate(d)["dofs"], limits[d.dim]
+    if not dofs <= limit:
+        shown = f"{dofs:,.0f}" if math.isfinite(dofs) and dofs < 1e12 else f"{dofs:.3g}"
+        raise EditError(f"{d.source}: mesh.size: {d.mesh.size:g} mm gives about {shown} unknowns at "
+                        f"P{d.mesh.degree}, more than the editor solves interactively ({limit:,} in "
+                        f"{d.dim}D; skelfem edit --max-dofs); use a larger mesh.size, or skelfem simulate",
+                        "mesh.size", 422)
+
+
 class EditError(Exception):
     """A request the engine cannot carry out; ``key`` names the design element at fault ("" if none)."""
 
@@ -82,32 +107,45 @@ def live_changes(old: dict, new: dict, live) -> dict | None:
 class Engine:
     """A Session that follows the designs it is given; answers are payload dicts (see solve)."""
 
-    def __init__(self, design: dict, source: str, comm=None):
+    def __init__(self, design: dict, source: str, comm=None, max_dofs: dict | int | None = None):
         from mpi4py import MPI
 
         from ..session import Session
         self.source = source
         self.comm = comm if comm is not None else MPI.COMM_WORLD
+        self.max_dofs = budget(max_dofs)
         d = self.parse(design)
         self.session = Session(d, comm=self.comm)
         self.flat, self.draft, self.answer, self.good = flatten(d.raw), False, None, d
+        self.initial = d                      # recovery's last resort: the design the editor started with
         self.first = self._answer(self.session.solve(), time.perf_counter(), "built")
 
     # -- designs ----------------------------------------------------------------------------------
-    def parse(self, design):
-        """A validated Design from a dict; EditError (422) naming the key otherwise."""
+    def parse(self, design, budget: bool = True):
+        """A validated Design from a dict (within the interactive budget); EditError (422) naming the key otherwise."""
         if not isinstance(design, dict):
             raise EditError("the design must be a JSON object of the TOML's keys", "", 400)
         try:
-            return parse_design(design, self.source)
+            d = parse_design(design, self.source)
         except DesignError as exc:
             raise EditError(str(exc), error_key(str(exc), self.source)) from None
         except RecursionError:
             raise EditError(f"{self.source}: the design is nested too deeply", "", 400) from None
+        if budget:
+            self.check_budget(d)
+        return d
+
+    def check_budget(self, d) -> None:
+        check_budget(d, self.max_dofs)
 
     @property
     def design(self):
-        return self.session.design
+        return self.session.design if self.session is not None else self.good
+
+    def ensure(self) -> None:
+        """A Session to work on: after a recovery that failed, try again (EditError 503 if it cannot)."""
+        if self.session is None:
+            self.recover()
 
     def _answer(self, result, t0: float, how: str) -> dict:
         payload = result.to_dict()
@@ -126,6 +164,7 @@ class Engine:
         """
         t0 = time.perf_counter()
         d = self.parse(design)
+        self.ensure()
         flat = flatten(d.raw)
         draft = bool(draft) and d.dim == 2
         if flat == self.flat and draft == self.draft and self.answer is not None and self.session.solved:
@@ -192,16 +231,40 @@ class Engine:
         return answer
 
     def recover(self) -> None:
-        """After an unexpected failure: a fresh Session on the last design that solved."""
+        """After an unexpected failure: a fresh Session on the last design that solved.
+
+        Never the design that was being solved when it failed (only converged
+        designs become ``good``). If that fails too, the design the editor
+        started with; if that fails, no Session: the next request tries again,
+        and a request is answered 503 while none can be had, never 500 for ever.
+        """
         from ..session import Session
-        try:
-            self.session.close()
-        except Exception:  # noqa: BLE001 - the old session is dropped either way
-            pass
-        self.session = Session(self.good, comm=self.comm)
-        self.draft, self.answer = False, None
-        self.flat = flatten(self.good.raw)
-        self._answer(self.session.solve(), time.perf_counter(), "recovered")
+        old, self.session = self.session, None
+        self.draft, self.answer, self.flat = False, None, None
+        if old is not None:
+            try:
+                old.close()
+            except Exception:  # noqa: BLE001 - the old session is dropped either way
+                pass
+        failures = []
+        for d in dict.fromkeys((self.good, self.initial)):
+            session = None
+            try:
+                session = Session(d, comm=self.comm)
+                result = session.solve()
+            except Exception as exc:  # noqa: BLE001 - the next candidate
+                failures.append(f"{type(exc).__name__}: {exc}"[:200])
+                if session is not None:
+                    try:
+                        session.close()
+                    except Exception:  # noqa: BLE001
+                        pass
+                self.good = self.initial          # never rebuilt again
+                continue
+            self.session, self.flat = session, flatten(d.raw)
+            self._answer(result, time.perf_counter(), "recovered")
+            return
+        raise EditError(f"{self.source}: the solver could not start again ({'; '.join(failures)})", "", 503)
 
     def close(self) -> None:
         if self.session is not None:

@@ -32,6 +32,10 @@ from pathlib import Path
 log = logging.getLogger("skelfem")
 
 MAX_BODY = 1 << 20          # bytes of a POST body or a websocket message
+HEADER_TIMEOUT = 10.0       # s a connection may take to send a request's headers (then it is closed)
+KEEP_ALIVE = 5              # s an idle keep-alive connection is kept
+MAX_CONNECTIONS = 256       # open HTTP connections; beyond, the oldest idle one is closed (never a 503)
+BACKLOG = 128
 STATIC = ("index.html", "editor.js", "editor.css")
 TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
          ".css": "text/css; charset=utf-8"}
@@ -236,7 +240,14 @@ def create_app(editor):
 
         try:
             while True:
-                text = await ws.receive_text()
+                message = await ws.receive()
+                if message["type"] == "websocket.disconnect":
+                    break
+                text = message.get("text")
+                if text is None:
+                    await reply({"id": None, "ok": False, "status": 400, "key": "",
+                                 "error": "binary frames are not accepted: send each message as JSON text"})
+                    continue
                 try:
                     msg = loads(text)
                     mid, job = _live_job(msg)
@@ -280,7 +291,7 @@ def bind(host: str, port: int) -> socket.socket:
     except OSError as exc:
         sock.close()
         raise EditorError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
-    sock.listen(64)
+    sock.listen(BACKLOG)
     sock.set_inheritable(True)
     return sock
 
@@ -296,7 +307,7 @@ class Editor:
 
     HOST = "127.0.0.1"
 
-    def __init__(self, path, port: int = 0):
+    def __init__(self, path, port: int = 0, max_dofs=None):
         from ..design.parse import load_design
         from .engine import Engine
         from .worker import Worker
@@ -307,7 +318,7 @@ class Editor:
         self.sock = bind(self.HOST, port)
         self.port = self.sock.getsockname()[1]
         try:
-            self.engine = Engine(design.raw, self.path.name)
+            self.engine = Engine(design.raw, self.path.name, max_dofs=max_dofs)
         except BaseException:
             self.sock.close()
             raise
@@ -331,6 +342,7 @@ class Editor:
 
     # -- requests the worker runs ---------------------------------------------------------------------------
     def describe(self) -> dict:
+        self.engine.ensure()
         d = self.engine.design
         return {"design": d.raw, "file": self.path.name, "folder": str(self.folder), "dim": d.dim,
                 "readonly": d.dim != 2, "parameters": sorted(self.engine.session.model.parameters()),
@@ -339,13 +351,18 @@ class Editor:
     def save(self, design: dict, name: str | None, overwrite: bool) -> dict:
         from ..io.files import write_text
         from .savefile import SaveError, render, target
-        d = self.engine.parse(design)
+        d = self.engine.parse(design, budget=False)      # saving needs no solve
+        if d.dim != 2 or self.engine.design.dim != 2:
+            raise SaveError(f"{self.path.name}: the editor shows 3D designs read-only and cannot write them "
+                            "back faithfully; edit the TOML file instead", 422)
         path = target(self.folder, self.path, name)
         if name is not None and path.exists() and path != self.path and not overwrite:
             raise SaveError(f"{path.name} exists; save with overwrite to replace it", 409)
+        from ..design.parse import MAX_FILE
+        from ..io.files import read_bounded
         try:
-            base = self.path.read_text()
-        except (OSError, UnicodeDecodeError):
+            base = read_bounded(self.path, MAX_FILE, "design file")     # the file on disk may have grown
+        except (OSError, ValueError):
             base = ""
         try:
             text = render(base, d.raw, default_name=self.path.stem)
@@ -363,10 +380,21 @@ class Editor:
     # -- serving ------------------------------------------------------------------------------------------------
     def _server(self):
         import uvicorn
+
+        from .connections import one_line_logs, protocol_class
+        one_line_logs()
         config = uvicorn.Config(self.app, log_config=None, log_level="warning", access_log=False, lifespan="off",
+                                http=protocol_class(HEADER_TIMEOUT, MAX_CONNECTIONS),
                                 ws="websockets", ws_max_size=MAX_BODY, ws_per_message_deflate=False,
-                                limit_concurrency=64, timeout_keep_alive=5)
-        self.server = uvicorn.Server(config)
+                                limit_concurrency=None, timeout_keep_alive=KEEP_ALIVE, backlog=BACKLOG)
+        worker = self.worker
+
+        class Server(uvicorn.Server):
+            async def shutdown(self, sockets=None):
+                worker.abandon()          # requests waiting for a solve answer 503 now: nothing waits for it
+                await super().shutdown(sockets)
+
+        self.server = Server(config)
         return self.server
 
     def run(self, open_browser: bool = False) -> None:
@@ -406,7 +434,16 @@ class Editor:
             self._thread.join(10)
         self.close()
 
-    def close(self) -> None:
-        self.worker.close()
-        self.engine.close()
+    @property
+    def busy(self) -> bool:
+        """The solver thread is still in a job (after close(): one that nobody waits for)."""
+        return self.worker.busy
+
+    def close(self, timeout: float = 1.0) -> None:
+        """Stop the solver without waiting for a running solve (it is abandoned, then dropped at exit)."""
+        self.worker.abandon()
+        if self.worker.close(timeout):
+            self.engine.close()
+        else:
+            log.warning("editor: stopped during a solve; it is abandoned")
         self.sock.close()

@@ -50,6 +50,7 @@ class Worker:
         self._pending: OrderedDict = OrderedDict()
         self._cond = threading.Condition()
         self._closed = False
+        self._running = None                  # the future of the job being run, if any
         self.dropped = 0                      # jobs replaced before they ran
         self._thread = threading.Thread(target=self._run, name="skelfem-solver", daemon=True)
         self._thread.start()
@@ -83,19 +84,57 @@ class Worker:
                 _, (job, fut) = self._pending.popitem(last=False)
             if not fut.set_running_or_notify_cancel():
                 continue
+            self._running = fut
             try:
-                fut.set_result(job(self.engine))
+                value = job(self.engine)
             except BaseException as exc:  # noqa: BLE001 - handed to the waiting request
-                fut.set_exception(exc)
-                if self.on_error is not None:
+                _settle(fut, exc=exc)
+                if self.on_error is not None and not self._closed:
                     try:
                         self.on_error(exc)
-                    except Exception:  # noqa: BLE001
-                        log.exception("editor: recovery after an error failed")
+                    except Exception as exc2:  # noqa: BLE001
+                        log.warning("editor: recovery after an error failed: %s: %s", type(exc2).__name__, exc2)
+            else:
+                _settle(fut, value=value)
+            finally:
+                self._running = None
 
-    def close(self, timeout: float | None = 30.0) -> None:
-        """Stop after the running job (waiting ones fail with Closed)."""
+    @property
+    def busy(self) -> bool:
+        """A job is still running on the solver thread."""
+        return self._thread.is_alive() and self._running is not None
+
+    def abandon(self) -> None:
+        """Shutting down: fail the waiting jobs and the running one with Closed at once.
+
+        The running job goes on on its (daemon) thread, but nobody waits for it:
+        a server shutdown (Ctrl-C, SIGTERM) does not wait for a long solve.
+        """
+        with self._cond:
+            self._closed = True
+            for _, fut in self._pending.values():
+                _settle(fut, exc=Closed("the editor is shutting down"))
+            self._pending.clear()
+            running = self._running
+            self._cond.notify()
+        if running is not None:
+            _settle(running, exc=Closed("the editor is shutting down"))
+
+    def close(self, timeout: float | None = 30.0) -> bool:
+        """Stop after the running job (waiting ones fail with Closed); True if the thread has ended."""
         with self._cond:
             self._closed = True
             self._cond.notify()
         self._thread.join(timeout)
+        return not self._thread.is_alive()
+
+
+def _settle(fut: Future, value=None, exc=None) -> None:
+    """Set a future's outcome unless it has one already (abandon() may have failed it)."""
+    try:
+        if exc is not None:
+            fut.set_exception(exc)
+        else:
+            fut.set_result(value)
+    except Exception:  # noqa: BLE001 - InvalidStateError: already settled
+        pass

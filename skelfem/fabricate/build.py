@@ -56,6 +56,29 @@ def _solid(occ, out) -> list:
     return [v for v in vols if v not in empty]
 
 
+def write_step(gmsh, path: Path) -> None:
+    """gmsh.write, whose failures (a full disk: a plain Exception) become the OSError of the file."""
+    import errno
+    import os
+    try:
+        with quiet_gmsh():
+            gmsh.write(str(path))
+    except Exception as exc:  # noqa: BLE001 - Gmsh raises Exception for every failure
+        probe = None
+        try:                                   # why: the same write from Python names the errno
+            with open(path, "ab") as f:
+                f.write(b"\0")
+                f.flush()
+                os.fsync(f.fileno())
+        except OSError as err:
+            probe = err
+        if probe is not None:
+            raise probe from None
+        raise OSError(errno.EIO, f"Gmsh could not write it ({exc})", str(path)) from None
+    if not path.is_file() or path.stat().st_size == 0:
+        raise OSError(errno.EIO, "Gmsh wrote nothing", str(path))
+
+
 def _finish(gmsh, name: str, kind: str, volumes: list[int], plan: Plan, folder: Path | None, info: dict) -> Part:
     """Measure, triangulate and (if folder) write the STEP file of the part in the current model."""
     occ = gmsh.model.occ
@@ -64,8 +87,7 @@ def _finish(gmsh, name: str, kind: str, volumes: list[int], plan: Plan, folder: 
         raise RuntimeError(f"{name}: the geometry kernel made {len(volumes)} solids instead of one")
     cad = float(occ.getMass(3, volumes[0]))
     if folder is not None:
-        with quiet_gmsh():
-            gmsh.write(str(folder / f"{name}.step"))
+        write_step(gmsh, folder / f"{name}.step")
     generate_surface_mesh(gmsh, plan.scale / 6, CURVATURE)
     surface = triangle_surface(gmsh, volumes)
     surface.tris = orient(surface.points, surface.tris)

@@ -527,9 +527,16 @@ def plan(design) -> Plan:
     import gmsh
 
     from ..design.occ import gmsh_model
+    from ..design.sections import MAX_PRINT, MIN_PRINT, fabrication_bounds, fabrication_extent
     from ..mesh.geometry import add_design_solids
 
     spec = design.fabrication
+    extent = fabrication_extent(design)          # every bound before Gmsh, which ignores signals
+    if not MIN_PRINT <= float(extent.max()) <= MAX_PRINT:
+        raise FabricationError("body", f"the body's largest extent ({float(extent.max()):.3g} mm) must lie in "
+                                       f"[{MIN_PRINT:g}, {MAX_PRINT:g}] mm to print its mould")
+    for key, message in fabrication_bounds(spec, extent):
+        raise FabricationError(f"fabrication.{key}", message + " (the default for this body; set it)")
     with gmsh_model("skelfem-fabricate-probe"):
         occ = gmsh.model.occ
         body_tags, bone_tags = add_design_solids(occ, design, spec.bone_depth or None)

@@ -28,6 +28,52 @@ log = logging.getLogger("skelfem")
 
 MAX_CUTS = 8            # a step is halved at most this many times below dt
 EASY_ITERATIONS = 8     # a step that converges in at most this many iterations lets h grow back
+KEEP_ROWS = 2000        # trajectory rows kept in memory (every row goes to trajectory.csv as it is made)
+KEEP_HISTORY = 1000     # energy-history points and attempts kept for result.json
+
+
+class Decimated:
+    """A list that keeps at most ``cap`` evenly spaced entries of everything appended, and the last.
+
+    Entries 0, s, 2s, ... are kept; when more than cap are, every other one goes and s doubles.
+    A run of a million steps holds about cap rows instead of a million (~12 KB each before).
+    """
+
+    def __init__(self, cap: int):
+        self.cap, self.stride, self.count = int(cap), 1, 0
+        self.kept: list = []
+        self.last = None
+
+    def append(self, value) -> None:
+        if self.count % self.stride == 0:
+            self.kept.append(value)
+            if len(self.kept) > self.cap:
+                self.kept = self.kept[::2]
+                self.stride *= 2
+        self.last = value
+        self.count += 1
+
+    def values(self) -> list:
+        if self.count and (self.count - 1) % self.stride:
+            return self.kept + [self.last]
+        return list(self.kept)
+
+    def __iter__(self):
+        return iter(self.values())
+
+    def __len__(self) -> int:
+        return len(self.kept) + (1 if self.count and (self.count - 1) % self.stride else 0)
+
+    def __getitem__(self, i):
+        if isinstance(i, int) and i == -1 and self.count:
+            return self.last
+        return self.values()[i]
+
+    def __add__(self, other):
+        return self.values() + list(other)
+
+    def __radd__(self, other):
+        return list(other) + self.values()
 
 
 @dataclass
@@ -38,16 +84,18 @@ class DynamicsReport:
     newton_iterations: int = 0
     load_steps: int = 0                  # accepted time steps
     cuts: int = 0                        # failed attempts (each halved the step)
-    residual_history: list = field(default_factory=list)
-    attempts: list = field(default_factory=list)
+    residual_history: Decimated = field(default_factory=lambda: Decimated(KEEP_HISTORY))
+    attempts: Decimated = field(default_factory=lambda: Decimated(KEEP_HISTORY))
     energy: float = float("nan")         # potential energy Pi at the last accepted state
     min_jacobian: float = float("nan")
     time: float = 0.0                    # wall-clock seconds
     t_end: float = 0.0                   # simulated time reached
-    times: list = field(default_factory=list)
-    kinetic: list = field(default_factory=list)
-    potential: list = field(default_factory=list)
-    trajectory: list = field(default_factory=list)    # one row (dict) per accepted state, t = 0 included
+    times: Decimated = field(default_factory=lambda: Decimated(KEEP_HISTORY))
+    kinetic: Decimated = field(default_factory=lambda: Decimated(KEEP_HISTORY))
+    potential: Decimated = field(default_factory=lambda: Decimated(KEEP_HISTORY))
+    # one row (dict) per accepted state, t = 0 included: all of them up to KEEP_ROWS, then evenly decimated
+    # (and the last); on_step sees each row as it is made (trajectory.csv holds them all)
+    trajectory: Decimated = field(default_factory=lambda: Decimated(KEEP_ROWS))
     states: list = field(default_factory=list)        # with store=True: x_n (local arrays), t = 0 included
     steps: list = field(default_factory=list)         # with store=True: (t_{n+1}, h, alphas) per accepted step
 
@@ -194,13 +242,15 @@ class Dynamics:
 def dynamics_summary(design, report: DynamicsReport) -> dict:
     """The "dynamics" block of result.json."""
     spec = design.dynamics
-    total = np.add(report.kinetic, report.potential)
+    total = np.add(report.kinetic.values(), report.potential.values())
     return {
         "dt": spec.dt, "duration": spec.duration, "integrator": spec.integrator,
         "damping": {"mass": spec.damping_mass, "stiffness": spec.damping_stiffness},
         "time_reached": report.t_end, "steps": report.load_steps, "cuts": report.cuts,
         "newton_iterations": report.newton_iterations,
-        "energy_history": {"time": report.times, "kinetic": report.kinetic, "potential": report.potential,
-                           "total": total.tolist()},
+        # at most KEEP_HISTORY + 1 points, evenly spaced, the last included; trajectory.csv has every step
+        "energy_history": {"time": report.times.values(), "kinetic": report.kinetic.values(),
+                           "potential": report.potential.values(), "total": total.tolist(),
+                           "every": report.times.stride, "points": report.times.count},
         "schedules": {c.name: c.schedule for c in design.tendons if c.schedule is not None},
     }

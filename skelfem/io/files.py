@@ -2,6 +2,7 @@
 """
 from __future__ import annotations
 
+import errno
 import json
 import os
 import tempfile
@@ -14,6 +15,19 @@ FORMAT = 1
 
 
 # -- small helpers ---------------------------------------------------------------------------
+# A write that fails for want of room or permission on the file system is the user's to fix (exit 1,
+# one line), in every command; anything else failing while writing is still an internal error.
+DISK_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG, errno.EACCES, errno.EPERM})
+
+
+def disk_error(exc: BaseException) -> str | None:
+    """The one-line message of a full, read-only or over-quota file system error, or None."""
+    if isinstance(exc, OSError) and exc.errno in DISK_ERRNOS:
+        name = Path(exc.filename).name if getattr(exc, "filename", None) else "the results"
+        return f"cannot write {name}: {exc.strerror or os.strerror(exc.errno)}"
+    return None
+
+
 def say(*args, **kwargs) -> None:
     """print, on MPI rank 0 only (progress lines of studies and scripts)."""
     from mpi4py import MPI
@@ -97,6 +111,29 @@ def write_csv(path: Path, fields, rows) -> None:
     atomic_write(path, write)
 
 
+
+
+class CsvStream:
+    """A CSV file written a row at a time (a long run's rows never all in memory); close() ends it."""
+
+    def __init__(self, path: Path, fields):
+        import csv
+        self.fields = list(fields)
+        self.file = open(path, "w", newline="")
+        try:
+            self.writer = csv.DictWriter(self.file, self.fields, extrasaction="ignore")
+            self.writer.writeheader()
+        except BaseException:
+            self.file.close()
+            raise
+
+    def write(self, row: dict) -> None:
+        self.writer.writerow({k: row.get(k, "") for k in self.fields})
+
+    def close(self) -> None:
+        if not self.file.closed:
+            self.file.flush()
+            self.file.close()
 
 
 class InputTooLarge(ValueError):

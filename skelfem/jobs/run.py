@@ -132,7 +132,7 @@ def write_dynamic_results(session, out: Path, t0: float, picture: bool = True, p
     from ..fem.dynamics import trajectory_columns
     from ..io.outdir import publish
     from ..io.xdmf import XdmfSeries, snapshot
-    from ..io.files import write_csv, write_json
+    from ..io.files import CsvStream, write_json
     from ..viz.animation import write_motion_gif
 
     design, model = session.design, session.model
@@ -142,7 +142,9 @@ def write_dynamic_results(session, out: Path, t0: float, picture: bool = True, p
     gif = picture and design.dim == 2
     spent = {"write_xdmf": 0.0, "write_csv": 0.0, "write_gif": 0.0}    # s, each output's own cost
     with publish(out, comm) as stage:
-        series, frames = None, []
+        series, frames, rows = None, [], None
+        if comm.rank == 0:                             # every row streamed as it is made
+            rows = stage.run(CsvStream, stage.path / "trajectory.csv", trajectory_columns(design))
 
         def on_step(t, report):
             nonlocal series
@@ -150,16 +152,24 @@ def write_dynamic_results(session, out: Path, t0: float, picture: bool = True, p
             if comm.rank != 0:
                 return
             tw = time.perf_counter()
+            if rows is not None:
+                stage.run(rows.write, report.trajectory[-1])
+            spent["write_csv"] += time.perf_counter() - tw
+            tw = time.perf_counter()
             if series is None:
                 series = stage.run(XdmfSeries, stage.path / "trajectory.xdmf", snap)
             if series is not None:
                 stage.run(series.write, t, snap)
             spent["write_xdmf"] += time.perf_counter() - tw
-            n = len(report.times) - 1
+            n = report.load_steps
             if gif and (n % every == 0 or abs(t - spec.duration) <= 1e-9 * spec.duration):
                 frames.append((t, snap))
 
-        result = session.run_in_time(on_step, progress)
+        try:
+            result = session.run_in_time(on_step, progress)
+        finally:
+            if rows is not None:
+                rows.close()
         data = result.to_dict()
         data.update(extra or {})
         if comm.rank == 0:
@@ -168,9 +178,9 @@ def write_dynamic_results(session, out: Path, t0: float, picture: bool = True, p
                 stage.run(series.close)
             spent["write_xdmf"] += time.perf_counter() - tw
             tw = time.perf_counter()
-            stage.run(write_csv, stage.path / "trajectory.csv", trajectory_columns(design),
-                      result.report.trajectory)
-            spent["write_csv"] = time.perf_counter() - tw
+            if rows is not None:
+                stage.run(rows.close)
+            spent["write_csv"] += time.perf_counter() - tw
             tw = time.perf_counter()
             if gif and frames:
                 stage.run(write_motion_gif, stage.path / "motion.gif", frames, design.name)

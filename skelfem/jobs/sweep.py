@@ -41,7 +41,8 @@ from pathlib import Path
 import numpy as np
 
 from ..design.spec import DesignError
-from ..design.parse import load_design, read_toml
+from ..design.parse import MAX_FILE, load_design, read_toml
+from ..io.files import read_bounded
 
 MAX_CASES = 100_000
 FAILED = ("bad_input", "bad_output", "internal_error")
@@ -140,7 +141,12 @@ def load_sweep(path) -> Sweep:
         _fail(source, "design", "missing: the design file to sweep (path relative to the sweep file)")
     try:
         design = (path.parent / data["design"]).resolve()
-        design_bytes = design.read_bytes() if design.is_file() else None
+        design_bytes = None
+        if design.is_file():
+            with open(design, "rb") as fh:      # at most what a design may be (an endless file is not one)
+                design_bytes = fh.read(MAX_FILE + 1)
+            if len(design_bytes) > MAX_FILE:
+                _fail(source, "design", f"{data['design']!r} is larger than {MAX_FILE // 2 ** 20} MB; not a design file")
     except (OSError, ValueError, RuntimeError) as exc:
         _fail(source, "design", f"cannot read {data['design']!r} ({exc})")
     if design_bytes is None:
@@ -198,9 +204,24 @@ def load_sweep(path) -> Sweep:
     picture = data.get("picture", False)
     if not isinstance(picture, bool):
         _fail(source, "picture", "must be true or false")
+    _check_design(source, data["design"], design, cases, common)
     all_keys = keys + tuple(k for c in cases for k in c.params if k not in keys)
     return Sweep(source, name, design, tuple(cases), tuple(dict.fromkeys(all_keys)), rpc, picture,
                  hashlib.sha256(design_bytes).hexdigest())
+
+
+def _check_design(source: str, given: str, design: Path, cases, common) -> None:
+    """The sweep's design must be a design: checked once, before any case (with the common ``set``,
+    then with the first case's overrides, which may be what makes it valid). A file that is not a
+    design used to run every case and record each as bad input."""
+    first = None
+    for overrides in dict.fromkeys((tuple(o for o in cases[0].overrides if o in common), cases[0].overrides)):
+        try:
+            load_design(design, list(overrides))
+            return
+        except DesignError as exc:
+            first = first or exc
+    _fail(source, "design", f"{given!r} is not a usable design file: {first}")
 
 
 # -- running -----------------------------------------------------------------------------------------
@@ -214,7 +235,7 @@ def case_hash(sweep: Sweep, case: Case) -> str:
 
 def _read_result(out: Path, case: Case):
     try:
-        res = json.loads((out / case.name / "result.json").read_text())
+        res = json.loads(read_bounded(out / case.name / "result.json", MAX_FILE, "result file"))
     except (OSError, ValueError, RecursionError):
         return None
     return res if isinstance(res, dict) else None
@@ -262,9 +283,12 @@ def run_case(sweep: Sweep, case: Case, out: Path, comm, force: bool = False) -> 
     except OutputError as exc:
         status, message = "bad_output", str(exc)
     except Exception as exc:  # recorded, and the sweep goes on
+        from ..io.files import disk_error
         if received() is not None:            # an interrupt that surfaced as another error (a C callback)
             raise Interrupted(received()) from None
-        status, message = "internal_error", f"{type(exc).__name__}: {exc}"
+        full = disk_error(exc)                # a full or read-only disk: the user's to fix, not a bug
+        status, message = ("bad_output", f"{folder}: {full}") if full else \
+            ("internal_error", f"{type(exc).__name__}: {exc}")
         in_step = False
     if received() is not None:
         raise Interrupted(received())

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from mpi4py import MPI
 
-from ..design.occ import MeshingError, add_polygon, add_solid, ensure_gmsh, fuse, gmsh_model  # noqa: F401
+from ..design.occ import MeshingError, add_polygon, add_solid, ensure_gmsh, forget_array_types, fuse, gmsh_model  # noqa: F401
 
 BODY = "body"
 
@@ -238,6 +238,12 @@ def _remove_size(gmsh, undo: tuple) -> None:
 
 
 def mesh_design(design, comm=MPI.COMM_WORLD, verbose: bool = False, size=None) -> TaggedMesh:
+    """Mesh the design's body and bones with Gmsh (rank 0) and return a TaggedMesh (see _mesh_design)."""
+    with forget_array_types():            # Gmsh's arrays would leave a ctypes type per length for ever
+        return _mesh_design(design, comm, verbose, size)
+
+
+def _mesh_design(design, comm=MPI.COMM_WORLD, verbose: bool = False, size=None) -> TaggedMesh:
     """Mesh the design's body and bones with Gmsh (rank 0) and return a TaggedMesh.
 
     size: optional non-uniform mesh size in mm, a SizeField (fast: Gmsh
