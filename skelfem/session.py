@@ -100,7 +100,7 @@ class Session:
         self.design = as_design(design, overrides)
         self.model = self.solver = None
         self.solved = False
-        self.size = None                # the SizeField the mesh was made with (skelfem.adapt), or None
+        self.size = None                # the SizeField the mesh was made with (skelfem.accuracy.adapt), or None
         self.timings: dict = {}
         self._build()
 
@@ -178,10 +178,10 @@ class Session:
         made for (a cable, marker, pin or material edit), the mesh is kept.
         morph=True (the editor's drafts while dragging) also keeps the mesh
         when only polygon vertices moved, moving its nodes with them
-        (:mod:`skelfem.morph`), if the moved mesh stays good; otherwise it re-meshes.
+        (:mod:`skelfem.mesh.morph`), if the moved mesh stays good; otherwise it re-meshes.
         On a kept mesh the model follows in place where it can (Model.refresh:
         no form compiled, matrix and solver kept).
-        size: a non-uniform mesh size (skelfem.geometry.SizeField) below the
+        size: a non-uniform mesh size (skelfem.mesh.geometry.SizeField) below the
         design's [mesh] size: always re-meshes; the mesh of any later edit
         without it is uniform again.
         Returns how: "re-meshed", "same mesh" or "moved nodes".
@@ -314,7 +314,7 @@ class Session:
 
     @_exclusive
     def run_in_time(self, on_step=None, progress=None) -> Result:
-        """A run in time ([dynamics]): from rest, steps of dt to the duration (see skelfem.dynamics).
+        """A run in time ([dynamics]): from rest, steps of dt to the duration (see skelfem.fem.dynamics).
 
         The Result holds result.json's keys (the final state's read-outs, and a
         ``dynamics`` block with the energy history); ``result.report.trajectory``

@@ -478,7 +478,7 @@ def _enospc(code=errno.ENOSPC, name="summary.csv"):
     return write
 
 
-def _sweep_files(tmp_path, design_text=None, cases=1) -> "Path":
+def _sweep_files(tmp_path, design_text=None, cases=1):
     (tmp_path / "strip.toml").write_text(design_text if design_text is not None else toml_dumps(strip2d(size=6.0)))
     values = ", ".join(str(0.5 + 0.25 * i) for i in range(cases))
     (tmp_path / "sw.toml").write_text(f'design = "strip.toml"\nname = "sw"\n'

@@ -3,7 +3,7 @@
 A *round* solves the design on three meshes of one size field f (mm),
 scaled by 4, 2 and 1 in 2D, by 2, sqrt 2 and 1 in 3D (FACTORS: the uniform
 ladder's ratio q, accuracy.RATIO; Gmsh's background mesh,
-skelfem.geometry.SizeField): M_4, M_2, M_1 (named by the 2D factors), each
+skelfem.mesh.geometry.SizeField): M_4, M_2, M_1 (named by the 2D factors), each
 warm-started from the last. Scaling a field by q divides every local size
 by q, so the three meshes are a uniform-ratio family and the Richardson
 estimate of skelfem.accuracy applies unchanged to the marker positions x_4,

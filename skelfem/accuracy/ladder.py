@@ -46,7 +46,7 @@ estimate is max(E_k, s) and it is the answer (the finer of the two).
 It stops when MARGIN max(E_k, s) <= tol (``met: true``: the error is below tol even
 if the estimate is low by up to a factor MARGIN); else the ladder goes on from
 level k with that estimate, or it stops when the next mesh would pass the DOF limit
-of skelfem.resources or MAX_LEVELS (``met: false``: the estimate on the
+of skelfem.design.resources or MAX_LEVELS (``met: false``: the estimate on the
 finest mesh is reported, never a promise it does not keep). The answer is the
 last solve itself: the twin where the tolerance is met.
 

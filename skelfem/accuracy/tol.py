@@ -19,7 +19,7 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
     result.json; its ``levels`` are every solve in order, twins included). The
     session holds the last solve afterwards.
     adaptive: rounds of graded meshes from element indicators instead
-    (skelfem.adapt; serial runs only, the uniform ladder under MPI).
+    (skelfem.accuracy.adapt; serial runs only, the uniform ladder under MPI).
     """
     if adaptive and session.comm.size == 1:
         from .adapt import refine_adaptive

@@ -11,7 +11,7 @@ with x*_n = -(a1 x_n + a2 x_{n-1}) / a0, c_I = a0^2 / h^2, D = (c_I + a a0 / h) 
 linear in the schedule knots: c(t) = sum_k phi_k(t) u_k, phi_k the hat
 functions of the knot times (held beyond the ends), so dR_n/du_k =
 phi_k(t_{n+1}) k g (g = grad of the cable length; zero for a slack tendon,
-the taut branch at the kink as in skelfem.sensitivity).
+the taut branch at the kink as in skelfem.analysis.sensitivity).
 
 For an objective J(x_0, ..., x_N) the reverse sweep, n = N-1, ..., 0, with
 x^_n, v^_n the adjoints (dJ/dx_n so far) is
@@ -23,7 +23,7 @@ x^_n, v^_n the adjoints (dJ/dx_n so far) is
     v^_n -= h a1/a0^2 c_I M lam;  v^_{n-1} -= h a2/a0^2 c_I M lam
 
 H_{n+1} = hess Pi(x_{n+1}) + D is assembled and factorised again at the
-stored state x_{n+1} (skelfem.sensitivity.Linearization: the same matrix,
+stored state x_{n+1} (skelfem.analysis.sensitivity.Linearization: the same matrix,
 MUMPS analysis and Woodbury solver as Newton; one factorisation and one
 back-substitution per step). Every state is stored (no checkpointing):
 memory N x DOFs. Dirichlet rows carry no adjoint (pinned DOFs do not depend

@@ -6,7 +6,7 @@ target y':
     min_u  O(u) = |y(u) - y'|^2 + rho |u|^2     subject to  0 <= u <= u_max.
 
 Each iteration linearises y at the current equilibrium with J = dy/du
-(skelfem.sensitivity, adjoint mode: one factorisation, gdim solves) and takes
+(skelfem.analysis.sensitivity, adjoint mode: one factorisation, gdim solves) and takes
 the bounded Levenberg-Marquardt step
 
     D = argmin |r + J D|^2 + rho |u + D|^2 + mu |D|^2,   0 <= u + D <= u_max,

@@ -7,7 +7,7 @@ bounded by 0 <= u_ck <= upper_c. The objective is
     J(u) = sum_i |y(t_i) - y'_i|^2 + rho sum_c sum_k (u_c,k+1 - u_c,k)^2,
 
 the first part from a forward run, its gradient from the discrete adjoint
-(skelfem.adjoint: one forward run and one reverse sweep per evaluation), the
+(skelfem.analysis.adjoint: one forward run and one reverse sweep per evaluation), the
 smoothness regulariser rho (mm^2 per mm^2) in closed form. scipy's L-BFGS-B
 minimises it within the bounds; it stops once every target is within tol
 (default 1e-3 x finger length), or when L-BFGS-B converges or runs out of

@@ -12,7 +12,7 @@ u_c. We take the taut branch, the one-sided derivative for increasing u_c (the
 only feasible direction at the bound u_c = 0): dR/du_c = k g_c, and H gains
 its right limit k g g^T (the curvature term k s B^T W B vanishes at s = 0).
 These tendons are listed in Linearization.kinked; their derivatives hold for
-increasing u_c only (skelfem.control restricts its steps accordingly).
+increasing u_c only (skelfem.analysis.control restricts its steps accordingly).
 Ligaments are never controls and keep the Hessian as the cable defines it.
 
 Differentiating R(x*(u), u) = 0 with H = dR/dx = hess Pi at x*:
@@ -27,7 +27,7 @@ SNES's last Jacobian belongs to the iterate before its final step, so H is
 assembled afresh at x* into the Newton solver's matrix K (fixed pattern:
 MUMPS refactorises numerically, reusing its analysis), its rank-one parts
 (taut cables, and tendons at the kink) go to the same Woodbury solver Newton
-uses (skelfem.linear), and that one factorisation serves every right-hand
+uses (skelfem.fem.linear), and that one factorisation serves every right-hand
 side, forward and adjoint. Dirichlet rows of H are identity rows and every
 right-hand side is zero there, so the pinned components of dx*/du and lambda
 vanish. Everything here works on any number of MPI ranks.

@@ -3,7 +3,7 @@
 Prints one table row per mesh size (DOFs, Jacobian assembly, numeric
 refactorisation + solve, Newton iteration, iterations per solve, their
 ratio) and writes bench.json (atomically) into the output folder. See
-skelfem.bench for what is measured and how.
+skelfem.jobs.bench for what is measured and how.
 """
 from __future__ import annotations
 
@@ -67,7 +67,7 @@ def bench(args) -> int:
 
     _check(args)
     # one progress line per size; the solver's per-load-step lines only with -v
-    logging.getLogger("skelfem.bench").setLevel(log.getEffectiveLevel())
+    logging.getLogger("skelfem.jobs.bench").setLevel(log.getEffectiveLevel())
     if not args.verbose:
         log.setLevel(max(log.getEffectiveLevel(), logging.WARNING))
     try:

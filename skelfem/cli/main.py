@@ -4,7 +4,7 @@ Exit status: 0 on success, 1 for bad input (one ``error:`` line on stderr;
 command-line mistakes included), 2 when the solve does not converge
 (result.json says why), 3 for an internal error, 130 / 143 when interrupted
 by SIGINT / SIGTERM. Under MPI every rank ends with the same status and one
-line is printed (see skelfem.mpiguard).
+line is printed (see skelfem.runtime.mpiguard).
 """
 from __future__ import annotations
 

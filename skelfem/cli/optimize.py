@@ -1,4 +1,4 @@
-"""``skelfem optimize``: tendon schedules that put a marker on timed targets (skelfem.optimize).
+"""``skelfem optimize``: tendon schedules that put a marker on timed targets (skelfem.analysis.optimize).
 
     skelfem optimize DESIGN --marker M (--target X Y [--at T] | --csv TIMED_TARGETS) [--knots K]
                      [--max-contraction TENDON=MM ...] [--smooth RHO] [--tol MM] [--max-evaluations N]

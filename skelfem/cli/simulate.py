@@ -68,7 +68,7 @@ def prepare_tol(args, design):
 
 
 def refine_to_tol(session, tol: float, adaptive: bool = False):
-    """skelfem.accuracy.refine, with mesh failures of a finer level as one-line input errors."""
+    """skelfem.accuracy.tol.refine, with mesh failures of a finer level as one-line input errors."""
     from ..accuracy import tol as accuracy
     from ..design.spec import DesignError
     from ..mesh.geometry import MeshingError

@@ -1,4 +1,4 @@
-"""``skelfem sweep SWEEP.toml [--out DIR]``: run many variants of a design (see skelfem.sweep)."""
+"""``skelfem sweep SWEEP.toml [--out DIR]``: run many variants of a design (see skelfem.jobs.sweep)."""
 from __future__ import annotations
 
 import logging

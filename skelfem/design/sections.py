@@ -405,7 +405,7 @@ def read_solver(top: Table) -> SolverSpec:
 
 def check_energy_line_search(top: Table, solver: SolverSpec, bones: tuple, contact: ContactSpec) -> None:
     """Rigid bones move along their exact rigid motion, and self-contact's steps are bounded to
-    collision-free ones, only in the energy line searches (skelfem.solver and skelfem.terms.contact
+    collision-free ones, only in the energy line searches (skelfem.fem.newton and skelfem.terms.contact
     refuse the others); "auto" resolves to one of them ("energy" with bones, else "curved")."""
     rigid = [b.name for b in bones if b.rigid]
     if solver.line_search in ("auto", *ENERGY_LINE_SEARCHES) or not (rigid or contact.self_contact):

@@ -16,7 +16,7 @@ Rigid bodies (``Term.rigid_body``: rigid bones) are solved for their rigid
 DOFs q: their nodes' rows of K become identity rows and columns too, after
 K T (T = du_b/dq) has given the coupling E and the reduced block
 C = T^T K T + sum_i R_i . d2u_i/dq2 of the linear solver's border
-(:class:`skelfem.linear.Border`, ``border``). In serial the border lives in
+(:class:`skelfem.fem.linear.Border`, ``border``). In serial the border lives in
 K itself: each body's q takes the rows and columns of the first DOFs of its
 first nodes (its *hosts*), which hold E and C, so one factorisation covers
 it; under MPI the linear solver adds it from K^{-1} E. The residual on those

@@ -3,7 +3,7 @@
 Newton's direction p solves H p = -grad Pi with H = K + sum c g g^T: the
 sparse matrix K factorised (MUMPS LDL^T, the matrix pattern fixed so the
 symbolic factorisation is reused) and the rank-one parts of taut cables
-added by the Woodbury formula (skelfem.linear), through a PETSc python PC.
+added by the Woodbury formula (skelfem.fem.linear), through a PETSc python PC.
 The default line search ("energy") runs in SNES's pre-check: it starts from
 the model's admissible step alpha_max = model.max_step(x, p) <= 1 (e.g. the
 collision-free step of self-contact) and backtracks until the trial state is admissible (det F > 0

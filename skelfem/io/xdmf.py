@@ -148,7 +148,7 @@ def write_xdmf(path: Path, state) -> None:
     atomic_write(path, lambda tmp: meshio.xdmf.write(tmp, m, data_format="XML"))
 
 
-# -- runs in time (skelfem.dynamics) -------------------------------------------------------------------
+# -- runs in time (skelfem.fem.dynamics) -------------------------------------------------------------------
 def _body_arrays(snap: Snapshot) -> tuple[np.ndarray, list, np.ndarray]:
     """(points, cell blocks, displacement) of a snapshot's mesh, padded to 3D as in solution.xdmf."""
     x, u = snap.x, snap.u

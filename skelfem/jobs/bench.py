@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-log = logging.getLogger("skelfem.bench")   # progress, one line per size
+log = logging.getLogger("skelfem.jobs.bench")   # progress, one line per size
 
 FORMAT = 1
 DOF_FLOOR = 20_000          # the floor is checked on meshes with at least this many DOFs

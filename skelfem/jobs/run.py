@@ -40,7 +40,7 @@ def write_results(session, result, out: Path, t0: float, picture: bool = True,
     comm = model.comm
     data = result.to_dict()
     data.update(extra or {})
-    # staged beside `out` and swapped in whole (skelfem.outdir): the folder holds the old
+    # staged beside `out` and swapped in whole (skelfem.io.outdir): the folder holds the old
     # complete result until the new one is complete, never a mix of the two
     with publish(out, comm) as stage:
         if result.converged:

@@ -17,7 +17,7 @@ A sweep file names a design and the variants to run::
 
 Under ``mpirun -n N`` the world is split into N / ranks_per_case groups and
 the pending cases are dealt out round-robin, one group per case at a time.
-Each case is published whole into ``<out>/<case>/`` (skelfem.outdir: staged,
+Each case is published whole into ``<out>/<case>/`` (skelfem.io.outdir: staged,
 then swapped in), with a ``sweep`` entry in its result.json naming its
 overrides and a hash of the design file's bytes, the overrides and the
 picture flag. A case is skipped on the next run only if its result.json

@@ -18,7 +18,7 @@ and pin moves. A term contributes to Pi in one or both of two ways:
   into the matrix.
 
 DOF arrays of a hand-written term are local indices, or, when the term has a
-``gather`` (a :class:`skelfem.points.DofGather`), global DOF numbers known on
+``gather`` (a :class:`skelfem.mesh.points.DofGather`), global DOF numbers known on
 every rank (terms acting at material points that may lie on any rank).
 
 Besides the energy a term exposes its *parameters* (the ``--set`` keys it owns,
@@ -30,7 +30,7 @@ Dirichlet conditions, rigid bodies (node groups that follow a few rigid DOFs), a
 When an edit keeps the mesh (its nodes may move: the editor's drafts), a term
 may ``follow`` the new design in place; the model builds anew the ingredients
 whose terms cannot, and keeps its compiled forms only if none of those has a
-UFL energy (:meth:`skelfem.model.Model.refresh`).
+UFL energy (:meth:`skelfem.fem.model.Model.refresh`).
 """
 from __future__ import annotations
 
@@ -203,7 +203,7 @@ class Context:
     """
 
     design: object
-    tagged: object                   # skelfem.geometry.TaggedMesh
+    tagged: object                   # skelfem.mesh.geometry.TaggedMesh
     V: object
     u: object                        # fem.Function: the displacement
     thickness: fem.Constant          # t: slab depth in 2D, 1 in 3D

@@ -19,7 +19,7 @@ displacements). The reduced problem minimises Pi over the free DOFs and q:
 with R_b the full gradient on the bone's nodes. The second-derivative term
 (2D: -sum_i R_i . r_i; 3D: sym(S) - tr(S) I with S = sum_i r_i R_i^T,
 r = y0 - c) is what makes Newton on the reduced problem quadratic. The
-model assembles and solves it (``Model.jacobian``, ``skelfem.linear``),
+model assembles and solves it (``Model.jacobian``, ``skelfem.fem.linear``),
 the line search moves the bone along the exact rotation
 (``Elasticity.step_correction``), and the residual SNES sees on the bone's
 rows is the orthogonal projection of R_b onto its rigid modes, T (T^T T)^-1
