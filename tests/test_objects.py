@@ -33,8 +33,8 @@ def _box(x0, y0, x1, y1, name="box"):
 
 def test_object_rests_on_the_body():
     """A box dropped 0.5 mm onto a pinned block: it comes to rest within dhat of the block, clear of it,
-    the block carries its weight and the pin both weights."""
-    with Session(_base([_box(2, 10.5, 8, 13.5)])) as s:
+    the block carries its weight and the pin both weights; a marker inside the box follows it."""
+    with Session(_base([_box(2, 10.5, 8, 13.5)], markers={"on_box": [5.0, 12.0], "corner": [7.5, 13.0]})) as s:
         r = s.solve()
         assert r.converged, r.status
         d = r.to_dict()
@@ -52,6 +52,16 @@ def test_object_rests_on_the_body():
     assert pair["between"] == ["body", "box"]
     assert pair["normal_force"][1] == pytest.approx(-W, rel=1e-5)          # the box presses the block down
     assert d["pins"]["base"]["reaction"][1] == pytest.approx(W + W_body, rel=1e-5)
+    assert d["markers"]["on_box"]["position"] == pytest.approx(box["position"], abs=1e-5)
+    a = box["rotation"]                                    # a point off the centroid moves rigidly with the box
+    R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    expected = np.array(box["position"]) + R @ (np.array([7.5, 13.0]) - [5.0, 12.0])
+    assert np.allclose(d["markers"]["corner"]["position"], expected, atol=2e-3)   # the nodes: rigid to ~4e-4 strain
+
+
+def test_a_marker_outside_the_body_and_the_objects_is_refused():
+    with pytest.raises(DesignError, match="markers.off: the marker lies outside the body"):
+        parse_design(_base([_box(2, 10.5, 8, 13.5)], markers={"off": [5.0, 20.0]}), "d.toml")
 
 
 def test_an_object_nothing_holds_is_no_equilibrium(tmp_path):
