@@ -110,7 +110,7 @@ class NewtonSolver(LineSearch):
         self.max_iterations, self.rtol, self.atol = spec.max_iterations, spec.rtol, spec.atol
         self.xtol = 1e-11             # relative size of a full Newton step that ends the solve
         self.max_cuts = 8
-        self.max_verdict_cuts = 2     # a path step that leaves an object unheld is cut this often at most
+        self.max_verdict_cuts = 0     # a path step that leaves an object unheld is cut this often at most
         self._newton_step = np.inf    # |p| of the last undamped Newton step
         self.reference_residual = 0.0  # largest first |R| of a solve from rest (the problem's force scale)
         self.etol = 1e-15             # Newton decrement -grad Pi . p relative to |Pi| that ends the solve
@@ -251,6 +251,8 @@ class NewtonSolver(LineSearch):
             self._watch, self._watch_allowed, self._last_trial = None, True, None
             ok, status, more = self._newton_once()
             its += more
+            if not ok and status.startswith("no equilibrium"):   # an object gone: new lags cannot hold it
+                return False, status, its
             changed = self.model.update_lag()
             if not ok and not changed:
                 return False, status, its
@@ -425,7 +427,8 @@ class NewtonSolver(LineSearch):
     def resolve(self, steps: int = 1) -> SolveReport:
         """Warm re-solve: a tangent predictor, then Newton at the new parameters, from the last equilibrium.
 
-        If that fails, the step of the change is cut: the changed parameters
+        If that fails (other than by an object that is not held, which ends
+        the solve), the step of the change is cut: the changed parameters
         go from their old values to their new ones along the parameter path
         (:meth:`path`), each step starting from the last equilibrium reached
         and its history (friction's anchors), never from rest: a grip is
@@ -442,8 +445,8 @@ class NewtonSolver(LineSearch):
         report = SolveReport(ok, status, its, int(ok), [self._history] if ok else [],
                              [{"factor": 1.0, "iterations": int(its), "status": status, "warm": True,
                                "predictor_step": predicted}])
-        if ok or not changes:
-            if ok:
+        if ok or not changes or status.startswith("no equilibrium"):   # an object not held: no smaller step
+            if ok:                                                    # of the same change holds it either
                 model.end_step()
             saved.destroy()
             return self._finish(report, t0)
@@ -461,8 +464,9 @@ class NewtonSolver(LineSearch):
         """Move the changed parameters ({key: (old, new)}) from old to new in steps along the parameter
         path, from the current state (an equilibrium at the old values), each step warm from the last
         one accepted, with a tangent predictor; a failed step is retried with half the increment (up to
-        ``max_cuts`` times; ``max_verdict_cuts`` times when an object is not held: a load that is not held
-        at a quarter of the change is not held at all). The parameters end at their new values."""
+        ``max_cuts`` times; ``max_verdict_cuts`` times when an object is not held: the verdict is about
+        the equilibrium at the new values, which a smaller step reaches too). The parameters end at their
+        new values."""
         t0 = time.perf_counter()
         model = self.model
         report = SolveReport(False, "not_started")

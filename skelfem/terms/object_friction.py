@@ -103,6 +103,7 @@ class ObjectFriction(Term):
         self.run = np.zeros(n)
         self._report = None
         self._relax, self._lag_change = 1.0, None        # the lag's relaxation (update_lag)
+        self._N_step = self.N.copy()                         # N at the last accepted step
         self._y0 = contact.X.copy()                          # vertex positions at the step's start
 
     @property
@@ -261,6 +262,8 @@ class ObjectFriction(Term):
         if self.active:
             if not np.any(self.u_fn.x.array):
                 self.edge[:], self.N[:], self.run[:], self.sliding[:] = -1, 0.0, 0.0, False
+                self._N_step = self.N.copy()
+            self.N = self._N_step.copy()          # a failed attempt's lagged N is forgotten
             self.trial = self.sliding.copy()
             self._relax, self._lag_change = 1.0, None
             self._y0 = self.c.positions(self.u_fn.x.array)
@@ -344,6 +347,7 @@ class ObjectFriction(Term):
         self._y0 = y
         self.trial = self.sliding.copy()
         self.fresh = self.edge >= 0
+        self._N_step = self.N.copy()
 
     # -- read-out ------------------------------------------------------------------------------------
     def vertex_forces(self, u: np.ndarray) -> np.ndarray:
