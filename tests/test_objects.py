@@ -33,8 +33,8 @@ def _box(x0, y0, x1, y1, name="box"):
 
 def test_object_rests_on_the_body():
     """A box dropped 0.5 mm onto a pinned block: it comes to rest within dhat of the block, clear of it,
-    the block carries its weight and the pin both weights."""
-    with Session(_base([_box(2, 10.5, 8, 13.5)])) as s:
+    the block carries its weight and the pin both weights; a marker inside the box follows it."""
+    with Session(_base([_box(2, 10.5, 8, 13.5)], markers={"on_box": [5.0, 12.0], "corner": [7.5, 13.0]})) as s:
         r = s.solve()
         assert r.converged, r.status
         d = r.to_dict()
@@ -52,6 +52,16 @@ def test_object_rests_on_the_body():
     assert pair["between"] == ["body", "box"]
     assert pair["normal_force"][1] == pytest.approx(-W, rel=1e-5)          # the box presses the block down
     assert d["pins"]["base"]["reaction"][1] == pytest.approx(W + W_body, rel=1e-5)
+    assert d["markers"]["on_box"]["position"] == pytest.approx(box["position"], abs=1e-5)
+    a = box["rotation"]                                    # a point off the centroid moves rigidly with the box
+    R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    expected = np.array(box["position"]) + R @ (np.array([7.5, 13.0]) - [5.0, 12.0])
+    assert np.allclose(d["markers"]["corner"]["position"], expected, atol=2e-3)   # the nodes: rigid to ~4e-4 strain
+
+
+def test_a_marker_outside_the_body_and_the_objects_is_refused():
+    with pytest.raises(DesignError, match="markers.off: the marker lies outside the body"):
+        parse_design(_base([_box(2, 10.5, 8, 13.5)], markers={"off": [5.0, 20.0]}), "d.toml")
 
 
 def test_an_object_nothing_holds_is_no_equilibrium(tmp_path):
@@ -201,3 +211,42 @@ def test_self_contact_leaves_objects_to_their_own_barrier():
             if self_contact:
                 assert s.model.term("contact", "self").energy(s.model.u.x.array) == 0.0
     assert states[1] == pytest.approx(states[0], rel=1e-9)
+
+
+@pytest.mark.slow
+def test_a_failed_warm_re_solve_cuts_the_change_from_the_last_equilibrium():
+    """When the warm re-solve after a change fails, the change is cut along the parameter path from the
+    last equilibrium and its friction history (the grip is kept), never ramped again from rest: the box
+    ends where one warm step puts it."""
+    from skelfem.fem.newton import NewtonSolver
+    d = _base([_box(7.5, 2, 32.5, 22)], contact={"dhat": 0.2, "friction": 0.6})
+    d["materials"]["soft"]["E"] = 0.01
+    d["materials"]["pla"]["density"] = 500.0
+    d["body"] = {"outline": [[0, 0], [6, 0], [6, 8], [7, 8], [7, 16], [6, 16], [6, 30], [34, 30], [34, 16],
+                             [33, 16], [33, 8], [34, 8], [34, 0], [40, 0], [40, 36], [0, 36]], "material": "soft"}
+    d["pins"] = [{"name": "top", "region": [[-1, 35.99], [41, 37]], "kind": "fixed"},
+                 {"name": "left", "region": [[-1, -1], [0.01, 30]], "kind": "fixed", "move": [0.45, 0]},
+                 {"name": "right", "region": [[39.99, -1], [41, 30]], "kind": "fixed", "move": [-0.45, 0]}]
+    d["mesh"]["size"] = 1.5
+    d["gravity"] = {"acceleration": [0.0, 0.0]}
+    d["solver"] = {"steps": 4, "max_iterations": 300}
+    out = {}
+    for fail_first in (False, True):
+        with Session(d) as s:
+            assert s.solve().converged
+            s.set({"gravity.acceleration": [0.0, -G]})
+            if fail_first:                    # the warm attempt gives up at once, as a hard one would
+                calls = []
+                real = NewtonSolver._newton
+
+                def newton(solver, calls=calls, real=real):
+                    calls.append(1)
+                    return (False, "max_iterations", 0) if len(calls) == 1 else real(solver)
+                s.solver._newton = lambda: newton(s.solver)
+            r = s.solve()
+            assert r.converged, r.status
+            out[fail_first] = (r, r.to_dict()["objects"]["box"]["position"])
+    r, moved = out[True]
+    assert r.report.attempts[0].get("warm") and all("path" in a for a in r.report.attempts[1:])
+    assert r.report.attempts[-1]["path"] == 1.0
+    assert np.allclose(moved, out[False][1], atol=2e-3), (moved, out[False][1])

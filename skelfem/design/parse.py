@@ -59,7 +59,7 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     friction, objects = take_objects(top, dim, materials, body)   # [[objects]], friction keys
     grounds = read_grounds(top, dim, body, tol)
     contact = read_contact(top, dim)
-    markers = read_markers(top, dim, region)
+    markers = read_markers(top, dim, region, objects)
     solver = read_solver(top)
     check_energy_line_search(top, solver, bones, contact)
     gravity = read_gravity(top, dim, materials, [body.material] + [b.material for b in bones])

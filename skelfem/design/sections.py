@@ -363,7 +363,9 @@ def body_extent(design) -> np.ndarray:
 fabrication_extent = body_extent
 
 
-def read_markers(top: Table, dim: int, region) -> dict:
+def read_markers(top: Table, dim: int, region, objects=()) -> dict:
+    """[markers]: points inside the body, or inside a free object's outline (they follow the object)."""
+    from .polygons import parity
     t = Table(top.take("markers", "table", {}), "markers", top.source)
     out = {}
     for name in list(t.data):
@@ -371,7 +373,9 @@ def read_markers(top: Table, dim: int, region) -> dict:
             t.fail(name, "marker names must not contain '.'")
         plain_name(t, name, name, "a marker name")
         X = check_bounded(t, name, t.take(name, "vector", dim=dim))
-        check_inside(t, name, X, region, "the marker")
+        on_object = any(bool(parity(X, [np.asarray(o.outline, float)])[0]) for o in objects)
+        if not on_object:
+            check_inside(t, name, X, region, "the marker")
         out[name] = X
     return out
 

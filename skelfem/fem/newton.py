@@ -24,6 +24,9 @@ rotation. Other strategies
 
 Contractions, loads and pin moves are ramped over ``steps`` load steps; a
 failed step is retried with half the increment (up to ``max_cuts`` times).
+A warm re-solve after a change of live parameters that fails cuts the step
+of the change along the parameter path instead (``path``), from the last
+equilibrium and its history.
 """
 from __future__ import annotations
 
@@ -109,6 +112,7 @@ class NewtonSolver(LineSearch):
             self.atol = ATOL_RELATIVE * force_scale(model.design)
         self.xtol = 1e-11             # relative size of a full Newton step that ends the solve
         self.max_cuts = 8
+        self.max_verdict_cuts = 0     # a path step that leaves an object unheld is cut this often at most
         self._newton_step = np.inf    # |p| of the last undamped Newton step
         self.reference_residual = 0.0  # largest first |R| of a solve from rest (the problem's force scale)
         self.etol = 1e-15             # Newton decrement -grad Pi . p relative to |Pi| that ends the solve
@@ -249,6 +253,8 @@ class NewtonSolver(LineSearch):
             self._watch, self._watch_allowed, self._last_trial = None, True, None
             ok, status, more = self._newton_once()
             its += more
+            if not ok and status.startswith("no equilibrium"):   # an object gone: new lags cannot hold it
+                return False, status, its
             changed = self.model.update_lag()
             if not ok and not changed:
                 return False, status, its
@@ -421,15 +427,19 @@ class NewtonSolver(LineSearch):
                 v.destroy()
 
     def resolve(self, steps: int = 1) -> SolveReport:
-        """Warm re-solve: a tangent predictor, then Newton at full load, from the last equilibrium.
+        """Warm re-solve: a tangent predictor, then Newton at the new parameters, from the last equilibrium.
 
-        If that fails, the state is restored and the load is ramped from the
-        rest state in `steps` steps, as a cold solve would; the report counts
-        the iterations of both.
+        If that fails (other than by an object that is not held, which ends
+        the solve), the step of the change is cut: the changed parameters
+        go from their old values to their new ones along the parameter path
+        (:meth:`path`), each step starting from the last equilibrium reached
+        and its history (friction's anchors), never from rest: a grip is
+        not squeezed and loaded at once. The report counts every iteration.
         """
         t0 = time.perf_counter()
         model = self.model
         saved = model.u.vector.copy()
+        changes = dict(model.changes)
         model.set_factor(1.0)
         predicted = self._tangent_predictor()
         model.changes.clear()
@@ -437,20 +447,81 @@ class NewtonSolver(LineSearch):
         report = SolveReport(ok, status, its, int(ok), [self._history] if ok else [],
                              [{"factor": 1.0, "iterations": int(its), "status": status, "warm": True,
                                "predictor_step": predicted}])
-        if ok:
-            model.end_step()
+        if ok or not changes or status.startswith("no equilibrium"):   # an object not held: no smaller step
+            if ok:                                                    # of the same change holds it either
+                model.end_step()
             saved.destroy()
             return self._finish(report, t0)
-        log.info("warm re-solve failed (%s); ramping from rest", status)
-        self._factorised = False
-        model.u.vector.set(0.0)
+        log.info("warm re-solve failed (%s); cutting the step along the parameter path", status)
+        saved.copy(model.u.vector)
         model.sync(model.u.vector)
-        cold = self.solve(steps)
         saved.destroy()
-        cold.newton_iterations += its
-        cold.attempts = report.attempts + cold.attempts
-        cold.time = time.perf_counter() - t0
-        return cold
+        path = self.path(changes, max(int(steps), 2))
+        path.newton_iterations += its
+        path.attempts = report.attempts + path.attempts
+        path.time = time.perf_counter() - t0
+        return path
+
+    def path(self, changes: dict, steps: int = 2) -> SolveReport:
+        """Move the changed parameters ({key: (old, new)}) from old to new in steps along the parameter
+        path, from the current state (an equilibrium at the old values), each step warm from the last
+        one accepted, with a tangent predictor; a failed step is retried with half the increment (up to
+        ``max_cuts`` times; ``max_verdict_cuts`` times when an object is not held: the verdict is about
+        the equilibrium at the new values, which a smaller step reaches too). The parameters end at their
+        new values."""
+        t0 = time.perf_counter()
+        model = self.model
+        report = SolveReport(False, "not_started")
+        s, ds, cuts, verdicts = 0.0, 1.0 / steps, 0, 0
+        ds0 = ds
+        saved = model.u.vector.copy()
+
+        def at(key: str, t: float):
+            old, new = changes[key]
+            return old + t * (new - old)
+        try:
+            while s < 1.0 - 1e-12:
+                target = min(s + ds, 1.0)
+                model.changes = {k: (at(k, s), at(k, target)) for k in changes}
+                model.parameter_path(1.0)
+                model.set_factor(1.0)
+                predicted = self._tangent_predictor()
+                model.changes.clear()
+                ok, status, its = self._newton()
+                report.newton_iterations += its
+                report.attempts.append({"path": float(target), "iterations": int(its), "status": status,
+                                        "predictor_step": predicted})
+                if ok:
+                    report.load_steps += 1
+                    report.residual_history.append(self._history)
+                    log.info("path step %d: to %.4g of the change, %d Newton iterations", report.load_steps,
+                             target, its)
+                    model.end_step()
+                    model.u.vector.copy(saved)
+                    s = target
+                    if its <= 8:
+                        ds = min(2.0 * ds, ds0)
+                    continue
+                log.info("path step to %.4g of the change failed (%s)", target, status)
+                saved.copy(model.u.vector)
+                model.sync(model.u.vector)
+                self._factorised = False
+                cuts += 1
+                verdicts += status.startswith("no equilibrium")
+                if cuts > self.max_cuts or verdicts > self.max_verdict_cuts:
+                    report.status = status
+                    report.residual_history.append(self._history)
+                    break
+                ds = (target - s) / 2.0
+            else:
+                report.converged, report.status = True, "converged"
+        finally:
+            model.changes = {k: (old, new) for k, (old, new) in changes.items()}
+            model.parameter_path(1.0)
+            model.changes.clear()
+            model.set_factor(1.0)
+            saved.destroy()
+        return self._finish(report, t0)
 
 
 def release_vectors(model) -> None:

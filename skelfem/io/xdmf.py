@@ -55,6 +55,30 @@ def marker_positions(model) -> dict:
     return dict(zip(terms[0].names, terms[0].positions(model.u.x.array)))
 
 
+def object_states(model) -> list[dict]:
+    """Per free object: its name and outline moved by its rigid motion, and the contact forces on its
+    boundary nodes from the other pieces (positions, barrier and friction forces, N; serial)."""
+    objects = model.terms_in("objects")
+    if not objects:
+        return []
+    pieces = next((t for t in model.terms_in("contacts") if hasattr(t, "nodal_forces")), None)
+    y, normal, friction = pieces.nodal_forces(model) if pieces is not None else (None, None, None)
+    out = []
+    for k, obj in enumerate(objects, start=1):
+        r = obj.readout(model)[obj.name]
+        c0 = np.asarray(r["position"]) - np.asarray(r["displacement"])
+        a = r["rotation"]
+        R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        outline = (np.asarray(obj.spec.outline, float) - c0) @ R.T + np.asarray(r["position"])
+        entry = {"name": obj.name, "outline": outline}
+        if pieces is not None:
+            on = pieces.label == k
+            touched = on & (np.linalg.norm(normal, axis=1) + np.linalg.norm(friction, axis=1) > 0)
+            entry.update(points=y[touched], normal=normal[touched], friction=friction[touched])
+        out.append(entry)
+    return out
+
+
 class Snapshot(SimpleNamespace):
     """The whole state gathered in one place: what files and pictures are made from."""
 
@@ -75,6 +99,7 @@ def snapshot(model, to=(0,)) -> Snapshot | None:
     cells, regions = cells[:n_cells], cell_regions(model)
     cables = cable_states(model)
     markers = marker_positions(model)
+    objects = object_states(model) if comm.size == 1 else []
     if comm.size > 1:
         orig = np.asarray(model.mesh.geometry.input_global_indices, dtype=np.int64)
         parts = comm.gather((orig, x, u, orig[cells], regions), root=0)
@@ -85,8 +110,8 @@ def snapshot(model, to=(0,)) -> Snapshot | None:
             u = np.concatenate([p[2] for p in parts])[first]
             cells = np.searchsorted(numbers, np.concatenate([p[3] for p in parts]))
             regions = np.concatenate([p[4] for p in parts])
-    snap = Snapshot(x=x, u=u, cells=cells, regions=regions, cables=cables, markers=markers,
-                    body_tag=model.tm.tags["body"], design=model.design) if comm.rank == 0 else None
+    snap = Snapshot(x=x, u=u, cells=cells, regions=regions, cables=cables, markers=markers, objects=objects,
+                    body_tag=model.tm.tags["body"], tags=dict(model.tm.tags), design=model.design) if comm.rank == 0 else None
     for rank in sorted(set(to) - {0}):
         if comm.rank == 0:
             comm.send(snap, dest=rank, tag=71)

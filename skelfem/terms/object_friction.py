@@ -15,7 +15,8 @@ of strength F_i = mu N_i regularised over the slip length eps,
     e_i = F_i d_i^2 / (2 eps)      if |d_i| <= eps,     F_i (|d_i| - eps / 2) otherwise,
 
 with N_i the barrier's force on node i (lagged and iterated to a fixed
-point with the solver, ``update_lag``), mu the pair's coefficient
+point with the solver, ``update_lag``; half the magnitude of the barrier's
+nodal force, each side of a contact carrying half), mu the pair's coefficient
 (``[contact.pairs]``, else ``[contact] friction``). After each accepted step
 the return map slides the anchor of a slipping node along the object's
 boundary to eps behind it (onto the next edge past an edge's end), a
@@ -36,9 +37,12 @@ pinch near its limit it is ten times slower (359 Newton iterations against
 Every boundary vertex of a piece (the body, each object) anchors on the
 edges of the other pieces, so friction acts both where the body's nodes
 press on an object's side and where an object's corner presses into the
-body; N_i counts only the collisions in which vertex i is the vertex
-(against an edge; half of a vertex-vertex one), so the two sides of one
-contact are not both counted. Pairs of objects rub too (their coefficient
+body; N_i is half the magnitude of the barrier's nodal force on vertex i,
+so the two sides of one contact share its strength mu N (counted once in
+all). An attribution by collision type (the vertex of a vertex-edge pair)
+jumps when two facing nodes swap roles, and the lag then cycles between
+two states (measured on the gripper: a 2-cycle of period 2 rounds that
+never ended); the nodal force is continuous in the positions. Pairs of objects rub too (their coefficient
 from their materials).
 """
 from __future__ import annotations
@@ -47,6 +51,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .base import Term
+from .contact import fortran_array
 
 
 class ObjectFriction(Term):
@@ -97,6 +102,8 @@ class ObjectFriction(Term):
         self.trial = np.zeros(n, bool)
         self.run = np.zeros(n)
         self._report = None
+        self._relax, self._lag_change = 1.0, None        # the lag's relaxation (update_lag)
+        self._N_step = self.N.copy()                         # N at the last accepted step
         self._y0 = contact.X.copy()                          # vertex positions at the step's start
 
     @property
@@ -218,7 +225,7 @@ class ObjectFriction(Term):
         return [(self._dofs(on).ravel(), H)]
 
     def pattern(self) -> list:
-        return [(self.c.nodes, self.c.nodes)]
+        return self.c.pattern()          # a vertex with another piece's edge: the barrier's blocks
 
     # -- parameters ---------------------------------------------------------------------------------
     def parameters(self) -> dict:
@@ -240,29 +247,25 @@ class ObjectFriction(Term):
 
     # -- lag and history ---------------------------------------------------------------------------
     def _normal_forces(self, y: np.ndarray) -> np.ndarray:
-        """N_i: the barrier's force on vertex i from the collisions in which i is the vertex (against
-        an edge; half of each vertex-vertex one), so that the two sides of a contact are not both counted."""
-        N = np.zeros(len(self.body_vertices))
+        """N_i: half the magnitude of the barrier's nodal force on vertex i. Each side of a contact carries
+        half, so a contact's strength mu N is counted once in all; and the nodal force is continuous in
+        the positions, where an attribution by collision type (the vertex of a vertex-edge pair) jumps
+        when two facing nodes swap roles, and the lag's fixed point then cycles."""
         cs = self.c.collisions(y)
         if len(cs) == 0:
-            return N
-        mesh, Y = self.c.mesh, np.asfortranarray(y)
-        for col in cs.ev_collisions:
-            g = np.asarray(self.c.barrier.gradient(col, col.dof(Y, mesh.edges, mesh.faces))).reshape(-1, 2)
-            N[col.vertex_id] += self.t * float(np.linalg.norm(g[0]))
-        for col in cs.vv_collisions:
-            ids = [i for i in col.vertex_ids(mesh.edges, mesh.faces) if i >= 0]
-            g = np.asarray(self.c.barrier.gradient(col, col.dof(Y, mesh.edges, mesh.faces))).reshape(-1, 2)
-            for i in ids:
-                N[i] += 0.5 * self.t * float(np.linalg.norm(g[0]))
-        return N
+            return np.zeros(len(self.body_vertices))
+        g = np.asarray(self.c.barrier.gradient(cs, self.c.mesh, fortran_array(y))).reshape(-1, 2)
+        return 0.5 * self.t * np.linalg.norm(g, axis=1)
 
     def set_factor(self, a: float) -> None:
         """A new attempt at a step starts from the committed states; a ramp from rest (u = 0) from none."""
         if self.active:
             if not np.any(self.u_fn.x.array):
                 self.edge[:], self.N[:], self.run[:], self.sliding[:] = -1, 0.0, 0.0, False
+                self._N_step = self.N.copy()
+            self.N = self._N_step.copy()          # a failed attempt's lagged N is forgotten
             self.trial = self.sliding.copy()
+            self._relax, self._lag_change = 1.0, None
             self._y0 = self.c.positions(self.u_fn.x.array)
             self._anchor_new(self._y0)
             self.fresh = self.edge >= 0
@@ -274,8 +277,20 @@ class ObjectFriction(Term):
         y = self.c.positions(u)
         N = self._normal_forces(y)
         scale = float(N.max()) if len(N) else 0.0
-        changed = bool(np.abs(N - self.N).max() > 1e-7 * scale) if len(N) else False
-        changed = changed or bool(self.fresh.any())
+        change = float(np.abs(N - self.N).max()) if len(N) else 0.0
+        changed = change > 1e-7 * scale or bool(self.fresh.any())
+        if not self.fresh.any():
+            # the lag map can cycle (two nodes passing load back and forth) or crawl: Aitken's relaxation
+            # N <- N + w (N_measured - N), w from the last two rounds (same fixed point; a 2-cycle gets
+            # w = 1/2 and stops, a slow monotone approach is sped up)
+            d = N - self.N
+            if self._lag_change is not None and len(d):
+                dd = d - self._lag_change
+                den = float(dd @ dd)
+                if den > 0.0:
+                    self._relax = float(np.clip(-self._relax * float(self._lag_change @ dd) / den, 1 / 16, 2.0))
+            self._lag_change = d
+            N = np.maximum(self.N + self._relax * d, 0.0)
         self.N, self.fresh = N, np.zeros_like(self.fresh)
         new = (N > 0) & (self.edge < 0)              # came into contact during the solve: stuck where they are
         if new.any():
@@ -332,8 +347,23 @@ class ObjectFriction(Term):
         self._y0 = y
         self.trial = self.sliding.copy()
         self.fresh = self.edge >= 0
+        self._N_step = self.N.copy()
 
     # -- read-out ------------------------------------------------------------------------------------
+    def vertex_forces(self, u: np.ndarray) -> np.ndarray:
+        """The friction force on every boundary vertex (n, 2), N: -f T on an anchored vertex, +f T
+        shared between the ends of its anchor edge."""
+        out = np.zeros((len(self.N), 2))
+        if not self.active:
+            return out
+        on, f = self._force(u)
+        ft = f[:, None] * self.T[on]
+        e, s = self.obj_edges[self.edge[on]], self.s[on][:, None]
+        np.add.at(out, self.body_vertices[on], -ft)
+        np.add.at(out, e[:, 0], (1 - s) * ft)
+        np.add.at(out, e[:, 1], s * ft)
+        return out
+
     def _measure(self, u: np.ndarray) -> dict:
         """Per pair of pieces rubbing: the friction force on the first (N) and the share of the normal
         force carried by vertices that did not slip in this step (at a converged state, before the

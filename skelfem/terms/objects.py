@@ -172,6 +172,34 @@ class PieceContact(SelfContact):
         self.label = label
         self.mesh.can_collide = ipctk.make_vertex_patches_filter(label)
 
+    def pattern(self) -> list:
+        """Node blocks the Hessian may fill: each piece's boundary nodes with every other piece's (the
+        barrier only acts between different pieces), and each object's boundary nodes with each other
+        (an edge's two ends). Not the whole boundary x boundary block: the body's boundary nodes never
+        couple with each other here, and a dense block over them makes every factorisation dense."""
+        out = []
+        for k in range(len(self.pieces)):
+            mine = self.label == k
+            out.append((self.nodes[mine], self.nodes[~mine]))
+            if k:
+                out.append((self.nodes[mine], self.nodes[mine]))
+        return out
+
+    def nodal_forces(self, model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(positions (n, 2), barrier forces (n, 2) N, friction forces (n, 2) N) on every boundary node
+        (rows as self.nodes; self.label tells the piece), for pictures of the contact forces."""
+        u = model.u.x.array
+        y = self.positions(u)
+        c = self.collisions(y)
+        normal = np.zeros_like(y)
+        if len(c):
+            normal = -self.t * np.asarray(self.barrier.gradient(c, self.mesh, fortran_array(y))).reshape(-1, 2)
+        friction = np.zeros_like(y)
+        for term in model.terms_in("contacts"):
+            if term is not self and hasattr(term, "vertex_forces"):
+                friction += term.vertex_forces(u)
+        return y, normal, friction
+
     def min_distance(self, u: np.ndarray) -> float:
         """Smallest distance between different pieces, mm (inf if none within the boundary's extent)."""
         y = self.positions(u)

@@ -10,7 +10,8 @@ from ..io.files import atomic_write
 from ..io.xdmf import gathered_snapshot
 
 
-REGION_COLORS = {"body": "#f4b6a6", "bone": "#e8e4d8"}
+REGION_COLORS = {"body": "#f4b6a6", "bone": "#e8e4d8", "object": "#b9d3ee"}
+FORCE_COLORS = {"normal": "#c0392b", "friction": "#1e8449"}
 CABLE_COLORS = {"tendon": "#1f5fbf", "ligament": "#d9822b"}
 
 
@@ -33,6 +34,9 @@ def plot_deformed(path: Path, state, title: str = "", ax=None, show_rest: bool =
     regions = snap.regions
     body_tag = snap.body_tag
     colors = np.where(regions == body_tag, REGION_COLORS["body"], REGION_COLORS["bone"])
+    object_tags = {tag for name, tag in (getattr(snap, "tags", None) or {}).items() if name.startswith("object:")}
+    if object_tags:
+        colors = np.where(np.isin(regions, list(object_tags)), REGION_COLORS["object"], colors)
     ax.add_collection(PolyCollection(y[tri], facecolors=colors, edgecolors="#7a6a66",
                                      linewidths=0.15))
     if show_rest:
@@ -59,6 +63,8 @@ def plot_deformed(path: Path, state, title: str = "", ax=None, show_rest: bool =
         ax.plot(pos[:, 0], pos[:, 1], "o", color="#222222", ms=4, zorder=4)
         for name, p in snap.markers.items():
             ax.annotate(name, p, textcoords="offset points", xytext=(5, 5), fontsize=8)
+    draw_objects(ax, getattr(snap, "objects", []), show_rest=show_rest,
+                 rest={o.name: o.outline for o in design.objects})
     allpts = np.vstack([y, x]) if show_rest else y
     lo, hi = allpts.min(axis=0), allpts.max(axis=0)
     pad = 0.06 * (hi - lo).max()
@@ -74,6 +80,39 @@ def plot_deformed(path: Path, state, title: str = "", ax=None, show_rest: bool =
     if own:
         fig.tight_layout()
         atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
+
+
+def draw_objects(ax, objects: list, show_rest: bool = True, rest: dict | None = None,
+                 arrow_length: float | None = None) -> None:
+    """Free objects (Snapshot.objects): each outline moved by its rigid motion, its rest outline dashed,
+    and the contact forces on it as arrows at the contact nodes (barrier force red, friction green),
+    every arrow on one scale (the largest nodal force is arrow_length mm long, default a fifth of the
+    largest object's size)."""
+    if not objects:
+        return
+    forces = [np.linalg.norm(o[k], axis=1) for o in objects if "points" in o for k in ("normal", "friction")
+              if len(o[k])]
+    fmax = max((float(f.max()) for f in forces), default=0.0)
+    size = max(float(np.linalg.norm(np.ptp(o["outline"], axis=0))) for o in objects)
+    scale = (arrow_length or 0.2 * size) / fmax if fmax > 0 else 0.0
+    for o in objects:
+        closed = np.vstack([o["outline"], o["outline"][:1]])
+        ax.plot(closed[:, 0], closed[:, 1], color="#1f4e79", lw=1.4, zorder=5)
+        if show_rest and rest and o["name"] in rest:
+            loop = np.asarray(rest[o["name"]], float)
+            loop = np.vstack([loop, loop[:1]])
+            ax.plot(loop[:, 0], loop[:, 1], color="#1f4e79", lw=0.7, ls="--", zorder=1)
+        ax.annotate(o["name"], o["outline"].mean(axis=0), ha="center", va="center", fontsize=8, color="#1f4e79")
+        if scale <= 0 or "points" not in o:
+            continue
+        for key, label in (("normal", "contact (normal) force"), ("friction", "friction force")):
+            f = o[key]
+            keep = np.linalg.norm(f, axis=1) > 1e-3 * fmax
+            if keep.any():
+                p = o["points"][keep]
+                ax.quiver(p[:, 0], p[:, 1], scale * f[keep, 0], scale * f[keep, 1], angles="xy",
+                          scale_units="xy", scale=1.0, color=FORCE_COLORS[key], width=0.004, zorder=6,
+                          label=f"{label} on {o['name']}")
 
 
 def plot_deformed_3d(path: Path, state, title: str = "", window_size=(900, 900),
