@@ -4,16 +4,14 @@ The public surface is ``__all__``; everything else is internal and may change.
 Importing skelfem changes no global state (no signal handlers, PETSc options,
 matplotlib backend or environment variable): the command line
 (``skelfem.cli``) does that for itself. Names that need DOLFINx or PETSc are
-imported on first use::
+imported on first use (nothing at all is imported by ``import skelfem`` itself, so the
+command line installs its signal handlers at once)::
 
     from skelfem import Session
     with Session("geometry/finger.toml") as s:
         r = s.solve()
         print(r.marker("tip"), r.tension("flexor"))
 """
-from .design import Design, DesignError, load_design, parse_design
-from .result import Result, Status
-
 __version__ = "0.1.0"
 
 __all__ = [
@@ -27,6 +25,8 @@ __all__ = [
 ]
 
 _LAZY = {
+    "Design": "design", "DesignError": "design", "load_design": "design", "parse_design": "design",
+    "Result": "result", "Status": "result",
     "Session": "session", "Linearization": "analysis.sensitivity", "SoftIK": "analysis.control",
     "IKResult": "analysis.control", "track": "analysis.control", "line_targets": "analysis.control",
     "optimize_schedules": "analysis.optimize", "OptimizeResult": "analysis.optimize",

@@ -157,6 +157,7 @@ def main(argv=None) -> int:
 
     interrupts.install()
     _stdio()
+    in_process = argv is not None             # called by a test: Python's handlers again at the end
     argv = sys.argv[1:] if argv is None else list(argv)
     _printable_argv()
     ctl = None
@@ -175,7 +176,7 @@ def main(argv=None) -> int:
     finally:
         if ctl is not None:
             ctl.Free()
-        if argv is None:
+        if not in_process:
             interrupts.ignore()               # the command is over: its status stands through the exit
         else:
             interrupts.uninstall()            # called in process (tests): Python's defaults again
