@@ -421,9 +421,56 @@ def dynamics_checks(_: dict) -> Table:
     return Table(["check", "result"], rows, "", [path])
 
 
+def grasp(_: dict) -> Table:
+    d, path = load_json("grasp/grasp.json", "python studies/grasp.py")
+    mus = [r["mu"] for r in d["results"]]
+    by_density: dict = {}
+    for r in d["results"]:
+        for w in r["weighings"]:
+            by_density.setdefault(w["density"], {})[r["mu"]] = w
+    rows = []
+    for density, cells in sorted(by_density.items()):
+        known = next((w for w in cells.values() if "weight" in w), None)
+        if known is None:
+            continue
+        row = [num(known["weight"]), num(known["mu_min"])]
+        for mu in mus:
+            w = cells.get(mu)
+            if w is None or w.get("status") == "skipped":
+                row.append("(not tried)")
+            else:
+                row.append(f"{'held' if w['held'] else 'lost'} ({w['newton_iterations']} its)")
+        rows.append(row)
+    return Table(["W (N)", "mu_min = W / sum N"] + [f"mu = {short(m)}" for m in mus], rows, "", [path])
+
+
+def grasp_bench(_: dict) -> Table:
+    d, path = load_json("grasp_bench/grasp_bench.json", "python studies/grasp_bench.py")
+    cells: dict = {}
+    order: list = []
+    before: dict = {}                         # the stage a weighing follows (per case and mu)
+    for r in d["rows"]:
+        stage = r["stage"]
+        if stage == "weigh":
+            stage = f"weigh after {before.get((r['case'], r['mu']), 'closing')}"
+        else:
+            before[(r["case"], r["mu"])] = stage
+        key = (r["case"], stage)
+        if key not in cells:
+            cells[key] = {}
+            order.append(key)
+        text = f"{r['newton_iterations']} its, {secs(r['time'])}"
+        if r["status"] != "converged":
+            text = f"{r['status']} ({text})"
+        cells[key]["with" if r["mu"] > 0 else "without"] = text
+    rows = [[f"{case}: {stage}", c.get("with", "–"), c.get("without", "–")] for (case, stage), c in
+            ((k, cells[k]) for k in order)]
+    return Table(["solve", "with friction", "without friction"], rows, "", [path])
+
+
 TABLES = {f.__name__: f for f in (bench, mpi_speed, editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
                                   tol_check, tol_check_adaptive, scatter, adaptive_reach, adaptive_tol_runs,
-                                  stability, stability_slender, peer, pull_test, dynamics_checks)}
+                                  stability, stability_slender, peer, pull_test, dynamics_checks, grasp, grasp_bench)}
 
 
 # -- docutils -----------------------------------------------------------------------------------------------
