@@ -95,6 +95,24 @@ def assert_one_error(stderr: str, match: str | None = None) -> str:
 
 
 # -- raw sockets against an editor (tests/test_hardening_round2.py) -------------------------------------
+def request(ed, method, path, body=None, headers=None, raw=None, timeout=60):
+    """(status, parsed JSON or text) of one HTTP request to an Editor on 127.0.0.1."""
+    import http.client
+    import json
+    conn = http.client.HTTPConnection("127.0.0.1", ed.port, timeout=timeout)
+    h = {"Content-Type": "application/json"} if body is not None or raw is not None else {}
+    h.update(headers or {})
+    data = raw if raw is not None else (json.dumps(body).encode() if body is not None else None)
+    conn.request(method, path, body=data, headers=h)
+    r = conn.getresponse()
+    text = r.read()
+    conn.close()
+    try:
+        return r.status, json.loads(text)
+    except ValueError:
+        return r.status, text
+
+
 def ws_connect(port: int, timeout: float = 30.0):
     """A socket past the websocket handshake to the editor's /api/live."""
     import base64

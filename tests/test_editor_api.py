@@ -19,6 +19,7 @@ import tomllib
 
 import numpy as np
 import pytest
+from _hardening import request
 from conftest import GEOMETRY, MPI_ENV, ROOT
 
 from skelfem.editor import engine as engine_mod
@@ -31,20 +32,6 @@ def design():
     return tomllib.loads((GEOMETRY / "finger.toml").read_text())
 
 
-def request(ed, method, path, body=None, headers=None, raw=None):
-    """(status, parsed JSON or text) of one request to the editor."""
-    conn = http.client.HTTPConnection("127.0.0.1", ed.port, timeout=60)
-    h = {"Content-Type": "application/json"} if body is not None or raw is not None else {}
-    h.update(headers or {})
-    data = raw if raw is not None else (json.dumps(body).encode() if body is not None else None)
-    conn.request(method, path, body=data, headers=h)
-    r = conn.getresponse()
-    text = r.read()
-    conn.close()
-    try:
-        return r.status, json.loads(text)
-    except ValueError:
-        return r.status, text
 
 
 def solve(ed, d):

@@ -20,7 +20,7 @@ import tomllib
 import pytest
 from conftest import GEOMETRY, MPI_ENV, ROOT
 
-from _hardening import (assert_one_error, listing, strip2d, toml_dumps, ws_connect, ws_recv, ws_send)
+from _hardening import (request, assert_one_error, listing, strip2d, toml_dumps, ws_connect, ws_recv, ws_send)
 from skelfem.cli.main import main
 
 FINGER = GEOMETRY / "finger.toml"
@@ -121,19 +121,6 @@ def ed(tmp_path_factory):
     e.stop()
 
 
-def request(ed, method, path, body=None, raw=None, timeout=60):
-    import http.client
-    conn = http.client.HTTPConnection("127.0.0.1", ed.port, timeout=timeout)
-    h = {"Content-Type": "application/json"} if body is not None or raw is not None else {}
-    data = raw if raw is not None else (json.dumps(body).encode() if body is not None else None)
-    conn.request(method, path, body=data, headers=h)
-    r = conn.getresponse()
-    text = r.read()
-    conn.close()
-    try:
-        return r.status, json.loads(text)
-    except ValueError:
-        return r.status, text
 
 
 @pytest.mark.parametrize("size,degree", [(0.05, 1), (0.1, 1), (0.2, 1), (0.5, 2)])

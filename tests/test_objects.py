@@ -104,7 +104,7 @@ def test_object_on_a_ground_sticks_iff_tan_theta_below_mu(theta, held):
         assert r.status == "no equilibrium: object box is not held"
 
 
-def _pinch(mu):
+def _pinch_design(mu):
     """An inverted U pinned at its top; its prongs, pinned on their outer faces, move in by 0.45 mm and
     press two bumps (8 mm tall) on a box 20 mm tall (0.5 mm away at rest), its corners clear of the body."""
     d = _base([_box(7.5, 2, 32.5, 22)], contact={"dhat": 0.2, "friction": mu})
@@ -118,6 +118,11 @@ def _pinch(mu):
     d["mesh"]["size"] = 1.5
     d["gravity"] = {"acceleration": [0.0, 0.0]}               # squeezed first, then weighed
     d["solver"] = {"steps": 4, "max_iterations": 300}
+    return d
+
+
+def _pinch(mu):
+    d = _pinch_design(mu)
     with Session(d) as s:
         assert s.solve().converged
         s.set({"gravity.acceleration": [0.0, -G]})
@@ -219,17 +224,7 @@ def test_a_failed_warm_re_solve_cuts_the_change_from_the_last_equilibrium():
     last equilibrium and its friction history (the grip is kept), never ramped again from rest: the box
     ends where one warm step puts it."""
     from skelfem.fem.newton import NewtonSolver
-    d = _base([_box(7.5, 2, 32.5, 22)], contact={"dhat": 0.2, "friction": 0.6})
-    d["materials"]["soft"]["E"] = 0.01
-    d["materials"]["pla"]["density"] = 500.0
-    d["body"] = {"outline": [[0, 0], [6, 0], [6, 8], [7, 8], [7, 16], [6, 16], [6, 30], [34, 30], [34, 16],
-                             [33, 16], [33, 8], [34, 8], [34, 0], [40, 0], [40, 36], [0, 36]], "material": "soft"}
-    d["pins"] = [{"name": "top", "region": [[-1, 35.99], [41, 37]], "kind": "fixed"},
-                 {"name": "left", "region": [[-1, -1], [0.01, 30]], "kind": "fixed", "move": [0.45, 0]},
-                 {"name": "right", "region": [[39.99, -1], [41, 30]], "kind": "fixed", "move": [-0.45, 0]}]
-    d["mesh"]["size"] = 1.5
-    d["gravity"] = {"acceleration": [0.0, 0.0]}
-    d["solver"] = {"steps": 4, "max_iterations": 300}
+    d = _pinch_design(0.6)
     out = {}
     for fail_first in (False, True):
         with Session(d) as s:
