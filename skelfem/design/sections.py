@@ -11,6 +11,9 @@ from .spec import Body, CableSpec, ContactSpec, DesignError, DynamicsSpec, ENERG
 from .table import Table, check_bounded, is_finite, is_number, plain_name, positive, show_value
 
 
+MAX_CABLE_FRICTION = 10.0     # mu; any bend with mu tan(theta / 2) >= 1 locks long before
+
+
 def read_cables(top: Table, dim: int, region, tol) -> tuple:
     cables = []
     for t in named_entries(top, "cables"):
@@ -49,8 +52,11 @@ def read_cables(top: Table, dim: int, region, tol) -> tuple:
             if kind != "tendon":
                 t.fail("schedule", "ligaments are passive and never actuated (only tendons take a schedule)")
             schedule = _schedule(t, t.take("schedule", "list"), float(seg.sum()))
+        friction = positive(t, "friction", t.take("friction", "number", 0.0), strict=False)
+        if friction > MAX_CABLE_FRICTION:
+            t.fail("friction", f"must be at most {MAX_CABLE_FRICTION:g} (a friction coefficient), got {friction:g}")
         t.done()
-        cables.append(CableSpec(name, kind, path, k, contraction, pretension, anchor, schedule))
+        cables.append(CableSpec(name, kind, path, k, contraction, pretension, anchor, schedule, friction))
     return tuple(cables)
 
 

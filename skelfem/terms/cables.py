@@ -31,241 +31,20 @@ its curvature block, of rank gdim - 1, joins the low-rank parts too.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 from mpi4py import MPI
 
-from ..mesh.points import DofGather, cell_sizes, global_interpolation, locate_cells, owner_ranks
+from . import cable_slip
+from ..mesh.points import DofGather
 from .base import Context, Term
+from .cable_route import (MAX_PER_RADIUS, PER_RADIUS, PIECES, anchor_samples, anchor_weights,  # noqa: F401
+                          anchored_interpolation, anchors, default_anchor_radius, differences,
+                          lattice_density, via_points)
 
-_EPS = 1e-10
-
-
-def _mesh_facets(mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(vertex coordinates of every facet (n_facets, tdim, gdim), their bounding boxes' lower and
-    upper corners), computed once per mesh."""
-    facets = getattr(mesh, "_skelfem_facets", None)
-    if facets is None:
-        x = _facet_vertices(mesh)
-        facets = mesh._skelfem_facets = (x, x.min(axis=1), x.max(axis=1))
-    return facets
-
-
-def _facet_vertices(mesh) -> np.ndarray:
-    tdim = mesh.topology.dim
-    mesh.topology.create_connectivity(tdim - 1, 0)
-    f2v = mesh.topology.connectivity(tdim - 1, 0).array.reshape(-1, tdim)
-    # geometry nodes coincide with topology vertices for affine meshes
-    from dolfinx.cpp.mesh import entities_to_geometry
-    nodes = entities_to_geometry(mesh._mesh, tdim - 1, np.arange(len(f2v), dtype=np.int32), False)
-    return mesh.geometry.x[nodes][:, :, :mesh.geometry.dim]
-
-
-def _crossings_2d(p, q, facets) -> np.ndarray:
-    """Parameters t in (0, 1) where segment p->q crosses edges a->b."""
-    a, b = facets[:, 0], facets[:, 1]
-    r, e = q - p, b - a
-    den = r[0] * e[:, 1] - r[1] * e[:, 0]
-    ok = np.abs(den) > 1e-14 * np.linalg.norm(r) * np.linalg.norm(e, axis=1)
-    ap = a - p
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (ap[:, 0] * e[:, 1] - ap[:, 1] * e[:, 0]) / den
-        s = (ap[:, 0] * r[1] - ap[:, 1] * r[0]) / den
-    hit = ok & (t > -_EPS) & (t < 1 + _EPS) & (s > -_EPS) & (s < 1 + _EPS)
-    return t[hit]
-
-
-def _crossings_3d(p, q, facets) -> np.ndarray:
-    """Parameters t in (0, 1) where segment p->q crosses triangles (Moller-Trumbore)."""
-    v0, e1, e2 = facets[:, 0], facets[:, 1] - facets[:, 0], facets[:, 2] - facets[:, 0]
-    r = q - p
-    h = np.cross(r, e2)
-    det = np.einsum("ij,ij->i", e1, h)
-    ok = np.abs(det) > 1e-14 * np.linalg.norm(r) * np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / det
-        sv = p - v0
-        a = inv * np.einsum("ij,ij->i", sv, h)
-        qv = np.cross(sv, e1)
-        b = inv * (qv @ r)
-        t = inv * np.einsum("ij,ij->i", e2, qv)
-        hit = ok & (a > -_EPS) & (b > -_EPS) & (a + b < 1 + _EPS) & (t > -_EPS) & (t < 1 + _EPS)
-    return t[hit]
-
-
-def via_points(mesh, path: np.ndarray, pieces: int = 1) -> np.ndarray:
-    """Sketch vertices plus every crossing with a mesh facet, in order along the path, and the
-    piece inside each cell cut into `pieces` equal parts.
-
-    Each rank cuts the sketch with its own facets; the cuts are gathered, so
-    every rank gets the same via points as a serial run. With P1 a straight
-    piece of the sketch stays straight inside its cell (the map is affine);
-    with P2 it bends into a parabola, and a chord across the whole cell cuts
-    its corner by kappa s^2 / 8 (kappa its curvature, s its length): the
-    cable's length and its lever arm about a joint are then off by an amount
-    that changes from mesh to mesh (0.015 mm at the tip of a tapered finger,
-    0.04 mm on finger.toml, P2 at h = 1).
-    `pieces` chords per cell cut that by pieces^2 (``PIECES``).
-    """
-    path = np.asarray(path, dtype=float)
-    facets, lo_f, hi_f = _mesh_facets(mesh)
-    crossings = _crossings_2d if mesh.geometry.dim == 2 else _crossings_3d
-    cuts = []
-    for p, q in zip(path[:-1], path[1:]):  # loop over sketch segments, not DOFs
-        lo, hi = np.minimum(p, q), np.maximum(p, q)
-        tol = 1e-9 * (1.0 + np.abs(hi).max())
-        near = np.all((hi_f >= lo - tol) & (lo_f <= hi + tol), axis=1)
-        cuts.append(np.clip(crossings(p, q, facets[near]), 0.0, 1.0))
-    if mesh.comm.size > 1:
-        cuts = [np.concatenate(mesh.comm.allgather(t)) for t in cuts]
-    out = []
-    for p, q, t in zip(path[:-1], path[1:], cuts):
-        t = np.unique(np.concatenate([[0.0], t]))
-        seg_len = np.linalg.norm(q - p)
-        keep = np.concatenate([[True], np.diff(t) * seg_len > 1e-9 * max(seg_len, 1.0)])
-        t = _subdivide(np.append(t[keep], 1.0), pieces)[:-1]
-        out.append(p + t[:, None] * (q - p))
-    points = np.vstack(out + [path[-1:]])
-    gap = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    return points[np.concatenate([[True], gap > 1e-12])]
-
-
-PIECES = {1: 1, 2: 4}          # chords per cell along a cable, by the displacement's degree
-
-
-def _subdivide(t: np.ndarray, pieces: int) -> np.ndarray:
-    """The increasing parameters t with every interval cut into `pieces` equal parts."""
-    if pieces <= 1 or len(t) < 2:
-        return t
-    f = np.arange(pieces) / pieces
-    inner = (t[:-1, None] + f * np.diff(t)[:, None]).ravel()
-    return np.append(inner, t[-1])
-
-
-PER_RADIUS = {2: 8, 3: 6}       # lattice points per anchor radius, at least ...
-MAX_PER_RADIUS = {2: 32, 3: 8}  # ... and at most ((2n + 1)^dim lattice points)
-
-
-def lattice_density(mesh, center: np.ndarray, radius: float) -> int:
-    """Lattice points per radius for an anchor: two per size of the smallest cell near the disk (ball).
-
-    The lattice approximates the disk's weighted mean displacement (a bounded
-    functional of u: a finite answer) only while every cell the disk covers
-    holds several lattice points; with a lattice fixed in mm, a
-    mesh finer than its spacing sees each point as a point force again, and
-    its 2D displacement is log-singular. Clipped to [PER_RADIUS, MAX_PER_RADIUS].
-    Collective under MPI (every rank gets the same number).
-    """
-    dim = mesh.topology.dim
-    n_owned = mesh.topology.index_map(dim).size_local
-    x = mesh.geometry.x[:, :mesh.geometry.dim]
-    nodes = mesh.geometry.dofmap.array.reshape(-1, dim + 1)[:n_owned]
-    h = cell_sizes(mesh)[:n_owned]
-    mid = x[nodes].mean(axis=1) if n_owned else np.zeros((0, dim))
-    near = np.linalg.norm(mid - center, axis=1) <= radius + h        # the cells the disk touches
-    h_min = mesh.comm.allreduce(float(h[near].min()) if near.any() else np.inf, op=MPI.MIN)
-    if not np.isfinite(h_min):
-        return PER_RADIUS[dim]
-    return int(np.clip(math.ceil(2.0 * radius / h_min), PER_RADIUS[dim], MAX_PER_RADIUS[dim]))
-
-
-def anchor_samples(center: np.ndarray, radius: float, per_radius: int | None = None) -> np.ndarray:
-    """Points of a square (2D) or cubic (3D) lattice inside the disk/ball, spacing radius / per_radius
-    (default PER_RADIUS).
-
-    With the weights of `anchor_weights` the lattice spreads the anchor's force
-    over its area (volume): a distributed load instead of a point force,
-    whose 2D displacement is log-singular.
-    """
-    gdim = len(center)
-    per_radius = per_radius or PER_RADIUS[gdim]
-    axis = np.arange(-per_radius, per_radius + 1) * (radius / per_radius)
-    grid = np.stack(np.meshgrid(*([axis] * gdim), indexing="ij"), axis=-1).reshape(-1, gdim)
-    return center + grid[np.linalg.norm(grid, axis=1) <= radius * (1 + 1e-12)]
-
-
-def anchor_weights(points: np.ndarray, center: np.ndarray, radius: float) -> np.ndarray:
-    """w = (1 - rho^2)^2, rho = |x - c| / r: the anchor's load density, zero with its slope on the rim.
-
-    A smooth density makes the lattice an accurate quadrature of the disk's
-    weighted mean: on the thumb (0.72 mm anchor, P2 at h = 0.5) 8 points per
-    radius are 9e-5 mm from 32, where equal weights (a density that jumps at
-    the rim) were 8e-3 mm off.
-    """
-    rho2 = np.sum((points - center) ** 2, axis=1) / radius ** 2
-    return np.clip(1.0 - rho2, 0.0, None) ** 2
-
-
-def _anchored_interpolation(V, X: np.ndarray, anchors: dict):
-    """(X, S, DofGather, owner of each via point) for via points X of which {index: radius} (ends,
-    bends) act on a disk (ball): each anchored point moves to the weighted centroid of its disk's
-    lattice points inside the mesh (weights w_k of `anchor_weights`, summing to 1), its row of S
-    becomes their weighted mean, and the via points inside its disk go.
-
-    S_anchored = A S_all over the via points and every anchor's lattice
-    points inside the mesh (A: identity rows, and rows of the weights).
-    The anchored end is then a material point, x = sum w_k (X_k + u_k), that moves
-    with the body. Had it kept the sketch's end X_e, x = X_e + sum w_k u_k would carry
-    the offset X_e - sum w_k X_k (not zero when the body's edge cuts the disk) unrotated,
-    and the cable's length would change under a rigid rotation. Via points
-    inside the disk would make the cable turn back to its centroid.
-    """
-    mesh = V.mesh
-    anchored = {int(i): r for i, r in anchors.items() if r > 0.0}
-    if not anchored:
-        return (X, *global_interpolation(V, X))
-    keep = np.ones(len(X), dtype=bool)
-    for i, r in anchored.items():
-        keep &= np.linalg.norm(X - X[i], axis=1) >= r
-    keep[list(anchored)] = True
-    renumber = np.cumsum(keep) - 1
-    anchored = {int(renumber[i]): r for i, r in anchored.items()}
-    X = X[keep]
-    gdim = mesh.geometry.dim
-    points, rows, cols, vals = [X], [], [], []
-    X = X.copy()
-    n = len(X)
-    for i in range(n):
-        if i not in anchored:
-            rows.append(i), cols.append(i), vals.append(1.0)
-    offset = n
-    for i, r in anchored.items():
-        samples = anchor_samples(X[i], r, lattice_density(mesh, X[i], r))
-        w = anchor_weights(samples, X[i], r)
-        samples, w = samples[w > 0.0], w[w > 0.0]                # the rim carries nothing
-        inside = owner_ranks(mesh, samples)[0] < mesh.comm.size
-        samples, w = samples[inside], w[inside] / w[inside].sum()
-        X[i] = w @ samples
-        points.append(samples)
-        m = len(samples)
-        rows += [i] * m
-        cols += list(range(offset, offset + m))
-        vals += list(w)
-        offset += m
-    c = np.arange(gdim)                                          # A (x) I_gdim, built directly
-    rows = (np.asarray(rows)[:, None] * gdim + c).ravel()
-    cols = (np.asarray(cols)[:, None] * gdim + c).ravel()
-    A = sp.csr_matrix((np.repeat(vals, gdim), (rows, cols)), shape=(n * gdim, offset * gdim))
-    S_all, gather_all, owner = global_interpolation(V, np.vstack(points))
-    S = (A @ S_all).tocsc()
-    used = np.flatnonzero(np.diff(S.indptr) > 0)                # DOFs some via point still touches
-    gather = DofGather(V, gather_all.dofs[used])
-    return X, S[:, used].tocsr(), gather, owner[:n]
-
-
-def _differences(S: sp.csr_matrix, gdim: int) -> sp.csr_matrix:
-    """B = D S: row block i (segment i) is S's row block i + 1 (via point i + 1) minus block i."""
-    C = S.tocoo()
-    n = S.shape[0] - gdim
-    later, earlier = C.row >= gdim, C.row < n
-    rows = np.concatenate([C.row[later] - gdim, C.row[earlier]])
-    B = sp.csr_matrix((np.concatenate([C.data[later], -C.data[earlier]]),
-                       (rows, np.concatenate([C.col[later], C.col[earlier]]))), shape=(n, S.shape[1]))
-    B.eliminate_zeros()
-    return B
+ANDERSON_DEPTH = 5     # (F, G(F)) pairs the friction limits' fixed point mixes
 
 
 WIDE = 256    # DOFs: a segment coupling more (an anchor disk's) has its curvature as rank-one parts
@@ -306,9 +85,88 @@ class Cable:
     gather: DofGather        # u (local array) -> u on `dofs`, on every rank
     contraction: float = 0.0
     pretension: float = 0.0
+    mu: float = 0.0          # Coulomb friction against its channel at every via point (0: slides freely)
 
     def __post_init__(self):
         self.BT = self.B.T.tocsr()      # g = B^T t, every gradient evaluation
+        self.seg0 = np.linalg.norm(self.d0, axis=1)     # L0_i, the segments' lengths at rest
+        self.reset_slip()
+
+    # -- friction state (skelfem.terms.cable_slip) ---------------------------------------------------
+    def reset_slip(self) -> None:
+        """Back to rest: no material has slipped through any via point, no friction limit yet."""
+        m = len(self.d0)
+        self.s_hat = np.zeros(m + 1)            # material through each via point since rest (anchors)
+        self.F = np.zeros(max(m - 1, 0))        # lagged friction limits of the interior via points
+        self.slipping = np.zeros(max(m - 1, 0), dtype=bool)   # which slipped in the last accepted step
+        self._version, self._cache, self._mixing = 0, None, []
+
+    @property
+    def friction(self) -> bool:
+        return self.mu > 0.0
+
+    def compliances(self) -> np.ndarray:
+        """c_i = L0_i / (k L0): the cable's compliance 1/k shared out by rest length."""
+        return self.seg0 / (self.k * self.L0)
+
+    def _state(self, u: np.ndarray, L: float):
+        """(d, |d|, t, b, T) at u for rest length L with the lagged limits: b the stick stretches,
+        T the segment tensions (cached for the last u)."""
+        v = self.values(u)
+        key = (L, self.k, self.mu, self._version)
+        if self._cache is not None and self._cache[0] == key and np.array_equal(self._cache[1], v):
+            return self._cache[2]
+        d = self.d0 + (self.B @ v).reshape(self.d0.shape)
+        norm = np.linalg.norm(d, axis=1)
+        t = d / norm[:, None]
+        s = self.s_hat.copy()
+        s[0], s[-1] = self.L0 - L, 0.0                  # the actuator pulls s_0 out; the far end is tied
+        b = norm - (self.seg0 + s[1:] - s[:-1])
+        T = cable_slip.tensions(b, self.compliances(), self.F)
+        out = (d, norm, t, b, T)
+        self._cache = (key, v.copy(), out)
+        return out
+
+    def tensions(self, u: np.ndarray, L: float) -> np.ndarray:
+        """Every segment's tension, from the actuated end (uniform without friction), N."""
+        if not self.friction:
+            return np.full(len(self.d0), self.tension(u, L))
+        return self._state(u, L)[4].copy()
+
+    def relax_limits(self, u: np.ndarray, L: float, rtol: float) -> bool:
+        """Move the lagged friction limits towards F_j = mu tan(theta_j / 2)(T_{j-1} + T_j) at u; True if
+        they were off by more than rtol times the largest tension (a re-solve is needed).
+
+        The limits that hold at u with their own tensions, G(F) (cable_slip.coulomb_limits: the cable
+        alone at u's geometry), move the body, whose new state asks for other limits: the fixed point
+        F = G(F) of the whole solve is found by Anderson mixing of the last few (F, G(F)) of this step
+        (a soft body in series with the cable makes the plain iteration F <- G(F) converge slowly)."""
+        if not self.friction or len(self.F) == 0:
+            return False
+        _, _, t, b, _ = self._state(u, L)
+        G, T = cable_slip.coulomb_limits(b, self.compliances(), self.mu * cable_slip.bend_tangents(t), self.F)
+        scale = max(float(T.max()), 1e-300)
+        same = np.array_equal(np.isfinite(G), np.isfinite(self.F))
+        finite = np.isfinite(G) & np.isfinite(self.F)
+        if same and (not finite.any() or float(np.abs(G[finite] - self.F[finite]).max()) <= rtol * scale):
+            return False
+        if not same:
+            self._mixing = []
+        self._mixing = (self._mixing + [(self.F.copy(), G.copy())])[-ANDERSON_DEPTH:]
+        self.F = cable_slip.anderson(self._mixing) if same else G
+        self._version += 1
+        return True
+
+    def accept(self, u: np.ndarray, L: float) -> None:
+        """An accepted step: the material that slipped through a via point stays where it went (the
+        anchors move by the slips; a sticking via point keeps its material)."""
+        if not self.friction:
+            return
+        _, _, _, b, T = self._state(u, L)
+        lam = cable_slip.slips(b, self.compliances(), T, self.F)
+        self.s_hat[1:-1] += lam
+        self.slipping = np.abs(lam) > 1e-9 * self.L0
+        self._version, self._mixing = self._version + 1, []
 
     @classmethod
     def build(cls, V, spec, anchors: dict | None = None) -> "Cable":
@@ -323,13 +181,13 @@ class Cable:
             i = 0 if k == 0 else len(X) - 1 if k in (-1, len(path) - 1) else \
                 int(np.argmin(np.linalg.norm(X - path[k], axis=1)))
             at[i] = r
-        X, S, gather, owner = _anchored_interpolation(V, X, at)
+        X, S, gather, owner = anchored_interpolation(V, X, at)
         if np.any(owner == mesh.comm.size):
             raise ValueError(f"cable {spec.name!r} leaves the mesh")
         d0 = np.diff(X, axis=0)
         return cls(spec.name, spec.kind, float(spec.stiffness), X, gather.dofs,
-                   S, _differences(S, mesh.geometry.dim), d0, float(np.linalg.norm(d0, axis=1).sum()), gather,
-                   float(spec.contraction), float(spec.pretension))
+                   S, differences(S, mesh.geometry.dim), d0, float(np.linalg.norm(d0, axis=1).sum()), gather,
+                   float(spec.contraction), float(spec.pretension), float(getattr(spec, "friction", 0.0)))
 
     # -- state ---------------------------------------------------------------
     def rest_length(self, factor: float = 1.0) -> float:
@@ -353,10 +211,16 @@ class Cable:
         return float(np.linalg.norm(self.segments(u), axis=1).sum())
 
     def tension(self, u: np.ndarray, L: float) -> float:
+        """The tension at the actuated end (the first segment's), N."""
+        if self.friction:
+            return float(self._state(u, L)[4][0])
         return self.k * max(0.0, self.length(u) - L)
 
     # -- energy and derivatives -------------------------------------------------
     def energy(self, u: np.ndarray, L: float) -> float:
+        if self.friction:
+            _, _, _, b, T = self._state(u, L)
+            return cable_slip.value(b, self.compliances(), T)
         s = max(0.0, self.length(u) - L)
         return 0.5 * self.k * s * s
 
@@ -367,7 +231,10 @@ class Cable:
         return d, norm, t, self.BT @ t.ravel()
 
     def gradient(self, u: np.ndarray, L: float) -> np.ndarray:
-        """Gradient on self.dofs: k s g."""
+        """Gradient on self.dofs: k s g (with friction: sum_i T_i grad l_i)."""
+        if self.friction:
+            _, _, t, _, T = self._state(u, L)
+            return self.BT @ (T[:, None] * t).ravel()
         _, norm, _, g = self._t_and_g(u)
         s = max(0.0, norm.sum() - L)
         return self.k * s * g
@@ -413,61 +280,110 @@ class Cable:
             self._blocks = (groups, cat(rows), cat(cols), J, np.flatnonzero(width > WIDE))
         return self._blocks
 
+    def _weights(self, u: np.ndarray, L: float):
+        """(t, |d|, per-segment tension, per-segment axial stiffness, zones) for the Hessian:
+        W_i = T_i (I - t_i t_i^T) / |d_i| + a_i t_i t_i^T. Without friction T_i = k s and a_i = 0 (the
+        axial part k g g^T is one rank-one part); with friction a_i = 1 / c_i for a taut segment that is
+        a zone of its own (a sticking via point at both its ends), zones of several segments being
+        rank-one parts g_z g_z^T / C_z. None if the cable is slack."""
+        if not self.friction:
+            _, norm, t, _ = self._t_and_g(u)
+            s = norm.sum() - L
+            if s <= 0.0:
+                return None
+            return t, norm, np.full(len(norm), self.k * s), np.zeros(len(norm)), None
+        _, norm, t, _, T = self._state(u, L)
+        if not T.any():
+            return None
+        label, taut = cable_slip.zones(T, self.F)
+        size = np.bincount(label)
+        alone = (size[label] == 1) & taut[label]
+        axial = np.where(alone, 1.0 / self.compliances(), 0.0)
+        return t, norm, T, axial, (label, taut, size)
+
     def curvature(self, u: np.ndarray, L: float) -> sp.coo_matrix:
-        """Sparse part of the Hessian on self.dofs: k [s > 0] s B_i^T W_i B_i of the narrow segments
-        (COO, duplicates summed later)."""
-        d, norm, t, g = self._t_and_g(u)
-        s = norm.sum() - L
+        """Sparse part of the Hessian on self.dofs: B_i^T W_i B_i of the narrow segments, W_i from
+        :meth:`_weights` (COO, duplicates summed later)."""
         m = len(self.dofs)
-        if s <= 0.0:
+        w = self._weights(u, L)
+        if w is None:
             return sp.coo_matrix((m, m))
+        t, norm, T, axial, _ = w
         groups, rows, cols, _, _ = self._segment_blocks()
-        gdim = d.shape[1]
-        W = (np.eye(gdim)[None] - t[:, :, None] * t[:, None, :]) / norm[:, None, None]
+        gdim = t.shape[1]
+        tt = t[:, :, None] * t[:, None, :]
+        W = (T / norm)[:, None, None] * (np.eye(gdim)[None] - tt) + axial[:, None, None] * tt
         data = [np.matmul(BdT, np.matmul(W[members], Bd)).ravel() for members, Bd, BdT in groups]
-        data = (self.k * s) * np.concatenate(data) if data else np.zeros(0)
+        data = np.concatenate(data) if data else np.zeros(0)
         return sp.coo_matrix((data, (rows, cols)), shape=(m, m))
 
     def wide_parts(self, u: np.ndarray, L: float) -> list[tuple[float, np.ndarray]]:
-        """The wide segments' curvature k s B_i^T W_i B_i as rank-one parts [(c, g)] on self.dofs.
+        """The wide segments' curvature T_i B_i^T W_i B_i as rank-one parts [(c, g)] on self.dofs.
 
         W_i = (I - t_i t_i^T) / |d_i| = sum_j n_j n_j^T / |d_i| over an orthonormal
         basis n_j of the plane normal to t_i (one vector in 2D, two in 3D), so
-        the block is sum_j (k s / |d_i|) (B_i^T n_j)(B_i^T n_j)^T: gdim - 1 rank-one
+        the block is sum_j (T_i / |d_i|) (B_i^T n_j)(B_i^T n_j)^T: gdim - 1 rank-one
         parts per wide segment instead of a dense block over its disk's DOFs
-        in the Newton matrix (whose factorisation fills in with it).
+        in the Newton matrix (whose factorisation fills in with it); with
+        friction a wide segment that is a zone of its own adds (1 / c_i) t_i t_i^T.
         """
-        _, norm, t, _ = self._t_and_g(u)
-        return self._wide(t, norm, norm.sum() - L)
+        w = self._weights(u, L)
+        return [] if w is None else self._wide(*w[:4])
 
-    def _wide(self, t: np.ndarray, norm: np.ndarray, s: float) -> list[tuple[float, np.ndarray]]:
+    def _wide(self, t: np.ndarray, norm: np.ndarray, T: np.ndarray, axial: np.ndarray) -> list:
         wide = self._segment_blocks()[4]
-        if s <= 0.0 or not len(wide):
-            return []
         gdim = t.shape[1]
         out = []
         for i in wide:                                   # a few per cable: its anchored ends and bends
             Bi = self.B[i * gdim:(i + 1) * gdim]
-            for n in _normals(t[i]):
-                out.append((self.k * s / norm[i], np.asarray(Bi.T @ n).ravel()))
+            if T[i] > 0.0:
+                for n in _normals(t[i]):
+                    out.append((T[i] / norm[i], np.asarray(Bi.T @ n).ravel()))
+            if axial[i] > 0.0:
+                out.append((axial[i], np.asarray(Bi.T @ t[i]).ravel()))
         return out
 
     def low_rank_parts(self, u: np.ndarray, L: float) -> list[tuple[float, np.ndarray]]:
-        """[(c, g)] on self.dofs: k g g^T (g = B^T t) and the wide segments' curvature, when taut."""
-        _, norm, t, g = self._t_and_g(u)
-        s = norm.sum() - L
-        return [(self.k, g)] + self._wide(t, norm, s) if s > 0.0 else []
+        """[(c, g)] on self.dofs: k g g^T (g = B^T t) when taut, or with friction g_z g_z^T / C_z per taut
+        zone of several segments (g_z = sum_{i in z} B_i^T t_i, C_z = sum_{i in z} c_i); and the wide
+        segments' curvature."""
+        w = self._weights(u, L)
+        if w is None:
+            return []
+        t, norm, T, axial, zone = w
+        if zone is None:
+            return [(self.k, self.BT @ t.ravel())] + self._wide(t, norm, T, axial)
+        label, taut, size = zone
+        c = self.compliances()
+        C = np.bincount(label, weights=c)
+        out = []
+        for z in np.flatnonzero(taut & (size > 1)):
+            on = (label == z)[:, None]
+            out.append((1.0 / C[z], self.BT @ (on * t).ravel()))
+        return out + self._wide(t, norm, T, axial)
+
+    def contraction_gradient(self, u: np.ndarray, L: float) -> np.ndarray:
+        """dR/du_c on self.dofs, R = grad of this cable's energy: k g when taut (g = grad l); with friction
+        g_z / C_z of the zone that holds the actuated end, if taut (0 if slack). Lagged limits held."""
+        if not self.friction:
+            return self.k * self.length_gradient(u) if self.length(u) > L else np.zeros(len(self.dofs))
+        w = self._weights(u, L)
+        if w is None:
+            return np.zeros(len(self.dofs))
+        t, _, _, _, (label, taut, _) = w
+        if not taut[label[0]]:
+            return np.zeros(len(self.dofs))
+        on = label == label[0]
+        return self.BT @ (on[:, None] * t).ravel() / self.compliances()[on].sum()
 
     def length_gradient(self, u: np.ndarray) -> np.ndarray:
         """g = grad l = B^T t on self.dofs."""
         return self._t_and_g(u)[3]
 
     def hessian(self, u: np.ndarray, L: float) -> np.ndarray:
-        """Dense Hessian on self.dofs, k [s > 0] (g g^T + s B^T W B) (for tests)."""
-        g = self.length_gradient(u)
-        taut = self.length(u) > L
-        H = self.curvature(u, L).toarray() + (self.k * np.outer(g, g) if taut else 0.0)
-        for c, w in self.wide_parts(u, L):
+        """Dense Hessian on self.dofs, k [s > 0] (g g^T + s B^T W B) without friction (for tests)."""
+        H = self.curvature(u, L).toarray()
+        for c, w in self.low_rank_parts(u, L):
             H += c * np.outer(w, w)
         return H
 
@@ -485,9 +401,17 @@ class CableTerm(Term):
     """One cable as an energy term; its rest length follows the load factor.
 
     Parameters: ``cables.NAME.contraction`` (tendons) or ``.pretension``
-    (ligaments), and ``.stiffness``. Read-out: kind, contraction, rest
-    length, length and tension.
+    (ligaments), ``.stiffness`` and ``.friction``. Read-out: kind, contraction,
+    rest length, length, tension (at the actuated end), every segment's
+    tension and, with friction, which via points slipped in the last step.
+
+    With friction (:mod:`skelfem.terms.cable_slip`) the cable keeps a history:
+    the material that slipped through each via point, from rest (a solve that
+    starts from u = 0 everywhere starts from no history) and across every
+    accepted step after it.
     """
+
+    LAG_RTOL = 1e-5      # friction limits converged when no F_j moves by more than this times max T
 
     section = "cables"
 
@@ -503,6 +427,7 @@ class CableTerm(Term):
         self.disks = [(np.asarray(spec.path[k], dtype=float), r) for k, r in self.anchors.items()]   # (centre, r)
         self.gather = self.cable.gather
         self.factor = 0.0
+        self.u = ctx.u
 
     def finite_anchors(self) -> list:
         return list(self.disks)
@@ -513,6 +438,16 @@ class CableTerm(Term):
 
     def set_factor(self, a: float) -> None:
         self.factor = float(a)
+        if self.cable.friction:
+            comm = self.u.function_space.mesh.comm
+            if not comm.allreduce(bool(np.any(self.u.x.array)), op=MPI.LOR):    # a start from rest
+                self.cable.reset_slip()
+
+    def update_lag(self, model) -> bool:
+        return self.cable.relax_limits(model.u.x.array, self.rest_length, self.LAG_RTOL)
+
+    def end_step(self, model) -> None:
+        self.cable.accept(model.u.x.array, self.rest_length)
 
     def energy(self, u):
         return self.cable.energy(u, self.rest_length)
@@ -532,7 +467,8 @@ class CableTerm(Term):
     def parameters(self) -> dict:
         c = self.cable
         which = "contraction" if self.kind == "tendon" else "pretension"
-        return {f"cables.{self.name}.{which}": getattr(c, which), f"cables.{self.name}.stiffness": c.k}
+        return {f"cables.{self.name}.{which}": getattr(c, which), f"cables.{self.name}.stiffness": c.k,
+                f"cables.{self.name}.friction": c.mu}
 
     def set_parameter(self, key: str, value) -> None:
         which = key.rsplit(".", 1)[1]
@@ -540,58 +476,20 @@ class CableTerm(Term):
             raise KeyError(key)
         if which == "stiffness":
             self.cable.k = float(value)
+        elif which == "friction":
+            if not float(value) >= 0.0:
+                raise ValueError(f"cables.{self.name}.friction: must be >= 0, got {value!r}")
+            self.cable.mu = float(value)
         else:
             setattr(self.cable, which, float(value))
 
     def readout(self, model) -> dict:
         u, c, L = model.u.x.array, self.cable, self.rest_length
+        T = c.tensions(u, L)
+        slipping = c.slipping if c.friction else np.full(max(len(T) - 1, 0), bool(T[0] > 0.0))
         return {self.name: {"kind": self.kind, "contraction": float(c.contraction), "rest_length": L,
-                            "length": c.length(u), "tension": c.tension(u, L)}}
-
-
-def default_anchor_radius(ctx: Context) -> float:
-    """1 % of the body's bounding-box diagonal (about a knot or bead on a finger-sized body)."""
-    radius = getattr(ctx, "_anchor_radius", None)
-    if radius is None:
-        radius = ctx._anchor_radius = _one_percent_of_diagonal(ctx)
-    return radius
-
-
-def _one_percent_of_diagonal(ctx: Context) -> float:
-    x = ctx.mesh.geometry.x[:, :ctx.dim]
-    lo = x.min(axis=0) if len(x) else np.full(ctx.dim, np.inf)
-    hi = x.max(axis=0) if len(x) else np.full(ctx.dim, -np.inf)
-    if ctx.comm.size > 1:
-        ctx.comm.Allreduce(MPI.IN_PLACE, lo, op=MPI.MIN)
-        ctx.comm.Allreduce(MPI.IN_PLACE, hi, op=MPI.MAX)
-    return 0.01 * float(np.linalg.norm(hi - lo))
-
-
-def anchors(ctx: Context, spec) -> dict:
-    """{sketch vertex index: radius} for the cable's ends and bends that lie in silicone (the body's
-    region, not a bone) and not in a fixed pin's box: those act on a finite anchor (a bend pushes
-    on the silicone with 2 T sin(theta / 2), a point force unless spread); ends and bends in bones
-    or on the pinned base stay material points."""
-    radius = spec.anchor_radius if spec.anchor_radius is not None else default_anchor_radius(ctx)
-    if radius <= 0.0:
-        return {}
-    points = np.asarray(spec.path, dtype=float)
-    tm = ctx.tagged
-    n_owned = ctx.mesh.topology.index_map(ctx.mesh.topology.dim).size_local
-    cells = locate_cells(ctx.mesh, points, below=n_owned)
-    soft_cells = tm.cell_tags.indices[tm.cell_tags.values == tm.tags["body"]]
-    soft = np.where(cells >= 0, np.isin(cells, soft_cells), False).astype(np.int32)
-    found = (cells >= 0).astype(np.int32)
-    if ctx.comm.size > 1:
-        ctx.comm.Allreduce(MPI.IN_PLACE, soft, op=MPI.MAX)
-        ctx.comm.Allreduce(MPI.IN_PLACE, found, op=MPI.MAX)
-    fixed_boxes = [p.region for p in ctx.design.pins if p.kind == "fixed"]
-    out = {}
-    for k, point in enumerate(points):
-        pinned = any(np.all(point >= box[0] - 1e-9) and np.all(point <= box[1] + 1e-9) for box in fixed_boxes)
-        if found[k] and soft[k] and not pinned:
-            out[k] = radius
-    return out
+                            "length": c.length(u), "tension": float(T[0]), "friction": c.mu,
+                            "tensions": [float(x) for x in T], "slipping": [bool(x) for x in slipping]}}
 
 
 def build(ctx: Context) -> list[Term]:
