@@ -304,7 +304,7 @@ class Session:
         log.info("%s: %d DOFs, %d cells", self.design.name, self.dofs,
                  self.model.mesh.topology.index_map(self.model.mesh.topology.dim).size_global)
         if not self.solved:                                   # cold: ramp the load from rest
-            self.model.u.x.array[:] = 0.0
+            self.model.to_rest()
         report = self.solver.resolve(steps) if self.solved else self.solver.solve(steps)
         self.solved = bool(report.converged)
         timings = dict(self.timings, solve=time.perf_counter() - t0)

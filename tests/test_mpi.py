@@ -33,6 +33,8 @@ def _agree(serial, parallel):
         assert _close(m["displacement"], parallel["markers"][name]["displacement"]), name
     for name, c in serial["cables"].items():
         assert _close([c["tension"]], [parallel["cables"][name]["tension"]]), name
+        assert _close(c["tensions"], parallel["cables"][name]["tensions"]), name
+        assert c["slipping"] == parallel["cables"][name]["slipping"], name
     force = max(c["tension"] for c in serial["cables"].values())
     for name, p in serial["pins"].items():
         assert _close(p["reaction"], parallel["pins"][name]["reaction"], 1e-6, force), name
@@ -51,8 +53,10 @@ def test_arm3d_two_ranks_match_serial(tmp_path, mpirun, picture):
     picture(tmp_path / "p" / "deformed.png", 600, 600)
 
 
-def test_every_ingredient_agrees_across_ranks(tmp_path, mpirun, strip_design):
-    """Bones, tendon, pretensioned ligament, spring pin, moved pin, point load and a ground, P2."""
+@pytest.mark.parametrize("friction", [0.0, 0.3])
+def test_every_ingredient_agrees_across_ranks(tmp_path, mpirun, strip_design, friction):
+    """Bones, tendon, pretensioned ligament, spring pin, moved pin, point load and a ground, P2; with and
+    without cable friction."""
     d = strip_design(length=40.0, size=2.0, degree=2, contraction=0.4)
     d["bones"] = [{"name": "b", "outline": [[3, 10], [7, 10], [7, 25], [3, 25]], "material": "hard"}]
     d["cables"].append({"name": "lig", "kind": "ligament", "path": [[2, 5], [4, 20], [2, 35]],
@@ -63,11 +67,15 @@ def test_every_ingredient_agrees_across_ranks(tmp_path, mpirun, strip_design):
     d["grounds"] = [{"name": "wall", "point": [10.1, 0], "normal": [-1, 0], "stiffness": 10.0}]
     d["markers"]["mid"] = [5, 20]
     d["solver"] = {"steps": 2}
+    for c in d["cables"]:
+        c["friction"] = friction
     path = tmp_path / "all.toml"
     path.write_text(toml_text(d))
     serial = _simulate(mpirun, path, tmp_path / "s", 1)
     assert np.linalg.norm(serial["grounds"]["wall"]["force"]) > 0      # the ground is engaged
     assert all(c["tension"] > 0 for c in serial["cables"].values())    # both cables taut: low-rank parts
+    if friction:
+        assert any(np.ptp(c["tensions"]) > 1e-3 * c["tension"] for c in serial["cables"].values())
     _agree(serial, _simulate(mpirun, path, tmp_path / "p", 2))
 
 

@@ -180,7 +180,7 @@ class Rows:
             model.changes.clear()                    # no predictor from another row's factorisation
             report = solver.resolve(1)
         elif self.starts[i] or not self.session.solved:
-            model.u.x.array[:] = 0.0
+            model.to_rest()
             report = solver.solve(self.session.design.solver.steps)
         else:
             report = solver.resolve(1)

@@ -15,6 +15,15 @@ These tendons are listed in Linearization.kinked; their derivatives hold for
 increasing u_c only (skelfem.analysis.control restricts its steps accordingly).
 Ligaments are never controls and keep the Hessian as the cable defines it.
 
+With cable friction (skelfem.terms.cable_slip) H is the Hessian of the
+cable's incremental potential with its friction limits F held, and
+dR/du_c = g_z / C_z, z the tension zone holding the actuated end. That is
+the exact derivative while every via point sticks (F plays no part); while
+via points slip, F follows the tensions (F = mu tan(theta/2)(T + T')) and the
+derivative for increasing u_c differs by a term of order mu that is left out,
+and for decreasing u_c the via points stick: the equilibrium is not
+differentiable there, and these are one-sided, lagged derivatives.
+
 Differentiating R(x*(u), u) = 0 with H = dR/dx = hess Pi at x*:
 
     forward:  H dx*/du_c = -dR/du_c          one solve per tendon;
@@ -89,7 +98,8 @@ class Linearization:
         self.model, self.solver = model, solver
         self.tendons = tendons(model)
         u = model.u.x.array
-        self.kinked = [i for i, t in enumerate(self.tendons) if abs(stretch(t, u)) <= KINK * t.cable.L0]
+        self.kinked = [i for i, t in enumerate(self.tendons)
+                       if not t.cable.friction and abs(stretch(t, u)) <= KINK * t.cable.L0]
         self._g = [self._masked_g(t) for t in self.tendons]
         model.jacobian(model.u.vector, solver.A)
         parts = model.low_rank()
@@ -111,8 +121,13 @@ class Linearization:
         return term.cable.length_gradient(self.model.u.x.array) * self.model._free(term, term.cable.dofs)
 
     def _dR_du(self, i: int) -> PETSc.Vec:
-        """dR/du_c = k g_c on the free DOFs of a taut (or kinked) tendon, else zero."""
+        """dR/du_c = k g_c on the free DOFs of a taut (or kinked) tendon, else zero; with cable friction
+        g_z / C_z of the tension zone that holds the actuated end (skelfem.terms.cable_slip)."""
         t = self.tendons[i]
+        if t.cable.friction:
+            u = self.model.u.x.array
+            values = t.cable.contraction_gradient(u, t.rest_length) * self.model._free(t, t.cable.dofs)
+            return global_vector(self.model, t, values)
         taut = stretch(t, self.model.u.x.array) > 0.0 or i in self.kinked
         return global_vector(self.model, t, t.cable.k * self._g[i] if taut else 0.0 * self._g[i])
 

@@ -165,7 +165,7 @@ class Dynamics:
         rep = DynamicsReport()
         model.set_factor(1.0)
         self.set_time(0.0)
-        model.u.x.array[:] = 0.0
+        model.to_rest()
         model.apply_bcs(model.u.vector)
         inertia.start(model.u.x.array, damping=(spec.damping_mass, spec.damping_stiffness))
         if store:

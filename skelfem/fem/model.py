@@ -269,6 +269,12 @@ class Model(MatrixAssembly):
         for term in self.terms:
             term.end_step(self)
 
+    def to_rest(self) -> None:
+        """u = 0 and no history (friction's slips and anchors): the start of a solve from rest."""
+        self.u.x.array[:] = 0.0
+        for term in self.terms:
+            term.rest()
+
     def failure(self, converged: bool = True) -> str | None:
         """The first term's reason why the state (converged or where Newton gave up) is no equilibrium."""
         return next((why for why in (term.failure(self, converged) for term in self.terms) if why), None)

@@ -311,7 +311,7 @@ def newton_order(model, solver, scales=(0.03, 0.01, 0.003, 0.001)) -> dict:
 
 def _reset(model) -> None:
     """Back to the rest state at load factor 0 (for a repeated solve)."""
-    model.u.x.array[:] = 0.0
+    model.to_rest()
     model.set_factor(0.0)
 
 

@@ -170,6 +170,10 @@ class Term:
         """Refresh lagged quantities (friction's normal forces) at a converged state; True: solve again."""
         return False
 
+    def rest(self) -> None:
+        """Back to rest: forget every history (a cable's slips through its via points); the model's
+        u is being set to 0 for a solve from rest."""
+
 
 def touched(changed: set, *prefixes: str) -> bool:
     """Whether any dotted key in changed is one of prefixes, lies under one or holds one."""

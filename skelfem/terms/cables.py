@@ -35,7 +35,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-from mpi4py import MPI
 
 from . import cable_slip
 from ..mesh.points import DofGather
@@ -406,9 +405,9 @@ class CableTerm(Term):
     tension and, with friction, which via points slipped in the last step.
 
     With friction (:mod:`skelfem.terms.cable_slip`) the cable keeps a history:
-    the material that slipped through each via point, from rest (a solve that
-    starts from u = 0 everywhere starts from no history) and across every
-    accepted step after it.
+    the material that slipped through each via point, from rest (``rest``: a
+    solve from rest starts from no history) and across every accepted step
+    after it.
     """
 
     LAG_RTOL = 1e-5      # friction limits converged when no F_j moves by more than this times max T
@@ -427,7 +426,6 @@ class CableTerm(Term):
         self.disks = [(np.asarray(spec.path[k], dtype=float), r) for k, r in self.anchors.items()]   # (centre, r)
         self.gather = self.cable.gather
         self.factor = 0.0
-        self.u = ctx.u
 
     def finite_anchors(self) -> list:
         return list(self.disks)
@@ -438,10 +436,9 @@ class CableTerm(Term):
 
     def set_factor(self, a: float) -> None:
         self.factor = float(a)
-        if self.cable.friction:
-            comm = self.u.function_space.mesh.comm
-            if not comm.allreduce(bool(np.any(self.u.x.array)), op=MPI.LOR):    # a start from rest
-                self.cable.reset_slip()
+
+    def rest(self) -> None:
+        self.cable.reset_slip()
 
     def update_lag(self, model) -> bool:
         return self.cable.relax_limits(model.u.x.array, self.rest_length, self.LAG_RTOL)

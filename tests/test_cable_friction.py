@@ -1,0 +1,302 @@
+"""Cable friction (skelfem.terms.cable_slip): the exact chain solve, the capstan, hysteresis, derivatives."""
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from dolfinx import fem
+from dolfinx import mesh as dmesh
+from mpi4py import MPI
+
+from skelfem.terms import cable_slip
+from skelfem.terms.cables import Cable
+
+
+# -- the chain solve alone ---------------------------------------------------------------------------
+def _reference_tensions(b, c, F):
+    """The dual QP by a general solver (SLSQP), for comparison."""
+    from scipy.optimize import minimize
+    m = len(b)
+    cons = [{"type": "ineq", "fun": (lambda x, j=j, s=s: F[j] - s * (x[j + 1] - x[j]))}
+            for j in range(m - 1) for s in (1.0, -1.0)]
+    res = minimize(lambda x: 0.5 * (c * x) @ x - b @ x, np.zeros(m), jac=lambda x: c * x - b,
+                   bounds=[(0, None)] * m, constraints=cons, method="SLSQP",
+                   options={"ftol": 1e-15, "maxiter": 1000})
+    return res.x
+
+
+def test_chain_tensions_are_the_exact_projection_and_the_slips_recover_the_primal():
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        m = int(rng.integers(1, 9))
+        b, c = rng.normal(size=m), rng.uniform(0.2, 2.0, size=m)
+        F = rng.uniform(0, 1, size=m - 1) * (rng.random(m - 1) > 0.2)
+        if rng.random() < 0.2 and m > 1:
+            F[rng.integers(0, m - 1)] = cable_slip.LOCKED
+        T = cable_slip.tensions(b, c, F)
+        assert np.all(T >= 0) and np.all(np.abs(np.diff(T)) <= F + 1e-12)
+        if np.all(np.isfinite(F)):
+            assert np.abs(T - _reference_tensions(b, c, F)).max() < 1e-6
+        lam = np.concatenate(([0.0], cable_slip.slips(b, c, T, F), [0.0]))
+        e = b + lam[:-1] - lam[1:]
+        taut = T > 1e-9
+        assert np.allclose(e[taut], c[taut] * T[taut], atol=1e-9)          # constitutive law
+        assert np.all(e[~taut] <= 1e-9)                                    # slack holds no tension
+        assert np.all(lam[1:-1][np.abs(np.diff(T)) < F - 1e-9] == 0.0)      # below the limit: stuck
+        finite = np.isfinite(F)
+        primal = np.sum(np.maximum(e, 0) ** 2 / (2 * c)) + np.sum(F[finite] * np.abs(lam[1:-1][finite]))
+        assert abs(primal - cable_slip.value(b, c, T)) < 1e-9              # strong duality
+
+
+def test_no_friction_gives_the_uniform_spring_tension():
+    rng = np.random.default_rng(1)
+    b, c = rng.normal(size=30) + 0.2, rng.uniform(0.1, 1.0, size=30)
+    T = cable_slip.tensions(b, c, np.zeros(29))
+    assert np.allclose(T, max(b.sum() / c.sum(), 0.0), rtol=1e-13, atol=1e-15)
+    assert np.isclose(cable_slip.value(b, c, T), 0.5 * max(b.sum(), 0) ** 2 / c.sum(), rtol=1e-13)
+
+
+def _arc_chain(n, theta, mu, pull=1.0):
+    """A cable over n bends of theta / n each (a fixed channel), far end tied, pulled by `pull`:
+    the stick stretches of its n + 1 segments from rest."""
+    c = np.full(n + 1, 1.0 / (n + 1))
+    b = np.zeros(n + 1)
+    b[0] = pull
+    return b, c, mu * np.full(n, np.tan(theta / n / 2))
+
+
+def test_discrete_capstan_converges_to_e_mu_theta_at_second_order():
+    errors = []
+    for n in (8, 16, 32, 64):
+        b, c, mu_tan = _arc_chain(n, 2 * np.pi, 0.3)
+        F, T = cable_slip.coulomb_limits(b, c, mu_tan, np.zeros(n))
+        ratio = T[0] / T[-1]
+        r = (1 + mu_tan) / (1 - mu_tan)
+        assert np.isclose(ratio, np.prod(r), rtol=1e-9)                    # each bend at its limit
+        errors.append(abs(np.log(ratio) - 0.3 * 2 * np.pi))
+    order = np.log2(np.array(errors[:-1]) / errors[1:])
+    assert np.all(np.abs(order - 2.0) < 0.1) and abs(order[-1] - 2.0) < 0.01, order   # observed: 2.08, 2.02, 2.005
+    assert errors[-1] < 2e-3         # 64 bends of 5.6 degrees: e^(mu Theta) within 0.17 %
+
+
+def test_a_bend_that_locks_holds_any_ratio():
+    b, c, mu_tan = _arc_chain(2, 0.9 * np.pi, 2.0)         # mu tan(theta / 2) > 1 at each bend
+    F, T = cable_slip.coulomb_limits(b, c, mu_tan, np.zeros(2))
+    assert np.all(np.isinf(F)) and T[0] > 0 and T[1] == 0 and T[2] == 0
+
+
+# -- the cable on a mesh: derivatives --------------------------------------------------------------
+@pytest.fixture(scope="module")
+def rect():
+    return dmesh.create_rectangle(MPI.COMM_WORLD, [[0.0, 0.0], [20.0, 100.0]], [4, 20])
+
+
+def _spec(path, mu):
+    return SimpleNamespace(name="c", kind="tendon", path=np.asarray(path, float), stiffness=20.0,
+                           contraction=1.0, pretension=0.0, friction=mu)
+
+
+@pytest.mark.parametrize("degree", [1, 2])
+def test_friction_energy_gradient_and_hessian_match_finite_differences(rect, degree):
+    V = fem.VectorFunctionSpace(rect, ("Lagrange", degree))
+    cable = Cable.build(V, _spec([[3, 0], [3, 40], [10, 60], [4, 96]], 0.3))
+    rng = np.random.default_rng(0)
+    u = rng.normal(size=V.dofmap.index_map.size_local * 2) * 0.3
+    L = cable.L0 - 4.0
+    m = len(cable.d0)
+    cable.s_hat[1:-1] = rng.normal(size=m - 1) * 1.0         # a history
+    T0 = cable.tensions(u, L)
+    cable.F = T0.max() * rng.uniform(0, 2, size=m - 1) * (rng.random(m - 1) > 0.7)
+    cable._version += 1
+    T = cable.tensions(u, L)
+    label, taut = cable_slip.zones(T, cable.F)
+    assert len(np.unique(label)) > 3 and np.ptp(T) > 0        # several zones, tensions that differ
+    g, H = cable.gradient(u, L), cable.hessian(u, L)
+    h = 1e-6
+    g_fd, H_fd = np.empty_like(g), np.empty_like(H)
+    for j, dof in enumerate(cable.dofs):                      # test-only loop over the cable's DOFs
+        e = np.zeros_like(u)
+        e[dof] = h
+        g_fd[j] = (cable.energy(u + e, L) - cable.energy(u - e, L)) / (2 * h)
+        H_fd[:, j] = (cable.gradient(u + e, L) - cable.gradient(u - e, L)) / (2 * h)
+    assert np.linalg.norm(g - g_fd) / np.linalg.norm(g) < 1e-6
+    assert np.linalg.norm(H - H_fd) / np.linalg.norm(H) < 1e-5
+    assert np.allclose(H, H.T)
+    # dL/du_c: the actuated end's zone, by central differences of the gradient in the rest length
+    dR = (cable.gradient(u, L - h) - cable.gradient(u, L + h)) / (2 * h)
+    assert np.linalg.norm(cable.contraction_gradient(u, L) - dR) / np.linalg.norm(dR) < 1e-6
+
+
+# -- the cable in a model ------------------------------------------------------------------------
+def _turn(v, a):
+    return np.array([np.cos(a) * v[0] - np.sin(a) * v[1], np.sin(a) * v[0] + np.cos(a) * v[1]])
+
+
+def channel(theta, mu, far_in_silicone=False, per_degree=0.2, size=4.0, contraction=0.5, k=10.0):
+    """A tendon through a channel in a rigid pulley: a lead-in, an arc of total turning exactly theta
+    (a spiral beyond pi), a lead-out; the far end in the pulley (blocked) or in the silicone beside it
+    (a return spring). Returns (design dict, index of the arc's first and last via point in the path)."""
+    centre = np.array([40.0, 45.0])
+    n = max(int(np.ceil(np.degrees(theta) * per_degree)), 2)
+    ang = np.pi + np.linspace(0.0, theta, n + 1)
+    rad = np.linspace(16.0, 8.0, n + 1) if theta > np.pi + 1e-9 else np.full(n + 1, 12.0)
+    arc = centre + rad[:, None] * np.column_stack([np.cos(ang), np.sin(ang)])
+    chords = np.diff(arc, axis=0)
+    unit = chords / np.linalg.norm(chords, axis=1)[:, None]
+    inner = np.arctan2(np.cross(unit[:-1], unit[1:]), (unit[:-1] * unit[1:]).sum(1)).sum()
+    half = (theta - inner) / 2                                  # the turn at the arc's two ends
+    lead_in = arc[0] - 12.0 * _turn(unit[0], -half)
+    lead_out = arc[-1] + (30.0 if far_in_silicone else 6.0) * _turn(unit[-1], half)
+    pulley = [(centre + 21.0 * np.array([np.cos(a), np.sin(a)])).tolist()
+              for a in np.linspace(0, 2 * np.pi, 48, endpoint=False)]
+    d = {
+        "format": 1, "name": "channel", "dim": 2, "thickness": 10.0,
+        "mesh": {"size": size, "degree": 1},
+        "materials": {"soft": {"E": 0.1, "nu": 0.45}, "pla": {"E": 3000.0, "nu": 0.35}},
+        "body": {"outline": [[0, 0], [80, 0], [80, 95], [0, 95]], "material": "soft"},
+        "bones": [{"name": "pulley", "outline": pulley, "material": "pla", "rigid": True}],
+        "cables": [{"name": "t", "kind": "tendon", "path": [lead_in.tolist()] + arc.tolist() + [lead_out.tolist()],
+                    "stiffness": k, "contraction": contraction, "friction": mu}],
+        "pins": [{"name": "base", "region": [[-1, -1], [81, 1e-6]], "kind": "fixed"}],
+        "solver": {"steps": 2},
+    }
+    return d, arc
+
+
+def _arc_tensions(session, arc):
+    """(tension entering the arc, tension leaving it, the turning between them at the current state)."""
+    term = session.model.terms_in("cables")[0]
+    cab, u = term.cable, session.model.u.x.array
+    T = cab.tensions(u, term.rest_length)
+    i0 = int(np.argmin(np.linalg.norm(cab.X - arc[0], axis=1)))
+    i1 = int(np.argmin(np.linalg.norm(cab.X - arc[-1], axis=1)))
+    t = np.diff(cab.positions(u), axis=0)
+    t /= np.linalg.norm(t, axis=1)[:, None]
+    turning = np.arccos(np.clip((t[:-1] * t[1:]).sum(1), -1, 1))[i0 - 1:i1].sum()
+    return T[i0 - 1], T[i1], turning
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("theta", [np.pi / 2, np.pi, 2 * np.pi])
+def test_capstan_through_a_rigid_channel(theta):
+    from skelfem.session import Session
+    for mu in (0.1, 0.3):
+        d, arc = channel(theta, mu, far_in_silicone=True, contraction=3.0, k=50.0)
+        s = Session(d)
+        r = s.solve()
+        assert r.status == "converged"
+        before, after, turning = _arc_tensions(s, arc)
+        assert abs(turning - theta) < 1e-6                   # the pulley is rigid: the channel keeps its shape
+        assert after > 0.1 and abs(before / after / np.exp(mu * theta) - 1) < 0.01
+        assert all(r.to_dict()["cables"]["t"]["slipping"][5:-5])   # the tendon slides along the arc
+
+
+def test_no_friction_is_todays_answer_and_a_vanishing_one_converges_to_it():
+    from skelfem.session import Session
+    d, _ = channel(np.pi, 0.0, far_in_silicone=True, contraction=2.0)
+    ref = Session(d).solve().to_dict()
+    d["cables"][0]["friction"] = 1e-14
+    tiny = Session(d).solve().to_dict()
+    a, b = ref["cables"]["t"], tiny["cables"]["t"]
+    assert abs(a["tension"] - b["tension"]) < 1e-10 * a["tension"] and a["tension"] > 0.1
+    assert np.ptp(a["tensions"]) == 0.0 and np.ptp(b["tensions"]) < 1e-10 * a["tension"]
+    assert a["friction"] == 0.0 and b["friction"] == 1e-14
+
+
+def test_release_with_the_far_end_blocked_shows_the_two_corners():
+    """Pull to T_max, then release: the far tension stays at T_max e^(-mu Theta) until the near one has
+    fallen to T_max e^(-2 mu Theta), then falls with it."""
+    from skelfem.session import Session
+    theta, mu, top = np.pi, 0.2, 0.6
+    d, arc = channel(theta, mu, contraction=top)
+    s = Session(d)
+    assert s.solve().status == "converged"
+    t_max, far_max, turning = _arc_tensions(s, arc)
+    r_arc = t_max / far_max
+    assert abs(r_arc / np.exp(mu * turning) - 1) < 0.005               # first corner
+    near, far = [], []
+    for c in np.linspace(top, 0.0, 25)[1:]:
+        s.set({"cables.t.contraction": float(c)})
+        assert s.solve().status == "converged"
+        b, a, _ = _arc_tensions(s, arc)
+        near.append(b)
+        far.append(a)
+    near, far = np.array(near), np.array(far)
+    held = near >= t_max / r_arc ** 2 * 1.005
+    assert held.sum() >= 3 and np.allclose(far[held], far_max, rtol=1e-6)   # the far end holds
+    falling = near <= t_max / r_arc ** 2 * 0.995
+    assert falling.sum() >= 3 and np.all(far[falling] < far_max * (1 - 1e-3))
+    # the second corner: below it the arc slips back, the far tension e^(mu Theta) times the near one
+    assert np.allclose(far[falling & (near > 0)] / near[falling & (near > 0)], r_arc, rtol=0.005)
+
+
+def test_a_return_spring_needs_e_2_mu_theta_more_tension_loading_than_unloading():
+    """The far end pulls on silicone (a return spring): at the same spring force the actuator pulls
+    with e^(mu Theta) times it while loading and e^(-mu Theta) times it while unloading."""
+    from skelfem.session import Session
+    theta, mu = np.pi / 2, 0.3
+    d, arc = channel(theta, mu, far_in_silicone=True, contraction=2.0, k=50.0)
+    s = Session(d)
+    assert s.solve().status == "converged"
+    loading = _arc_tensions(s, arc)
+    for c in (1.6, 1.2, 0.8):
+        s.set({"cables.t.contraction": c})
+        assert s.solve().status == "converged"
+    unloading = _arc_tensions(s, arc)
+    ratio = (loading[0] / loading[1]) / (unloading[0] / unloading[1])
+    assert abs(ratio / np.exp(2 * mu * theta) - 1) < 0.01
+
+
+def test_friction_bad_input_is_one_error_line(tmp_path):
+    import subprocess
+    import sys
+    d, _ = channel(np.pi / 2, -0.1)
+    from _designs import toml_text
+    for mu, why in ((-0.1, "must be >= 0"), (float("nan"), "friction"), (11.0, "at most 10")):
+        d["cables"][0]["friction"] = mu
+        f = tmp_path / "bad.toml"
+        f.write_text(toml_text(d).replace("nan", "nan") if mu == mu else
+                     toml_text({**d, "cables": [{**d["cables"][0], "friction": 0.1}]}).replace(
+                         "friction = 0.1", "friction = nan"))
+        out = tmp_path / "out"
+        p = subprocess.run([sys.executable, "-m", "skelfem.cli.main", "simulate", str(f), "--out", str(out)],
+                           capture_output=True, text=True, timeout=120)
+        assert p.returncode == 1, p.stderr
+        assert p.stderr.count("error:") == 1 and why in p.stderr and "Traceback" not in p.stderr
+        assert not out.exists()
+
+
+def test_sensitivities_are_the_derivatives_of_the_lagged_equilibrium(monkeypatch):
+    """Pulled then released (the near via points slip back, the rest stick): dx*/du_c from the
+    Linearization equals one-sided differences, in the direction of the last motion, of equilibria
+    with the friction limits and anchors held (the lagged problem it linearises). A via point at
+    its limit slips on in that direction and sticks in the other, so the equilibrium has two
+    one-sided derivatives there (here the far marker does not move at all the other way)."""
+    from skelfem.analysis.sensitivity import Linearization
+    from skelfem.session import Session
+    d, _ = channel(np.pi / 2, 0.3, far_in_silicone=True, contraction=2.0, k=5.0)
+    d["markers"] = {"far": [60.0, 45.0]}
+    s = Session(d)
+    assert s.solve().status == "converged"
+    c, h = 1.7, 1e-4
+    s.set({"cables.t.contraction": c})
+    r = s.solve()
+    slipping = np.array(r.to_dict()["cables"]["t"]["slipping"])
+    assert r.status == "converged" and 0 < slipping.sum() < len(slipping)
+    lin = Linearization(s.model, s.solver)
+    J = lin.marker_jacobian(0, mode="forward")[:, 0]
+    assert np.allclose(J, lin.marker_jacobian(0)[:, 0], rtol=1e-8)        # adjoint = forward
+    cab = s.model.terms_in("cables")[0].cable
+    saved = (s.model.u.x.array.copy(), cab.F.copy(), cab.s_hat.copy())
+    y = {0: np.asarray(r.marker("far"))}
+    monkeypatch.setattr(Cable, "relax_limits", lambda *a: False)
+    monkeypatch.setattr(Cable, "accept", lambda *a: None)
+    for k in (-1, -2, 1):
+        s.model.u.x.array[:], cab.F[:], cab.s_hat[:] = saved
+        cab._version += 1
+        s.set({"cables.t.contraction": c + k * h})
+        rr = s.solve()
+        assert rr.status == "converged"
+        y[k] = np.asarray(rr.marker("far"))
+    back = (3 * y[0] - 4 * y[-1] + y[-2]) / (2 * h)             # second-order one-sided, releasing
+    assert np.linalg.norm(J) > 1e-3 and np.linalg.norm(J - back) < 1e-5 * np.linalg.norm(J), (J, back)
+    assert np.linalg.norm(y[1] - y[0]) < 1e-3 * h * np.linalg.norm(J)    # pulling: the via points stick
