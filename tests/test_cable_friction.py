@@ -1,4 +1,5 @@
 """Cable friction (skelfem.terms.cable_slip): the exact chain solve, the capstan, hysteresis, derivatives."""
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -300,3 +301,25 @@ def test_sensitivities_are_the_derivatives_of_the_lagged_equilibrium(monkeypatch
     back = (3 * y[0] - 4 * y[-1] + y[-2]) / (2 * h)             # second-order one-sided, releasing
     assert np.linalg.norm(J) > 1e-3 and np.linalg.norm(J - back) < 1e-5 * np.linalg.norm(J), (J, back)
     assert np.linalg.norm(y[1] - y[0]) < 1e-3 * h * np.linalg.norm(J)    # pulling: the via points stick
+
+
+def test_simulate_reports_every_segment_and_draws_the_tension(tmp_path, picture):
+    import json
+    import subprocess
+    import sys
+
+    import meshio
+    out = tmp_path / "out"
+    p = subprocess.run([sys.executable, "-m", "skelfem.cli.main", "simulate", "geometry/finger.toml", "--out", str(out),
+                        "-q", "--set", "mesh.size=4", "--set", "cables.flexor.friction=0.3"],
+                       capture_output=True, text=True, timeout=300, cwd=Path(__file__).resolve().parents[1])
+    assert p.returncode == 0, p.stderr
+    c = json.loads((out / "result.json").read_text())["cables"]["flexor"]
+    T = np.array(c["tensions"])
+    assert c["friction"] == 0.3 and c["tension"] == T[0] and len(c["slipping"]) == len(T) - 1
+    assert T[0] > 1.3 * T[-1] > 0                                   # pulled: the tension falls along it
+    assert np.all(np.diff(T) <= 1e-9 * T[0])
+    m = meshio.read(out / "solution.xdmf")
+    lines = [i for i, b in enumerate(m.cells) if b.type == "line"][0]
+    assert np.allclose(np.sort(m.cell_data["tension"][lines][:len(T)]), np.sort(T))
+    picture(out / "deformed.png", 400, 400)

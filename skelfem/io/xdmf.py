@@ -43,7 +43,8 @@ def cable_states(model) -> list[dict]:
     for term in model.terms_in("cables"):
         c, L = term.cable, term.rest_length
         out.append({"name": c.name, "kind": c.kind, "rest": c.X, "deformed": c.positions(u),
-                    "length": c.length(u), "rest_length": L, "tension": c.tension(u, L)})
+                    "length": c.length(u), "rest_length": L, "tension": c.tension(u, L),
+                    "tensions": c.tensions(u, L)})
     return out
 
 
@@ -132,7 +133,7 @@ def write_xdmf(path: Path, state) -> None:
     `state` is a model (collective) or a Snapshot of one.
 
     Cables are extra points and line cells in the same grid, carrying their
-    tension and an id (the cable's position in the design), so a single file
+    tension (each segment's: with friction it varies along the cable) and an id (the cable's position in the design), so a single file
     opens in ParaView (Warp By Vector on `displacement`) and in meshio.
     """
     import meshio
@@ -151,7 +152,7 @@ def write_xdmf(path: Path, state) -> None:
         points.append(c["rest"])
         disp.append(c["deformed"] - c["rest"])
         lines.append(offset + np.column_stack([np.arange(n - 1), np.arange(1, n)]))
-        tension += [c["tension"]] * (n - 1)
+        tension += list(c.get("tensions", [c["tension"]] * (n - 1)))
         cable_id += [i] * (n - 1)
         offset += n
     pts = np.vstack(points)

@@ -44,12 +44,7 @@ def plot_deformed(path: Path, state, title: str = "", ax=None, show_rest: bool =
         for loop in loops:
             closed = np.vstack([loop, loop[:1]])
             ax.plot(closed[:, 0], closed[:, 1], color="0.55", lw=0.8, ls="--", zorder=1)
-    for c in snap.cables:
-        p = c["deformed"]
-        lw = 1.2 + (1.5 if c["tension"] > 0 else 0.0)
-        label = f"{c['name']} ({c['kind']}): {c['tension']:.3g} N"
-        ax.plot(p[:, 0], p[:, 1], color=CABLE_COLORS[c["kind"]], lw=lw, zorder=3,
-                ls="-" if c["tension"] > 0 else ":", label=label)
+    _draw_cables(ax, snap.cables)
     for pin in design.pins:
         (x0, y0), (x1, y1) = pin.region
         ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, hatch="////",
@@ -80,6 +75,34 @@ def plot_deformed(path: Path, state, title: str = "", ax=None, show_rest: bool =
     if own:
         fig.tight_layout()
         atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
+
+
+def _draw_cables(ax, cables: list) -> None:
+    """Cables over the mesh: one colour per kind, or, for a cable whose tension varies along it
+    (friction), every segment coloured by its tension on one scale for all such cables (with a colour
+    bar); dotted when slack. Each cable is one legend entry with its tension at the actuated end
+    (and at the far end when they differ)."""
+    from matplotlib.collections import LineCollection
+    from matplotlib.colors import Normalize
+    varying = [c for c in cables if np.ptp(c.get("tensions", [0.0])) > 1e-9 * max(c["tension"], 1e-300)]
+    norm = Normalize(0.0, max((float(np.max(c["tensions"])) for c in varying), default=1.0))
+    mappable = None
+    for c in cables:
+        p = c["deformed"]
+        taut = c["tension"] > 0 or (c in varying)
+        lw = 1.2 + (1.5 if taut else 0.0)
+        label = f"{c['name']} ({c['kind']}): {c['tension']:.3g} N"
+        if c in varying:
+            label += f" to {c['tensions'][-1]:.3g} N"
+            mappable = LineCollection(np.stack([p[:-1], p[1:]], axis=1), array=np.asarray(c["tensions"]),
+                                      cmap="viridis", norm=norm, linewidths=lw + 0.6, zorder=3)
+            ax.add_collection(mappable)
+            ax.plot([], [], color=mappable.cmap(0.6), lw=lw, label=label)
+            continue
+        ax.plot(p[:, 0], p[:, 1], color=CABLE_COLORS[c["kind"]], lw=lw, zorder=3,
+                ls="-" if taut else ":", label=label)
+    if mappable is not None:
+        ax.figure.colorbar(mappable, ax=ax, shrink=0.6, pad=0.02, label="cable tension [N]")
 
 
 def draw_objects(ax, objects: list, show_rest: bool = True, rest: dict | None = None,
@@ -146,10 +169,21 @@ def plot_deformed_3d(path: Path, state, title: str = "", window_size=(900, 900),
     if len(bones):
         p.add_mesh(grid.extract_cells(bones).extract_surface(algorithm=None), color=REGION_COLORS["bone"],
                    show_edges=True, edge_color="#9a9080", line_width=0.3)
+    top = max((float(np.max(c["tensions"])) for c in snap.cables if "tensions" in c), default=0.0)
+    coloured = False
     for c in snap.cables:
         line = pv.lines_from_points(c["deformed"])
         width = 5 if c["tension"] > 0 else 2
+        if np.ptp(c.get("tensions", [0.0])) > 1e-9 * max(c["tension"], 1e-300):   # friction: by tension
+            line.cell_data["tension"] = np.asarray(c["tensions"], float)
+            p.add_mesh(line, scalars="tension", cmap="viridis", clim=(0.0, top), line_width=5,
+                       show_scalar_bar=False)      # (VTK's scalar bar crashes off-screen here: a legend line instead)
+            coloured = True
+            continue
         p.add_mesh(line, color=CABLE_COLORS[c["kind"]], line_width=width, render_lines_as_tubes=True)
+    if coloured:
+        p.add_text(f"cables with friction coloured by tension (viridis): 0 to {top:.3g} N", position="upper_left",
+                   font_size=10, color="#333333")
     if snap.markers:
         pos = np.array(list(snap.markers.values()))
         p.add_point_labels(pos, list(snap.markers), point_size=12, font_size=14, point_color="#222222",
