@@ -8,6 +8,7 @@ from dolfinx import fem
 from dolfinx import mesh as dmesh
 from mpi4py import MPI
 
+from _studies import load_study
 from skelfem.terms import cable_slip
 from skelfem.terms.cables import Cable
 
@@ -128,52 +129,8 @@ def test_friction_energy_gradient_and_hessian_match_finite_differences(rect, deg
 
 
 # -- the cable in a model ------------------------------------------------------------------------
-def _turn(v, a):
-    return np.array([np.cos(a) * v[0] - np.sin(a) * v[1], np.sin(a) * v[0] + np.cos(a) * v[1]])
-
-
-def channel(theta, mu, far_in_silicone=False, per_degree=0.2, size=4.0, contraction=0.5, k=10.0):
-    """A tendon through a channel in a rigid pulley: a lead-in, an arc of total turning exactly theta
-    (a spiral beyond pi), a lead-out; the far end in the pulley (blocked) or in the silicone beside it
-    (a return spring). Returns (design dict, index of the arc's first and last via point in the path)."""
-    centre = np.array([40.0, 45.0])
-    n = max(int(np.ceil(np.degrees(theta) * per_degree)), 2)
-    ang = np.pi + np.linspace(0.0, theta, n + 1)
-    rad = np.linspace(16.0, 8.0, n + 1) if theta > np.pi + 1e-9 else np.full(n + 1, 12.0)
-    arc = centre + rad[:, None] * np.column_stack([np.cos(ang), np.sin(ang)])
-    chords = np.diff(arc, axis=0)
-    unit = chords / np.linalg.norm(chords, axis=1)[:, None]
-    inner = np.arctan2(np.cross(unit[:-1], unit[1:]), (unit[:-1] * unit[1:]).sum(1)).sum()
-    half = (theta - inner) / 2                                  # the turn at the arc's two ends
-    lead_in = arc[0] - 12.0 * _turn(unit[0], -half)
-    lead_out = arc[-1] + (30.0 if far_in_silicone else 6.0) * _turn(unit[-1], half)
-    pulley = [(centre + 21.0 * np.array([np.cos(a), np.sin(a)])).tolist()
-              for a in np.linspace(0, 2 * np.pi, 48, endpoint=False)]
-    d = {
-        "format": 1, "name": "channel", "dim": 2, "thickness": 10.0,
-        "mesh": {"size": size, "degree": 1},
-        "materials": {"soft": {"E": 0.1, "nu": 0.45}, "pla": {"E": 3000.0, "nu": 0.35}},
-        "body": {"outline": [[0, 0], [80, 0], [80, 95], [0, 95]], "material": "soft"},
-        "bones": [{"name": "pulley", "outline": pulley, "material": "pla", "rigid": True}],
-        "cables": [{"name": "t", "kind": "tendon", "path": [lead_in.tolist()] + arc.tolist() + [lead_out.tolist()],
-                    "stiffness": k, "contraction": contraction, "friction": mu}],
-        "pins": [{"name": "base", "region": [[-1, -1], [81, 1e-6]], "kind": "fixed"}],
-        "solver": {"steps": 2},
-    }
-    return d, arc
-
-
-def _arc_tensions(session, arc):
-    """(tension entering the arc, tension leaving it, the turning between them at the current state)."""
-    term = session.model.terms_in("cables")[0]
-    cab, u = term.cable, session.model.u.x.array
-    T = cab.tensions(u, term.rest_length)
-    i0 = int(np.argmin(np.linalg.norm(cab.X - arc[0], axis=1)))
-    i1 = int(np.argmin(np.linalg.norm(cab.X - arc[-1], axis=1)))
-    t = np.diff(cab.positions(u), axis=0)
-    t /= np.linalg.norm(t, axis=1)[:, None]
-    turning = np.arccos(np.clip((t[:-1] * t[1:]).sum(1), -1, 1))[i0 - 1:i1].sum()
-    return T[i0 - 1], T[i1], turning
+_bench = load_study("cable_friction_bench")
+channel, _arc_tensions = _bench.channel, _bench.arc_tensions      # a tendon through a rigid pulley's channel
 
 
 @pytest.mark.slow
@@ -323,3 +280,10 @@ def test_simulate_reports_every_segment_and_draws_the_tension(tmp_path, picture)
     lines = [i for i, b in enumerate(m.cells) if b.type == "line"][0]
     assert np.allclose(np.sort(m.cell_data["tension"][lines][:len(T)]), np.sort(T))
     picture(out / "deformed.png", 400, 400)
+
+
+def test_bench_study_runs_quick(tmp_path):
+    res = _bench.main(["--quick", "--out", str(tmp_path)])
+    assert res["worst_capstan_error"] < 0.01 and all(r["status"] == "converged" for r in res["fingers"])
+    assert abs(res["observed_order"][0] - 2.0) < 0.3
+    assert {p.name for p in tmp_path.iterdir()} == {"capstan.csv", "order.csv", "iterations.csv", "summary.json"}
