@@ -64,11 +64,22 @@ def build(name: str, size: float, gap: float, stiffness: float, pretension: floa
     raw = load_design(path, [f"mesh.size={size}"]).raw
     raw["cables"] = [dict(c, pretension=float(pretension)) for c in raw.get("cables", [])
                      if c["kind"] == "ligament"]                    # the tendon's spool is free
+    add_sensor(raw, gap, stiffness, tilt_deg)
+    return Session(parse_design(raw, str(path)))
+
+
+def add_sensor(raw: dict, gap: float, stiffness: float, tilt_deg: float) -> None:
+    """Put the sensor (ground "fsr") into a design dict, `gap` above the rest tip, tilted by tilt_deg."""
     top = max(p[1] for p in raw["body"]["outline"])
     t = np.radians(tilt_deg)     # a slight tilt picks the buckling side (see the module docstring)
     raw["grounds"] = [{"name": "fsr", "point": [10.0, top + gap], "normal": [float(np.sin(t)), -float(np.cos(t))],
                        "stiffness": float(stiffness)}]
-    return Session(parse_design(raw, str(path)))
+
+
+def sensor_force(model) -> float:
+    """The sensor's reading: the net force on the plane along its normal, N."""
+    sensor = model.term("grounds", "fsr")
+    return float(-sensor.force() @ sensor.normal)
 
 
 def bake_pretension(model) -> None:
@@ -107,7 +118,7 @@ def push(session, travel: float, steps: int, gap: float) -> dict:
     place_sensor(model, gap)
     drive_base(model, travel)
     model.set_factor(0.0)
-    sensor, markers = model.term("grounds", "fsr"), model.term("markers")
+    markers = model.term("markers")
     forces, tips, travels, its, status = [], [], [], first.newton_iterations, "converged"
     for k in range(1, steps + 1):
         report = solver.solve(1, (k - 1) / steps, k / steps)
@@ -115,7 +126,7 @@ def push(session, travel: float, steps: int, gap: float) -> dict:
         if not report.converged:                # never report a failed state as an equilibrium
             status = f"travel {k * travel / steps:g} mm: {report.status}"
             break
-        forces.append(float(-sensor.force() @ sensor.normal))   # the sensor's reading, N
+        forces.append(sensor_force(model))      # the sensor's reading, N
         tips.append(markers.positions(model.u.x.array)[0].tolist())
         travels.append(k * travel / steps)
     return {"travel": travels, "force": forces, "tip": tips, "status": status, "iterations": its}

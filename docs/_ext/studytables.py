@@ -468,9 +468,30 @@ def grasp_bench(_: dict) -> Table:
     return Table(["solve", "with friction", "without friction"], rows, "", [path])
 
 
+def cable_friction(_: dict) -> Table:
+    d, path = load_json("cable_friction/cable_friction.json", "python studies/cable_friction.py")
+    rows = []
+    for w in d["widths"]:
+        f = w.get("full") or {}
+        status = "" if w["status"] == "converged" else f" ({w['status']})"
+        rows.append([short(w["mu"]), f"{num(w['loop_width'])} mm at {short(w['at'])} mm" if w["loop_width"] > 1e-6
+                     else "0", num(f.get("tip_x")), num(f.get("tension_actuated")), num(f.get("tension_far")),
+                     f"{w['newton_iterations']}{status}"])
+    p = d["params"]
+    push = "; ".join(f"mu = {short(x['mu'])}: {num(x['force_gap'], 2)} N" for x in d.get("push", []))
+    caption = (f"{d['design']}, its flexor with friction mu, h = {short(p['size'])} mm: contraction 0 → "
+               f"{short(p['top'])} → 0 mm in steps of {short(p['top'] / p['steps'])} mm; tip x and tensions at "
+               f"{short(p['top'])} mm on the way up. Loop width: the largest |tip x up − tip x down| at one "
+               f"contraction. Push test (flexor held at {short(p['pre'])} mm), largest gap between the sensor "
+               f"force down and back: {push}.")
+    return Table(["mu", "loop width", "tip x [mm]", "tension, actuated end [N]", "tension, far end [N]",
+                  "Newton iterations (cycle)"], rows, caption, [path])
+
+
 TABLES = {f.__name__: f for f in (bench, mpi_speed, editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
                                   tol_check, tol_check_adaptive, scatter, adaptive_reach, adaptive_tol_runs,
-                                  stability, stability_slender, peer, pull_test, dynamics_checks, grasp, grasp_bench)}
+                                  stability, stability_slender, peer, pull_test, dynamics_checks, grasp, grasp_bench,
+                                  cable_friction)}
 
 
 # -- docutils -----------------------------------------------------------------------------------------------
