@@ -43,6 +43,7 @@ from .cable_route import (MAX_PER_RADIUS, PER_RADIUS, PIECES, anchor_samples, an
                           anchored_interpolation, anchors, default_anchor_radius, differences,
                           lattice_density, via_points)
 
+TENSION_FLOOR = 1e-14    # tensions below this times k L0 (a strain of 1e-14) are zero
 ANDERSON_DEPTH = 5     # (F, G(F)) pairs the friction limits' fixed point mixes
 
 
@@ -122,6 +123,7 @@ class Cable:
         s[0], s[-1] = self.L0 - L, 0.0                  # the actuator pulls s_0 out; the far end is tied
         b = norm - (self.seg0 + s[1:] - s[:-1])
         T = cable_slip.tensions(b, self.compliances(), self.F)
+        T[T < TENSION_FLOOR * self.k * self.L0] = 0.0          # round-off of a slack cable, not a force
         out = (d, norm, t, b, T)
         self._cache = (key, v.copy(), out)
         return out
@@ -144,6 +146,7 @@ class Cable:
             return False
         _, _, t, b, _ = self._state(u, L)
         G, T = cable_slip.coulomb_limits(b, self.compliances(), self.mu * cable_slip.bend_tangents(t), self.F)
+        G[G < TENSION_FLOOR * self.k * self.L0] = 0.0
         scale = max(float(T.max()), 1e-300)
         same = np.array_equal(np.isfinite(G), np.isfinite(self.F))
         finite = np.isfinite(G) & np.isfinite(self.F)
