@@ -488,10 +488,35 @@ def cable_friction(_: dict) -> Table:
                   "Newton iterations (cycle)"], rows, caption, [path])
 
 
+def capstan(_: dict) -> Table:
+    cmd = "python studies/cable_friction_bench.py"
+    rows_c, path = load_csv("cable_friction_bench/capstan.csv", cmd)
+    rows_o, path_o = load_csv("cable_friction_bench/order.csv", cmd)
+    rows = [[f"{float(r['theta']) / math.pi:g} π", short(r["mu"]), num(r["ratio"], 5), num(r["capstan"], 5),
+             f"{float(r['error']):+.3%}", r["newton_iterations"]] for r in rows_c]
+    order = ", ".join(f"{num(r['observed_order'])}" for r in rows_o if r["observed_order"])
+    spacing = ", ".join(f"{short(r['degrees_per_via_point'])}°: {float(r['error']):+.2%}" for r in rows_o)
+    caption = ("A tendon through a channel in a rigid pulley, pulled 3 mm, its far end in the silicone beside it; "
+               "a via point every 5° of the arc. Ratio: tension entering the arc over tension leaving it; "
+               "Θ measured on the deformed via points. Refining the spacing at Θ = 2π, mu = 0.3 "
+               f"({spacing}): observed order {order}.")
+    return Table(["Θ", "mu", "ratio", "e^(mu Θ)", "error", "Newton iterations"], rows, caption, [path, path_o])
+
+
+def cable_friction_cost(_: dict) -> Table:
+    rows_i, path = load_csv("cable_friction_bench/iterations.csv", "python studies/cable_friction_bench.py")
+    rows = [[f"`{r['design']}`", short(r["mu"]), r["newton_iterations"], f"{float(r['ratio_to_frictionless']):.2f}×",
+             num(r["time"], 2), num(r["tension_actuated_end"]), num(r["tension_far_end"])] for r in rows_i]
+    caption = ("Each bundled finger solved from rest as bundled, every cable with friction mu; time in seconds "
+               "on this machine (one run each).")
+    return Table(["design", "mu", "Newton iterations", "against mu = 0", "time [s]", "tendon, actuated end [N]",
+                  "far end [N]"], rows, caption, [path])
+
+
 TABLES = {f.__name__: f for f in (bench, mpi_speed, editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
                                   tol_check, tol_check_adaptive, scatter, adaptive_reach, adaptive_tol_runs,
                                   stability, stability_slender, peer, pull_test, dynamics_checks, grasp, grasp_bench,
-                                  cable_friction)}
+                                  cable_friction, capstan, cable_friction_cost)}
 
 
 # -- docutils -----------------------------------------------------------------------------------------------
