@@ -45,6 +45,7 @@ log = logging.getLogger("skelfem")
 
 
 MAX_LAG_UPDATES = 30   # re-solves with updated lagged quantities (friction's normal forces) per step
+LAG_LOOSE = 1e-2       # a re-solve whose lags will change again stops at this times its own first |R|
 
 
 def resolve_strategy(design) -> str:
@@ -115,6 +116,7 @@ class NewtonSolver(LineSearch):
         self.max_verdict_cuts = 0     # a path step that leaves an object unheld is cut this often at most
         self._newton_step = np.inf    # |p| of the last undamped Newton step
         self.reference_residual = 0.0  # largest first |R| of a solve from rest (the problem's force scale)
+        self._loose, self._round_f0 = 0.0, 0.0   # a loose re-solve (see _relag) and its own first |R|
         self.etol = 1e-15             # Newton decrement -grad Pi . p relative to |Pi| that ends the solve
         self._decrement_converged = False
         self.A = model.create_matrix()
@@ -194,10 +196,11 @@ class NewtonSolver(LineSearch):
             # the force scale: |R| at the start of a solve from rest; a warm start, whose first
             # residual is small, is held to the same absolute accuracy, not to rtol of its own |R_0|
             self._f0 = max(fnorm, self.reference_residual)
+            self._round_f0 = fnorm
         log.debug("  newton %2d  |R| = %.3e  |dx| = %.3e", it, fnorm, ynorm)
         if not np.isfinite(fnorm):
             return PETSc.SNES.ConvergedReason.DIVERGED_FNORM_NAN
-        if fnorm <= max(self.atol, self.rtol * self._f0):
+        if fnorm <= max(self.atol, self.rtol * self._f0, self._loose * self._round_f0):
             return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_ABS
         if self._decrement_converged:
             return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_RELATIVE
@@ -248,16 +251,24 @@ class NewtonSolver(LineSearch):
         """Newton again after each change of the terms' lagged quantities, until none changes."""
         if self._history:                       # the re-solves keep the first solve's force scale
             self.reference_residual = max(self.reference_residual, self._history[0])
+        loose = LAG_LOOSE
         for _ in range(MAX_LAG_UPDATES):
             self._failure, self._newton_step, self._decrement_converged = None, np.inf, False
             self._watch, self._watch_allowed, self._last_trial = None, True, None
-            ok, status, more = self._newton_once()
+            self._loose = loose
+            try:
+                ok, status, more = self._newton_once()
+            finally:
+                self._loose = 0.0
             its += more
             if not ok and status.startswith("no equilibrium"):   # an object gone: new lags cannot hold it
                 return False, status, its
             changed = self.model.update_lag()
             if not ok and not changed:
                 return False, status, its
+            if ok and not changed and loose:      # the lags hold at a loosely solved state: solve it fully
+                loose = 0.0
+                continue
             if ok and not changed:
                 if not self.model.admissible(self.x):
                     return False, "inverted_elements", its
