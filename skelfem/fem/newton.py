@@ -45,6 +45,7 @@ log = logging.getLogger("skelfem")
 
 
 MAX_LAG_UPDATES = 30   # re-solves with updated lagged quantities (friction's normal forces) per step
+MAX_FAILED_ROUNDS = 3  # re-solves in a row that fail although their lags changed: no equilibrium near
 LAG_LOOSE = 1e-2       # a re-solve whose lags will change again stops at this times its own first |R|
 
 
@@ -251,7 +252,7 @@ class NewtonSolver(LineSearch):
         """Newton again after each change of the terms' lagged quantities, until none changes."""
         if self._history:                       # the re-solves keep the first solve's force scale
             self.reference_residual = max(self.reference_residual, self._history[0])
-        loose = LAG_LOOSE
+        loose, failed = LAG_LOOSE, 0
         for _ in range(MAX_LAG_UPDATES):
             self._failure, self._newton_step, self._decrement_converged = None, np.inf, False
             self._watch, self._watch_allowed, self._last_trial = None, True, None
@@ -264,7 +265,8 @@ class NewtonSolver(LineSearch):
             if not ok and status.startswith("no equilibrium"):   # an object gone: new lags cannot hold it
                 return False, status, its
             changed = self.model.update_lag()
-            if not ok and not changed:
+            failed = 0 if ok else failed + 1
+            if not ok and (not changed or failed >= MAX_FAILED_ROUNDS):   # new lags did not help either
                 return False, status, its
             if ok and not changed and loose:      # the lags hold at a loosely solved state: solve it fully
                 loose = 0.0
