@@ -15,8 +15,9 @@ a. Contraction cycle. One Session per mu: a solve at rest, then the flexor's
    kept). Recorded per step: the tip marker (x, y), the tension at the
    actuated end (first segment) and at the far end (last segment, in the
    distal bone). Pulling, friction holds tension back from the far end
-   (T_far < T_actuated); paying out, it holds it in (T_far > T_actuated), so
-   the finger bends less on the way up and stays more bent on the way down.
+   (T_far < T_actuated); paying out, it holds it in (T_far > T_actuated).
+   With the contraction imposed, the tip is further palmar than without
+   friction on the way up and less on the way down.
 b. Push test (paper Figs. 7/8; studies/push_test.py pushes the same finger
    with its flexor removed). Here the flexor stays, held at a fixed length,
    and the base is driven up to `travel` mm into the sensor and back to 0 in
