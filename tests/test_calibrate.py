@@ -253,6 +253,7 @@ def test_noise_coverage_over_twenty_seeds(finger):
     ("markers.tip.x,experiment\n1,a\n2,b\n3,a\n", ["materials.ecoflex.E"], {}, "consecutive"),
     ("markers.tip.x\n1\n2\n", ["materials.*.E"], {}, "start at different values (materials.ecoflex.E=0.1"),
     ("markers.tip.x\n1\n2\n", ["cables.nope*.stiffness"], {}, "matches no live parameter"),
+    ("markers.tip.x\n1\n2\n", ["cables.flexor.friction"], {}, "a cable's friction cannot be fitted yet"),
 ])
 def test_bad_data_is_one_line(data, fit, kw, message):
     design = load_design(FINGER)

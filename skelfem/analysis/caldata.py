@@ -63,6 +63,7 @@ def live_keys(design) -> dict:
         which = "contraction" if c.kind == "tendon" else "pretension"
         out[f"cables.{c.name}.{which}"] = float(getattr(c, which))
         out[f"cables.{c.name}.stiffness"] = float(c.stiffness)
+        out[f"cables.{c.name}.friction"] = float(c.friction)
     for load in design.loads:
         out[f"loads.{load.name}.force"] = np.asarray(load.force, float).copy()
     for t in design.tractions:
@@ -316,6 +317,10 @@ def prepare_data(design, data, fit, sigma=None, bounds=None, holdout: float = 0.
                             f"(live: {', '.join(live) or 'none'})")
     targets_of = {k: tied.get(k, [k]) for k in keys}
     flat = [t for k in keys for t in targets_of[k]]
+    unfit = [t for t in flat if t.startswith("cables.") and t.endswith(".friction")]
+    if unfit:
+        raise DataError(f"fit: {unfit[0]!r}: a cable's friction cannot be fitted yet (no derivatives with respect "
+                        "to it; fit the others with it set, or compare runs over a few values)")
     if len(set(flat)) != len(flat):
         raise DataError("fit: a parameter is named twice")
     bounds = parse_pairs(bounds.items() if isinstance(bounds, dict) else bounds, "bounds")
