@@ -287,3 +287,25 @@ def test_bench_study_runs_quick(tmp_path):
     assert res["worst_capstan_error"] < 0.01 and all(r["status"] == "converged" for r in res["fingers"])
     assert abs(res["observed_order"][0] - 2.0) < 0.3
     assert {p.name for p in tmp_path.iterdir()} == {"capstan.csv", "order.csv", "iterations.csv", "summary.json"}
+
+
+def test_friction_hessian_stays_inside_the_cable_pattern(rect):
+    """The sparse part with friction (sticking segments' axial blocks included) fills only the blocks the
+    frictionless cable declared (pattern: each narrow segment's nodes); the rest is rank-one parts."""
+    V = fem.VectorFunctionSpace(rect, ("Lagrange", 1))
+    cable = Cable.build(V, _spec([[3, 0], [3, 40], [10, 60], [4, 96]], 0.3))
+    rng = np.random.default_rng(3)
+    u = rng.normal(size=V.dofmap.index_map.size_local * 2) * 0.3
+    L = cable.L0 - 4.0
+    cable.F = 2 * cable.tensions(u, L).max() * (rng.random(len(cable.d0) - 1) > 0.5)    # half stick
+    cable._version += 1
+    H = cable.curvature(u, L).tocsr()
+    H.eliminate_zeros()
+    allowed = set()
+    for nodes in cable.segment_nodes(2):
+        allowed |= {(a, b) for a in nodes for b in nodes}
+    r, c = H.nonzero()
+    nodes = cable.dofs // 2
+    assert len(r) and all((nodes[i], nodes[j]) in allowed for i, j in zip(r, c))
+    label, taut = cable_slip.zones(cable.tensions(u, L), cable.F)
+    assert (np.bincount(label)[taut] == 1).any() and (np.bincount(label)[taut] > 1).any()
