@@ -309,3 +309,19 @@ def test_friction_hessian_stays_inside_the_cable_pattern(rect):
     assert len(r) and all((nodes[i], nodes[j]) in allowed for i, j in zip(r, c))
     label, taut = cable_slip.zones(cable.tensions(u, L), cable.F)
     assert (np.bincount(label)[taut] == 1).any() and (np.bincount(label)[taut] > 1).any()
+
+
+def test_the_bundled_friction_finger_pulls_and_pays_out():
+    """geometry/finger_friction.toml: pulled to 8 mm the tension falls along the flexor; paid out to 6 mm
+    it is not the finger pulled to 6 mm from rest (hysteresis)."""
+    from skelfem.session import Session
+    path = Path(__file__).resolve().parents[1] / "geometry" / "finger_friction.toml"
+    s = Session(path, ["mesh.size=3"])
+    up = s.solve().to_dict()["cables"]["flexor"]
+    assert up["friction"] == 0.3 and up["tensions"][0] > 1.3 * up["tensions"][-1] > 0
+    s.set({"cables.flexor.contraction": 6.0})
+    down = s.solve()
+    loaded = Session(path, ["mesh.size=3", "cables.flexor.contraction=6"]).solve()
+    assert down.status == loaded.status == "converged"
+    assert np.linalg.norm(np.subtract(down.marker("tip"), loaded.marker("tip"))) > 0.5
+    assert down.tension("flexor") < 0.9 * loaded.tension("flexor")
