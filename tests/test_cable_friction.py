@@ -325,3 +325,24 @@ def test_the_bundled_friction_finger_pulls_and_pays_out():
     assert down.status == loaded.status == "converged"
     assert np.linalg.norm(np.subtract(down.marker("tip"), loaded.marker("tip"))) > 0.5
     assert down.tension("flexor") < 0.9 * loaded.tension("flexor")
+
+
+def test_solution_xdmf_fill_values_are_the_documented_ones(tmp_path):
+    """docs/guide/output.md's table of fill values: region -1 on cable cells, cable -1 and tension 0 on the
+    body's; no NaN."""
+    import meshio
+
+    from skelfem.io.xdmf import write_xdmf
+    from skelfem.session import Session
+    d, _ = channel(np.pi / 2, 0.2, far_in_silicone=True, contraction=1.0)
+    s = Session(d)
+    assert s.solve().status == "converged"
+    write_xdmf(tmp_path / "solution.xdmf", s.model)
+    m = meshio.read(tmp_path / "solution.xdmf")
+    kinds = [b.type for b in m.cells]
+    body, lines = kinds.index("triangle"), kinds.index("line")
+    data = {k: v for k, v in m.cell_data.items()}
+    assert set(np.unique(data["region"][body])) == {1.0, 2.0} and np.all(data["region"][lines] == -1)
+    assert np.all(data["cable"][body] == -1) and np.all(data["tension"][body] == 0)
+    assert np.all(data["cable"][lines] == 0) and np.ptp(data["tension"][lines]) > 0
+    assert not any(np.isnan(v).any() for blocks in m.cell_data.values() for v in blocks)
