@@ -270,3 +270,78 @@ def test_a_signal_after_the_result_is_published_is_dropped(tmp_path):
     finally:
         outdir.ON_COMMIT = None
         interrupts.uninstall()
+
+
+def _stop_time(args, cwd, sig, delay):
+    """Run, send sig after delay seconds; (exit status, stderr, seconds from the signal to the exit)."""
+    proc = _start(args, cwd)
+    time.sleep(delay)
+    t0 = time.monotonic()
+    if proc.poll() is None:
+        proc.send_signal(sig)
+    try:
+        _, err = proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        pytest.fail(f"{args[0]} did not stop within 60 s of signal {sig}")
+    return proc.returncode, err, time.monotonic() - t0
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_signal_stops_meshing_inside_gmsh_within_two_seconds(tmp_path, sig):
+    """A 3D mesh that takes Gmsh half a minute: the signal arrives while Gmsh meshes (a C++ call that
+    never returns to Python; it runs in a worker thread now), and the command is gone within 2 s."""
+    out = tmp_path / "big"
+    args = ["simulate", str(ROOT / "geometry" / "finger3d.toml"), "--set", "mesh.size=0.6", "--force", "--out",
+            str(out), "-q"]
+    code, err, took = _stop_time(args, tmp_path, sig, 8.0)
+    assert code == 128 + sig and error_lines(err) == ["error: interrupted"] and "Traceback" not in err, (code, err)
+    assert took < 2.0, took
+    assert not out.exists()
+    _no_debris(tmp_path, "big")
+
+
+@pytest.mark.parametrize("delay", [1.5, 2.5, 3.5])
+def test_fabricate_stops_within_two_seconds_wherever_it_is(tmp_path, delay):
+    """fabricate spends most of its time in OpenCASCADE and Gmsh: SIGTERM at several moments; each run
+    ends within 2 s of it with 143 and no folder (or had finished: a complete one)."""
+    out = tmp_path / "fab"
+    code, err, took = _stop_time(["fabricate", str(ROOT / "geometry" / "finger3d.toml"), "--out", str(out), "-q"],
+                                 tmp_path, signal.SIGTERM, delay)
+    _check_interrupted(code, err, signal.SIGTERM)
+    assert took < 2.0, took
+    if code:
+        assert not out.exists()
+    else:
+        assert (out / "fabrication.json").exists()
+    _no_debris(tmp_path, "fab")
+
+
+def test_an_interrupted_gmsh_call_is_left_behind_and_gmsh_refused_after_it(tmp_path):
+    """In process: interruptible() returns control to the caller at the signal (its worker thread keeps
+    the call), and later Gmsh use in that process is refused with one clear message."""
+    script = textwrap.dedent("""
+        import os, signal, threading, time
+        from skelfem.runtime import interrupts
+        from skelfem.design.occ import MeshingError, ensure_gmsh
+        interrupts.install()
+        threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT)).start()
+        t0 = time.monotonic()
+        try:
+            interrupts.interruptible(time.sleep, 30.0)
+        except interrupts.Interrupted:
+            print("interrupted after", round(time.monotonic() - t0, 2), "abandoned", interrupts.abandoned())
+        import gmsh
+        try:
+            ensure_gmsh(gmsh)
+        except MeshingError as exc:
+            print("refused:", exc)
+        os._exit(0)
+    """)
+    p = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, env=ENV, capture_output=True, text=True,
+                       timeout=60)
+    lines = p.stdout.splitlines()
+    assert p.returncode == 0 and len(lines) == 2, (p.stdout, p.stderr)
+    took = float(lines[0].split()[2])
+    assert took < 0.6 and lines[0].endswith("abandoned Gmsh"), lines
+    assert lines[1] == "refused: Gmsh is still inside an interrupted call in this process: start a new one"

@@ -9,6 +9,7 @@ line is printed (see skelfem.runtime.mpiguard).
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 from .common import EXIT_INPUT, EXIT_INTERNAL, InputError, print_error, common_arguments, error, setup_logging
@@ -160,7 +161,7 @@ def main(argv=None) -> int:
     in_process = argv is not None             # called by a test: Python's handlers again at the end
     argv = sys.argv[1:] if argv is None else list(argv)
     _printable_argv()
-    ctl = None
+    ctl, status = None, 130
     try:
         if mpiguard.world_size_hint() > 1:
             from mpi4py import MPI
@@ -169,15 +170,21 @@ def main(argv=None) -> int:
         code, message = mpiguard.agree(ctl, code, message, in_step, say=print_error)
         if message:
             error(message)
+        status = code
         return code
     except interrupts.Interrupted as exc:     # between the pieces above
         error("interrupted")
+        status = exc.code
         return exc.code
     finally:
         if ctl is not None:
             ctl.Free()
         if not in_process:
             interrupts.ignore()               # the command is over: its status stands through the exit
+            if interrupts.abandoned():        # a Gmsh call still runs in its thread: leave without finalisers
+                sys.stdout.flush()
+                sys.stderr.flush()
+                os._exit(status)
         else:
             interrupts.uninstall()            # called in process (tests): Python's defaults again
 

@@ -24,6 +24,9 @@ def ensure_gmsh(gmsh) -> None:
     handlers are put back afterwards.
     """
     global _GMSH_READY
+    from ..runtime import interrupts
+    if interrupts.abandoned():
+        raise MeshingError("Gmsh is still inside an interrupted call in this process: start a new one")
     if not _GMSH_READY:
         from ..runtime import interrupts
         with interrupts.held():

@@ -18,8 +18,9 @@ TOLERANCE = 0.01       # relative: bone volumes and the mould's cavity against t
 def build(plan: Plan, folder: Path | None = None) -> list[Part]:
     """Every part of the plan: the bones in design order, then mould_bottom and mould_top (STEP files
     into folder if given)."""
-    parts = [build_bone(plan, b, folder) for b in plan.design.bones]
-    return parts + [build_half(plan, side, folder) for side in ("bottom", "top")]
+    from ..runtime.interrupts import interruptible        # OCC's booleans ignore signals: off the main thread
+    parts = [interruptible(build_bone, plan, b, folder) for b in plan.design.bones]
+    return parts + [interruptible(build_half, plan, side, folder) for side in ("bottom", "top")]
 
 
 def _plain(x) -> list:

@@ -524,11 +524,8 @@ class _Planner:
 
 def plan(design) -> Plan:
     """Check a design for fabrication and plan every part; raises FabricationError (key, message)."""
-    import gmsh
-
-    from ..design.occ import gmsh_model
     from ..design.sections import MAX_PRINT, MIN_PRINT, fabrication_bounds, fabrication_extent
-    from ..mesh.geometry import add_design_solids
+    from ..runtime.interrupts import interruptible
 
     spec = design.fabrication
     extent = fabrication_extent(design)          # every bound before Gmsh, which ignores signals
@@ -537,17 +534,7 @@ def plan(design) -> Plan:
                                        f"[{MIN_PRINT:g}, {MAX_PRINT:g}] mm to print its mould")
     for key, message in fabrication_bounds(spec, extent):
         raise FabricationError(f"fabrication.{key}", message + " (the default for this body; set it)")
-    with gmsh_model("skelfem-fabricate-probe"):
-        occ = gmsh.model.occ
-        body_tags, bone_tags = add_design_solids(occ, design, spec.bone_depth or None)
-        occ.synchronize()
-        box = np.array([occ.getBoundingBox(3, t) for t in body_tags]).reshape(-1, 2, 3)
-        scale = float((box[:, 1].max(axis=0) - box[:, 0].min(axis=0)).max())
-        body_volume = float(sum(occ.getMass(3, t) for t in body_tags))
-        bone_volumes = {name: float(sum(occ.getMass(3, t) for t in tags)) for name, tags in bone_tags.items()}
-        generate_surface_mesh(gmsh, scale / 8, PROBE_CURVATURE)
-        body = triangle_surface(gmsh, body_tags)
-        bones = {name: triangle_surface(gmsh, tags) for name, tags in bone_tags.items()}
+    scale, body_volume, bone_volumes, body, bones = interruptible(_probe, design, spec)   # Gmsh ignores signals
     planner = _Planner(design, body, bones, scale)
     planner.block()
     bone_tools = planner.route()
@@ -561,3 +548,22 @@ def plan(design) -> Plan:
     return p
 
 
+def _probe(design, spec):
+    """The design's solids in OCC, meshed coarsely: (scale, body volume, bone volumes, body surface,
+    bone surfaces)."""
+    import gmsh
+
+    from ..design.occ import gmsh_model
+    from ..mesh.geometry import add_design_solids
+    with gmsh_model("skelfem-fabricate-probe"):
+        occ = gmsh.model.occ
+        body_tags, bone_tags = add_design_solids(occ, design, spec.bone_depth or None)
+        occ.synchronize()
+        box = np.array([occ.getBoundingBox(3, t) for t in body_tags]).reshape(-1, 2, 3)
+        scale = float((box[:, 1].max(axis=0) - box[:, 0].min(axis=0)).max())
+        body_volume = float(sum(occ.getMass(3, t) for t in body_tags))
+        bone_volumes = {name: float(sum(occ.getMass(3, t) for t in tags)) for name, tags in bone_tags.items()}
+        generate_surface_mesh(gmsh, scale / 8, PROBE_CURVATURE)
+        body = triangle_surface(gmsh, body_tags)
+        bones = {name: triangle_surface(gmsh, tags) for name, tags in bone_tags.items()}
+    return scale, body_volume, bone_volumes, body, bones

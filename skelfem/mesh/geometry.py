@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from mpi4py import MPI
 
+from ..runtime import interrupts
 from ..design.occ import MeshingError, add_polygon, add_solid, ensure_gmsh, forget_array_types, fuse, gmsh_model  # noqa: F401
 
 BODY = "body"
@@ -263,31 +264,7 @@ def _mesh_design(design, comm=MPI.COMM_WORLD, verbose: bool = False, size=None) 
         ensure_gmsh(gmsh)
         gmsh.option.setNumber("General.Terminal", 1 if verbose else 0)
         gmsh.model.add(design.name)
-        try:
-            groups = _build_model(gmsh, design)
-            for name, entities in groups.items():
-                if not entities:
-                    raise MeshingError(f"region {name!r} vanished while meshing")
-                gmsh.model.addPhysicalGroup(dim, entities, tags[name])
-                gmsh.model.setPhysicalName(dim, tags[name], name)
-            h = float(design.mesh.size)
-            gmsh.option.setNumber("Mesh.MeshSizeMax", h)
-            gmsh.option.setNumber("Mesh.MeshSizeMin", 0.1 * h)
-            gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
-            gmsh.option.setNumber("Mesh.Algorithm", 6)
-            # Frontal-Delaunay triangles are good without Laplacian smoothing
-            # (quality gamma >= 0.6 on the bundled designs), which costs half
-            # of a 2D meshing's time: re-meshing after an edit must be quick.
-            gmsh.option.setNumber("Mesh.Smoothing", 0)
-            undo = _apply_size(gmsh, size, h) if size is not None else None
-            try:
-                gmsh.model.mesh.generate(dim)
-            finally:
-                if undo is not None:
-                    _remove_size(gmsh, undo)
-            error = None
-        except Exception as exc:  # reported on every rank below
-            error = str(exc) or type(exc).__name__
+        error = interrupts.interruptible(_gmsh_mesh, gmsh, design, dim, tags, size)
     else:
         error = None
     error = comm.bcast(error, root=0)
@@ -299,3 +276,34 @@ def _mesh_design(design, comm=MPI.COMM_WORLD, verbose: bool = False, size=None) 
     if comm.rank == 0:
         gmsh.model.remove()
     return TaggedMesh(mesh, cell_tags, tags)
+
+
+def _gmsh_mesh(gmsh, design, dim: int, tags: dict, size) -> str | None:
+    """Build the current Gmsh model's geometry and mesh it (rank 0; run where a signal can stop the
+    caller: runtime.interrupts.interruptible). The error message, or None."""
+    try:
+        groups = _build_model(gmsh, design)
+        for name, entities in groups.items():
+            if not entities:
+                raise MeshingError(f"region {name!r} vanished while meshing")
+            gmsh.model.addPhysicalGroup(dim, entities, tags[name])
+            gmsh.model.setPhysicalName(dim, tags[name], name)
+        h = float(design.mesh.size)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", h)
+        gmsh.option.setNumber("Mesh.MeshSizeMin", 0.1 * h)
+        gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
+        gmsh.option.setNumber("Mesh.Algorithm", 6)
+        # Frontal-Delaunay triangles are good without Laplacian smoothing
+        # (quality gamma >= 0.6 on the bundled designs), which costs half
+        # of a 2D meshing's time: re-meshing after an edit must be quick.
+        gmsh.option.setNumber("Mesh.Smoothing", 0)
+        undo = _apply_size(gmsh, size, h) if size is not None else None
+        try:
+            gmsh.model.mesh.generate(dim)
+        finally:
+            if undo is not None:
+                _remove_size(gmsh, undo)
+        return None
+    except Exception as exc:  # reported on every rank by the caller
+        return str(exc) or type(exc).__name__
+

@@ -128,6 +128,48 @@ def uninstall() -> None:
     _installed = False
 
 
+_abandoned: str | None = None     # a call interruptible() left running in its worker thread
+
+
+def interruptible(fn, *args, what: str = "Gmsh", **kwargs):
+    """fn(*args, **kwargs) in a worker thread while the main thread waits, so that SIGINT/SIGTERM (and
+    Ctrl-C without our handlers) stop the caller within a fraction of a second.
+
+    For long calls into a C library that releases the GIL and never returns to Python (Gmsh's mesher
+    and OpenCASCADE's booleans): a signal is only acted upon when the main thread runs Python, and
+    inside such a call it never does. The interrupted call cannot be stopped; it is left to run in its
+    (daemon) thread, and the library must not be used again in this process (``abandoned``: the
+    command line then leaves with os._exit once it has cleaned up). Off the main thread, fn is
+    simply called.
+    """
+    global _abandoned
+    if threading.current_thread() is not threading.main_thread():
+        return fn(*args, **kwargs)
+    box: dict = {}
+
+    def work():
+        try:
+            box["value"] = fn(*args, **kwargs)
+        except BaseException as exc:          # handed to the caller below
+            box["error"] = exc
+    worker = threading.Thread(target=work, name=f"skelfem-{what}", daemon=True)
+    worker.start()
+    try:
+        while worker.is_alive():
+            worker.join(0.05)
+    except BaseException:
+        _abandoned = what
+        raise
+    if "error" in box:
+        raise box["error"]
+    return box.get("value")
+
+
+def abandoned() -> str | None:
+    """The library an interrupted call was left running in (Gmsh), or None."""
+    return _abandoned
+
+
 def finish() -> None:
     """The command's one result is published: SIGINT/SIGTERM from now on are dropped (one held back
     by critical too), so the run ends as it would have, exit 0, and never reports an interruption
