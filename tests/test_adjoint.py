@@ -127,15 +127,30 @@ def test_optimize_bad_input_is_one_error_line(tmp_path, capsys, extra, message):
     assert not out.exists()
 
 
-def test_optimize_needs_dynamics(tmp_path, capsys):
+def test_optimize_without_dynamics_runs_as_long_as_its_target(tmp_path, capsys):
+    """No [dynamics]: --at T (or the CSV's last time) is the run's duration, in 50 steps; with neither,
+    one line saying what to give."""
+    import json
+
     from _designs import toml_text
     from skelfem.cli.main import main
     d = strip(size=4.0)
+    for m in d["materials"].values():
+        m["density"] = 1100.0
     path = tmp_path / "static.toml"
     path.write_text(toml_text(d))
     assert main(["optimize", str(path), "--marker", "tip", "--target", "1", "2", "--out",
                  str(tmp_path / "o"), "-q"]) == 1
-    assert "dynamics: missing" in capsys.readouterr().err
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "dynamics: missing" in err[0] and "--at T" in err[0], err
+    assert main(["optimize", str(path), "--marker", "tip", "--target", "1", "2", "--at", "-1", "--out",
+                 str(tmp_path / "o"), "-q"]) == 1
+    assert "--at -1: must be a finite time > 0 s" in capsys.readouterr().err
+    out = tmp_path / "run"
+    assert main(["optimize", str(path), "--marker", "tip", "--target", "4", "60", "--at", "0.05",
+                 "--max-evaluations", "2", "--out", str(out), "-q"]) == 0, capsys.readouterr().err
+    res = json.loads((out / "optimize.json").read_text())
+    assert res["dynamics"]["duration"] == 0.05 and res["dynamics"]["dt"] == pytest.approx(0.001)
 
 
 @pytest.mark.slow

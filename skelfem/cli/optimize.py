@@ -54,6 +54,27 @@ def add_parsers(subparsers) -> None:
     p.set_defaults(handler=optimize_command)
 
 
+DEFAULT_STEPS = 50      # time steps of the run when the design has no [dynamics]
+
+
+def _duration_from_targets(args, design) -> float:
+    """The run's duration for a design without [dynamics]: --at, or the CSV's last time."""
+    from .control import read_targets
+    if args.csv is not None:
+        times = [float(r[0]) for r in read_targets(args.csv, design.dim + 1)]
+        T = max(times) if times else math.nan
+        where = f"--csv {args.csv}: its last time"
+    elif args.at is not None:
+        T, where = float(args.at), "--at"
+    else:
+        raise cli.InputError(f"{args.design}: dynamics: missing (optimize plans motions in time: give --at T, "
+                             "the target's time, or add a [dynamics] section)")
+    if not (math.isfinite(T) and T > 0.0):
+        raise cli.InputError(f"{where} {T:g}: must be a finite time > 0 s (the run's duration, the design having "
+                             "no [dynamics])")
+    return T
+
+
 def _check(args, design) -> list:
     """The timed targets [(t, point)]; InputError for anything wrong (before meshing)."""
     from .control import contraction_bounds, coordinate_rows, read_targets
@@ -151,6 +172,12 @@ def optimize_command(args) -> int:
     if MPI.COMM_WORLD.size > 1:
         raise cli.InputError(f"{args.design}: optimize runs on one MPI process (got {MPI.COMM_WORLD.size})")
     design = cli.load(args)
+    if design.dynamics is None:          # a run as long as the last target, in DEFAULT_STEPS steps
+        T = _duration_from_targets(args, design)
+        args.overrides = list(args.overrides) + [f"dynamics.duration={T!r}", f"dynamics.dt={T / DEFAULT_STEPS!r}"]
+        design = cli.load(args)
+        cli.log.info("%s: no [dynamics]: a run of %g s in %d steps (%s, no damping)", design.name, T,
+                     DEFAULT_STEPS, design.dynamics.integrator)
     targets = _check(args, design)
     design, session = cli.prepare(args, kind="optimize")
     timings = dict(session.timings)
