@@ -203,6 +203,16 @@ PUSH_FIELDS = ["mu", "branch", "travel", "force", "tip_x", "tip_y", "tension_act
                "via_points", "newton_iterations"]
 
 
+def _label(ax, xlabel: str, ylabel: str, title: str, ncol: int = 1) -> None:
+    """Axis labels, a title, a grid and (if anything is drawn) the legend."""
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3)
+    if ax.lines:
+        ax.legend(fontsize=7, ncol=ncol)
+
+
 def _fig(path: Path, fig) -> None:
     from skelfem.io.files import atomic_write
     fig.tight_layout()
@@ -246,24 +256,13 @@ def write_outputs(out: Path, res: dict) -> None:
             xs = [r["contraction"] for r in c["rows"]]
             bx.plot(xs, [r[key] for r in c["rows"]], style, ms=3, color=color,
                     label=f"mu = {c['mu']:g}: {'actuated end' if key == 'tension_actuated' else 'far end'}")
-    ax.set_xlabel("flexor contraction [mm]")
-    ax.set_ylabel("tip x [mm]")
-    ax.set_title("Tip over a contraction cycle (up: filled, down: open)", fontsize=10)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    dx.set_xlabel("flexor contraction [mm]")
-    dx.set_ylabel("tip x - tip x (mu = 0) [mm]")
-    dx.set_title("The loop: tip x against the frictionless finger's", fontsize=10)
-    dx.grid(alpha=0.3)
-    if dx.lines:
-        dx.legend(fontsize=7)
-    else:
+    _label(ax, "flexor contraction [mm]", "tip x [mm]", "Tip over a contraction cycle (up: filled, down: open)")
+    _label(dx, "flexor contraction [mm]", "tip x - tip x (mu = 0) [mm]",
+           "The loop: tip x against the frictionless finger's")
+    if not dx.lines:
         dx.set_axis_off()
-    bx.set_xlabel("flexor contraction [mm]")
-    bx.set_ylabel("flexor tension [N]")
-    bx.set_title("Tension at both ends of the flexor, 0 - top - 0", fontsize=10)
-    bx.grid(alpha=0.3)
-    bx.legend(fontsize=7, ncol=2)
+    _label(bx, "flexor contraction [mm]", "flexor tension [N]", "Tension at both ends of the flexor, 0 - top - 0",
+           ncol=2)
     _fig(out / "cable_friction.png", fig)
 
     fig = Figure(figsize=(15, 4.4), dpi=110)
@@ -281,21 +280,9 @@ def write_outputs(out: Path, res: dict) -> None:
         (xu, yu), (xd, yd) = _branches(p["rows"], "travel", "tension_far")
         bx.plot(xu + xd, yu + yd, ":", color=color, label=f"mu = {p['mu']:g}: far end")
     pre = res["params"]["pre"]
-    ax.set_xlabel("stage travel [mm]")
-    ax.set_ylabel("force on the sensor [N]")
-    ax.set_title(f"Push test, flexor held at {pre:g} mm contraction", fontsize=10)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    dx.set_xlabel("stage travel [mm]")
-    dx.set_ylabel("force back - force down [N]")
-    dx.set_title("The force loop: way back against way down", fontsize=10)
-    dx.grid(alpha=0.3)
-    dx.legend(fontsize=7)
-    bx.set_xlabel("stage travel [mm]")
-    bx.set_ylabel("flexor tension [N]")
-    bx.set_title("Flexor tension during the push (open: back)", fontsize=10)
-    bx.grid(alpha=0.3)
-    bx.legend(fontsize=7)
+    _label(ax, "stage travel [mm]", "force on the sensor [N]", f"Push test, flexor held at {pre:g} mm contraction")
+    _label(dx, "stage travel [mm]", "force back - force down [N]", "The force loop: way back against way down")
+    _label(bx, "stage travel [mm]", "flexor tension [N]", "Flexor tension during the push (open: back)")
     _fig(out / "cable_friction_push.png", fig)
 
     fig = Figure(figsize=(5.4, 4.2), dpi=110)

@@ -36,16 +36,8 @@ def _start(args, cwd):
 
 def _interrupt(args, cwd, sig, delay):
     """Run, send sig after delay seconds; returns (exit status, stderr)."""
-    proc = _start(args, cwd)
-    time.sleep(delay)
-    if proc.poll() is None:
-        proc.send_signal(sig)
-    try:
-        out, err = proc.communicate(timeout=60)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        pytest.fail(f"{args[0]} did not stop within 60 s of signal {sig}")
-    return proc.returncode, err
+    code, err, _ = _stop_time(args, cwd, sig, delay)
+    return code, err
 
 
 def _check_interrupted(code, err, sig):
