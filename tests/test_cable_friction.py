@@ -14,19 +14,11 @@ from skelfem.terms.cables import Cable
 
 
 # -- the chain solve alone ---------------------------------------------------------------------------
-def _reference_tensions(b, c, F):
-    """The dual QP by a general solver (SLSQP), for comparison."""
-    from scipy.optimize import minimize
-    m = len(b)
-    cons = [{"type": "ineq", "fun": (lambda x, j=j, s=s: F[j] - s * (x[j + 1] - x[j]))}
-            for j in range(m - 1) for s in (1.0, -1.0)]
-    res = minimize(lambda x: 0.5 * (c * x) @ x - b @ x, np.zeros(m), jac=lambda x: c * x - b,
-                   bounds=[(0, None)] * m, constraints=cons, method="SLSQP",
-                   options={"ftol": 1e-15, "maxiter": 1000})
-    return res.x
-
-
 def test_chain_tensions_are_the_exact_projection_and_the_slips_recover_the_primal():
+    """An optimality certificate on random chains: T is dual feasible, the slips make a feasible primal
+    point, and the two objective values agree (strong duality), so both are optimal. (Checked once
+    against SciPy's SLSQP too, to 6e-8; SLSQP is not run here: after it, another test's calibration in
+    the same process ended 1e-4 mm elsewhere.)"""
     rng = np.random.default_rng(0)
     for _ in range(200):
         m = int(rng.integers(1, 9))
@@ -36,8 +28,6 @@ def test_chain_tensions_are_the_exact_projection_and_the_slips_recover_the_prima
             F[rng.integers(0, m - 1)] = cable_slip.LOCKED
         T = cable_slip.tensions(b, c, F)
         assert np.all(T >= 0) and np.all(np.abs(np.diff(T)) <= F + 1e-12)
-        if np.all(np.isfinite(F)):
-            assert np.abs(T - _reference_tensions(b, c, F)).max() < 1e-6
         lam = np.concatenate(([0.0], cable_slip.slips(b, c, T, F), [0.0]))
         e = b + lam[:-1] - lam[1:]
         taut = T > 1e-9
@@ -209,7 +199,8 @@ def test_friction_bad_input_is_one_error_line(tmp_path):
     import sys
     d, _ = channel(np.pi / 2, -0.1)
     from _designs import toml_text
-    for mu, why in ((-0.1, "must be >= 0"), (float("nan"), "friction"), (11.0, "at most 10")):
+    for mu, why in ((-0.1, "must lie in [0, 10]"), (float("nan"), "friction: must be a finite number"),
+                    (11.0, "must lie in [0, 10]")):
         d["cables"][0]["friction"] = mu
         f = tmp_path / "bad.toml"
         f.write_text(toml_text(d).replace("nan", "nan") if mu == mu else
@@ -346,3 +337,27 @@ def test_solution_xdmf_fill_values_are_the_documented_ones(tmp_path):
     assert np.all(data["cable"][body] == -1) and np.all(data["tension"][body] == 0)
     assert np.all(data["cable"][lines] == 0) and np.ptp(data["tension"][lines]) > 0
     assert not any(np.isnan(v).any() for blocks in m.cell_data.values() for v in blocks)
+
+
+def test_friction_by_material_acts_only_where_the_cable_runs_through_that_material():
+    """friction = {pla = 0.3}: the arc in the PLA pulley gives the capstan; {soft = 0.3}: no friction
+    along the arc (the pulley's PLA has none), only in the silicone beyond it."""
+    from skelfem.session import Session
+    d, arc = channel(np.pi, 0.0, far_in_silicone=True, contraction=3.0, k=50.0)
+    d["cables"][0]["friction"] = {"pla": 0.3}
+    s = Session(d)
+    r = s.solve()
+    before, after, turning = _arc_tensions(s, arc)
+    assert r.status == "converged" and abs(before / after / np.exp(0.3 * turning) - 1) < 0.01
+    assert r.to_dict()["cables"]["t"]["friction"] == {"pla": 0.3}
+    d["cables"][0]["friction"] = {"soft": 0.3, "pla": 0.0}
+    s = Session(d)
+    assert s.solve().status == "converged"
+    before, after, _ = _arc_tensions(s, arc)
+    assert abs(before / after - 1) < 1e-9
+    mu = s.model.term("cables", "t").cable.mu_via
+    assert set(np.unique(mu)) == {0.0, 0.3}
+    s.set({"cables.t.friction": 0.1})                 # live: one coefficient for the whole cable again
+    r = s.solve()
+    assert r.status == "converged" and r.to_dict()["cables"]["t"]["friction"] == 0.1
+    assert s.model.term("cables", "t").cable.mu_via is None

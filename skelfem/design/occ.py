@@ -32,6 +32,10 @@ def ensure_gmsh(gmsh) -> None:
         with interrupts.held():
             gmsh.initialize(readConfigFiles=False)
         gmsh.option.setNumber("General.Terminal", 0)
+        # one thread: Gmsh runs in a worker thread (runtime.interrupts.interruptible), where its OpenMP
+        # default would otherwise mesh in parallel and number the same mesh differently from run to run
+        for name in ("General.NumThreads", "Mesh.MaxNumThreads1D", "Mesh.MaxNumThreads2D", "Mesh.MaxNumThreads3D"):
+            gmsh.option.setNumber(name, 1)
         _GMSH_READY = True
     from ..runtime import interrupts
     interrupts.reinstall()

@@ -24,6 +24,11 @@ from .table import Table, plain_name, positive, apply_override
 
 
 # -- entry points -----------------------------------------------------------------------------------------
+
+def used_materials(body, bones) -> tuple:
+    """The materials a cable can run through: the body's and the bones', in that order."""
+    return tuple(dict.fromkeys([body.material] + [b.material for b in bones]))
+
 def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     """Validate a design given as parsed TOML (a dict); overrides are ``KEY=VALUE`` strings."""
     data = copy.deepcopy(data)
@@ -53,7 +58,7 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     body, region, tol, body_t = read_body(top, dim, materials)
     check_body_scale(str(source), body, dim, thickness)
     bones = read_bones(top, dim, materials, region, tol, body_t)
-    cables = read_cables(top, dim, region, tol)
+    cables = read_cables(top, dim, region, tol, used_materials(body, bones))
     pins = read_pins(top, dim)
     loads = read_loads(top, dim, region)
     friction, objects = take_objects(top, dim, materials, body)   # [[objects]], friction keys

@@ -14,7 +14,7 @@ from .table import Table, check_bounded, is_finite, is_number, plain_name, posit
 MAX_CABLE_FRICTION = 10.0     # mu; any bend with mu tan(theta / 2) >= 1 locks long before
 
 
-def read_cables(top: Table, dim: int, region, tol) -> tuple:
+def read_cables(top: Table, dim: int, region, tol, materials: tuple = ()) -> tuple:
     cables = []
     for t in named_entries(top, "cables"):
         name = t.where.split(".", 1)[1]
@@ -52,12 +52,34 @@ def read_cables(top: Table, dim: int, region, tol) -> tuple:
             if kind != "tendon":
                 t.fail("schedule", "ligaments are passive and never actuated (only tendons take a schedule)")
             schedule = _schedule(t, t.take("schedule", "list"), float(seg.sum()))
-        friction = positive(t, "friction", t.take("friction", "number", 0.0), strict=False)
-        if friction > MAX_CABLE_FRICTION:
-            t.fail("friction", f"must be at most {MAX_CABLE_FRICTION:g} (a friction coefficient), got {friction:g}")
+        friction, by_material = _cable_friction(t, materials)
         t.done()
-        cables.append(CableSpec(name, kind, path, k, contraction, pretension, anchor, schedule, friction))
+        cables.append(CableSpec(name, kind, path, k, contraction, pretension, anchor, schedule, friction,
+                                by_material))
     return tuple(cables)
+
+
+def _cable_friction(t: Table, materials: tuple) -> tuple[float, tuple]:
+    """friction = mu, or a table {material = mu} of the materials it runs through (body, bones; one not
+    named: 0). Returns (mu, ()) or (0, ((material, mu), ...))."""
+    def coefficient(key: str, value) -> float:
+        if not is_number(value) or not is_finite(value):
+            t.fail(key, f"must be a finite number, got {show_value(value)}")
+        if not 0.0 <= value <= MAX_CABLE_FRICTION:
+            t.fail(key, f"must lie in [0, {MAX_CABLE_FRICTION:g}] (a friction coefficient), got {value:g}")
+        return float(value)
+    if isinstance(t.data.get("friction"), dict):
+        table = t.take("friction", "table")
+        pairs = []
+        for material, value in table.items():
+            if material not in materials:
+                t.fail(f"friction.{material}", f"is no material the cable can run through (the body's and the "
+                                               f"bones': {', '.join(materials)})")
+            pairs.append((material, coefficient(f"friction.{material}", value)))
+        return 0.0, tuple(pairs)
+    if not t.has("friction"):
+        return 0.0, ()
+    return coefficient("friction", t.data.pop("friction")), ()
 
 
 def _schedule(t: Table, value: list, length: float) -> np.ndarray:

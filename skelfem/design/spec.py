@@ -72,6 +72,7 @@ class CableSpec:
     anchor_radius: float | None = None   # mm; an end in silicone pulls on a disk/ball this wide (None: default)
     schedule: np.ndarray | None = None   # tendons, dynamics: (n, 2) rows [t (s), contraction (mm)], t increasing
     friction: float = 0.0      # mu: Coulomb friction against its channel at every via point and bend
+    friction_by_material: tuple = ()   # ((material, mu), ...) instead: mu by the material around the via point
 
     def contraction_at(self, t: float) -> float:
         """The contraction at time t: the schedule, piecewise linear and held beyond its ends, or the

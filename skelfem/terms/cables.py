@@ -35,9 +35,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+from mpi4py import MPI
 
 from . import cable_slip
-from ..mesh.points import DofGather
+from ..mesh.geometry import bone_tag_name
+from ..mesh.points import DofGather, locate_cells
 from .base import Context, Term
 from .cable_route import (MAX_PER_RADIUS, PER_RADIUS, PIECES, anchor_samples, anchor_weights,  # noqa: F401
                           anchored_interpolation, anchors, default_anchor_radius, differences,
@@ -86,6 +88,7 @@ class Cable:
     contraction: float = 0.0
     pretension: float = 0.0
     mu: float = 0.0          # Coulomb friction against its channel at every via point (0: slides freely)
+    mu_via: np.ndarray | None = None   # or one coefficient per interior via point (friction by material)
 
     def __post_init__(self):
         self.BT = self.B.T.tocsr()      # g = B^T t, every gradient evaluation
@@ -103,7 +106,11 @@ class Cable:
 
     @property
     def friction(self) -> bool:
-        return self.mu > 0.0
+        return self.mu > 0.0 or (self.mu_via is not None and bool(self.mu_via.any()))
+
+    def coefficients(self) -> np.ndarray:
+        """mu at each interior via point."""
+        return self.mu_via if self.mu_via is not None else np.full(max(len(self.d0) - 1, 0), self.mu)
 
     def compliances(self) -> np.ndarray:
         """c_i = L0_i / (k L0): the cable's compliance 1/k shared out by rest length."""
@@ -113,7 +120,7 @@ class Cable:
         """(d, |d|, t, b, T) at u for rest length L with the lagged limits: b the stick stretches,
         T the segment tensions (cached for the last u)."""
         v = self.values(u)
-        key = (L, self.k, self.mu, self._version)
+        key = (L, self.k, self.mu, id(self.mu_via), self._version)
         if self._cache is not None and self._cache[0] == key and np.array_equal(self._cache[1], v):
             return self._cache[2]
         d = self.d0 + (self.B @ v).reshape(self.d0.shape)
@@ -145,7 +152,8 @@ class Cable:
         if not self.friction or len(self.F) == 0:
             return False
         _, _, t, b, _ = self._state(u, L)
-        G, T = cable_slip.coulomb_limits(b, self.compliances(), self.mu * cable_slip.bend_tangents(t), self.F)
+        G, T = cable_slip.coulomb_limits(b, self.compliances(), self.coefficients() * cable_slip.bend_tangents(t),
+                                         self.F)
         G[G < TENSION_FLOOR * self.k * self.L0] = 0.0
         scale = max(float(T.max()), 1e-300)
         same = np.array_equal(np.isfinite(G), np.isfinite(self.F))
@@ -429,6 +437,9 @@ class CableTerm(Term):
         self.disks = [(np.asarray(spec.path[k], dtype=float), r) for k, r in self.anchors.items()]   # (centre, r)
         self.gather = self.cable.gather
         self.factor = 0.0
+        self.by_material = dict(getattr(spec, "friction_by_material", ()))
+        if self.by_material:
+            self.cable.mu_via = via_coefficients(ctx, self.cable, self.by_material)
 
     def finite_anchors(self) -> list:
         return list(self.disks)
@@ -476,10 +487,10 @@ class CableTerm(Term):
             raise KeyError(key)
         if which == "stiffness":
             self.cable.k = float(value)
-        elif which == "friction":
+        elif which == "friction":             # one coefficient for the whole cable from now on
             if not float(value) >= 0.0:
                 raise ValueError(f"cables.{self.name}.friction: must be >= 0, got {value!r}")
-            self.cable.mu = float(value)
+            self.cable.mu, self.cable.mu_via, self.by_material = float(value), None, {}
         else:
             setattr(self.cable, which, float(value))
 
@@ -488,9 +499,34 @@ class CableTerm(Term):
         T = c.tensions(u, L)
         slipping = c.slipping if c.friction else np.full(max(len(T) - 1, 0), bool(T[0] > 0.0))
         return {self.name: {"kind": self.kind, "contraction": float(c.contraction), "rest_length": L,
-                            "length": c.length(u), "tension": float(T[0]), "friction": c.mu,
+                            "length": c.length(u), "tension": float(T[0]),
+                            "friction": dict(self.by_material) if self.by_material else c.mu,
                             "tensions": [float(x) for x in T], "slipping": [bool(x) for x in slipping]}}
 
+
+
+def via_coefficients(ctx: Context, cable: Cable, by_material: dict) -> np.ndarray:
+    """mu at each interior via point from {material: mu}: each segment lies in one cell (the sketch is cut
+    at every facet), whose region gives its material; a via point takes the larger mu of its two
+    segments (a bend where the cable leaves a bone for silicone presses on both). Materials not
+    named: 0. The same on every rank."""
+    design, tm = ctx.design, ctx.tagged
+    material_of_tag = {tm.tags["body"]: design.body.material}
+    material_of_tag.update({tm.tags[bone_tag_name(b.name)]: b.material for b in design.bones
+                            if bone_tag_name(b.name) in tm.tags})
+    mu_of_tag = np.zeros(max(tm.tags.values()) + 1)
+    for tag, material in material_of_tag.items():
+        mu_of_tag[tag] = by_material.get(material, 0.0)
+    n_owned = ctx.mesh.topology.index_map(ctx.mesh.topology.dim).size_local
+    cells = locate_cells(ctx.mesh, 0.5 * (cable.X[1:] + cable.X[:-1]), below=n_owned)
+    tag_of_cell = np.zeros(n_owned, dtype=np.int64)
+    owned = tm.cell_tags.indices < n_owned
+    tag_of_cell[tm.cell_tags.indices[owned]] = tm.cell_tags.values[owned]
+    mu_seg = np.where(cells >= 0, mu_of_tag[tag_of_cell[np.maximum(cells, 0)]], -1.0)
+    if ctx.comm.size > 1:
+        ctx.comm.Allreduce(MPI.IN_PLACE, mu_seg, op=MPI.MAX)
+    mu_seg = np.maximum(mu_seg, 0.0)
+    return np.maximum(mu_seg[:-1], mu_seg[1:])
 
 def build(ctx: Context) -> list[Term]:
     return [CableTerm(ctx, spec) for spec in ctx.design.cables]
