@@ -361,3 +361,32 @@ def test_friction_by_material_acts_only_where_the_cable_runs_through_that_materi
     r = s.solve()
     assert r.status == "converged" and r.to_dict()["cables"]["t"]["friction"] == 0.1
     assert s.model.term("cables", "t").cable.mu_via is None
+
+
+def test_sensitivity_to_mu_in_a_slipping_state(monkeypatch):
+    """dx*/dmu (analysis.sensitivity.friction_sensitivity) against central differences of whole solves
+    with mu +- h, in one load step from rest (the tendon sliding through the pulley's channel)."""
+    from skelfem.analysis.sensitivity import Linearization, friction_sensitivity
+    from skelfem.session import Session
+    from skelfem.terms.cables import CableTerm
+    monkeypatch.setattr(CableTerm, "LAG_RTOL", 1e-12)          # the limits to round-off: differences of 1e-9
+
+    def solve(mu):
+        d, _ = channel(np.pi, mu, far_in_silicone=True, contraction=3.0, k=50.0)
+        d["markers"] = {"far": [60.0, 45.0]}
+        d["solver"] = {"steps": 1}
+        s = Session(d)
+        r = s.solve()
+        assert r.status == "converged"
+        return s, r
+
+    mu, h = 0.3, 1e-3
+    s, r = solve(mu)
+    assert sum(r.to_dict()["cables"]["t"]["slipping"]) > 20
+    lin = Linearization(s.model, s.solver)
+    dx = friction_sensitivity(lin, "t")
+    markers = s.model.term("markers")
+    J = (markers.S @ markers.gather(dx))[:2]
+    fd = (np.asarray(solve(mu + h)[1].marker("far")) - np.asarray(solve(mu - h)[1].marker("far"))) / (2 * h)
+    print("d far / d mu", J, fd)
+    assert np.linalg.norm(fd) > 1e-2 and np.linalg.norm(J - fd) < 1e-5 * np.linalg.norm(fd), (J, fd)

@@ -211,3 +211,103 @@ def marker_objective(model, index: int, target) -> tuple[float, PETSc.Vec]:
     S = markers.S[index * d:(index + 1) * d]
     r = markers.positions(model.u.x.array)[index] - np.asarray(target, dtype=float)
     return float(r @ r), global_vector(model, markers, 2.0 * (S.T @ r))
+
+
+# -- the friction coefficient of a cable -----------------------------------------------------------------
+def friction_sensitivity(lin: Linearization, name: str, h: float = 1e-6, tol: float = 1e-10) -> np.ndarray:
+    """dx*/dmu for the friction coefficient of cable `name` at the converged state of one step (its
+    anchors held; serial): the local values of the state's derivative.
+
+    With friction the equilibrium is G(x, mu) = R(x, F*(x, mu)) = 0, F* the limits that hold at x with
+    their own tensions. Along the branch the state is on (each via point slipping or sticking as now:
+    cable_slip.frozen_limits) F* is smooth, and dx/dmu = -(H + R_F dF*/dx)^-1 dG/dmu, H the lagged
+    Hessian factorised in lin. dG/dmu and R_F (dF*/dx) v are central differences of the cables'
+    gradients at fixed x (only F* moves; no solve), and the system is solved by GMRES on
+    v + H^-1 R_F (dF*/dx) v = -H^-1 dG/dmu, one back-substitution per iteration. The anchors are
+    the step's own (from before it): its slips are part of what mu moves.
+    """
+    model = lin.model
+    if model.comm.size > 1:
+        raise ValueError("friction sensitivities run on one MPI process")
+    target = model.term("cables", name)
+    if target.cable.mu_via is not None or not target.cable.friction:
+        raise ValueError(f"cables.{name}.friction: sensitivities need one coefficient > 0 for the whole cable")
+    u = model.u.x.array.copy()
+    terms = [t for t in model.terms_in("cables") if t.cable.friction]
+    frozen = {id(t): (t.cable._state(u, t.rest_length)[4].copy(), t.cable.F.copy()) for t in terms}
+    for t in terms:              # the step's own anchors: its slips are part of what mu moves
+        t.cable.s_hat, t.cable.s_prev = t.cable.s_prev, t.cable.s_hat
+        t.cable._version += 1
+    try:
+        return _friction_solve(lin, model, target, terms, frozen, u, h, tol)
+    finally:
+        for t in terms:
+            t.cable.s_hat, t.cable.s_prev = t.cable.s_prev, t.cable.s_hat
+            t.cable._version += 1
+
+
+def _friction_solve(lin, model, target, terms, frozen, u, h, tol) -> np.ndarray:
+    from scipy.sparse.linalg import LinearOperator, gmres
+
+    from ..terms import cable_slip
+
+    def gradient_with(t, F) -> np.ndarray:
+        saved = t.cable.F
+        t.cable.F = F
+        t.cable._version += 1
+        try:
+            return t.cable.gradient(u, t.rest_length) * model._free(t, t.cable.dofs)
+        finally:
+            t.cable.F = saved
+            t.cable._version += 1
+
+    def limits_at(t, x, scale: float = 1.0) -> np.ndarray:
+        cab = t.cable
+        d = cab.d0 + (cab.B @ cab.values(x)).reshape(cab.d0.shape)
+        norm = np.linalg.norm(d, axis=1)
+        s = cab.s_hat.copy()
+        s[0], s[-1] = cab.L0 - t.rest_length, 0.0
+        b = norm - (cab.seg0 + s[1:] - s[:-1])
+        mu_tan = scale * cab.coefficients() * cable_slip.bend_tangents(d / norm[:, None])
+        T, F = frozen[id(t)]
+        return cable_slip.frozen_limits(b, cab.compliances(), mu_tan, T, F)
+
+    def assemble(parts) -> np.ndarray:
+        out = np.zeros(len(u))
+        for t, values in parts:
+            v = global_vector(model, t, values)
+            out += v.array_r[:len(u)]
+            v.destroy()
+        return out
+
+    mu = target.cable.mu
+    dG = assemble([(target, (gradient_with(target, limits_at(target, u, (mu + h) / mu))
+                             - gradient_with(target, limits_at(target, u, (mu - h) / mu))) / (2 * h))])
+    size = max(float(np.abs(model.mesh.geometry.x).max()), 1.0)
+
+    def coupling(v: np.ndarray) -> np.ndarray:
+        """R_F (dF*/dx) v, by a central difference of the limits along v."""
+        norm = float(np.abs(v).max())
+        if norm == 0.0:
+            return np.zeros_like(v)
+        eps = 1e-6 * size / norm
+        return assemble([(t, (gradient_with(t, limits_at(t, u + eps * v)) - gradient_with(t, limits_at(t, u - eps * v)))
+                          / (2 * eps)) for t in terms])
+
+    def h_inv(b: np.ndarray) -> np.ndarray:
+        b = b.copy()
+        b[model.fixed[:len(b)]] = 0.0
+        return lin.solve_many(b[:, None])[:, 0]
+
+    n = len(u)
+    A = LinearOperator((n, n), matvec=lambda v: v + h_inv(coupling(np.asarray(v).ravel())), dtype=float)
+    rhs = -h_inv(dG)
+    atol = tol * max(float(np.linalg.norm(rhs)), 1e-300)
+    try:
+        dx, info = gmres(A, rhs, x0=rhs, rtol=0.0, atol=atol, restart=80, maxiter=3)
+    except TypeError:                                 # SciPy < 1.12 calls rtol tol
+        dx, info = gmres(A, rhs, x0=rhs, tol=0.0, atol=atol, restart=80, maxiter=3)
+    residual = float(np.linalg.norm(A.matvec(dx) - rhs))
+    if info != 0 and residual > 1e3 * atol:        # SciPy 1.10 may report its iteration limit when done
+        raise RuntimeError(f"friction sensitivity: GMRES did not converge (|r| {residual:.3g})")
+    return dx

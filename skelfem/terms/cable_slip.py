@@ -227,3 +227,30 @@ def anderson(history: list) -> np.ndarray:
     gamma = np.linalg.lstsq(dR, R[-1], rcond=1e-10)[0]
     out[free] = np.maximum(Gs[-1] - dG @ gamma, 0.0)
     return out
+
+
+def frozen_limits(b: np.ndarray, c: np.ndarray, mu_tan: np.ndarray, T: np.ndarray, F: np.ndarray,
+                  iterations: int = 500) -> np.ndarray:
+    """The fixed point F_j = mu tan(theta_j/2)(T_j + T_j+1) with the stick/slip pattern of the tensions T
+    (limits F) held: in each taut zone T_i = tau_z + o_i, the offsets o stepping by -s_j F_j across its
+    slipping via points (s_j the sign of the slip), tau_z from the zone's material balance; slack zones
+    carry nothing; sticking via points keep F_j. Smooth in b and mu_tan (the derivative of the
+    equilibrium along the branch it is on); plain iteration, converging as the capstan's series."""
+    label, taut = zones(T, F)
+    joined = label[:-1] == label[1:]
+    s = np.sign(T[:-1] - T[1:])
+    C = np.bincount(label, weights=c)
+    F = np.array(F, dtype=float)
+    for _ in range(iterations):
+        step = np.where(joined, -s * F, 0.0)
+        o = np.concatenate(([0.0], np.cumsum(step)))
+        start = np.concatenate(([True], ~joined))
+        base = np.maximum.accumulate(np.where(start, np.arange(len(o)), 0))
+        o = o - o[base]                                     # offsets from each zone's first segment
+        tau = (np.bincount(label, weights=b) - np.bincount(label, weights=c * o)) / C
+        Tz = np.where(taut[label], tau[label] + o, 0.0)
+        new = np.where(joined, mu_tan * (Tz[:-1] + Tz[1:]), F)
+        if np.abs(new - F).max() <= 1e-15 * max(float(np.abs(new).max()), 1e-300):
+            return new
+        F = new
+    return F

@@ -100,6 +100,7 @@ class Cable:
         """Back to rest: no material has slipped through any via point, no friction limit yet."""
         m = len(self.d0)
         self.s_hat = np.zeros(m + 1)            # material through each via point since rest (anchors)
+        self.s_prev = self.s_hat.copy()         # the anchors before the last accepted step
         self.F = np.zeros(max(m - 1, 0))        # lagged friction limits of the interior via points
         self.slipping = np.zeros(max(m - 1, 0), dtype=bool)   # which slipped in the last accepted step
         self._version, self._cache, self._mixing = 0, None, []
@@ -174,6 +175,7 @@ class Cable:
             return
         _, _, _, b, T = self._state(u, L)
         lam = cable_slip.slips(b, self.compliances(), T, self.F)
+        self.s_prev = self.s_hat.copy()
         self.s_hat[1:-1] += lam
         self.slipping = np.abs(lam) > 1e-9 * self.L0
         self._version, self._mixing = self._version + 1, []
