@@ -230,3 +230,39 @@ def test_a_ramp_from_rest_forgets_the_history():
         assert s.solver.solve(1).converged
         again = s.model.readouts()["markers"]["c"]["position"]
     assert np.allclose(again, first, rtol=0, atol=1e-9)
+
+
+# -- dynamics ------------------------------------------------------------------------------------------
+def _run(theta, mu, mu_s=None, duration=0.2, dt=0.01):
+    d = block(mu=mu, mu_s=mu_s, theta=theta, kp=1e-9, size=2.5, steps=1)
+    d["dynamics"] = {"dt": dt, "duration": duration, "integrator": "bdf2"}
+    with Session(d) as s:
+        r = s.run_in_time()
+        assert r.converged, r.status
+        rows = list(r.report.trajectory)
+        return np.array([row["time"] for row in rows]), np.array([row["c_x"] for row in rows]), r.to_dict()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("theta, mu_k, mu_s", [(30.0, 0.3, 0.35), (20.0, 0.1, None)])
+def test_sliding_in_dynamics_accelerates_at_g_sin_minus_mu_k_cos(theta, mu_k, mu_s):
+    """The block slides down the tilted floor (BDF2, no damping): its centre's acceleration (second
+    differences of the last steps: exact for a constant one) is g (sin theta - mu_k cos theta) within 2 %."""
+    t, x, d = _run(theta, mu_k, mu_s)
+    h = t[1] - t[0]
+    acc = -(x[2:] - 2 * x[1:-1] + x[:-2]) / h ** 2 * 1e-3          # m/s^2, down the slope (-x)
+    th = math.radians(theta)
+    expected = G * (math.sin(th) - mu_k * math.cos(th))
+    assert np.median(acc[-5:]) == pytest.approx(expected, rel=0.02), acc
+    assert d["grounds"]["floor"]["sticking"] < 0.01
+
+
+@pytest.mark.slow
+def test_below_mu_s_the_block_stays_in_dynamics():
+    """Tilted at 0.8 of its static limit, with a kinetic mu far below the tilt: the block never breaks
+    away, so it stays within micrometres (it would slide 21 mm in 0.1 s at mu_k)."""
+    mu_s = 0.5
+    theta = math.degrees(math.atan(0.8 * mu_s))
+    t, x, d = _run(theta, 0.1, mu_s, duration=0.1)
+    assert abs(x - x[0]).max() < 2e-3, abs(x - x[0]).max()
+    assert d["grounds"]["floor"]["sticking"] > 0.5
