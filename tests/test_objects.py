@@ -162,7 +162,6 @@ def test_pinch_holds_above_mu_min_and_loses_below():
     (lambda d: d.update(contact={"pairs": {"soft:steel": 0.3}}), 'contact.pairs."soft:steel"'),
     (lambda d: d.update(contact={"pairs": {"soft:pla": -0.3}}), 'contact.pairs."soft:pla"'),
     (lambda d: d.update(contact={"friction": 0.5, "friction_static": 0.4}), "contact.friction_static"),
-    (lambda d: d.update(dynamics={"dt": 0.01, "duration": 0.1}), "objects"),
 ])
 def test_bad_objects_input_is_one_error_naming_the_key(change, key):
     d = _base([_box(2, 10.5, 8, 13.5)])
@@ -245,3 +244,62 @@ def test_a_failed_warm_re_solve_cuts_the_change_from_the_last_equilibrium():
     assert r.report.attempts[0].get("warm") and all("path" in a for a in r.report.attempts[1:])
     assert r.report.attempts[-1]["path"] == 1.0
     assert np.allclose(moved, out[False][1], atol=2e-3), (moved, out[False][1])
+
+
+# -- objects in a run in time ---------------------------------------------------------------------------
+def _drop_design(**dynamics):
+    d = _base([_box(2, 13, 8, 16)], markers={"b": [5.0, 14.5]})
+    d["dynamics"] = {"dt": 0.002, "duration": 0.06, "integrator": "bdf2", **dynamics}
+    return d
+
+
+@pytest.mark.slow
+def test_a_dropped_object_falls_at_g_lands_and_bounces_without_interpenetrating():
+    """A box released 3 mm above the pinned block (BDF2, no damping): in free fall its centre's
+    acceleration (second differences) settles to g within 1e-3 (BDF2's Euler start fades); it lands on
+    the block, never closer than 0 at any accepted step, and the soft block throws it back up."""
+    gaps = []
+    with Session(_drop_design()) as s:
+        contact = s.model.term("contacts", "pieces")
+        r = s.run_in_time(on_step=lambda t, rep: gaps.append(contact.min_distance(s.model.u.x.array)))
+        assert r.converged, r.status
+        rows = list(r.report.trajectory)
+    t, y = np.array([q["time"] for q in rows]), np.array([q["b_y"] for q in rows])
+    acc = (y[2:] - 2 * y[1:-1] + y[:-2]) / (t[1] - t[0]) ** 2 * 1e-3
+    assert acc[8] == pytest.approx(-G, rel=1e-3)               # before the landing (about t = 0.024 s)
+    assert min(gaps) > 0.0
+    assert min(gaps) < 0.2                                      # it did reach the barrier
+    low = int(np.argmin(y))
+    assert y[low] < 14.5 - 2.7 and y[-1] > y[low] + 1.0       # landed (3 mm below, less the barrier), rebounded
+    assert max(acc) > 5 * G                                     # the landing's push
+
+
+@pytest.mark.slow
+def test_an_object_slides_down_a_tilted_ground_at_g_sin_minus_mu_k_cos():
+    """A free box on a floor with friction, gravity tilted by 35 deg (tan 35 = 0.70 > mu_s = 0.5): it
+    accelerates at g (sin - mu_k cos) within 2 %; at 20 deg (tan 20 = 0.36 < mu_s) it stays."""
+    def run(theta):
+        th = math.radians(theta)
+        d = _base([_box(20, 0, 26, 3)], gravity={"acceleration": [G * math.sin(th), -G * math.cos(th)]},
+                  grounds=[{"name": "floor", "point": [0, 0], "normal": [0, 1], "stiffness": 100.0,
+                            "friction": 0.3, "friction_static": 0.5}], markers={"b": [23.0, 1.5]})
+        d["dynamics"] = {"dt": 0.01, "duration": 0.1, "integrator": "bdf2"}
+        with Session(d) as s:
+            r = s.run_in_time()
+            assert r.converged, r.status
+            rows = list(r.report.trajectory)
+        return np.array([q["time"] for q in rows]), np.array([q["b_x"] for q in rows])
+    t, x = run(35.0)
+    acc = (x[2:] - 2 * x[1:-1] + x[:-2]) / (t[1] - t[0]) ** 2 * 1e-3
+    th = math.radians(35.0)
+    assert np.median(acc[-4:]) == pytest.approx(G * (math.sin(th) - 0.3 * math.cos(th)), rel=0.02), acc
+    t, x = run(20.0)
+    assert abs(x - x[0]).max() < 1e-3
+
+
+def test_objects_in_dynamics_need_a_density():
+    d = _drop_design()
+    d["materials"]["pla"].pop("density")
+    d.pop("gravity")
+    with pytest.raises(DesignError, match=r"materials.pla.density: missing \(required with \[dynamics\]"):
+        parse_design(d, "d.toml")

@@ -46,6 +46,8 @@ from __future__ import annotations
 import numpy as np
 from petsc4py import PETSc
 
+from ..terms.contact import SelfContact
+
 KINK = 1e-12      # |s| <= KINK * L0 counts as a tendon exactly at its rest length
 
 
@@ -101,7 +103,17 @@ class Linearization:
         self.kinked = [i for i, t in enumerate(self.tendons)
                        if not t.cable.friction and abs(stretch(t, u)) <= KINK * t.cable.L0]
         self._g = [self._masked_g(t) for t in self.tendons]
-        model.jacobian(model.u.vector, solver.A)
+        self.lagged = [t for t in model.terms if t.lags() is not None]     # friction's N, edge tangents
+        if self.lagged and model.comm.size > 1:
+            raise ValueError("sensitivities through friction contacts run on one MPI process")
+        barriers = [t for t in model.terms if isinstance(t, SelfContact) and t.project]
+        for t in barriers:                      # the exact barrier Hessian, not Newton's PSD projection
+            t.project = False
+        try:
+            model.jacobian(model.u.vector, solver.A)
+        finally:
+            for t in barriers:
+                t.project = True
         parts = model.low_rank()
         self._extra = [global_vector(model, self.tendons[i], self._g[i])   # cable.low_rank dropped k g g^T
                        for i in self.kinked if stretch(self.tendons[i], u) <= 0.0]
@@ -133,15 +145,76 @@ class Linearization:
 
     # -- solves ------------------------------------------------------------------------------
     def solve(self, rhs: PETSc.Vec) -> PETSc.Vec:
-        """H^-1 rhs with the stored factorisation (rhs must be zero on Dirichlet rows)."""
+        """J^-1 rhs (rhs must be zero on Dirichlet rows): H^-1 rhs with the stored factorisation, or with
+        lagged friction the exact solve of solve_many."""
         x = rhs.duplicate()
-        self.solver.lin.solve(rhs, x)
+        if self.lagged:
+            x.array_w[:] = self.solve_many(rhs.array_r[:, None])[:, 0]
+        else:
+            self.solver.lin.solve(rhs, x)
         x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         return x
 
-    def solve_many(self, B: np.ndarray) -> np.ndarray:
-        """H^-1 B for a block of right-hand sides (owned entries, one per column; zero on Dirichlet rows)."""
+    def h_solve_many(self, B: np.ndarray) -> np.ndarray:
+        """H^-1 B with the stored factorisation of the lagged Hessian (owned entries, one per column)."""
         return self.solver.lin.solve_many(B)
+
+    def solve_many(self, B: np.ndarray) -> np.ndarray:
+        """J^-1 B for a block of right-hand sides (owned entries, one per column; zero on Dirichlet rows).
+
+        J = H without lagged terms. With friction, whose normal forces N (and an edge's tangent) are
+        lagged and held at their fixed point N = N(x), the Jacobian of the equilibrium is
+        J = H + C, C v = d/de grad Pi(x; N(x + e v)) (a central difference of the friction terms'
+        gradients with their lags measured along v; no solve). J is not symmetric; GMRES on
+        (I + H^-1 C) y = H^-1 b, one back-substitution per iteration, solves it exactly on the
+        present branch (which nodes stick or slip, their anchors)."""
+        if not self.lagged:
+            return self.h_solve_many(B)
+        return np.column_stack([self._exact_solve(B[:, j]) for j in range(B.shape[1])])
+
+    def _coupling(self, v: np.ndarray) -> np.ndarray:
+        """C v: the change of the lagged terms' gradients when their lags follow the state along v."""
+        model = self.model
+        norm = float(np.abs(v).max())
+        out = np.zeros(len(v))
+        if norm == 0.0:
+            return out
+        u = model.u.x.array.copy()
+        size = max(float(np.abs(model.mesh.geometry.x).max()), 1.0)
+        e = 1e-8 * size / norm          # below a ground's penetration (micrometres): N(x) has a kink at 0
+        for t in self.lagged:
+            saved = t.lags()
+            try:
+                for sign in (1.0, -1.0):
+                    t.set_lags(t.lags_at(u + sign * e * v))
+                    got = t.gradient(u)
+                    if got is not None:
+                        np.add.at(out, got[0], sign * np.asarray(got[1]) / (2 * e))
+            finally:
+                t.set_lags(saved)
+        out[model.fixed[:len(out)]] = 0.0
+        return out
+
+    def _exact_solve(self, b: np.ndarray, tol: float = 1e-12) -> np.ndarray:
+        from scipy.sparse.linalg import LinearOperator, gmres
+        n = len(b)
+
+        def h_inv(r):
+            return self.h_solve_many(np.asarray(r, float).reshape(n, 1))[:, 0]
+        rhs = h_inv(b)
+        if not np.any(rhs):
+            return rhs
+        A = LinearOperator((n, n), matvec=lambda v: np.asarray(v).ravel() + h_inv(self._coupling(np.asarray(v).ravel())),
+                           dtype=float)
+        atol = tol * float(np.linalg.norm(rhs))
+        try:
+            y, info = gmres(A, rhs, x0=rhs, rtol=0.0, atol=atol, restart=60, maxiter=5)
+        except TypeError:                                   # SciPy < 1.12 calls rtol tol
+            y, info = gmres(A, rhs, x0=rhs, tol=0.0, atol=atol, restart=60, maxiter=5)
+        residual = float(np.linalg.norm(A.matvec(y) - rhs))
+        if info != 0 and residual > 1e3 * atol:
+            raise RuntimeError(f"sensitivity through friction: GMRES did not converge (|r| {residual:.3g})")
+        return y
 
     def state_sensitivities(self) -> list[PETSc.Vec]:
         """dx*/du_c = -H^-1 dR/du_c for every tendon c (forward mode)."""
@@ -154,7 +227,10 @@ class Linearization:
         return out
 
     def adjoint(self, dO_dx: PETSc.Vec) -> np.ndarray:
-        """dO/du = -(dR/du)^T lambda with H lambda = dO/dx (one solve)."""
+        """dO/du = -(dR/du)^T lambda with H lambda = dO/dx (one solve); forward with lagged friction
+        (J is not symmetric there, and there are few controls)."""
+        if self.lagged:
+            return self.forward(dO_dx)
         lam = self.solve(self._dirichlet_free(dO_dx))
         grad = np.array([-b.dot(lam) for b in self.dR_du])
         lam.destroy()
@@ -182,6 +258,8 @@ class Linearization:
             return J
         if mode != "adjoint":
             raise ValueError(f"unknown mode {mode!r}")
+        if self.lagged:                       # J is not symmetric: one forward solve per tendon
+            return self.marker_jacobian(index, "forward")
         rows = [self.adjoint(global_vector(self.model, markers, S[j].toarray().ravel())) for j in range(d)]
         return np.array(rows).reshape(d, self.m)
 
@@ -297,7 +375,7 @@ def _friction_solve(lin, model, target, terms, frozen, u, h, tol) -> np.ndarray:
     def h_inv(b: np.ndarray) -> np.ndarray:
         b = b.copy()
         b[model.fixed[:len(b)]] = 0.0
-        return lin.solve_many(b[:, None])[:, 0]
+        return lin.h_solve_many(b[:, None])[:, 0]
 
     n = len(u)
     A = LinearOperator((n, n), matvec=lambda v: v + h_inv(coupling(np.asarray(v).ravel())), dtype=float)

@@ -144,8 +144,6 @@ def _objects(top, dim: int, materials: dict, body) -> tuple:
         top.fail("objects", "must be an array of tables ([[...]])")
     if dim != 2:
         top.fail("objects", "objects are implemented for dim = 2 only")
-    if top.has("dynamics"):
-        top.fail("objects", "objects are not implemented with [dynamics] yet (static runs only)")
     out, seen = [], set()
     loops = [body.outline, *body.holes]
     tol = 1e-9 * max(float(np.ptp(body.outline, axis=0).max()), 1.0)
@@ -177,8 +175,9 @@ def _objects(top, dim: int, materials: dict, body) -> tuple:
         for other in out:
             if polygons.overlap(outline, other.outline, tol):
                 t.fail("outline", f"overlaps object {other.name!r} at rest")
-        if top.has("gravity") and materials[material].density is None:
-            top.fail(f"materials.{material}.density", f"missing (required with [gravity]: object {name!r})")
+        for section in ("gravity", "dynamics"):
+            if top.has(section) and materials[material].density is None:
+                top.fail(f"materials.{material}.density", f"missing (required with [{section}]: object {name!r})")
         out.append(ObjectSpec(name, outline, material, rigid))
     return tuple(out)
 

@@ -174,6 +174,22 @@ class Term:
         """Back to rest: forget every history (a cable's slips through its via points); the model's
         u is being set to 0 for a solve from rest."""
 
+    # -- lagged quantities, for exact sensitivities (skelfem.analysis.sensitivity) ----------------
+    def lags(self):
+        """A copy of the lagged quantities that follow the state (friction's normal forces N, an
+        edge's tangent), or None: nothing lagged. At a converged state they are their own fixed
+        point, lags_at(u) == lags()."""
+        return None
+
+    def set_lags(self, lags) -> None:
+        """Put back lagged quantities returned by lags() or lags_at()."""
+
+    def lags_at(self, u: np.ndarray):
+        """The lagged quantities as update_lag would measure them at state u, on the present branch
+        (which nodes stick, slip, broke away; the anchors), without relaxation: what makes the lagged
+        Jacobian exact, J v = H v + d/de gradient(u; lags_at(u + e v))."""
+        return None
+
 
 def touched(changed: set, *prefixes: str) -> bool:
     """Whether any dotted key in changed is one of prefixes, lies under one or holds one."""

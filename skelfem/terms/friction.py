@@ -267,6 +267,15 @@ class GroundFriction(Term):
                 changed = True
         return bool(comm.allreduce(changed, op=MPI.LOR))
 
+    def lags(self):
+        return self.N.copy() if (self.active and self._ready and self.N.any()) else None
+
+    def set_lags(self, lags) -> None:
+        self.N = np.array(lags, dtype=float)
+
+    def lags_at(self, u: np.ndarray):
+        return self.normal_forces(u)
+
     def end_step(self, model) -> None:
         """Return map: a node that slipped keeps its anchor eps behind it; sticking nodes keep theirs,
         nodes off the plane take their current place."""

@@ -56,6 +56,7 @@ import ufl
 from dolfinx import fem
 from mpi4py import MPI
 
+from ..mesh.geometry import object_tag_name
 from .base import Context, Term, constant
 from .elasticity import deformation_gradient, lame, psi, region_cells
 
@@ -80,9 +81,10 @@ class Inertia(Term):
         design, mesh = ctx.design, ctx.mesh
         spec = design.dynamics
         self.order = 2 if spec.integrator == "bdf2" else 1
-        self.cells = region_cells(ctx, design)
+        self.cells = region_cells(ctx, design)          # cells that strain (body, bones): rho, mu, lambda
+        self.rigid_cells = object_cells(ctx, design)     # free rigid objects' cells: rho only
         self.materials = {n: [design.materials[n].density, design.materials[n].E, design.materials[n].nu]
-                          for n in self.cells}
+                          for n in [*self.cells, *self.rigid_cells]}
         Q = fem.FunctionSpace(mesh, ("DG", 0))
         self.rho = fem.Function(Q, name="density")
         self.stiffness_damping = spec.damping_stiffness > 0.0
@@ -123,6 +125,8 @@ class Inertia(Term):
                 mu, lam = lame(E, nu)
                 self.mu.x.array[cells] = mu
                 self.lam.x.array[cells] = lam
+        for name, cells in self.rigid_cells.items():      # an object has mass, and no strain to damp
+            self.rho.x.array[cells] = self.materials[name][0]
 
     # -- energy ------------------------------------------------------------------------------------
     def ufl_energy(self, ctx: Context):
@@ -153,7 +157,7 @@ class Inertia(Term):
     def parameters(self) -> dict:
         out = {f"materials.{n}.density": m[0] for n, m in self.materials.items()}
         if self.stiffness_damping:
-            out.update({f"materials.{n}.{k}": m[i] for n, m in self.materials.items()
+            out.update({f"materials.{n}.{k}": self.materials[n][i] for n in self.cells
                         for i, k in ((1, "E"), (2, "nu"))})
         return out
 
@@ -236,6 +240,16 @@ class Inertia(Term):
         self.h_last, self.h = self.h, 0.0
         self.u_last.x.array[:] = x
         self.v.x.array[:] = v
+
+
+def object_cells(ctx: Context, design) -> dict:
+    """{material name: local cells} over the free rigid objects ([[objects]])."""
+    tm = ctx.tagged
+    out: dict = {}
+    for spec in design.objects:
+        cells = tm.cell_tags.find(tm.tags[object_tag_name(spec.name)])
+        out[spec.material] = np.concatenate([out.get(spec.material, np.zeros(0, np.int32)), cells])
+    return out
 
 
 def build(ctx: Context) -> list[Term]:

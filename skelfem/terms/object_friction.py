@@ -312,6 +312,22 @@ class ObjectFriction(Term):
                 changed = True
         return changed
 
+    def lags(self):
+        if not (self.active and self.N.any()):
+            return None
+        return self.N.copy(), self.T.copy()
+
+    def set_lags(self, lags) -> None:
+        self.N, self.T = lags[0].copy(), lags[1].copy()
+
+    def lags_at(self, u: np.ndarray):
+        y = self.c.positions(u)
+        T = self.T.copy()
+        on = self.edge >= 0
+        if on.any():
+            T[on] = self._tangents(y, self.edge[on])
+        return self._normal_forces(y), T
+
     def end_step(self, model) -> None:
         if not self.active:
             return

@@ -1,0 +1,134 @@
+"""Sensitivities through frictional contact: the Jacobian of the lagged-friction equilibrium.
+
+Friction's normal forces N (and, on objects, the anchor edges' tangents)
+are lagged: Newton holds them while it solves and the solver iterates them
+to their fixed point N = N(x). The equilibrium is therefore
+G(x) = grad Pi(x; N(x)) = 0, and its Jacobian is J = H + C, H the Hessian
+with N held and C the coupling through N(x)
+(skelfem.analysis.sensitivity.Linearization.solve_many). Checked here
+against central differences of G itself (the lags measured at the perturbed
+states, the stick/slip branch and the anchors held), on a box resting on
+the body by friction and on the body resting on a ground; and a marker on
+a grasped object as a Soft IK target.
+"""
+import math
+
+import numpy as np
+import pytest
+
+from skelfem import Session
+from skelfem.analysis.sensitivity import Linearization
+
+from test_friction import block
+from test_objects import _base, _box
+
+
+def _box_on_block():
+    d = _base([_box(2, 10.3, 8, 13.3)], contact={"dhat": 0.2, "friction": 0.5}, markers={"b": [5.0, 12.0]})
+    d["materials"]["pla"]["density"] = 5000.0
+    return d
+
+
+def _jacobian_errors(session, lin, seed=0):
+    """max |J v - (G(x + e v) - G(x - e v)) / 2e| / max |...| over the free rows of the deformable body,
+    for J = H + C and for H alone (v random on those rows)."""
+    m = session.model
+    x0 = m.u.x.array.copy()
+    rows = np.ones(len(x0), bool)
+    rows[m.fixed] = False
+    for t in m.terms_in("objects"):
+        if hasattr(t, "dofs"):
+            rows[t.dofs.ravel()] = False          # rigid objects' rows hold their rigid projection
+    v = np.random.default_rng(seed).standard_normal(len(x0)) * rows
+    vv, Av = m.u.vector.duplicate(), m.u.vector.duplicate()
+    vv.array_w[:] = v
+    session.solver.A.mult(vv, Av)
+    Hv = Av.array_r.copy()
+    Jv = Hv + lin._coupling(v)
+
+    def G(x):
+        saved = [t.lags() for t in lin.lagged]
+        try:
+            for t in lin.lagged:
+                t.set_lags(t.lags_at(x))
+            m.u.x.array[:] = x
+            return m.full_gradient()
+        finally:
+            for t, lags in zip(lin.lagged, saved):
+                t.set_lags(lags)
+            m.u.x.array[:] = x0
+    e = 1e-7
+    fd = (G(x0 + e * v) - G(x0 - e * v)) / (2 * e)
+    scale = np.abs(fd[rows]).max()
+    return np.abs(fd - Jv)[rows].max() / scale, np.abs(fd - Hv)[rows].max() / scale
+
+
+def test_the_jacobian_through_object_friction_matches_central_differences():
+    with Session(_box_on_block()) as s:
+        assert s.solve().converged
+        s.set({"gravity.acceleration": [2.0, -9.81]})         # pushed sideways, held by friction
+        r = s.solve()
+        assert r.converged, r.status
+        assert r.to_dict()["contacts"][0]["friction_force"][0] > 0.0
+        lin = Linearization(s.model, s.solver)
+        assert [type(t).__name__ for t in lin.lagged] == ["ObjectFriction"]
+        exact, lagged_only = _jacobian_errors(s, lin)
+    assert exact < 1e-6, exact
+    assert lagged_only > 1e-2, lagged_only             # the coupling through N(x) matters
+
+
+def test_the_jacobian_through_ground_friction_matches_central_differences():
+    th = math.degrees(math.atan(0.8 * 0.5))
+    with Session(block(mu=0.5, theta=th, kp=1e-4, size=2.5, steps=1)) as s:
+        r = s.solve()
+        assert r.converged, r.status
+        lin = Linearization(s.model, s.solver)
+        assert [type(t).__name__ for t in lin.lagged] == ["GroundFriction"]
+        exact, lagged_only = _jacobian_errors(s, lin)
+    assert exact < 1e-6, exact
+    assert lagged_only > 1e-2, lagged_only
+
+
+def test_without_friction_nothing_is_lagged_and_h_is_the_jacobian():
+    d = _box_on_block()
+    d["contact"] = {"dhat": 0.2}
+    with Session(d) as s:
+        assert s.solve().converged
+        assert Linearization(s.model, s.solver).lagged == []
+
+
+@pytest.mark.slow
+def test_soft_ik_moves_a_grasped_object_to_a_target():
+    """'Move the box here': the gripper holds the box by friction under gravity; a target for a marker on
+    the box, reached by other contractions along the same path, is reached by Soft IK from the grasp."""
+    import tomllib
+
+    from skelfem.analysis.control import SoftIK
+    from skelfem.design import parse_design
+    from conftest import GEOMETRY
+    with open(GEOMETRY / "gripper.toml", "rb") as f:
+        d = tomllib.load(f)
+    d["markers"]["box_centre"] = [50.0, 2.0]
+    d["mesh"]["size"] = 3.0
+    flexors = ["cables.left_flexor.contraction", "cables.right_flexor.contraction"]
+
+    def grasp(then=None):
+        s = Session(parse_design(d, "gripper.toml"))
+        s.set({flexors[0]: 4.0, flexors[1]: 4.0})
+        assert s.solve().converged
+        s.set({"gravity.acceleration": [0.0, -9.81], "materials.box_pla.density": 620.0})
+        r = s.solve()
+        if then:
+            s.set(then)
+            r = s.solve()
+        assert r.converged, r.status
+        return s, np.array(r.markers["box_centre"]["position"])
+    s, goal = grasp({flexors[0]: 4.5, flexors[1]: 3.7})
+    s.close()
+    s, start = grasp()
+    with s:
+        assert np.linalg.norm(goal - start) > 1.0
+        res = SoftIK(s, "box_centre", max_solves=20).solve(goal)
+        assert res.reached and res.error < 0.2 * np.linalg.norm(goal - start), res
+        assert res.contractions == pytest.approx([4.5, 3.7], abs=0.1)
+        assert s.model.term("objects", "box").failure(s.model) is None        # still held
