@@ -132,3 +132,38 @@ def test_soft_ik_moves_a_grasped_object_to_a_target():
         assert res.reached and res.error < 0.2 * np.linalg.norm(goal - start), res
         assert res.contractions == pytest.approx([4.5, 3.7], abs=0.1)
         assert s.model.term("objects", "box").failure(s.model) is None        # still held
+
+
+def _same(a, b) -> bool:
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    if isinstance(a, np.ndarray):
+        return np.array_equal(a, b)
+    return a == b
+
+
+def test_a_refused_ik_trial_leaves_no_friction_history():
+    """Soft IK tries contractions and may refuse them: the trial's slips (moved anchors, slip states) must
+    not stay behind, or the next trial starts from a history no accepted state had."""
+    from skelfem.analysis.control import SoftIK
+    d = _box_on_block()
+    d["cables"] = [{"name": "flexor", "kind": "tendon", "path": [[8.5, 0], [8.5, 9.5]], "stiffness": 2.0}]
+    with Session(d) as s:
+        assert s.solve().converged
+        s.set({"gravity.acceleration": [2.0, -9.81]})
+        assert s.solve().converged
+        ik = SoftIK(s, "b")
+        before = s.model.history()
+        x = s.model.u.x.array.copy()
+        assert ik.trial(np.array([0.05]))                     # the block bends: the box slides on it
+        assert not _same(s.model.history(), before)         # the trial moved anchors
+        ik.restore()
+        assert _same(s.model.history(), before)
+        assert np.array_equal(s.model.u.x.array, x)
+        assert ik.trial(np.array([0.05]))
+        ik.accept(np.array([0.05]))
+        after = s.model.history()
+        ik.restore()
+        assert _same(s.model.history(), after)             # accepted: its history is the new one

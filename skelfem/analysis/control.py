@@ -123,6 +123,7 @@ class SoftIK:
         self.one_sided = np.zeros(len(self.names), dtype=bool)   # tendons at the kink (see jacobian)
         self._L0 = np.array([t.cable.L0 for t in tendons(model)])
         self._x = model.u.vector.copy()        # the last accepted equilibrium x*(u)
+        self._history = model.history()        # and its friction history (anchors, slip states)
         self.forward_solves = 0                # over the object's life
         self.failed_solves = 0
         self.newton_iterations = 0
@@ -153,6 +154,7 @@ class SoftIK:
             raise SolveError(f"equilibrium for u = {self.u} failed ({report.status})")
         self.session.solved = True
         self.model.u.vector.copy(self._x)
+        self._history = self.model.history()
         return report
 
     def trial(self, u: np.ndarray) -> bool:
@@ -173,9 +175,10 @@ class SoftIK:
         return report.converged
 
     def accept(self, u: np.ndarray) -> None:
-        """Make the trial state x*(u) the accepted one."""
+        """Make the trial state x*(u) the accepted one (and its friction history)."""
         self.u = np.array(u, dtype=float)
         self.model.u.vector.copy(self._x)
+        self._history = self.model.history()
 
     def restore(self) -> None:
         """Put back the last accepted equilibrium and its contractions."""
@@ -183,6 +186,7 @@ class SoftIK:
         set_contractions(model, self.u)
         model.set_factor(1.0)
         self._x.copy(model.u.vector)
+        model.set_history(self._history)          # a refused trial leaves no slip behind
         model.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
 
     def position(self) -> np.ndarray:

@@ -275,6 +275,15 @@ class Model(MatrixAssembly):
         for term in self.terms:
             term.rest()
 
+    def history(self) -> list:
+        """Every term's history (friction's anchors and slip states), to take a tried step back."""
+        return [term.history() for term in self.terms]
+
+    def set_history(self, histories: list) -> None:
+        for term, h in zip(self.terms, histories):
+            if h is not None:
+                term.set_history(h)
+
     def failure(self, converged: bool = True) -> str | None:
         """The first term's reason why the state (converged or where Newton gave up) is no equilibrium."""
         return next((why for why in (term.failure(self, converged) for term in self.terms) if why), None)

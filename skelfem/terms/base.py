@@ -174,6 +174,22 @@ class Term:
         """Back to rest: forget every history (a cable's slips through its via points); the model's
         u is being set to 0 for a solve from rest."""
 
+    # -- history, to try a step and take it back (Soft IK's trial solves) ------------------------
+    history_fields: tuple = ()   # attributes that hold the term's history (friction's anchors, slip states)
+
+    def history(self):
+        """A copy of the term's history (what end_step, update_lag and set_factor change), or None."""
+        if not self.history_fields:
+            return None
+        import copy
+        return {k: copy.deepcopy(getattr(self, k)) for k in self.history_fields}
+
+    def set_history(self, history) -> None:
+        """Put back a history returned by history(): a step that was tried and refused leaves nothing."""
+        import copy
+        for k, v in (history or {}).items():
+            setattr(self, k, copy.deepcopy(v))
+
     # -- lagged quantities, for exact sensitivities (skelfem.analysis.sensitivity) ----------------
     def lags(self):
         """A copy of the lagged quantities that follow the state (friction's normal forces N, an

@@ -462,6 +462,19 @@ class CableTerm(Term):
     def end_step(self, model) -> None:
         self.cable.accept(model.u.x.array, self.rest_length)
 
+    def history(self):
+        c = self.cable
+        if not c.friction:
+            return None
+        return {"s_hat": c.s_hat.copy(), "s_prev": c.s_prev.copy(), "F": c.F.copy(),
+                "slipping": c.slipping.copy(), "_mixing": list(c._mixing)}
+
+    def set_history(self, history) -> None:
+        c = self.cable
+        for k, v in (history or {}).items():
+            setattr(c, k, v.copy() if hasattr(v, "copy") else v)
+        c._version += 1
+
     def energy(self, u):
         return self.cable.energy(u, self.rest_length)
 

@@ -111,6 +111,7 @@ class GroundFriction(Term):
     slip_length = 1e-6         # eps, as a fraction of the body's size
     project = False            # True: Newton's Hessian of a slipping node is its secant F / r along d too
     breakaway = 1e-4           # D_c: slip (fraction of the body's size) after which mu_s drops to mu_k
+    history_fields = ("anchor", "run", "sliding", "trial", "N", "fresh", "_report", "nodal")
 
     def __init__(self, ctx: Context, spec, coulomb):
         self.ctx, self.name = ctx, spec.name
@@ -266,6 +267,9 @@ class GroundFriction(Term):
                 self.trial |= broke
                 changed = True
         return bool(comm.allreduce(changed, op=MPI.LOR))
+
+    def history(self):
+        return super().history() if self._ready else None
 
     def lags(self):
         return self.N.copy() if (self.active and self._ready and self.N.any()) else None

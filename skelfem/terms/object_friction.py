@@ -61,6 +61,8 @@ class ObjectFriction(Term):
     slip_length = 1e-6      # eps, as a fraction of the body's size
     project = False         # True: Newton's Hessian of a slipping node is its secant F / |d| (exact: 0)
     breakaway = 1e-4        # D_c, as a fraction of the body's size
+    history_fields = ("edge", "s", "T", "N", "fresh", "sliding", "trial", "run", "_report", "_relax",
+                      "_lag_change", "_N_step", "_y0")
 
     def __init__(self, ctx, contact, objects):
         design = ctx.design
