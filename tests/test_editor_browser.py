@@ -191,3 +191,47 @@ def test_3d_design_opens_read_only(tmp_path, figures, picture):
     finally:
         driver.quit()
         ed.stop()
+
+
+def test_objects_are_drawn_moved_whole_and_show_their_contact_forces(tmp_path, figures, picture):
+    """The gripper closed on its box: the box's cells in their own colour with a legend, arrows for the
+    barrier and friction forces on it, and a pointer drag inside the box moves the whole object."""
+    import tomllib
+
+    from skelfem.editor.server import Editor
+
+    from _designs import toml_text
+    with open(GEOMETRY / "gripper.toml", "rb") as f:
+        d = tomllib.load(f)
+    d["mesh"]["size"] = 3.0
+    for c in d["cables"]:
+        if c["name"].endswith("flexor"):
+            c["contraction"] = 4.0
+    (tmp_path / "gripper.toml").write_text(toml_text(d))
+    ed = Editor(tmp_path / "gripper.toml", port=0).start()
+    driver = chrome(1000, 760)
+    try:
+        page = Page(driver, ed.url)
+        page.idle()
+        assert page.js("S.answer.converged")
+        fills = page.js("[...document.querySelectorAll('#layer-mesh path')].map(p => p.getAttribute('fill'))")
+        assert "#b9cbe4" in fills                                           # the box's cells
+        assert "objects" in page.js("document.getElementById('legend').textContent")
+        normal = page.js("document.querySelectorAll('#layer-contacts line.contact-force.normal').length")
+        friction = page.js("document.querySelectorAll('#layer-contacts line.contact-force.friction').length")
+        assert normal > 0 and friction > 0
+        assert "largest" in page.js("document.querySelector('.contact-legend').textContent")
+        picture(page.screenshot(figures / "editor_objects.png"), 900, 600)
+        before = np.array(page.js("S.design.objects[0].outline"))
+        solves = page.solves()
+        page.drag_by("polygon.hit.movable[data-object=box]", 0, 24, steps=8)   # 24 px down, away from the pads
+        page.idle()
+        after = np.array(page.js("S.design.objects[0].outline"))
+        shift = after - before
+        assert np.allclose(shift, shift[0]) and shift[0][1] < -0.5 and abs(shift[0][0]) < 1e-9   # moved whole
+        assert page.solves() > solves and page.js("S.answer.converged") is not None
+        assert page.js("S.undo.length") >= 1
+        assert not page.console_errors()
+    finally:
+        driver.quit()
+        ed.stop()

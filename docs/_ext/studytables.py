@@ -367,6 +367,22 @@ def stability(_: dict) -> Table:
                   "slender cases", "slender time"], rows, caption, [path])
 
 
+def friction_stability(_: dict) -> Table:
+    d, path = load_json("friction_stability/summary.json", "python studies/friction_stability.py")
+    rows = []
+    for name, s in d["strategies"].items():
+        fails = s["failures"]
+        shown = "; ".join(fails[:4]) + (f"; and {len(fails) - 4} more" if len(fails) > 4 else "")
+        refused = f" ({s['refused_cases']} refused: rigid objects)" if s.get("refused_cases") else ""
+        rows.append([f"`{name}`", f"{s['successes']}/{s['cases']}{refused}", short(s["iterations_median"]),
+                     short(s["iterations_max"]), secs(s["time"]), shown or "none"])
+    caption = ("One load step from rest, default settings (step cutting on), per case x mu x contact stiffness; "
+               f"a converged state farther than {short(d['agree_mm'])} mm from the energy line search's counts "
+               "as failed.")
+    return Table(["strategy", "converged", "median iterations", "most iterations", "time", "failed cases"], rows,
+                 caption, [path])
+
+
 def stability_slender(_: dict) -> Table:
     d, path = load_json("stability/summary.json", "python studies/stability.py")
     slender = d["slender"]
@@ -515,7 +531,7 @@ def cable_friction_cost(_: dict) -> Table:
 
 TABLES = {f.__name__: f for f in (bench, mpi_speed, editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
                                   tol_check, tol_check_adaptive, scatter, adaptive_reach, adaptive_tol_runs,
-                                  stability, stability_slender, peer, pull_test, dynamics_checks, grasp, grasp_bench,
+                                  stability, stability_slender, friction_stability, peer, pull_test, dynamics_checks, grasp, grasp_bench,
                                   cable_friction, capstan, cable_friction_cost)}
 
 

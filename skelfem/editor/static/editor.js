@@ -4,7 +4,7 @@
 
 const SVGNS = "http://www.w3.org/2000/svg";
 const $ = (id) => document.getElementById(id);
-const REGION_FILL = { body: "#f4b6a6", bone: "#e8e4d8" };
+const REGION_FILL = { body: "#f4b6a6", bone: "#e8e4d8", object: "#b9cbe4" };
 const PALETTE = ["#440154", "#482475", "#414487", "#355f8d", "#2a788e", "#21908d", "#22a884", "#42be71",
   "#7ad151", "#bddf26", "#fde725"];
 const SNAP = 100;                      // coordinates are rounded to 1/SNAP mm
@@ -284,7 +284,7 @@ function fit() {
 function render() {
   const t0 = performance.now();
   if (S.dim !== 2) { draw3d(); return; }
-  drawMesh(); drawCables(); drawSketch(); drawMarkers(); drawIK(); showStatus(); markError();
+  drawMesh(); drawCables(); drawContacts(); drawSketch(); drawMarkers(); drawIK(); showStatus(); markError();
   S.renderMs.push(performance.now() - t0);
 }
 
@@ -303,19 +303,50 @@ function drawMesh() {
     if (!(hi > lo)) hi = lo + 1e-9;
     $("legend").className = "bar";
     $("legend").innerHTML = `<span>${fmt(lo, 3)}</span><span>${mode === "stretch" ? "stretch" : "ψ (N·mm/mm³)"}</span><span>≥ ${fmt(hi, 3)}</span>`;
-  } else { $("legend").className = ""; $("legend").textContent = ""; }
+  } else {
+    const kinds = new Set(Object.values(m.region_names).map(regionKind));
+    $("legend").className = "regions";
+    $("legend").innerHTML = ["body", "bone", "object"].filter((k) => kinds.has(k))
+      .map((k) => `<span class="swatch ${k}"></span><span>${k === "bone" ? "bones" : k === "object" ? "objects" : "body"}</span>`).join("");
+  }
   m.cells.forEach((c, i) => {
     let fill;
     if (f) {
       const v = f[i] === null ? hi : f[i];
       fill = PALETTE[Math.max(0, Math.min(PALETTE.length - 1, Math.round((v - lo) / (hi - lo) * (PALETTE.length - 1))))];
-    } else fill = m.regions[i] === m.body_tag ? REGION_FILL.body : REGION_FILL.bone;
+    } else fill = REGION_FILL[regionKind(m.region_names[m.regions[i]])];
     const p0 = y[c[0]], p1 = y[c[1]], p2 = y[c[2]];
     const s = `M${p0[0].toFixed(1)} ${p0[1].toFixed(1)}L${p1[0].toFixed(1)} ${p1[1].toFixed(1)}L${p2[0].toFixed(1)} ${p2[1].toFixed(1)}Z`;
     if (!groups.has(fill)) groups.set(fill, []);
     groups.get(fill).push(s);
   });
   for (const [fill, parts] of groups) el("path", { d: parts.join(""), fill, class: "cell-edges" }, layer);
+}
+
+function regionKind(name) {
+  return !name || name === "body" ? "body" : name.startsWith("object:") ? "object" : "bone";
+}
+
+function drawContacts() {
+  // the forces the other pieces exert on each object's boundary nodes: barrier (normal) and friction
+  const layer = $("layer-contacts"); layer.textContent = "";
+  const a = S.answer; if (!a || !a.mesh || !a.mesh.objects || !a.mesh.objects.length) return;
+  let fmax = 0;
+  for (const o of a.mesh.objects) for (const f of [...o.normal, ...o.friction]) fmax = Math.max(fmax, Math.hypot(f[0], f[1]));
+  if (!(fmax > 0)) return;
+  const scale = 36 / fmax;                        // px per N: the largest nodal force is 36 px long
+  for (const o of a.mesh.objects) {
+    for (const [kind, forces] of [["normal", o.normal], ["friction", o.friction]]) {
+      forces.forEach((f, i) => {
+        const n = Math.hypot(f[0], f[1]); if (!(n > 0.02 * fmax)) return;
+        const q = px(o.points[i]);
+        el("line", { x1: q[0], y1: q[1], x2: q[0] + scale * f[0], y2: q[1] - scale * f[1],
+          class: `contact-force ${kind}`, "marker-end": `url(#arrow-${kind})`, "data-object": o.name }, layer);
+      });
+    }
+  }
+  const t = el("text", { x: 8, y: 16, class: "contact-legend" }, layer);
+  t.textContent = `contact forces on objects: normal (blue), friction (green); largest ${fmt(fmax, 3)} N`;
 }
 
 function drawCables() {
@@ -336,6 +367,7 @@ function polygonItem(layer, points, cls, key, path, minCount) {
   const hit = el("polygon", { points: pts(points), class: "hit", "data-key": key }, layer);
   hit.addEventListener("dblclick", (e) => insertVertex(e, path, true));
   handles(layer, points, cls, key, path, minCount);
+  return hit;
 }
 function handles(layer, points, cls, key, path, minCount) {
   points.forEach((p, i) => {
@@ -369,6 +401,13 @@ function drawSketch() {
     (d.body.holes || []).forEach((h, k) => polygonItem(layer, h, "body", `body.holes[${k}]`, ["body", "holes", k], 3));
   }
   (d.bones || []).forEach((b, k) => { if (b.outline) polygonItem(layer, b.outline, "bone", `bones.${b.name}.outline`, ["bones", k, "outline"], 3); });
+  (d.objects || []).forEach((o, k) => {          // a free object: drag a vertex, or drag inside it to move it whole
+    if (!o.outline) return;
+    const hit = polygonItem(layer, o.outline, "object", `objects.${o.name}.outline`, ["objects", k, "outline"], 3);
+    hit.classList.add("movable");
+    hit.setAttribute("data-object", o.name);
+    hit.addEventListener("pointerdown", (e) => startDrag(e, hit, ["objects", k, "outline"], "box"));
+  });
   (d.cables || []).forEach((c, k) => {
     const key = `cables.${c.name}.path`;
     el("polyline", { points: pts(c.path), class: `sketch cable ${c.kind}`, "data-key": key }, layer);
