@@ -42,6 +42,7 @@ OUT = ROOT / "studies" / "output" / "friction_stability"
 FINGER = ROOT / "geometry" / "finger.toml"
 STRATEGIES = ("none", "residual", "energy", "curved", "trust_region")
 MUS = (0.0, 0.25, 0.5, 1.0, 2.0)
+AGREE_MM = 0.01                    # a converged marker farther than this from the energy search's: wrong
 FIELDS = ["case", "mu", "stiffness", "strategy", "converged", "status", "newton_iterations", "time", "marker_x",
           "marker_y", "off_energy"]
 
@@ -117,9 +118,11 @@ def solve(case: str, mu: float, k, strategy: str) -> dict:
 
 
 def summarise(rows: list[dict], agree_mm: float) -> dict:
-    ref = {(r["case"], r["mu"], r["stiffness"]): r for r in rows if r["strategy"] == "energy" and r["converged"]}
+    def key(r):
+        return r["case"], r["mu"], None if r["stiffness"] != r["stiffness"] else r["stiffness"]    # NaN: none
+    ref = {key(r): r for r in rows if r["strategy"] == "energy" and r["converged"]}
     for r in rows:
-        e = ref.get((r["case"], r["mu"], r["stiffness"]))
+        e = ref.get(key(r))
         if r["converged"] and e is not None:
             r["off_energy"] = float(np.hypot(r["marker_x"] - e["marker_x"], r["marker_y"] - e["marker_y"]))
     out = {}
@@ -143,6 +146,7 @@ def plot(path: Path, rows: list[dict]) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    rows = [r for r in rows if not str(r["status"]).startswith("refused")]      # refused: not drawn
     cases = list(dict.fromkeys(r["case"] for r in rows))
     strategies = list(dict.fromkeys(r["strategy"] for r in rows))
     fig, axes = plt.subplots(1, len(cases), figsize=(4.2 * len(cases), 3.6), squeeze=False)
@@ -167,7 +171,7 @@ def plot(path: Path, rows: list[dict]) -> None:
         ax.set_yscale("log")
         ax.set_xlabel("mu")
         ax.axhline(1.25 * top, color="0.8", lw=0.8)
-        ax.text(0.02, 1.75 * top, "failed (x)", fontsize=7, color="0.4")
+        ax.text(0.02, 0.97, "failed (x)", fontsize=7, color="0.4", transform=ax.transAxes, va="top")
     axes[0][0].set_ylabel("Newton iterations")
     axes[0][0].legend(fontsize=7, loc="lower right")
     fig.tight_layout()
@@ -175,7 +179,7 @@ def plot(path: Path, rows: list[dict]) -> None:
     plt.close(fig)
 
 
-def run(cases=tuple(CASES), strategies=STRATEGIES, mus=None, stiffnesses=None, agree_mm: float = 0.01,
+def run(cases=tuple(CASES), strategies=STRATEGIES, mus=None, stiffnesses=None, agree_mm: float = AGREE_MM,
         out: Path | None = None, figures: Path | None = None, progress=print) -> dict:
     """Every (case, mu, stiffness, strategy); mus/stiffnesses: subsets (default: each case's own)."""
     rows = []
@@ -190,6 +194,11 @@ def run(cases=tuple(CASES), strategies=STRATEGIES, mus=None, stiffnesses=None, a
                         progress(f"{case:17s} mu={mu:<5g} k={'' if k is None else f'{k:g}':6s} {s:12s} "
                                  f"{'ok  ' if r['converged'] else 'FAIL'} {r['status']:36s} "
                                  f"{r['newton_iterations']:5d} its {r['time']:6.2f} s")
+    return write(rows, agree_mm, out, figures)
+
+
+def write(rows: list[dict], agree_mm: float, out: Path | None, figures: Path | None) -> dict:
+    """The summary of the rows; with out, cases.csv, summary.json and the figure (copied to figures)."""
     result = {"rows": rows, "summary": summarise(rows, agree_mm), "agree_mm": agree_mm}
     if out is not None:
         from skelfem.io.files import write_csv, write_json
@@ -202,12 +211,32 @@ def run(cases=tuple(CASES), strategies=STRATEGIES, mus=None, stiffnesses=None, a
     return result
 
 
+def read_rows(path: Path) -> list[dict]:
+    """cases.csv back as rows (to redraw the figure without solving again)."""
+    import csv
+    out = []
+    with open(path, newline="") as f:
+        for r in csv.DictReader(f):
+            row = dict(r)
+            for k in ("mu", "stiffness", "time", "marker_x", "marker_y", "off_energy"):
+                row[k] = float(r[k]) if r[k] not in ("", None) else float("nan")
+            row["newton_iterations"] = int(float(r["newton_iterations"]))
+            row["converged"] = r["converged"] in ("True", "true", "1")
+            out.append(row)
+    return out
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", type=Path, default=OUT)
     p.add_argument("--figures", type=Path, default=ROOT / "studies" / "figures")
+    p.add_argument("--from-csv", action="store_true",
+                   help="no solves: summarise and draw the last cases.csv again")
     a = p.parse_args(argv)
-    res = run(out=a.out, figures=a.figures)
+    if a.from_csv:
+        res = write(read_rows(a.out / "cases.csv"), AGREE_MM, a.out, a.figures)
+    else:
+        res = run(out=a.out, figures=a.figures)
     for s, v in res["summary"].items():
         say(f"{s:12s} {v['successes']}/{v['cases']} converged, median {v['iterations_median']} its, "
             f"{v['time']:.1f} s; failed: {'; '.join(v['failures']) or 'none'}"
