@@ -152,7 +152,7 @@ def test_a_refused_ik_trial_leaves_no_friction_history():
     d["cables"] = [{"name": "flexor", "kind": "tendon", "path": [[8.5, 0], [8.5, 9.5]], "stiffness": 2.0}]
     with Session(d) as s:
         assert s.solve().converged
-        s.set({"gravity.acceleration": [2.0, -9.81]})
+        s.set({"gravity.acceleration": [1.0, -9.81]})       # well inside mu: 2.0 m/s^2 sideways nearly loses it
         assert s.solve().converged
         ik = SoftIK(s, "b")
         before = s.model.history()
