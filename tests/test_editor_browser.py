@@ -235,3 +235,72 @@ def test_objects_are_drawn_moved_whole_and_show_their_contact_forces(tmp_path, f
     finally:
         driver.quit()
         ed.stop()
+
+
+def test_labels_shortcuts_unsaved_marker_revert_and_undo_across_reloads(tmp_path, figures, picture):
+    """Issue-by-issue, with real keyboard input: E and nu fields carry visible labels; Ctrl+Z works while a
+    slider has focus and a bare Ctrl press adds no undo step; an edit marks the file unsaved and Revert
+    goes back to it; a reload keeps the unsaved design and its undo history."""
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.keys import Keys
+
+    from skelfem.editor.server import Editor
+    shutil.copy(GEOMETRY / "finger.toml", tmp_path / "finger.toml")
+    ed = Editor(tmp_path / "finger.toml", port=0).start()
+    driver = chrome(1000, 760)
+    try:
+        page = Page(driver, ed.url)
+        page.idle()
+        # labels
+        for key, text in (("materials.ecoflex.E", "E (MPa)"), ("materials.ecoflex.nu", "ν")):
+            label = page.js("(() => { const i = document.querySelector(`input[data-key='${arguments[0]}']`);"
+                            " const l = i.closest('label'); return [l.textContent.trim(), l.offsetWidth > 0]; })()", key)
+            assert label[0] == text and label[1], label
+        assert page.js("document.getElementById('file').textContent") == "finger.toml"
+        assert page.js("document.getElementById('revert').disabled")
+        # a slider moved by the keyboard, then Ctrl+Z with the slider still focused
+        def slider():                        # found again each time: undo and revert rebuild the panel
+            return driver.find_element("css selector", "input[data-key='cables.flexor.contraction']")
+        before = page.js("S.design.cables[0].contraction")
+        slider().click()
+        page.idle()
+        steps = page.js("S.undo.length")
+        ActionChains(driver).key_down(Keys.CONTROL).key_up(Keys.CONTROL).perform()     # a bare Ctrl press
+        assert page.js("S.undo.length") == steps
+        slider().send_keys(Keys.ARROW_RIGHT)
+        page.idle()
+        moved = page.js("S.design.cables[0].contraction")
+        assert moved != before and page.js("S.undo.length") == steps + 1
+        assert page.js("document.getElementById('file').textContent") == "finger.toml •"     # unsaved
+        assert not page.js("document.getElementById('revert').disabled")
+        ActionChains(driver).key_down(Keys.CONTROL).send_keys("z").key_up(Keys.CONTROL).perform()
+        page.idle()
+        assert page.js("document.activeElement.dataset.key") == "cables.flexor.contraction"  # focus stayed
+        undone = page.js("S.design.cables[0].contraction")
+        assert undone != moved and page.js("S.undo.length") == steps             # no phantom step
+        # revert after an edit, and the marker follows
+        slider().send_keys(Keys.ARROW_RIGHT, Keys.ARROW_RIGHT)
+        page.idle()
+        assert page.js("document.getElementById('file').textContent").endswith("•")
+        page.click("#revert")
+        page.idle()
+        assert page.js("JSON.stringify(S.design) === S.savedText")
+        assert page.js("document.getElementById('file').textContent") == "finger.toml"
+        # an unsaved edit and its history survive a reload
+        slider().send_keys(Keys.ARROW_RIGHT)
+        page.idle()
+        edited, depth = page.js("S.design.cables[0].contraction"), page.js("S.undo.length")
+        page = Page(driver, ed.url)                          # reload
+        page.idle()
+        assert page.js("S.restored") and page.js("S.design.cables[0].contraction") == edited
+        assert page.js("S.undo.length") == depth
+        assert page.js("document.getElementById('file').textContent").endswith("•")
+        assert page.js("S.answer.cables.flexor.contraction") == pytest.approx(edited)   # solved as restored
+        ActionChains(driver).key_down(Keys.CONTROL).send_keys("z").key_up(Keys.CONTROL).perform()
+        page.idle()
+        assert page.js("S.design.cables[0].contraction") != edited
+        picture(page.screenshot(figures / "editor_panel.png"), 900, 600)
+        assert not page.console_errors()
+    finally:
+        driver.quit()
+        ed.stop()

@@ -344,9 +344,21 @@ class Editor:
     def describe(self) -> dict:
         self.engine.ensure()
         d = self.engine.design
-        return {"design": d.raw, "file": self.path.name, "folder": str(self.folder), "dim": d.dim,
-                "readonly": d.dim != 2, "parameters": sorted(self.engine.session.model.parameters()),
+        return {"design": d.raw, "saved": self._on_disk(d.raw), "file": self.path.name, "folder": str(self.folder),
+                "dim": d.dim, "readonly": d.dim != 2, "parameters": sorted(self.engine.session.model.parameters()),
                 "first": self.engine.first if self.engine.first.get("converged") else None}
+
+    def _on_disk(self, fallback: dict) -> dict:
+        """The design file's keys as they are on disk (the page's baseline for unsaved changes); the
+        current design if the file cannot be read as TOML any more."""
+        import tomllib
+
+        from ..design.parse import MAX_FILE
+        from ..io.files import read_bounded
+        try:
+            return tomllib.loads(read_bounded(self.path, MAX_FILE, "design file"))
+        except (OSError, ValueError):
+            return fallback
 
     def save(self, design: dict, name: str | None, overwrite: bool) -> dict:
         from ..io.files import write_text

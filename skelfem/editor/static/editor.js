@@ -4,6 +4,7 @@
 
 const SVGNS = "http://www.w3.org/2000/svg";
 const $ = (id) => document.getElementById(id);
+const SLIDER_KEYS = new Set(["ArrowLeft", "ArrowRight", "ArrowUp", "ArrowDown", "PageUp", "PageDown", "Home", "End"]);
 const REGION_FILL = { body: "#f4b6a6", bone: "#e8e4d8", object: "#b9cbe4" };
 const PALETTE = ["#440154", "#482475", "#414487", "#355f8d", "#2a788e", "#21908d", "#22a884", "#42be71",
   "#7ad151", "#bddf26", "#fde725"];
@@ -129,12 +130,50 @@ function checkpoint() { S.undo.push(clone(S.design)); if (S.undo.length > 200) S
 function changed(kind, draft) {
   input(kind);
   drawSketch();
+  if (!draft) { unsaved(); remember(); }
   request({ kind: "solve", draft: !!draft });
+}
+// -- unsaved changes, revert, and the history kept across reloads (per design file, in this browser) ------
+function unsaved() {
+  const dirty = JSON.stringify(S.design) !== S.savedText;
+  $("file").textContent = S.file + (dirty ? " •" : "");
+  $("file").title = dirty ? "unsaved changes" : "";
+  $("revert").disabled = !dirty;
+  document.title = `${dirty ? "• " : ""}${S.file} — skelfem`;
+  return dirty;
+}
+function historyKey() { return `skelfem-history:${S.file}`; }
+function remember() {
+  try {
+    localStorage.setItem(historyKey(), JSON.stringify({ saved: S.savedText, design: S.design,
+      undo: S.undo.slice(-50), redo: S.redo.slice(-50) }));
+  } catch (e) { /* storage full or off: the history lives in this page only */ }
+}
+function recall() {
+  // the history of this file, if it was made on the same file content (else the file changed on disk)
+  let h = null;
+  try { h = JSON.parse(localStorage.getItem(historyKey()) || "null"); } catch (e) { h = null; }
+  if (!h || h.saved !== S.savedText) return false;
+  S.undo = h.undo || []; S.redo = h.redo || [];
+  const edited = JSON.stringify(h.design) !== S.savedText;
+  if (edited) S.design = h.design;
+  return edited;
+}
+function revert() {
+  if (!unsaved()) return;
+  checkpoint();
+  S.design = JSON.parse(S.savedText);
+  afterJump();
 }
 function undo() { if (!S.undo.length) return; S.redo.push(clone(S.design)); S.design = S.undo.pop(); afterJump(); }
 function redo() { if (!S.redo.length) return; S.undo.push(clone(S.design)); S.design = S.redo.pop(); afterJump(); }
-function afterJump() { buildPanel(); changed("undo", false); buttons(); }
-function buttons() { $("undo").disabled = !S.undo.length; $("redo").disabled = !S.redo.length; }
+function afterJump() {
+  const focused = document.activeElement && document.activeElement.dataset ? document.activeElement.dataset.key : null;
+  buildPanel();
+  if (focused) { const again = document.querySelector(`#panel [data-key="${focused}"]`); if (again) again.focus(); }
+  changed("undo", false); buttons();
+}
+function buttons() { $("undo").disabled = !S.undo.length; $("redo").disabled = !S.redo.length; if (S.file) unsaved(); }
 function adoptContractions(design) {
   for (const c of design.cables || []) {
     const mine = named("cables").find((m) => m.name === c.name);
@@ -158,7 +197,10 @@ function buildPanel() {
     Object.assign(r, { type: "range", min: 0, max, step: 0.05, value: c[key] || 0 });
     r.dataset.cable = c.name; r.dataset.param = key; r.dataset.key = `cables.${c.name}.${key}`;
     r.addEventListener("pointerdown", () => { if (!r.dataset.live) { checkpoint(); r.dataset.live = "1"; } });
-    r.addEventListener("keydown", () => { if (!r.dataset.live) { checkpoint(); r.dataset.live = "1"; } });
+    r.addEventListener("keydown", (e) => {           // only keys that move the slider start an undo step
+      if (e.ctrlKey || e.metaKey || e.altKey || !SLIDER_KEYS.has(e.key)) return;
+      if (!r.dataset.live) { checkpoint(); r.dataset.live = "1"; }
+    });
     r.addEventListener("input", () => {
       if (!r.dataset.live) { checkpoint(); r.dataset.live = "1"; }
       const m = named("cables").find((x) => x.name === c.name); m[key] = Number(r.value);
@@ -172,16 +214,20 @@ function buildPanel() {
   const mats = $("materials"); mats.textContent = "";
   for (const [name, m] of Object.entries(d.materials || {})) {
     const row = document.createElement("div"); row.className = "material";
-    row.innerHTML = `<span>${name}</span>`;
+    row.innerHTML = `<span class="material-name">${name}</span>`;
     for (const [p, step] of [["E", "any"], ["nu", "0.01"]]) {
+      const label = document.createElement("label");
+      label.className = "material-field";
+      label.append(p === "E" ? "E (MPa) " : "ν ");
       const inp = document.createElement("input");
-      Object.assign(inp, { type: "number", step, value: m[p], title: p === "E" ? "E (MPa)" : "ν" });
+      Object.assign(inp, { type: "number", step, value: m[p], title: p === "E" ? "Young's modulus E (MPa)" : "Poisson's ratio ν" });
       inp.dataset.key = `materials.${name}.${p}`;
       inp.addEventListener("change", () => {
         const v = Number(inp.value); if (!Number.isFinite(v)) return;
         checkpoint(); d.materials[name][p] = v; changed("field", false);
       });
-      row.appendChild(inp);
+      label.appendChild(inp);
+      row.appendChild(label);
     }
     mats.appendChild(row);
   }
@@ -595,7 +641,10 @@ async function save(name) {
   if (name) body.name = name;
   let r = await api("/api/save", body);
   if (r.status === 409 && name && confirm(`${name} exists. Replace it?`)) r = await api("/api/save", { ...body, overwrite: true });
-  if (r.status === 200) { S.file = r.data.file; $("file").textContent = S.file; setStatusNote(`saved ${r.data.file}`); S.saved = r.data; }
+  if (r.status === 200) {
+    S.file = r.data.file; S.savedText = JSON.stringify(S.design); unsaved(); remember();
+    setStatusNote(`saved ${r.data.file}`); S.saved = r.data;
+  }
   else showError(r.data.error, r.data.key || "");
   return r;
 }
@@ -606,8 +655,10 @@ async function main() {
   const { status, data } = await api("/api/design");
   if (status !== 200) { setStatus(`cannot load the design: ${data.error}`, true); return; }
   S.design = data.design; S.file = data.file; S.dim = data.dim; S.readonly = data.readonly;
+  S.savedText = JSON.stringify(data.saved || data.design);      // the file as on disk: unsaved changes differ
   if (data.first) S.answer = data.first;
   if (S.dim !== 2) { setup3d(); draw3d(); S.ready = true; window.addEventListener("resize", draw3d); return; }
+  S.restored = recall();            // unsaved edits of this file from before a reload
   buildPanel(); buttons();
   const svg = $("view");
   svg.addEventListener("pointermove", onMove);
@@ -615,7 +666,7 @@ async function main() {
   svg.addEventListener("pointercancel", onUp);
   svg.addEventListener("pointerdown", startIK);
   svg.addEventListener("contextmenu", (e) => e.preventDefault());
-  $("undo").onclick = undo; $("redo").onclick = redo; $("fit").onclick = fit;
+  $("undo").onclick = undo; $("redo").onclick = redo; $("fit").onclick = fit; $("revert").onclick = revert;
   $("save").onclick = () => save(null);
   $("saveas").onclick = () => { const n = prompt("Save as (a .toml name in the same folder):", S.file); if (n) save(n); };
   $("colour").onchange = () => drawMesh();
@@ -624,7 +675,10 @@ async function main() {
   meshField("mesh-size", "size", Number);
   meshField("mesh-degree", "degree", (v) => parseInt(v, 10));
   document.addEventListener("keydown", (e) => {
-    if (!(e.ctrlKey || e.metaKey) || e.target.tagName === "INPUT") return;
+    // shortcuts work wherever focus is, except in a text or number field (its own undo edits its text)
+    const typing = e.target.tagName === "INPUT" && e.target.type !== "range" && e.target.type !== "checkbox";
+    if (!(e.ctrlKey || e.metaKey) || typing) return;
+    if (e.target.type === "range") delete e.target.dataset.live;      // a slider drag in progress ends here
     if (e.key === "z" && !e.shiftKey) { e.preventDefault(); undo(); }
     else if (e.key === "y" || (e.key === "Z" && e.shiftKey) || (e.key === "z" && e.shiftKey)) { e.preventDefault(); redo(); }
   });
