@@ -304,3 +304,60 @@ def test_labels_shortcuts_unsaved_marker_revert_and_undo_across_reloads(tmp_path
     finally:
         driver.quit()
         ed.stop()
+
+
+def _topmost_failures(page) -> list:
+    """Handles that some other (non-handle) element covers at their centre."""
+    return page.js("""return [...document.querySelectorAll('#layer-sketch .handle')].filter(h => {
+        const b = h.getBoundingClientRect(), top = document.elementFromPoint(b.left + b.width / 2, b.top + b.height / 2);
+        return top && !top.classList.contains('handle');
+      }).map(h => h.dataset.path);""".replace("return [", "(() => [", 1).rstrip(";") + ")()")
+
+
+@pytest.mark.parametrize("size", [(800, 600), (1400, 900), (2560, 1440)], ids=["800x600", "1400x900", "2560x1440"])
+def test_layout_handles_labels_and_errors_at_every_window_size(tmp_path, figures, picture, size):
+    """At 800x600, 1400x900 and 2560x1440: the drawing and the panel both show, the status and read-outs
+    are reachable; every handle is the topmost element at its centre (a vertex under a cable's click
+    line can be grabbed); no two cable labels overlap, the tendon's is shown; an error label stays inside
+    the drawing, whole. Screenshots for the docs."""
+    from skelfem.editor.server import Editor
+    text = (GEOMETRY / "finger.toml").read_text()
+    # the palmar ligament's sketch runs through the proximal bone's corner (6, 38)
+    assert "path = [[7.5, 34], [7.5, 48]]" in text
+    (tmp_path / "finger.toml").write_text(text.replace("path = [[7.5, 34], [7.5, 48]]", "path = [[4, 34], [8, 42]]", 1))
+    ed = Editor(tmp_path / "finger.toml", port=0).start()
+    driver = chrome(*size)
+    try:
+        page = Page(driver, ed.url)
+        page.idle()
+        W, H = page.js("[window.innerWidth, window.innerHeight]")
+        view = page.js("(() => { const b = document.getElementById('view').getBoundingClientRect(); "
+                       "return [b.left, b.top, b.width, b.height]; })()")
+        panel = page.js("(() => { const b = document.getElementById('panel').getBoundingClientRect(); "
+                        "return [b.left, b.top, b.width, b.height]; })()")
+        assert view[2] >= 0.45 * W and view[3] >= 0.6 * H, (view, W, H)          # the drawing gets the room
+        assert panel[2] >= 260 and panel[0] + panel[2] <= W + 1                    # the panel fits beside it
+        assert page.js("document.documentElement.scrollWidth") <= W + 1            # no sideways scrolling
+        assert page.js("document.getElementById('status').getBoundingClientRect().bottom") <= H
+        if W >= 1300:                                       # wide: the read-outs beside the tools, above the fold
+            assert page.js("document.getElementById('readouts').getBoundingClientRect().top") < 0.5 * H
+        assert not _topmost_failures(page)
+        labels = page.js("""(() => [...document.querySelectorAll('text.tension')]
+            .filter(t => t.getAttribute('visibility') !== 'hidden')
+            .map(t => { const b = t.getBoundingClientRect(); return [t.dataset.tension, b.left, b.top, b.right, b.bottom]; }))()""")
+        assert "flexor" in [lab[0] for lab in labels]
+        for i, a in enumerate(labels):
+            for b in labels[i + 1:]:
+                assert a[3] <= b[1] or b[3] <= a[1] or a[4] <= b[2] or b[4] <= a[2], (a, b)
+        picture(page.screenshot(figures / f"editor_{size[0]}x{size[1]}.png"), min(size[0], 800) - 1, 400)
+        page.drag_by(page.handle_css(["bones", 0, "outline", 0]), -80, 0, steps=1)    # out of the body: an error
+        page.idle()
+        err = page.js("(() => { const t = document.querySelector('.error-label'); const b = t.getBoundingClientRect(); "
+                      "return [t.textContent, b.left, b.top, b.right, b.bottom]; })()")
+        assert "…" not in err[0] and len(err[0]) > 20
+        assert err[1] >= view[0] - 1 and err[3] <= view[0] + view[2] + 1, (err, view)
+        assert err[2] >= view[1] - 1 and err[4] <= view[1] + view[3] + 1, (err, view)
+        assert not page.console_errors()
+    finally:
+        driver.quit()
+        ed.stop()

@@ -303,8 +303,21 @@ function markError() {
   }
   if (box) {
     const text = S.error.message.split(": ").slice(1).join(": ") || S.error.message;
-    const t = el("text", { x: box.x + box.width + 6, y: box.y + 12, class: "error-label", "data-error-for": S.error.key }, layer);
-    t.textContent = text.length > 90 ? text.slice(0, 87) + "…" : text;
+    const svg = $("view"), W = svg.clientWidth || 800, H = svg.clientHeight || 600;
+    const t = el("text", { x: 0, y: 0, class: "error-label", "data-error-for": S.error.key }, layer);
+    // words into lines of at most ~40 % of the view's width (7 px a character), the whole message kept
+    const perLine = Math.max(20, Math.floor(0.4 * W / 7)), lines = [];
+    for (const word of text.split(" ")) {
+      const last = lines.length ? lines[lines.length - 1] : null;
+      if (last !== null && (last + " " + word).length <= perLine) lines[lines.length - 1] = last + " " + word;
+      else lines.push(word);
+    }
+    lines.forEach((line, i) => { const span = el("tspan", { x: 0, dy: i ? 14 : 0 }, t); span.textContent = line; });
+    const b = t.getBBox();
+    let x = box.x + box.width + 6;                          // right of the element, else left of it, inside the view
+    if (x + b.width > W - 4) x = Math.max(4, box.x - 6 - b.width);
+    const y = Math.min(Math.max(box.y + 12, 14), H - b.height + 8);
+    t.setAttribute("transform", `translate(${x.toFixed(1)} ${y.toFixed(1)})`);
   }
 }
 
@@ -402,9 +415,40 @@ function drawCables() {
     const cls = `${c.kind}${c.slack ? " slack" : ""}`;
     el("polyline", { points: pts(c.via), class: `cable-line ${cls}`, "data-cable": c.name }, layer);
     for (const p of c.via) { const q = px(p); el("circle", { cx: q[0], cy: q[1], r: 2.2, class: `via ${c.kind}` }, layer); }
-    const mid = px(c.via[Math.floor(c.via.length / 2)]);
-    const t = el("text", { x: mid[0] + 6, y: mid[1], class: `tension ${c.kind}`, "data-tension": c.name }, layer);
+  }
+  placeCableLabels(layer, a.mesh.cables);
+}
+
+function placeCableLabels(layer, cables) {
+  // tendons first, then taut ligaments, then slack ones; each at the first of several spots along its cable
+  // (right, then left of a via point, from the middle outwards) that overlaps no label placed before; a
+  // label with no free spot is hidden (its cable's tension is in the panel too)
+  const rank = (c) => (c.kind === "tendon" ? 0 : c.slack ? 2 : 1);
+  const order = [...cables].sort((p, q) => rank(p) - rank(q));
+  const placed = [];
+  const hits = (b) => placed.some((o) => b.x < o.x + o.width + 2 && o.x < b.x + b.width + 2 &&
+                                         b.y < o.y + o.height + 1 && o.y < b.y + b.height + 1);
+  for (const c of order) {
+    const t = el("text", { x: 0, y: 0, class: `tension ${c.kind}`, "data-tension": c.name }, layer);
     t.textContent = c.slack ? `${c.name}: slack` : `${c.name}: ${fmt(c.tension, 2)} N`;
+    const n = c.via.length, mid = Math.floor(n / 2), spots = [];
+    for (let k = 0; k < n; k++) {
+      const i = mid + (k % 2 ? -1 : 1) * Math.ceil(k / 2);
+      if (i >= 0 && i < n) spots.push(i);
+    }
+    let done = false;
+    for (const i of spots.slice(0, 12)) {
+      const q = px(c.via[i]);
+      for (const side of [1, -1]) {
+        t.setAttribute("x", side > 0 ? q[0] + 6 : q[0] - 6);
+        t.setAttribute("text-anchor", side > 0 ? "start" : "end");
+        t.setAttribute("y", q[1]);
+        const b = t.getBBox();
+        if (!hits(b)) { placed.push(b); done = true; break; }
+      }
+      if (done) break;
+    }
+    if (!done) t.setAttribute("visibility", "hidden");
   }
 }
 
@@ -480,6 +524,8 @@ function drawSketch() {
       "data-path": JSON.stringify(["markers", name]) }, layer);
     h.addEventListener("pointerdown", (e) => startDrag(e, h, ["markers", name], "point"));
   }
+  // every handle above every line and outline: a vertex under a cable's (wide, invisible) click line stays grabbable
+  for (const h of [...layer.querySelectorAll(".handle")]) layer.appendChild(h);
 }
 
 function drawMarkers() {
