@@ -361,3 +361,37 @@ def test_layout_handles_labels_and_errors_at_every_window_size(tmp_path, figures
     finally:
         driver.quit()
         ed.stop()
+
+
+def test_new_design_from_the_template_is_saved_under_its_own_name(tmp_path):
+    """New replaces the page's design by a small template that solves; Save then asks for a name (the
+    opened file is never overwritten by it) and the new file is a valid design."""
+    from skelfem.design import load_design
+    from skelfem.editor.server import Editor
+    shutil.copy(GEOMETRY / "finger.toml", tmp_path / "finger.toml")
+    original = (tmp_path / "finger.toml").read_bytes()
+    ed = Editor(tmp_path / "finger.toml", port=0).start()
+    driver = chrome(1000, 760)
+    try:
+        page = Page(driver, ed.url)
+        page.idle()
+        page.click("#new")
+        page.idle()
+        assert page.js("S.design.name") == "untitled" and page.js("S.answer.converged")
+        assert page.js("document.getElementById('file').textContent") == "untitled.toml •"
+        assert page.js("S.answer.markers.tip.position[0]") < 8.0 - 1.0        # the template curls
+        page.click("#save")
+        alert = driver.switch_to.alert
+        alert.send_keys("mine.toml")
+        alert.accept()
+        page.wait("S.file === 'mine.toml'")
+        assert page.js("document.getElementById('file').textContent") == "mine.toml"
+        assert (tmp_path / "finger.toml").read_bytes() == original
+        assert load_design(tmp_path / "mine.toml").name == "untitled"
+        page.click("#undo")                                   # back to the finger, in the history
+        page.idle()
+        assert page.js("S.design.name") == "finger"
+        assert not page.console_errors()
+    finally:
+        driver.quit()
+        ed.stop()

@@ -4,6 +4,17 @@
 
 const SVGNS = "http://www.w3.org/2000/svg";
 const $ = (id) => document.getElementById(id);
+// "New": a small two-bone finger with one tendon, to start from (saved under a name you give)
+const TEMPLATE = {
+  format: 1, name: "untitled", dim: 2, thickness: 10.0, mesh: { size: 2.0, degree: 1 },
+  materials: { silicone: { E: 0.1, nu: 0.45 }, pla: { E: 3000.0, nu: 0.35 } },
+  body: { outline: [[0, 0], [16, 0], [16, 60], [12, 66], [4, 66], [0, 60]], material: "silicone" },
+  bones: [{ name: "lower", outline: [[5, 6], [11, 6], [11, 26], [5, 26]], material: "pla" },
+          { name: "upper", outline: [[5, 32], [11, 32], [11, 52], [5, 52]], material: "pla" }],
+  cables: [{ name: "flexor", kind: "tendon", path: [[2.5, 0], [2.5, 56]], stiffness: 20.0, contraction: 4.0 }],
+  pins: [{ name: "base", region: [[-1, -1], [17, 0.01]], kind: "fixed" }],
+  markers: { tip: [8, 66] },
+};
 const SLIDER_KEYS = new Set(["ArrowLeft", "ArrowRight", "ArrowUp", "ArrowDown", "PageUp", "PageDown", "Home", "End"]);
 const REGION_FILL = { body: "#f4b6a6", bone: "#e8e4d8", object: "#b9cbe4" };
 const PALETTE = ["#440154", "#482475", "#414487", "#355f8d", "#2a788e", "#21908d", "#22a884", "#42be71",
@@ -158,6 +169,15 @@ function recall() {
   const edited = JSON.stringify(h.design) !== S.savedText;
   if (edited) S.design = h.design;
   return edited;
+}
+function newDesign() {
+  if (S.readonly) return;
+  if (unsaved() && !confirm("Start a new design? Your unsaved changes stay in the undo history.")) return;
+  checkpoint();
+  S.design = clone(TEMPLATE);
+  S.file = "untitled.toml"; S.untitled = true; S.savedText = "";
+  afterJump();
+  fit();
 }
 function revert() {
   if (!unsaved()) return;
@@ -688,7 +708,7 @@ async function save(name) {
   let r = await api("/api/save", body);
   if (r.status === 409 && name && confirm(`${name} exists. Replace it?`)) r = await api("/api/save", { ...body, overwrite: true });
   if (r.status === 200) {
-    S.file = r.data.file; S.savedText = JSON.stringify(S.design); unsaved(); remember();
+    S.file = r.data.file; S.untitled = false; S.savedText = JSON.stringify(S.design); unsaved(); remember();
     setStatusNote(`saved ${r.data.file}`); S.saved = r.data;
   }
   else showError(r.data.error, r.data.key || "");
@@ -713,7 +733,11 @@ async function main() {
   svg.addEventListener("pointerdown", startIK);
   svg.addEventListener("contextmenu", (e) => e.preventDefault());
   $("undo").onclick = undo; $("redo").onclick = redo; $("fit").onclick = fit; $("revert").onclick = revert;
-  $("save").onclick = () => save(null);
+  $("save").onclick = () => {                // a new design is saved under a name first
+    if (!S.untitled) { save(null); return; }
+    const n = prompt("Save the new design as (a .toml name in the same folder):", "untitled.toml"); if (n) save(n);
+  };
+  $("new").onclick = newDesign;
   $("saveas").onclick = () => { const n = prompt("Save as (a .toml name in the same folder):", S.file); if (n) save(n); };
   $("colour").onchange = () => drawMesh();
   $("ik-on").onchange = () => { S.ik.on = $("ik-on").checked; S.ik.info = null; drawIK(); };
