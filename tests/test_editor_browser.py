@@ -342,6 +342,19 @@ def test_layout_handles_labels_and_errors_at_every_window_size(tmp_path, figures
         if W >= 1300:                                       # wide: the read-outs beside the tools, above the fold
             assert page.js("document.getElementById('readouts').getBoundingClientRect().top") < 0.5 * H
         assert not _topmost_failures(page)
+        # the tip marker (10, 99) sits over the outline's top vertex (10, 100): both can be grabbed
+        vertex, marker = page.js("""(() => {
+            const at = (x, y) => (document.elementFromPoint(x, y) || {dataset: {}}).dataset.key;
+            const v = document.querySelector(`#layer-sketch .handle[data-path='["body","outline",5]']`).getBoundingClientRect();
+            const m = document.querySelector("#layer-sketch .handle.marker[data-key='markers.tip']").getBoundingClientRect();
+            const spots = [[0.5, 0.5], [0.1, 0.1], [0.9, 0.1], [0.1, 0.9], [0.9, 0.9]];
+            return [at(v.left + v.width / 2, v.top + v.height / 2),
+                    spots.map(([a, b]) => at(m.left + a * m.width, m.top + b * m.height))];
+          })()""")
+        assert vertex == "body.outline" and "markers.tip" in marker, (vertex, marker)
+        legend = page.js("document.getElementById('legend').textContent")
+        assert "body" in legend and "bones" in legend                              # the regions' legend
+        assert "coarser" not in page.js("document.getElementById('help').textContent")
         labels = page.js("""(() => [...document.querySelectorAll('text.tension')]
             .filter(t => t.getAttribute('visibility') !== 'hidden')
             .map(t => { const b = t.getBoundingClientRect(); return [t.dataset.tension, b.left, b.top, b.right, b.bottom]; }))()""")

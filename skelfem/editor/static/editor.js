@@ -540,12 +540,15 @@ function drawSketch() {
   });
   for (const [name, p] of Object.entries(d.markers || {})) {
     const a = px(p);
-    const h = el("rect", { x: a[0] - 4.5, y: a[1] - 4.5, width: 9, height: 9, class: "handle", "data-key": `markers.${name}`,
+    const h = el("rect", { x: a[0] - 7, y: a[1] - 7, width: 14, height: 14, class: "handle marker", "data-key": `markers.${name}`,
       "data-path": JSON.stringify(["markers", name]) }, layer);
     h.addEventListener("pointerdown", (e) => startDrag(e, h, ["markers", name], "point"));
   }
   // every handle above every line and outline: a vertex under a cable's (wide, invisible) click line stays grabbable
-  for (const h of [...layer.querySelectorAll(".handle")]) layer.appendChild(h);
+  // markers (larger squares) below the vertices: a vertex under a marker (the tip on the outline's top) is
+  // grabbed at its centre, the marker around it
+  for (const h of [...layer.querySelectorAll(".handle.marker")]) layer.appendChild(h);
+  for (const h of [...layer.querySelectorAll(".handle:not(.marker)")]) layer.appendChild(h);
 }
 
 function drawMarkers() {
