@@ -319,8 +319,8 @@ def test_the_bundled_friction_finger_pulls_and_pays_out():
 
 
 def test_solution_xdmf_fill_values_are_the_documented_ones(tmp_path):
-    """docs/guide/output.md's table of fill values: region -1 on cable cells, cable -1 and tension 0 on the
-    body's; no NaN."""
+    """docs/guide/output.md's table of fill values: region -1 and stretch 0 on cable cells, cable -1 and
+    tension 0 on the body's; no NaN."""
     import meshio
 
     from skelfem.io.xdmf import write_xdmf
@@ -336,6 +336,8 @@ def test_solution_xdmf_fill_values_are_the_documented_ones(tmp_path):
     assert set(np.unique(data["region"][body])) == {1.0, 2.0} and np.all(data["region"][lines] == -1)
     assert np.all(data["cable"][body] == -1) and np.all(data["tension"][body] == 0)
     assert np.all(data["cable"][lines] == 0) and np.ptp(data["tension"][lines]) > 0
+    assert np.all(data["stretch"][lines] == 0) and np.all(data["stretch"][body] > 0.5)
+    assert data["stretch"][body].max() > 1.0 + 1e-6                        # the pulled cable stretches the body
     assert not any(np.isnan(v).any() for blocks in m.cell_data.values() for v in blocks)
 
 

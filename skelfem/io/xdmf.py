@@ -127,8 +127,18 @@ def gathered_snapshot(state) -> Snapshot | None:
 
 
 # -- files ------------------------------------------------------------------------------------------
+def largest_stretch(x: np.ndarray, y: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """Per simplex (triangle or tetrahedron through its vertices): the largest principal stretch
+    sqrt(max eig(F^T F)), F the linear map of the rest cell onto the deformed one."""
+    A = np.stack([x[cells[:, k]] - x[cells[:, 0]] for k in range(1, cells.shape[1])], axis=2)
+    B = np.stack([y[cells[:, k]] - y[cells[:, 0]] for k in range(1, cells.shape[1])], axis=2)
+    F = B @ np.linalg.inv(A)
+    return np.sqrt(np.linalg.eigvalsh(np.transpose(F, (0, 2, 1)) @ F)[:, -1])
+
+
 def write_xdmf(path: Path, state) -> None:
-    """Mesh (rest coordinates) with displacement, region tag, and cables as polylines.
+    """Mesh (rest coordinates) with displacement, region tag, largest principal stretch per cell, and
+    cables as polylines.
 
     `state` is a model (collective) or a Snapshot of one.
 
@@ -164,13 +174,15 @@ def write_xdmf(path: Path, state) -> None:
     region = [snap.regions.astype(float)]
     tens = [np.zeros(len(cells))]
     ids = [np.full(len(cells), -1.0)]
+    stretch = [largest_stretch(x, x + u, np.asarray(cells))]
     if lines:
         blocks.append(("line", np.vstack(lines)))
         region.append(np.full(len(tension), -1.0))
         tens.append(np.asarray(tension, float))
         ids.append(np.asarray(cable_id, float))
+        stretch.append(np.zeros(len(tension)))
     m = meshio.Mesh(pts, blocks, point_data={"displacement": d3},
-                    cell_data={"region": region, "tension": tens, "cable": ids})
+                    cell_data={"region": region, "tension": tens, "cable": ids, "stretch": stretch})
     atomic_write(path, lambda tmp: meshio.xdmf.write(tmp, m, data_format="XML"))
 
 
