@@ -314,9 +314,10 @@ def _topmost_failures(page) -> list:
       }).map(h => h.dataset.path);""".replace("return [", "(() => [", 1).rstrip(";") + ")()")
 
 
-@pytest.mark.parametrize("size", [(800, 600), (1400, 900), (2560, 1440)], ids=["800x600", "1400x900", "2560x1440"])
+@pytest.mark.parametrize("size", [(800, 600), (1400, 900), (2560, 1440), (3840, 2160)],
+                         ids=["800x600", "1400x900", "2560x1440", "3840x2160"])
 def test_layout_handles_labels_and_errors_at_every_window_size(tmp_path, figures, picture, size):
-    """At 800x600, 1400x900 and 2560x1440: the drawing and the panel both show, the status and read-outs
+    """At 800x600, 1400x900, 2560x1440 and 4K: the drawing and the panel both show, the status and read-outs
     are reachable; every handle is the topmost element at its centre (a vertex under a cable's click
     line can be grabbed); no two cable labels overlap, the tendon's is shown; an error label stays inside
     the drawing, whole. Screenshots for the docs."""
@@ -359,11 +360,14 @@ def test_layout_handles_labels_and_errors_at_every_window_size(tmp_path, figures
             .filter(t => t.getAttribute('visibility') !== 'hidden')
             .map(t => { const b = t.getBoundingClientRect(); return [t.dataset.tension, b.left, b.top, b.right, b.bottom]; }))()""")
         assert "flexor" in [lab[0] for lab in labels]
+        halo = page.js("getComputedStyle(document.querySelector('text.tension')).paintOrder")
+        assert halo.startswith("stroke")                     # a white halo keeps a label legible over the mesh
         for i, a in enumerate(labels):
             for b in labels[i + 1:]:
                 assert a[3] <= b[1] or b[3] <= a[1] or a[4] <= b[2] or b[4] <= a[2], (a, b)
         picture(page.screenshot(figures / f"editor_{size[0]}x{size[1]}.png"), min(size[0], 800) - 1, 400)
-        page.drag_by(page.handle_css(["bones", 0, "outline", 0]), -80, 0, steps=1)    # out of the body: an error
+        start, goal = page.screen([6.0, 8.0]), page.screen([-12.0, 8.0])         # 12 mm left of the body: an error
+        page.drag_by(page.handle_css(["bones", 0, "outline", 0]), goal[0] - start[0], 0, steps=1)
         page.idle()
         err = page.js("(() => { const t = document.querySelector('.error-label'); const b = t.getBoundingClientRect(); "
                       "return [t.textContent, b.left, b.top, b.right, b.bottom]; })()")
