@@ -17,8 +17,10 @@ def _fields() -> set:
         set(re.findall(r'_between\(\w+, "(\w+)"', text))
 
 
-def test_the_script_compiles_and_names_fields():
-    py_compile.compile(str(SCRIPT), doraise=True)
+def test_the_scripts_compile_and_name_fields():
+    for script in SCRIPT.parent.glob("*.py"):
+        py_compile.compile(str(script), doraise=True)
+    assert {p.name for p in SCRIPT.parent.glob("*.py")} == {"skelfem_view.py", "skelfem_series.py", "skelfem_parts.py"}
     assert _fields() == {"region", "cable", "displacement", "stretch", "tension"}
 
 
@@ -42,3 +44,12 @@ def test_every_field_the_script_uses_is_in_solution_xdmf(design, tmp_path):
     assert np.all(m.cell_data["region"][body] >= 1) and np.all(m.cell_data["region"][lines] < 1)
     assert np.all(m.cell_data["cable"][lines] >= 0) and np.all(m.cell_data["cable"][body] < 0)
     assert m.point_data["displacement"].shape[1] == 3
+
+
+def test_the_render_study_says_what_it_needs_without_paraview(monkeypatch, capsys):
+    from _studies import load_study
+    study = load_study("paraview_renders")
+    monkeypatch.setattr(study.shutil, "which", lambda tool: None)
+    assert study.main([]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: this study needs ParaView") and "apt install" in err[0]

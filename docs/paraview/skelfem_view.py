@@ -79,5 +79,7 @@ for name, x in (("stretch", 0.04), ("tension", 0.76)):
     bar.RangeLabelFormat = "%-#6.3g"
 ResetCamera(view)
 Render(view)
+print(f"body cells: {body.GetDataInformation().GetNumberOfCells()}, "
+      f"cable segments: {cables.GetDataInformation().GetNumberOfCells()}")
 if PICTURE:
     SaveScreenshot(PICTURE, view, ImageResolution=[1200, 900])
