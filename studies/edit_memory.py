@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import ctypes
 import gc
-import json
 import os
 import time
 import tomllib
@@ -62,8 +61,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--out", type=Path, default=ROOT / "studies" / "output" / "edit_memory")
     args = ap.parse_args(argv)
     res = run(args.edits, args.every)
+    from skelfem.io.files import write_json
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "edit_memory.json").write_text(json.dumps(res, indent=1) + "\n")
+    write_json(args.out / "edit_memory.json", res)
     print(f"{res['edits']} edits: RSS grew {res['growth_mb']:.2f} MB ({res['per_edit_kb']:.2f} KB per edit)")
     return res
 

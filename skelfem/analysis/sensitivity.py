@@ -196,7 +196,6 @@ class Linearization:
         return out
 
     def _exact_solve(self, b: np.ndarray, tol: float = 1e-12) -> np.ndarray:
-        from scipy.sparse.linalg import LinearOperator, gmres
         n = len(b)
 
         def h_inv(r):
@@ -204,17 +203,8 @@ class Linearization:
         rhs = h_inv(b)
         if not np.any(rhs):
             return rhs
-        A = LinearOperator((n, n), matvec=lambda v: np.asarray(v).ravel() + h_inv(self._coupling(np.asarray(v).ravel())),
-                           dtype=float)
-        atol = tol * float(np.linalg.norm(rhs))
-        try:
-            y, info = gmres(A, rhs, x0=rhs, rtol=0.0, atol=atol, restart=60, maxiter=5)
-        except TypeError:                                   # SciPy < 1.12 calls rtol tol
-            y, info = gmres(A, rhs, x0=rhs, tol=0.0, atol=atol, restart=60, maxiter=5)
-        residual = float(np.linalg.norm(A.matvec(y) - rhs))
-        if info != 0 and residual > 1e3 * atol:
-            raise RuntimeError(f"sensitivity through friction: GMRES did not converge (|r| {residual:.3g})")
-        return y
+        return _gmres(lambda v: v + h_inv(self._coupling(v)), rhs, tol, restart=60, maxiter=5,
+                      what="sensitivity through friction")
 
     def state_sensitivities(self) -> list[PETSc.Vec]:
         """dx*/du_c = -H^-1 dR/du_c for every tendon c (forward mode)."""
@@ -325,8 +315,6 @@ def friction_sensitivity(lin: Linearization, name: str, h: float = 1e-6, tol: fl
 
 
 def _friction_solve(lin, model, target, terms, frozen, u, h, tol) -> np.ndarray:
-    from scipy.sparse.linalg import LinearOperator, gmres
-
     from ..terms import cable_slip
 
     def gradient_with(t, F) -> np.ndarray:
@@ -377,15 +365,22 @@ def _friction_solve(lin, model, target, terms, frozen, u, h, tol) -> np.ndarray:
         b[model.fixed[:len(b)]] = 0.0
         return lin.h_solve_many(b[:, None])[:, 0]
 
-    n = len(u)
-    A = LinearOperator((n, n), matvec=lambda v: v + h_inv(coupling(np.asarray(v).ravel())), dtype=float)
-    rhs = -h_inv(dG)
+    return _gmres(lambda v: v + h_inv(coupling(v)), -h_inv(dG), tol, restart=80, maxiter=3,
+                  what="friction sensitivity")
+
+
+def _gmres(matvec, rhs: np.ndarray, tol: float, restart: int, maxiter: int, what: str) -> np.ndarray:
+    """y with matvec(y) = rhs to tol |rhs| by GMRES from y = rhs (a preconditioned system I + small);
+    RuntimeError naming `what` if it does not get there."""
+    from scipy.sparse.linalg import LinearOperator, gmres
+    n = len(rhs)
+    A = LinearOperator((n, n), matvec=lambda v: matvec(np.asarray(v).ravel()), dtype=float)
     atol = tol * max(float(np.linalg.norm(rhs)), 1e-300)
     try:
-        dx, info = gmres(A, rhs, x0=rhs, rtol=0.0, atol=atol, restart=80, maxiter=3)
+        y, info = gmres(A, rhs, x0=rhs, rtol=0.0, atol=atol, restart=restart, maxiter=maxiter)
     except TypeError:                                 # SciPy < 1.12 calls rtol tol
-        dx, info = gmres(A, rhs, x0=rhs, tol=0.0, atol=atol, restart=80, maxiter=3)
-    residual = float(np.linalg.norm(A.matvec(dx) - rhs))
+        y, info = gmres(A, rhs, x0=rhs, tol=0.0, atol=atol, restart=restart, maxiter=maxiter)
+    residual = float(np.linalg.norm(A.matvec(y) - rhs))
     if info != 0 and residual > 1e3 * atol:        # SciPy 1.10 may report its iteration limit when done
-        raise RuntimeError(f"friction sensitivity: GMRES did not converge (|r| {residual:.3g})")
-    return dx
+        raise RuntimeError(f"{what}: GMRES did not converge (|r| {residual:.3g})")
+    return y

@@ -30,18 +30,14 @@ def cell_fields(x: np.ndarray, y: np.ndarray, cells: np.ndarray, mu: np.ndarray,
 
     F maps the rest triangle onto the deformed one (exact for P1), C = F^T F, J = det F.
     """
-    A = np.stack([x[cells[:, 1]] - x[cells[:, 0]], x[cells[:, 2]] - x[cells[:, 0]]], axis=2)
-    B = np.stack([y[cells[:, 1]] - y[cells[:, 0]], y[cells[:, 2]] - y[cells[:, 0]]], axis=2)
-    F = B @ np.linalg.inv(A)
-    C = np.transpose(F, (0, 2, 1)) @ F
-    tr = C[:, 0, 0] + C[:, 1, 1]
-    det = C[:, 0, 0] * C[:, 1, 1] - C[:, 0, 1] * C[:, 1, 0]
-    lam_max = 0.5 * tr + np.sqrt(np.maximum(0.25 * tr * tr - det, 0.0))
+    from ..io.xdmf import cell_gradients, largest_stretch
+    F = cell_gradients(x, y, cells)
+    tr = np.einsum("nij,nij->n", F, F)              # tr C
     J = np.linalg.det(F)
     with np.errstate(invalid="ignore", divide="ignore"):
         lnJ = np.log(J)
     psi = mu / 2 * (tr - 2) - mu * lnJ + lam / 2 * lnJ ** 2
-    return {"stretch": _round(np.sqrt(lam_max)), "energy_density": _round(np.where(J > 0, psi, np.nan))}
+    return {"stretch": _round(largest_stretch(F)), "energy_density": _round(np.where(J > 0, psi, np.nan))}
 
 
 def _lame_by_tag(design, tags: dict) -> tuple[dict, dict]:

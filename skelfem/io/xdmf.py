@@ -127,12 +127,16 @@ def gathered_snapshot(state) -> Snapshot | None:
 
 
 # -- files ------------------------------------------------------------------------------------------
-def largest_stretch(x: np.ndarray, y: np.ndarray, cells: np.ndarray) -> np.ndarray:
-    """Per simplex (triangle or tetrahedron through its vertices): the largest principal stretch
-    sqrt(max eig(F^T F)), F the linear map of the rest cell onto the deformed one."""
+def cell_gradients(x: np.ndarray, y: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """Per simplex (triangle or tetrahedron through its vertices): F, the linear map of the rest cell x
+    onto the deformed one y, (n, dim, dim) (exact for P1)."""
     A = np.stack([x[cells[:, k]] - x[cells[:, 0]] for k in range(1, cells.shape[1])], axis=2)
     B = np.stack([y[cells[:, k]] - y[cells[:, 0]] for k in range(1, cells.shape[1])], axis=2)
-    F = B @ np.linalg.inv(A)
+    return B @ np.linalg.inv(A)
+
+
+def largest_stretch(F: np.ndarray) -> np.ndarray:
+    """sqrt(max eig(F^T F)) of every F in (n, dim, dim)."""
     return np.sqrt(np.linalg.eigvalsh(np.transpose(F, (0, 2, 1)) @ F)[:, -1])
 
 
@@ -174,7 +178,7 @@ def write_xdmf(path: Path, state) -> None:
     region = [snap.regions.astype(float)]
     tens = [np.zeros(len(cells))]
     ids = [np.full(len(cells), -1.0)]
-    stretch = [largest_stretch(x, x + u, np.asarray(cells))]
+    stretch = [largest_stretch(cell_gradients(x, x + u, np.asarray(cells)))]
     if lines:
         blocks.append(("line", np.vstack(lines)))
         region.append(np.full(len(tension), -1.0))

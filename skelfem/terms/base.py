@@ -34,6 +34,7 @@ UFL energy (:meth:`skelfem.fem.model.Model.refresh`).
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -181,12 +182,10 @@ class Term:
         """A copy of the term's history (what end_step, update_lag and set_factor change), or None."""
         if not self.history_fields:
             return None
-        import copy
         return {k: copy.deepcopy(getattr(self, k)) for k in self.history_fields}
 
     def set_history(self, history) -> None:
         """Put back a history returned by history(): a step that was tried and refused leaves nothing."""
-        import copy
         for k, v in (history or {}).items():
             setattr(self, k, copy.deepcopy(v))
 

@@ -17,6 +17,7 @@ const TEMPLATE = {
 };
 const SLIDER_KEYS = new Set(["ArrowLeft", "ArrowRight", "ArrowUp", "ArrowDown", "PageUp", "PageDown", "Home", "End"]);
 const REGION_FILL = { body: "#f4b6a6", bone: "#e8e4d8", object: "#b9cbe4" };
+const REGION_LABEL = { body: "body", bone: "bones", object: "objects" };
 const PALETTE = ["#440154", "#482475", "#414487", "#355f8d", "#2a788e", "#21908d", "#22a884", "#42be71",
   "#7ad151", "#bddf26", "#fde725"];
 const SNAP = 100;                      // coordinates are rounded to 1/SNAP mm
@@ -154,11 +155,16 @@ function unsaved() {
   return dirty;
 }
 function historyKey() { return `skelfem-history:${S.file}`; }
-function remember() {
-  try {
-    localStorage.setItem(historyKey(), JSON.stringify({ saved: S.savedText, design: S.design,
-      undo: S.undo.slice(-50), redo: S.redo.slice(-50) }));
-  } catch (e) { /* storage full or off: the history lives in this page only */ }
+function remember(now) {
+  // at most every 300 ms (a slider drag edits many times a second), and at once when asked (save)
+  clearTimeout(S.rememberTimer);
+  const write = () => {
+    try {
+      localStorage.setItem(historyKey(), JSON.stringify({ saved: S.savedText, design: S.design,
+        undo: S.undo.slice(-50), redo: S.redo.slice(-50) }));
+    } catch (e) { /* storage full or off: the history lives in this page only */ }
+  };
+  if (now) write(); else S.rememberTimer = setTimeout(write, 300);
 }
 function recall() {
   // the history of this file, if it was made on the same file content (else the file changed on disk)
@@ -386,7 +392,7 @@ function drawMesh() {
     const kinds = new Set(Object.values(m.region_names).map(regionKind));
     $("legend").className = "regions";
     $("legend").innerHTML = ["body", "bone", "object"].filter((k) => kinds.has(k))
-      .map((k) => `<span class="swatch ${k}"></span><span>${k === "bone" ? "bones" : k === "object" ? "objects" : "body"}</span>`).join("");
+      .map((k) => `<span class="swatch ${k}"></span><span>${REGION_LABEL[k]}</span>`).join("");
   }
   m.cells.forEach((c, i) => {
     let fill;
@@ -711,7 +717,7 @@ async function save(name) {
   let r = await api("/api/save", body);
   if (r.status === 409 && name && confirm(`${name} exists. Replace it?`)) r = await api("/api/save", { ...body, overwrite: true });
   if (r.status === 200) {
-    S.file = r.data.file; S.untitled = false; S.savedText = JSON.stringify(S.design); unsaved(); remember();
+    S.file = r.data.file; S.untitled = false; S.savedText = JSON.stringify(S.design); unsaved(); remember(true);
     setStatusNote(`saved ${r.data.file}`); S.saved = r.data;
   }
   else showError(r.data.error, r.data.key || "");
@@ -756,6 +762,7 @@ async function main() {
     else if (e.key === "y" || (e.key === "Z" && e.shiftKey) || (e.key === "z" && e.shiftKey)) { e.preventDefault(); redo(); }
   });
   window.addEventListener("resize", fit);
+  window.addEventListener("pagehide", () => { if (S.rememberTimer) remember(true); });   // a reload keeps the last edit
   fit();
   S.ready = true;
   connect();
