@@ -135,7 +135,7 @@ def _pairs(contact, materials: dict, default: Coulomb) -> dict:
     return out
 
 
-def _objects(top, dim: int, materials: dict, body) -> tuple:
+def _objects(top, dim: int, materials: dict, bodies: tuple) -> tuple:
     entries = top.data.pop("objects", None)
     if entries is None:
         return ()
@@ -145,8 +145,8 @@ def _objects(top, dim: int, materials: dict, body) -> tuple:
     if dim != 2:
         top.fail("objects", "objects are implemented for dim = 2 only")
     out, seen = [], set()
-    loops = [body.outline, *body.holes]
-    tol = 1e-9 * max(float(np.ptp(body.outline, axis=0).max()), 1.0)
+    loops = [loop for body in bodies for loop in (body.outline, *body.holes)]
+    tol = 1e-9 * max(float(np.ptp(np.vstack([b.outline for b in bodies]), axis=0).max()), 1.0)
     for i, e in enumerate(entries):
         name = e.get("name")
         t = Table(e, f"objects.{name if isinstance(name, str) and name else i}", top.source)
@@ -170,7 +170,7 @@ def _objects(top, dim: int, materials: dict, body) -> tuple:
         t.done()
         if (polygons.meeting_loops([outline, *loops], tol) & {(0, j) for j in range(1, len(loops) + 1)}
                 or polygons.region_contains(loops, outline[:1], tol).any()
-                or polygons.contains(outline, body.outline[:1], tol).any()):
+                or any(polygons.contains(outline, body.outline[:1], tol).any() for body in bodies)):
             t.fail("outline", "overlaps the body at rest (an object must start clear of it)")
         for other in out:
             if polygons.overlap(outline, other.outline, tol):
@@ -182,9 +182,9 @@ def _objects(top, dim: int, materials: dict, body) -> tuple:
     return tuple(out)
 
 
-def take(top, dim: int, materials: dict, body) -> tuple[FrictionSpec, tuple]:
+def take(top, dim: int, materials: dict, bodies: tuple) -> tuple[FrictionSpec, tuple]:
     """Read (and remove from top's tables) [[objects]] and the friction keys of [contact] and [[grounds]]."""
-    objects = _objects(top, dim, materials, body)
+    objects = _objects(top, dim, materials, bodies)
     contact = _stripped(top, "contact", "table")
     default = Coulomb()
     if contact is not None:

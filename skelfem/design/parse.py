@@ -17,7 +17,7 @@ from pathlib import Path
 
 from . import polygons
 from .objects import take as take_objects
-from .sections import check_body_scale, read_cables, read_contact, read_dynamics, check_energy_line_search, read_fabrication, read_gravity, read_grounds, read_loads, read_markers, read_pins, read_solver, read_tractions
+from .sections import check_bodies_held, check_body_scale, read_cables, read_contact, read_dynamics, check_energy_line_search, read_fabrication, read_gravity, read_grounds, read_loads, read_markers, read_pins, read_solver, read_tractions
 from .shapes import read_body, read_bones, read_materials
 from .spec import Design, DesignError, FORMAT, MeshSpec, SECTIONS_BY_NAME, force_scale
 from .table import Table, plain_name, positive, apply_override
@@ -25,9 +25,9 @@ from .table import Table, plain_name, positive, apply_override
 
 # -- entry points -----------------------------------------------------------------------------------------
 
-def used_materials(body, bones) -> tuple:
-    """The materials a cable can run through: the body's and the bones', in that order."""
-    return tuple(dict.fromkeys([body.material] + [b.material for b in bones]))
+def used_materials(bodies, bones) -> tuple:
+    """The materials a cable can run through: the bodies' and the bones', in that order."""
+    return tuple(dict.fromkeys([b.material for b in bodies] + [b.material for b in bones]))
 
 def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     """Validate a design given as parsed TOML (a dict); overrides are ``KEY=VALUE`` strings."""
@@ -55,26 +55,31 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
         mt.fail("degree", f"must be 1 or 2, got {mesh.degree}")
     mt.done()
     materials = read_materials(top)
-    body, region, tol, body_t = read_body(top, dim, materials)
-    check_body_scale(str(source), body, dim, thickness)
-    bones = read_bones(top, dim, materials, region, tol, body_t)
-    cables = read_cables(top, dim, region, tol, used_materials(body, bones))
+    bodies, region, tol, body_tables = read_body(top, dim, materials)
+    body = bodies[0]
+    check_body_scale(str(source), bodies, dim, thickness)
+    bones = read_bones(top, dim, materials, tol, body_tables)
+    soft = used_materials(bodies, bones)
+    cables = read_cables(top, dim, region, tol, soft)
     pins = read_pins(top, dim)
+    check_bodies_held(str(source), bodies, pins, tol)
     loads = read_loads(top, dim, region)
-    friction, objects = take_objects(top, dim, materials, body)   # [[objects]], friction keys
-    grounds = read_grounds(top, dim, body, tol)
+    friction, objects = take_objects(top, dim, materials, bodies)   # [[objects]], friction keys
+    grounds = read_grounds(top, dim, bodies, tol)
     contact = read_contact(top, dim)
     markers = read_markers(top, dim, region, objects)
     solver = read_solver(top)
-    check_energy_line_search(top, solver, bones, contact)
-    gravity = read_gravity(top, dim, materials, [body.material] + [b.material for b in bones])
+    check_energy_line_search(top, solver, bones, contact, len(bodies) + len(objects))
+    gravity = read_gravity(top, dim, materials, list(soft))
     tractions = read_tractions(top, dim)
-    fabrication = read_fabrication(top, dim, thickness, body)
-    dynamics = read_dynamics(top, materials, [body.material] + [b.material for b in bones])
+    fabrication = read_fabrication(top, dim, thickness, bodies)
+    dynamics = read_dynamics(top, materials, list(soft))
     top.done()
     if dim == 2:
-        measure = abs(polygons.signed_area(body.outline)) - sum(abs(polygons.signed_area(h)) for h in body.holes)
-        vertices = len(body.outline) + sum(len(h) for h in body.holes) + sum(len(b.outline) for b in bones)
+        loops = [loop for b in bodies for loop in (b.outline, *b.holes)]
+        measure = sum(abs(polygons.signed_area(b.outline)) - sum(abs(polygons.signed_area(h)) for h in b.holes)
+                      for b in bodies)
+        vertices = sum(len(loop) for loop in loops) + sum(len(b.outline) for b in bones)
     else:
         from . import solids
         result = solids.check(body.solids, [(b.name, b.solids) for b in bones], [(c.name, c.path) for c in cables],
@@ -87,7 +92,7 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
             + sum(len(next(iter(s.values())).get("outline", ())) + 8 for b in bones for s in b.solids)
     design = Design(
         source=str(source), name=name, dim=dim, thickness=thickness, mesh=mesh,
-        materials=materials, body=body, bones=bones, cables=cables, pins=pins, loads=loads,
+        materials=materials, body=body, bodies=bodies, bones=bones, cables=cables, pins=pins, loads=loads,
         grounds=grounds, contact=contact, markers=markers, solver=solver, gravity=gravity,
         tractions=tractions, fabrication=fabrication, dynamics=dynamics, friction=friction, objects=objects, data=data, measure=float(measure), vertices=int(vertices),
     )

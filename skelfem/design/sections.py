@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 
+from . import polygons
 from .shapes import check_inside, named_entries
 from .spec import Body, CableSpec, ContactSpec, DesignError, DynamicsSpec, ENERGY_LINE_SEARCHES, FabricationSpec, GroundSpec, INTEGRATORS, LINE_SEARCHES, LoadSpec, MAX_COORDINATE, MAX_STEPS, MAX_TIME_STEPS, PinSpec, SolverSpec, TractionSpec
 from .table import Table, check_bounded, is_finite, is_number, plain_name, positive, show_value
@@ -188,7 +189,7 @@ def read_gravity(top: Table, dim: int, materials: dict, used: list) -> np.ndarra
     return g
 
 
-def read_grounds(top: Table, dim: int, body: Body, tol: float) -> tuple:
+def read_grounds(top: Table, dim: int, bodies: tuple, tol: float) -> tuple:
     grounds = []
     for t in named_entries(top, "grounds"):
         point = check_bounded(t, "point", t.take("point", "vector", dim=dim))
@@ -200,7 +201,7 @@ def read_grounds(top: Table, dim: int, body: Body, tol: float) -> tuple:
         normal = normal / norm
         k = positive(t, "stiffness", t.take("stiffness", "number"))
         t.done()
-        depth = -_lowest(body, dim, point, normal)
+        depth = -min(_lowest(body, dim, point, normal) for body in bodies)
         if depth > max(tol, 1e-9):
             t.fail("point", f"the plane cuts the body at rest ({depth:.3g} mm of it lies beyond the plane); "
                             "a ground must start on the normal's side of the body (touching is fine)")
@@ -231,8 +232,12 @@ def _lowest(body: Body, dim: int, point: np.ndarray, normal: np.ndarray) -> floa
     return float(min(lows))
 
 
-def _body_box(body: Body, dim: int, thickness: float) -> tuple[np.ndarray, np.ndarray]:
-    """An axis-aligned box around the body (3D: around its primitives, conservative for round ones)."""
+def _body_box(body, dim: int, thickness: float) -> tuple[np.ndarray, np.ndarray]:
+    """An axis-aligned box around the body, or around several (3D: around its primitives, conservative
+    for round ones)."""
+    if not isinstance(body, Body):
+        boxes = [_body_box(b, dim, thickness) for b in body]
+        return np.min([lo for lo, _ in boxes], axis=0), np.max([hi for _, hi in boxes], axis=0)
     if dim == 2:
         lo, hi = body.outline.min(axis=0), body.outline.max(axis=0)
         return np.r_[lo, 0.0], np.r_[hi, thickness]
@@ -251,7 +256,7 @@ def _body_box(body: Body, dim: int, thickness: float) -> tuple[np.ndarray, np.nd
     return np.min(los, axis=0), np.max(his, axis=0)
 
 
-def read_fabrication(top: Table, dim: int, thickness: float, body: Body) -> FabricationSpec:
+def read_fabrication(top: Table, dim: int, thickness: float, body) -> FabricationSpec:
     """[fabrication]: every key optional; defaults follow the body's size (docs/guide/fabrication.md).
 
     bone_depth defaults to 0.8 x thickness (2D), the mould wall to 5 % of the
@@ -367,7 +372,7 @@ def fabrication_bounds(spec: FabricationSpec, extent) -> list[tuple[str, str]]:
 MIN_BODY, MAX_BODY = 1e-3, 1e6     # mm: the body's largest extent, 1 um to 1 km
 
 
-def check_body_scale(source: str, body: Body, dim: int, thickness: float) -> None:
+def check_body_scale(source: str, body, dim: int, thickness: float) -> None:
     """The body's largest extent must lie in [MIN_BODY, MAX_BODY] mm, before any meshing.
 
     Below, Gmsh's absolute tolerances break (a 6 nm strip aborted the process
@@ -384,8 +389,23 @@ def check_body_scale(source: str, body: Body, dim: int, thickness: float) -> Non
 
 def body_extent(design) -> np.ndarray:
     """The extents (x, y, z; mm) of the box around a design's body (2D: the slab)."""
-    lo, hi = _body_box(design.body, design.dim, design.thickness)
+    lo, hi = _body_box(design.bodies, design.dim, design.thickness)
     return hi - lo
+
+
+def check_bodies_held(source: str, bodies: tuple, pins: tuple, tol: float) -> None:
+    """[[bodies]]: every body must meet a pin's region (else nothing holds it: a singular solve)."""
+    if len(bodies) < 2:
+        return
+    for body in bodies:
+        if not any(polygons.overlap(body.outline, _box_polygon(p.region), tol) for p in pins):
+            raise DesignError(f"{source}: bodies.{body.name}: nothing holds this body: no pin's region meets "
+                              "it (add a [[pins]] entry whose region overlaps it)")
+
+
+def _box_polygon(region: np.ndarray) -> np.ndarray:
+    (x0, y0), (x1, y1) = region[0][:2], region[1][:2]
+    return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], float)
 
 
 fabrication_extent = body_extent
@@ -435,18 +455,23 @@ def read_solver(top: Table) -> SolverSpec:
     return SolverSpec(steps, its, ls, rtol, atol)
 
 
-def check_energy_line_search(top: Table, solver: SolverSpec, bones: tuple, contact: ContactSpec) -> None:
-    """Rigid bones move along their exact rigid motion, and self-contact's steps are bounded to
-    collision-free ones, only in the energy line searches (skelfem.fem.newton and skelfem.terms.contact
-    refuse the others); "auto" resolves to one of them ("energy" with bones, else "curved")."""
+def check_energy_line_search(top: Table, solver: SolverSpec, bones: tuple, contact: ContactSpec,
+                             pieces: int = 1) -> None:
+    """Rigid bones move along their exact rigid motion, and contact's steps (self-contact, between bodies
+    and objects: pieces > 1) are bounded to collision-free ones, only in the energy line searches
+    (skelfem.fem.newton and skelfem.terms.contact refuse the others); "auto" resolves to one of them
+    ("energy" with bones, else "curved")."""
     rigid = [b.name for b in bones if b.rigid]
-    if solver.line_search in ("auto", *ENERGY_LINE_SEARCHES) or not (rigid or contact.self_contact):
+    touching = contact.self_contact or pieces > 1
+    if solver.line_search in ("auto", *ENERGY_LINE_SEARCHES) or not (rigid or touching):
         return
     reasons = []
     if rigid:
         reasons.append(f"keep rigid bones rigid (rigid: {', '.join(rigid)})")
     if contact.self_contact:
         reasons.append("bound steps to collision-free ones for self-contact (contact.self = true)")
+    elif touching:
+        reasons.append("bound steps to collision-free ones for contact between bodies and objects")
     top.fail("solver.line_search", f"{solver.line_search!r} cannot {' nor '.join(reasons)}; "
                                    "use \"energy\" or \"curved\"")
 

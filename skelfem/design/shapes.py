@@ -32,11 +32,12 @@ def _polygon_shape(t: Table, name: str, pts: np.ndarray, tol: float) -> bool:
 
 
 class _Region2D:
-    """The body's closed region: inside the outline and outside every hole."""
+    """The body's closed region: inside the outline and outside every hole (loops: several bodies' loops,
+    apart from each other, for the region of them all)."""
 
-    def __init__(self, outline, holes, tol):
+    def __init__(self, outline, holes, tol, loops=None):
         self.outline, self.holes, self.tol = outline, holes, tol
-        self.loops = [outline, *holes]
+        self.loops = [outline, *holes] if loops is None else list(loops)
 
     def contains(self, points: np.ndarray) -> np.ndarray:
         # holes lie strictly inside the outline and apart: the even-odd rule over all loops
@@ -199,22 +200,53 @@ def _solids(t: Table, dim: int, tol: float) -> tuple:
 
 
 def read_body(top: Table, dim: int, materials: dict):
+    """[body], or [[bodies]] (2D): (bodies, the soft region, tol, [(body table, its region)])."""
+    if top.has("bodies"):
+        if top.has("body"):
+            top.fail("bodies", "give either one [body] or [[bodies]], not both")
+        return _read_bodies(top, dim, materials)
     t = Table(top.take("body", "table"), "body", top.source)
     material = _material_ref(t, materials)
     if dim == 3:
         tol = 1e-9 * max(_extent(top.data), 1.0)
         body = Body(material, solids=_solids(t, dim, tol))
         t.done()
-        return body, None, tol, t
+        return (body,), None, tol, [(t, None)]
     outline = t.take("outline", "points", dim=2)
     tol = 1e-9 * max(float(np.ptp(outline, axis=0).max()) if len(outline) >= 1 else 1.0, 1.0)
+    body, region = _outline_body(t, "body", material, outline, tol)
+    return (body,), region, tol, [(t, region)]
+
+
+def _outline_body(t: Table, name: str, material: str, outline, tol: float):
     outline = _polygon(t, "outline", outline, tol)
     holes = []
     for i, h in enumerate(t.take("holes", "list", default=[])):
         hname = f"holes[{i}]"
         holes.append(_polygon(t, hname, convert_value(h, "points", 2, lambda m: t.fail(hname, m)), tol))
     t.done()
-    return Body(material, outline=outline, holes=tuple(holes)), _Region2D(outline, holes, tol), tol, t
+    return Body(material, outline=outline, holes=tuple(holes), name=name), _Region2D(outline, holes, tol)
+
+
+def _read_bodies(top: Table, dim: int, materials: dict):
+    """[[bodies]]: several soft bodies, apart at rest (2D)."""
+    tables = named_entries(top, "bodies", required=True)
+    if dim != 2:
+        top.fail("bodies", "several bodies are implemented for dim = 2 only (3D: one [body])")
+    outlines = [t.take("outline", "points", dim=2) for t in tables]
+    sizes = [float(np.ptp(o, axis=0).max()) for o in outlines if len(o) >= 1]
+    tol = 1e-9 * max(max(sizes, default=1.0), 1.0)
+    bodies, out = [], []
+    for t, outline in zip(tables, outlines):
+        material = _material_ref(t, materials)
+        body, region = _outline_body(t, t.where.split(".", 1)[1], material, outline, tol)
+        for other, (t_other, _) in zip(bodies, out):
+            if polygons.overlap(body.outline, other.outline, tol):
+                t.fail("outline", f"overlaps or touches body {other.name!r} (bodies must start apart)")
+        bodies.append(body)
+        out.append((t, region))
+    loops = [loop for b in bodies for loop in (b.outline, *b.holes)]
+    return tuple(bodies), _Region2D(None, (), tol, loops=loops), tol, out
 
 
 def _extent(data: dict) -> float:
@@ -238,7 +270,8 @@ def _extent(data: dict) -> float:
         return 1.0
 
 
-def read_bones(top: Table, dim: int, materials: dict, region, tol, body_t) -> tuple:
+def read_bones(top: Table, dim: int, materials: dict, tol, body_tables: list) -> tuple:
+    """[[bones]]; in 2D each lies strictly inside one body (body_tables: [(table, region)] per body)."""
     bones, tables = [], []
     for t in named_entries(top, "bones"):
         name = t.where.split(".", 1)[1]
@@ -253,7 +286,16 @@ def read_bones(top: Table, dim: int, materials: dict, region, tol, body_t) -> tu
         bones.append(Bone(name, material, outline=outline, rigid=rigid))
         tables.append(t)
     if dim == 2:
-        _layout_2d(body_t, region, tables, [b.outline for b in bones])
+        home = np.zeros(len(bones), int)           # the body around each bone's first vertex
+        if len(body_tables) > 1:
+            for k, b in enumerate(bones):
+                inside = [polygons.contains(r.outline, b.outline[:1], tol)[0] for _, r in body_tables]
+                if not any(inside):
+                    tables[k].fail("outline", "a bone must lie strictly inside one body's outline")
+                home[k] = inside.index(True)
+        for j, (body_t, region) in enumerate(body_tables):
+            mine = np.flatnonzero(home == j)
+            _layout_2d(body_t, region, [tables[k] for k in mine], [bones[k].outline for k in mine])
     return tuple(bones)
 
 

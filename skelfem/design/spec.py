@@ -50,6 +50,7 @@ class Body:
     outline: np.ndarray | None = None        # 2D: (n, 2)
     holes: tuple = ()                        # 2D: tuple of (m, 2)
     solids: tuple = ()                       # 3D: tuple of primitive dicts
+    name: str = "body"                       # [[bodies]]: the entry's name; [body]: "body"
 
 
 @dataclass(frozen=True, eq=False)
@@ -137,7 +138,7 @@ def force_scale(design) -> float:
     A residual tolerance in newtons is meaningless across unit scales: the old
     absolute 1e-10 N let a 1 um body "converge" at its start, 17 % off.
     """
-    E = float(design.materials[design.body.material].E)
+    E = max(float(design.materials[b.material].E) for b in design.bodies)
     measure = max(float(design.measure or 0.0), 0.0)
     if design.dim == 2:
         area = math.sqrt(measure) * float(design.thickness)
@@ -220,7 +221,7 @@ class Design:
     thickness: float
     mesh: MeshSpec
     materials: dict
-    body: Body
+    body: Body                # the first of bodies (the only one of a [body] design)
     bones: tuple
     cables: tuple
     pins: tuple
@@ -235,6 +236,7 @@ class Design:
     dynamics: DynamicsSpec | None = None   # None: a static run
     friction: FrictionSpec = field(default_factory=FrictionSpec)   # Coulomb coefficients (design.objects)
     objects: tuple = ()                    # ObjectSpec: free rigid bodies (design.objects)
+    bodies: tuple = ()                     # Body: every soft body ([[bodies]]), or (body,)
     format: int = FORMAT
     data: Mapping = field(default_factory=dict)   # the TOML data after overrides, read-only (see raw)
     measure: float = 0.0      # body area (2D, mm^2) or volume (3D, mm^3), bones included
@@ -242,6 +244,13 @@ class Design:
 
     def __post_init__(self):
         object.__setattr__(self, "data", freeze(self.data))
+        if not self.bodies:
+            object.__setattr__(self, "bodies", (self.body,))
+
+    @property
+    def body_loops(self) -> list:
+        """2D: every body's outline and holes (the even-odd rule over them is the soft region)."""
+        return [loop for b in self.bodies for loop in (b.outline, *b.holes)]
 
     @property
     def raw(self) -> dict:

@@ -46,8 +46,9 @@ log = logging.getLogger("skelfem")
 IK_LIVE_SOLVES = 12       # forward solves of one Soft IK request while a target is dragged
 IK_FINAL_SOLVES = 40      # ... and when it is let go (as `skelfem ik`)
 CONTRACTION_DECIMALS = 4  # contractions Soft IK finds are written back rounded to 0.1 um
-TOP_KEYS = ("format", "name", "dim", "thickness", "mesh", "materials", "body", "bones", "cables", "pins",
-            "loads", "grounds", "contact", "markers", "solver", "gravity", "tractions", "fabrication")
+TOP_KEYS = ("format", "name", "dim", "thickness", "mesh", "materials", "body", "bodies", "bones", "cables", "pins",
+            "loads", "grounds", "contact", "markers", "solver", "gravity", "tractions", "fabrication", "objects",
+            "dynamics")
 
 
 # The interactive budget: a design whose mesh is estimated (skelfem.design.resources) beyond this many

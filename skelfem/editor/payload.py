@@ -42,7 +42,9 @@ def cell_fields(x: np.ndarray, y: np.ndarray, cells: np.ndarray, mu: np.ndarray,
 
 def _lame_by_tag(design, tags: dict) -> tuple[dict, dict]:
     from ..terms.elasticity import lame
-    names = {"body": design.body.material, **{f"bone:{b.name}": b.material for b in design.bones}}
+    from ..mesh.geometry import body_tag_name
+    names = {**{body_tag_name(b): b.material for b in design.bodies},
+             **{f"bone:{b.name}": b.material for b in design.bones}}
     mu, lam = {}, {}
     for name, tag in tags.items():
         m = design.materials[names[name]] if name in names else None

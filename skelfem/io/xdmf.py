@@ -80,6 +80,11 @@ def object_states(model) -> list[dict]:
     return out
 
 
+def soft_tags(tags: dict) -> list[int]:
+    """The cell tags of the soft bodies among a mesh's named regions ("body", or "body:<name>" each)."""
+    return [tag for name, tag in tags.items() if name == "body" or name.startswith("body:")]
+
+
 class Snapshot(SimpleNamespace):
     """The whole state gathered in one place: what files and pictures are made from."""
 
@@ -112,7 +117,8 @@ def snapshot(model, to=(0,)) -> Snapshot | None:
             cells = np.searchsorted(numbers, np.concatenate([p[3] for p in parts]))
             regions = np.concatenate([p[4] for p in parts])
     snap = Snapshot(x=x, u=u, cells=cells, regions=regions, cables=cables, markers=markers, objects=objects,
-                    body_tag=model.tm.tags["body"], tags=dict(model.tm.tags), design=model.design) if comm.rank == 0 else None
+                    body_tag=soft_tags(model.tm.tags)[0],
+                    body_tags=soft_tags(model.tm.tags), tags=dict(model.tm.tags), design=model.design) if comm.rank == 0 else None
     for rank in sorted(set(to) - {0}):
         if comm.rank == 0:
             comm.send(snap, dest=rank, tag=71)

@@ -18,6 +18,20 @@ from ..design.occ import MeshingError, add_polygon, add_solid, ensure_gmsh, forg
 BODY = "body"
 
 
+def body_tag_name(body) -> str:
+    """The region of a soft body: "body" for a design's one [body], "body:<name>" for [[bodies]]."""
+    return BODY if body.name == BODY else f"{BODY}:{body.name}"
+
+
+def body_tag_names(design) -> list[str]:
+    return [body_tag_name(b) for b in design.bodies]
+
+
+def body_tags(tm: "TaggedMesh", design) -> list[int]:
+    """The integer cell tags of the design's soft bodies."""
+    return [tm.tags[name] for name in body_tag_names(design)]
+
+
 def bone_tag_name(name: str) -> str:
     return f"bone:{name}"
 
@@ -67,29 +81,37 @@ def _build_model(gmsh, design) -> dict:
     """Create the geometry in the current Gmsh model; returns name -> entity tags."""
     occ = gmsh.model.occ
     dim = design.dim
+    bodies = {}                                         # region name -> OCC entities (bodies lie apart)
+    for b in design.bodies:
+        if dim == 2:
+            body = [add_polygon(occ, b.outline)]
+            if b.holes:
+                holes = [(2, add_polygon(occ, h)) for h in b.holes]
+                out, _ = occ.cut([(2, body[0])], holes)
+                body = [t for _, t in out]
+        else:
+            body = fuse(occ, 3, [add_solid(occ, s) for s in b.solids])
+        bodies[body_tag_name(b)] = body
     if dim == 2:
-        body = [add_polygon(occ, design.body.outline)]
-        if design.body.holes:
-            holes = [(2, add_polygon(occ, h)) for h in design.body.holes]
-            out, _ = occ.cut([(2, body[0])], holes)
-            body = [t for _, t in out]
         bones = {b.name: [add_polygon(occ, b.outline)] for b in design.bones}
     else:
-        body = fuse(occ, 3, [add_solid(occ, s) for s in design.body.solids])
         bones = {b.name: fuse(occ, 3, [add_solid(occ, s) for s in b.solids])
                  for b in design.bones}
     objects = {object_tag_name(o.name): [add_polygon(occ, o.outline)] for o in design.objects}   # apart
     bone_list = [(name, t) for name, tags in bones.items() for t in tags]
     if not bone_list:
         occ.synchronize()
-        return {BODY: body, **objects}
-    _, children = occ.fragment([(dim, t) for t in body], [(dim, t) for _, t in bone_list])
+        return {**bodies, **objects}
+    body_list = [(name, t) for name, tags in bodies.items() for t in tags]
+    _, children = occ.fragment([(dim, t) for _, t in body_list], [(dim, t) for _, t in bone_list])
     occ.synchronize()
     groups = {bone_tag_name(name): [] for name in bones}
-    for (name, _), kids in zip(bone_list, children[len(body):]):
+    for (name, _), kids in zip(bone_list, children[len(body_list):]):
         groups[bone_tag_name(name)] += [t for _, t in kids]
     in_bones = {t for tags in groups.values() for t in tags}
-    groups[BODY] = sorted({t for kids in children[:len(body)] for _, t in kids} - in_bones)
+    for name in bodies:
+        groups[name] = sorted({t for (owner, _), kids in zip(body_list, children[:len(body_list)])
+                               if owner == name for _, t in kids} - in_bones)
     return {**groups, **objects}
 
 
@@ -258,7 +280,8 @@ def _mesh_design(design, comm=MPI.COMM_WORLD, verbose: bool = False, size=None) 
     from ..design import resources
     resources.check(design)         # refuse a mesh that would not fit (unless --force), on every rank
     dim = design.dim
-    names = [BODY] + [bone_tag_name(b.name) for b in design.bones] + [object_tag_name(o.name) for o in design.objects]
+    names = body_tag_names(design) + [bone_tag_name(b.name) for b in design.bones] \
+        + [object_tag_name(o.name) for o in design.objects]
     tags = {name: i + 1 for i, name in enumerate(names)}
     if comm.rank == 0:
         ensure_gmsh(gmsh)

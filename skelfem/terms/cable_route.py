@@ -15,6 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 from mpi4py import MPI
 
+from ..mesh.geometry import body_tags
 from ..mesh.points import DofGather, cell_sizes, global_interpolation, locate_cells, owner_ranks
 from .base import Context
 
@@ -275,7 +276,7 @@ def anchors(ctx: Context, spec) -> dict:
     tm = ctx.tagged
     n_owned = ctx.mesh.topology.index_map(ctx.mesh.topology.dim).size_local
     cells = locate_cells(ctx.mesh, points, below=n_owned)
-    soft_cells = tm.cell_tags.indices[tm.cell_tags.values == tm.tags["body"]]
+    soft_cells = tm.cell_tags.indices[np.isin(tm.cell_tags.values, body_tags(tm, ctx.design))]
     soft = np.where(cells >= 0, np.isin(cells, soft_cells), False).astype(np.int32)
     found = (cells >= 0).astype(np.int32)
     if ctx.comm.size > 1:

@@ -38,7 +38,7 @@ import scipy.sparse as sp
 from mpi4py import MPI
 
 from . import cable_slip
-from ..mesh.geometry import bone_tag_name
+from ..mesh.geometry import body_tag_name, bone_tag_name
 from ..mesh.points import DofGather, locate_cells
 from .base import Context, Term
 from .cable_route import (MAX_PER_RADIUS, PER_RADIUS, PIECES, anchor_samples, anchor_weights,  # noqa: F401
@@ -526,7 +526,7 @@ def via_coefficients(ctx: Context, cable: Cable, by_material: dict) -> np.ndarra
     segments (a bend where the cable leaves a bone for silicone presses on both). Materials not
     named: 0. The same on every rank."""
     design, tm = ctx.design, ctx.tagged
-    material_of_tag = {tm.tags["body"]: design.body.material}
+    material_of_tag = {tm.tags[body_tag_name(b)]: b.material for b in design.bodies}
     material_of_tag.update({tm.tags[bone_tag_name(b.name)]: b.material for b in design.bones
                             if bone_tag_name(b.name) in tm.tags})
     mu_of_tag = np.zeros(max(tm.tags.values()) + 1)

@@ -42,7 +42,7 @@ import numpy as np
 from dolfinx import fem as dolfinx_fem
 from dolfinx import mesh as dmesh
 
-from ..mesh.geometry import object_tag_name
+from ..mesh.geometry import body_tag_name, object_tag_name
 from .base import Context, Term
 
 
@@ -183,8 +183,8 @@ def build(ctx: Context) -> list[Term]:
     if d.solver.line_search not in ("auto", *ENERGY_LINE_SEARCHES):   # a guard: design.py refuses it when read
         raise DesignError(f"{where}: self-contact needs solver.line_search = \"energy\" or \"curved\" "
                           f"(got {d.solver.line_search!r}): only it limits steps to collision-free ones")
-    contact = SelfContact(ctx.V, d.contact.dhat, d.materials[d.body.material].E, float(d.thickness))
-    if d.objects:                      # contacts between the body and objects are terms/objects.py's
+    contact = SelfContact(ctx.V, d.contact.dhat, barrier_stiffness(d), float(d.thickness))
+    if len(d.bodies) + len(d.objects) > 1:     # contacts between pieces are terms/objects.py's
         contact.mesh.can_collide = ~ipctk.make_vertex_patches_filter(piece_labels(ctx, contact.nodes))
     d0 = contact.min_distance(np.zeros(len(ctx.u.x.array)))
     if d0 <= d.contact.dhat:
@@ -194,12 +194,23 @@ def build(ctx: Context) -> list[Term]:
     return [contact]
 
 
+def barrier_stiffness(design) -> float:
+    """kappa, MPa: the stiffest soft body's Young's modulus."""
+    return max(float(design.materials[b.material].E) for b in design.bodies)
+
+
+def piece_names(design) -> list[str]:
+    """The pieces that touch each other: every body, then every object, by name."""
+    return [b.name for b in design.bodies] + [o.name for o in design.objects]
+
+
 def piece_labels(ctx: Context, nodes: np.ndarray) -> np.ndarray:
-    """For local nodes: 0 on the body, k on the k-th object of the design (1-based)."""
-    tm, V = ctx.tagged, ctx.V
+    """For local nodes: the index in piece_names of the piece each lies on (k-th body, then objects)."""
+    tm, V, design = ctx.tagged, ctx.V, ctx.design
     label = np.zeros(len(nodes), np.int32)
-    for k, spec in enumerate(ctx.design.objects, start=1):
-        cells = tm.cell_tags.find(tm.tags[object_tag_name(spec.name)])
+    regions = [body_tag_name(b) for b in design.bodies] + [object_tag_name(o.name) for o in design.objects]
+    for k, region in enumerate(regions):
+        cells = tm.cell_tags.find(tm.tags[region])
         label[np.isin(nodes, dolfinx_fem.locate_dofs_topological(V, ctx.mesh.topology.dim, cells))] = k
     return label
 

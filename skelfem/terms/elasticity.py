@@ -24,7 +24,7 @@ import ufl
 from dolfinx import fem
 from mpi4py import MPI
 
-from ..mesh.geometry import BODY, bone_tag_name
+from ..mesh.geometry import body_tag_name, body_tags, bone_tag_name
 from .base import Context, Term, touched
 from .rigid import closest_rigid_motion
 
@@ -52,7 +52,8 @@ def region_cells(ctx: Context, design) -> dict:
     """{material name: local cells} over the body and the bones."""
     tm = ctx.tagged
     out: dict = {}
-    regions = [(BODY, design.body.material)] + [(bone_tag_name(b.name), b.material) for b in design.bones]
+    regions = [(body_tag_name(b), b.material) for b in design.bodies] \
+        + [(bone_tag_name(b.name), b.material) for b in design.bones]
     for tag_name, material in regions:
         cells = tm.cell_tags.find(tm.tags[tag_name])
         out[material] = np.concatenate([out.get(material, np.zeros(0, np.int32)), cells])
@@ -74,7 +75,7 @@ def elastic_measure(ctx: Context, design):
     if not any(b.rigid for b in design.bones):
         return ufl.dx(metadata={"quadrature_degree": degree})
     tm = ctx.tagged
-    ids = (tm.tags[BODY],) + tuple(tm.tags[bone_tag_name(b.name)] for b in design.bones if not b.rigid)
+    ids = tuple(body_tags(tm, design)) + tuple(tm.tags[bone_tag_name(b.name)] for b in design.bones if not b.rigid)
     return ufl.Measure("dx", domain=ctx.mesh, subdomain_data=tm.cell_tags,
                        metadata={"quadrature_degree": degree})(ids)
 

@@ -51,7 +51,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .base import Term
-from .contact import fortran_array
+from .contact import barrier_stiffness, fortran_array
 
 
 class ObjectFriction(Term):
@@ -78,8 +78,7 @@ class ObjectFriction(Term):
         edges = contact.edges
         self.obj_edges = edges                               # (m, 2) vertex indices: every boundary edge
         self.edge_piece = contact.label[edges[:, 0]]
-        body_mat = design.body.material
-        mats = [body_mat] + [design.materials[o.spec.material].name for o in objects]
+        mats = [b.material for b in design.bodies] + [o.spec.material for o in objects]
         coeff = [[design.friction.between(a, b) for b in mats] for a in mats]
         self.mu_k_pair = np.array([[c.kinetic for c in row] for row in coeff])
         self.mu_s_pair = np.array([[c.static for c in row] for row in coeff])
@@ -93,7 +92,7 @@ class ObjectFriction(Term):
         w = np.zeros(len(X))
         np.add.at(w, edges.ravel(), np.repeat(0.5 * L, 2))
         self.w = w
-        self.k_fresh = design.materials[body_mat].E * self.t / self.eps      # stuck within eps: N/mm per mm
+        self.k_fresh = barrier_stiffness(design) * self.t / self.eps      # stuck within eps: N/mm per mm
         n = len(self.body_vertices)
         self.edge = np.full(n, -1)                           # anchor edge (row of obj_edges), -1: none
         self.s = np.zeros(n)                                 # anchor parameter on it
@@ -257,7 +256,36 @@ class ObjectFriction(Term):
         if len(cs) == 0:
             return np.zeros(len(self.body_vertices))
         g = np.asarray(self.c.barrier.gradient(cs, self.c.mesh, fortran_array(y))).reshape(-1, 2)
-        return 0.5 * self.t * np.linalg.norm(g, axis=1)
+        return self._shares(0.5 * self.t * np.linalg.norm(g, axis=1), y)
+
+    def _shares(self, N: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """N scaled so that each pair of pieces' anchored vertices carry all of its strength.
+
+        Where a corner presses on a face, the face's nodes carry half of the
+        nodal force but lie farther than dhat from the corner's edges and do
+        not anchor: without this, the pair would hold by half its mu N
+        (measured: a corner on a face slipped at 0.5 mu N). Each vertex that
+        carries force is counted with the piece of its anchor edge (else of
+        the closest other piece's edge); the anchored ones of a pair share
+        its sum. Where both sides anchor (faces on faces) nothing changes."""
+        pressed = np.flatnonzero(N > 0)
+        anchored = self.edge[pressed] >= 0
+        if anchored.all() or not anchored.any():
+            return N
+        self._y = y
+        partner = np.where(anchored, self.edge_piece[np.maximum(self.edge[pressed], 0)], -1)
+        loose = ~anchored
+        j, _, _ = self._closest(y[self.body_vertices[pressed[loose]]], self.vertex_piece[pressed[loose]])
+        partner[loose] = self.edge_piece[j]
+        mine = self.vertex_piece[pressed]
+        n = len(self.c.pieces)
+        pair = np.minimum(mine, partner) * n + np.maximum(mine, partner)
+        total = np.bincount(pair, N[pressed], n * n)
+        held = np.bincount(pair[anchored], N[pressed][anchored], n * n)
+        scale = np.divide(total, held, out=np.ones(n * n), where=held > 0)
+        out = N.copy()
+        out[pressed[anchored]] *= scale[pair[anchored]]
+        return out
 
     def set_factor(self, a: float) -> None:
         """A new attempt at a step starts from the committed states; a ramp from rest (u = 0) from none."""

@@ -42,11 +42,10 @@ from mpi4py import MPI
 
 from ..mesh.geometry import object_tag_name
 from .base import Context, Term
-from .contact import SelfContact, fortran_array, piece_labels  # noqa: F401 (piece_labels: used by tests too)
+from .contact import SelfContact, barrier_stiffness, fortran_array, piece_labels, piece_names
 from .gravity import KG_PER_M3_TIMES_M_PER_S2
 from .rigid import RigidBody
 
-BODY = "body"
 
 
 def nodal_areas(V, cells: np.ndarray) -> np.ndarray:
@@ -89,7 +88,7 @@ class RigidObject(Term):
         self.g = np.zeros(ctx.dim) if design.gravity is None else np.asarray(design.gravity, float).copy()
         self._weights()
         self.factor = 0.0
-        self.k = self.tether * design.materials[design.body.material].E * t
+        self.k = self.tether * barrier_stiffness(design) * t
         self.n = self.body.count
         self.size = float(np.linalg.norm(np.ptp(np.asarray(spec.outline, float), axis=0)))
 
@@ -165,14 +164,12 @@ class PieceContact(SelfContact):
 
     def __init__(self, ctx: Context, objects: list, dhat: float, stiffness: float, project: bool = True):
         super().__init__(ctx.V, dhat, stiffness, float(ctx.thickness.value), project)
-        self.pieces = [BODY] + [o.name for o in objects]
+        self.pieces = piece_names(ctx.design)           # the bodies, then the objects
+        self.bodies = len(ctx.design.bodies)
         self.objects = objects
         self._weights = None          # boundary weights of the nodes (grounds' quadrature), on demand
-        label = np.zeros(len(self.nodes), np.int32)
-        for k, o in enumerate(objects, start=1):
-            label[np.isin(self.nodes, o.nodes)] = k
-        self.label = label
-        self.mesh.can_collide = ipctk.make_vertex_patches_filter(label)
+        self.label = piece_labels(ctx, self.nodes)
+        self.mesh.can_collide = ipctk.make_vertex_patches_filter(self.label)
 
     def pattern(self) -> list:
         """Node blocks the Hessian may fill: each piece's boundary nodes with every other piece's (the
@@ -183,7 +180,7 @@ class PieceContact(SelfContact):
         for k in range(len(self.pieces)):
             mine = self.label == k
             out.append((self.nodes[mine], self.nodes[~mine]))
-            if k:
+            if k >= self.bodies:
                 out.append((self.nodes[mine], self.nodes[mine]))
         return out
 
@@ -252,32 +249,48 @@ class PieceContact(SelfContact):
         gap = self.min_distance(u)
         if not gap > 0.0:                               # the barrier keeps every accepted state apart
             raise AssertionError(f"pieces interpenetrate (distance {gap:g} mm)")
-        if len(c):
-            g = self.t * np.asarray(self.barrier.gradient(c, self.mesh, fortran_array(y))).reshape(-1, 2)
-            force = -g                                   # the barrier's force on each boundary node
-            for k in range(1, len(self.pieces)):
-                on = self.label == k
-                f = force[on].sum(axis=0)
-                if np.linalg.norm(f) > 0:
-                    a, b = self.pieces[0], self.pieces[k]
-                    out[f"{a}|{b}"] = {"between": [a, b], "normal_force": -f,     # on the body: minus that on b
-                                       "normal_magnitude": float(np.linalg.norm(force[on], axis=1).sum()),
-                                       "min_distance": gap}
+        for (i, j), force in self.pair_forces(y, c).items():
+            a, b = self.pieces[i], self.pieces[j]
+            on_a, on_b = self.label == i, self.label == j
+            f = force[on_a].sum(axis=0)
+            if np.linalg.norm(f) > 0:
+                out[f"{a}|{b}"] = {"between": [a, b], "normal_force": f,
+                                   "normal_magnitude": float(np.linalg.norm(force[on_b], axis=1).sum()),
+                                   "min_distance": gap}
+        return out
+
+    def pair_forces(self, y: np.ndarray, c) -> dict:
+        """{(i, j), i < j: the barrier's nodal forces (n, 2) N of the collisions between pieces i and j},
+        each collision's share taken from its own gradient (a node may touch two pieces at once)."""
+        out: dict = {}
+        edges, faces = self.mesh.edges, self.mesh.faces
+        for coll in [*c.vv_collisions, *c.ev_collisions]:
+            ids = np.array([v for v in coll.vertex_ids(edges, faces) if v >= 0])
+            pieces = self.label[ids]
+            pair = (int(pieces.min()), int(pieces.max()))
+            if pair[0] == pair[1]:
+                continue
+            g = self.t * np.asarray(self.barrier.gradient(coll, coll.dof(y, edges, faces))).reshape(-1, 2)
+            force = out.setdefault(pair, np.zeros_like(y))
+            np.add.at(force, ids, -g[:len(ids)])
         return out
 
 
 def build(ctx: Context) -> list[Term]:
+    """The objects, and contact with friction between every two pieces (bodies, objects) if there are two."""
     from ..design.spec import DesignError
     d = ctx.design
-    if not d.objects:
+    if len(d.bodies) + len(d.objects) < 2:
         return []
     if ctx.comm.size > 1:
-        raise DesignError(f"{d.source}: objects: objects run on one MPI process (got {ctx.comm.size})")
+        what = "objects" if d.objects else "bodies"
+        raise DesignError(f"{d.source}: {what}: contact between bodies and objects runs on one MPI process "
+                          f"(got {ctx.comm.size})")
     objects = [RigidObject(ctx, spec) for spec in d.objects]
-    contact = PieceContact(ctx, objects, d.contact.dhat, d.materials[d.body.material].E)
+    contact = PieceContact(ctx, objects, d.contact.dhat, barrier_stiffness(d))
     d0 = contact.min_distance(np.zeros(len(ctx.u.x.array)))
     if d0 <= d.contact.dhat:
         raise DesignError(f"{d.source}: contact.dhat: {d.contact.dhat:g} mm is not below the smallest rest "
-                          f"distance between the body and the objects ({d0:.3g} mm); lower dhat or move them apart")
+                          f"distance between the bodies and objects ({d0:.3g} mm); lower dhat or move them apart")
     from .object_friction import ObjectFriction
     return objects + [contact, ObjectFriction(ctx, contact, objects)]

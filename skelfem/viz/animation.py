@@ -55,8 +55,8 @@ def write_motion_gif(path: Path, frames: list, title: str = "", fps: int = 20) -
     fig.tight_layout()
     from matplotlib.patches import PathPatch
     ax.collections[0].remove()                           # the cells: one compound path per region instead
-    groups = [(first.regions == first.body_tag, REGION_COLORS["body"]),
-              (first.regions != first.body_tag, REGION_COLORS["bone"])]
+    soft = np.isin(first.regions, first.body_tags)
+    groups = [(soft, REGION_COLORS["body"]), (~soft, REGION_COLORS["bone"])]
     patches = []
     for mask, colour in groups:
         if mask.any():

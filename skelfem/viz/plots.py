@@ -32,15 +32,14 @@ def plot_deformed(path: Path, state, title: str = "", ax=None, show_rest: bool =
         fig = Figure(figsize=(6, 7), dpi=120)
         ax = fig.subplots()
     regions = snap.regions
-    body_tag = snap.body_tag
-    colors = np.where(regions == body_tag, REGION_COLORS["body"], REGION_COLORS["bone"])
+    colors = np.where(np.isin(regions, snap.body_tags), REGION_COLORS["body"], REGION_COLORS["bone"])
     object_tags = {tag for name, tag in (getattr(snap, "tags", None) or {}).items() if name.startswith("object:")}
     if object_tags:
         colors = np.where(np.isin(regions, list(object_tags)), REGION_COLORS["object"], colors)
     ax.add_collection(PolyCollection(y[tri], facecolors=colors, edgecolors="#7a6a66",
                                      linewidths=0.15))
     if show_rest:
-        loops = [design.body.outline, *design.body.holes, *(b.outline for b in design.bones)]
+        loops = [*design.body_loops, *(b.outline for b in design.bones)]
         for loop in loops:
             closed = np.vstack([loop, loop[:1]])
             ax.plot(closed[:, 0], closed[:, 1], color="0.55", lw=0.8, ls="--", zorder=1)
@@ -155,17 +154,17 @@ def plot_deformed_3d(path: Path, state, title: str = "", window_size=(900, 900),
     x, u, tets = snap.x, snap.u, snap.cells
     y = x + u
     regions = snap.regions
-    body_tag = snap.body_tag
+    soft = np.isin(regions, snap.body_tags)
     cells = np.column_stack([np.full(len(tets), 4), tets]).ravel()
     grid = pv.UnstructuredGrid(cells, np.full(len(tets), pv.CellType.TETRA, dtype=np.uint8), y)
     grid.cell_data["region"] = regions
     rest = pv.UnstructuredGrid(cells, np.full(len(tets), pv.CellType.TETRA, dtype=np.uint8), x)
     p = pv.Plotter(off_screen=True, window_size=window_size)
     p.set_background("white")
-    body = grid.extract_cells(np.flatnonzero(regions == body_tag)).extract_surface(algorithm=None)
+    body = grid.extract_cells(np.flatnonzero(soft)).extract_surface(algorithm=None)
     p.add_mesh(rest.extract_surface(algorithm=None).extract_feature_edges(30.0), color="#888888", line_width=1.0)
     p.add_mesh(body, color=REGION_COLORS["body"], opacity=0.35, show_edges=False)
-    bones = np.flatnonzero(regions != body_tag)
+    bones = np.flatnonzero(~soft)
     if len(bones):
         p.add_mesh(grid.extract_cells(bones).extract_surface(algorithm=None), color=REGION_COLORS["bone"],
                    show_edges=True, edge_color="#9a9080", line_width=0.3)

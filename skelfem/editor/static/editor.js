@@ -353,6 +353,7 @@ function fit() {
   const all = [];
   const d = S.design;
   if (d.body && d.body.outline) all.push(...d.body.outline);
+  for (const b of d.bodies || []) if (b.outline) all.push(...b.outline);
   if (S.answer && S.answer.mesh && S.answer.mesh.dim === 2) all.push(...S.answer.mesh.y);
   for (const p of Object.values(d.markers || {})) all.push(p);
   if (!all.length) all.push([0, 0], [1, 1]);
@@ -409,7 +410,7 @@ function drawMesh() {
 }
 
 function regionKind(name) {
-  return !name || name === "body" ? "body" : name.startsWith("object:") ? "object" : "bone";
+  return !name || name === "body" || name.startsWith("body:") ? "body" : name.startsWith("object:") ? "object" : "bone";
 }
 
 function drawContacts() {
@@ -516,6 +517,11 @@ function drawSketch() {
     polygonItem(layer, d.body.outline, "body", "body.outline", ["body", "outline"], 3);
     (d.body.holes || []).forEach((h, k) => polygonItem(layer, h, "body", `body.holes[${k}]`, ["body", "holes", k], 3));
   }
+  (d.bodies || []).forEach((b, k) => {            // [[bodies]]: each body's outline and holes
+    if (!b.outline) return;
+    polygonItem(layer, b.outline, "body", `bodies.${b.name}.outline`, ["bodies", k, "outline"], 3);
+    (b.holes || []).forEach((h, j) => polygonItem(layer, h, "body", `bodies.${b.name}.holes[${j}]`, ["bodies", k, "holes", j], 3));
+  });
   (d.bones || []).forEach((b, k) => { if (b.outline) polygonItem(layer, b.outline, "bone", `bones.${b.name}.outline`, ["bones", k, "outline"], 3); });
   (d.objects || []).forEach((o, k) => {          // a free object: drag a vertex, or drag inside it to move it whole
     if (!o.outline) return;
