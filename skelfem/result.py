@@ -82,6 +82,8 @@ def result_dict(design, model, report, timings: dict) -> dict:
     for section in STANDARD_SECTIONS:
         res[section] = readouts.pop(section, {}) if converged else None
     res.update(readouts)
+    if converged and len(design.bodies) + len(design.objects) > 1:
+        res.setdefault("contacts", {})                       # pieces that can touch: the list, even if empty
     if isinstance(res.get("contacts"), dict):                # contacts between pieces: a list of pairs
         res["contacts"] = list(res["contacts"].values())
     res["attempts"] = list(report.attempts)           # a dynamics run keeps a bounded, evenly spaced part

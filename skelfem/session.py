@@ -193,7 +193,9 @@ class Session:
             return "moved nodes" if morph and np.any(x != self._morph.X0) else "same mesh"
         old_model, old_solved = self.model, self.solved
         start = None
-        if old_solved and self.comm.size == 1:
+        # a new mesh cannot take friction's history (anchors on the old boundary): a path-dependent design
+        # solves its load path from rest again, as skelfem simulate does
+        if old_solved and self.comm.size == 1 and not old_model.path_dependent:
             start = (old_model.V.tabulate_dof_coordinates()[:, :old_model.dim].copy(),
                      old_model.u.x.array.reshape(-1, old_model.bs).copy(), old_model)
         saved = (self.design, self.size, self.model, self.solver, self.solved, self._meshed, self._morph,

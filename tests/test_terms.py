@@ -49,8 +49,13 @@ def _designs():
     objects = dict(base, objects=[{"name": "box", "outline": [[8.25, 10], [12, 10], [12, 20], [8.25, 20]],
                                    "material": "hard"}], contact={"dhat": 0.2, "friction": 0.4},
                    gravity={"acceleration": [1.0, -9.81]})
+    bodies = dict(base, contact={"dhat": 0.2, "friction": 0.4, "self": True}, body=None,
+                  bodies=[dict(base["body"], name="left"),
+                          {"name": "right", "outline": [[8.25, 0], [14, 0], [14, 30], [8.25, 30]], "material": "hard"}],
+                  pins=[dict(base["pins"][0], region=[[-1, -1], [15, 1e-6]])])
+    del bodies["body"]
     return {"full": full, "spring": spring, "contact": contact, "dynamic": dynamic, "rigid": rigid,
-            "friction": friction, "objects": objects}
+            "friction": friction, "objects": objects, "bodies": bodies}
 
 
 def _perturbed_state(model, scale):
@@ -104,7 +109,7 @@ def _gradient(model, term, u, gform):
     return g
 
 
-@pytest.mark.parametrize("name", ["full", "spring", "contact", "dynamic", "rigid", "friction", "objects"])
+@pytest.mark.parametrize("name", ["full", "spring", "contact", "dynamic", "rigid", "friction", "objects", "bodies"])
 def test_every_term_gradient_and_hessian_match_central_differences(name):
     import dolfinx.fem.petsc  # noqa: F401
     design = _designs()[name]
@@ -116,6 +121,12 @@ def test_every_term_gradient_and_hessian_match_central_differences(name):
     if name == "objects":                             # the box 0.12 mm from the strip: in the barrier's reach
         box = model.term("objects", "box")
         u0[box.dofs[:, 0]] = -0.13
+        model.u.x.array[:] = u0
+        contact = model.term("contacts", "pieces")
+        assert contact.min_distance(u0) < 0.2 and not contact.intersects(u0)
+    if name == "bodies":                              # the right body 0.12 mm from the left one
+        x = model.V.tabulate_dof_coordinates()[:, 0]
+        u0.reshape(-1, 2)[:, 0] -= 0.13 * (x > 8.1) * ~model.fixed.reshape(-1, 2)[:, 0]
         model.u.x.array[:] = u0
         contact = model.term("contacts", "pieces")
         assert contact.min_distance(u0) < 0.2 and not contact.intersects(u0)
@@ -195,6 +206,8 @@ def test_every_term_gradient_and_hessian_match_central_differences(name):
         assert "GroundFriction" in seen
     if name == "objects":
         assert {"RigidObject", "PieceContact", "ObjectFriction"} <= seen
+    if name == "bodies":
+        assert {"PieceContact", "ObjectFriction", "SelfContact"} <= seen
 
 
 def test_every_builder_is_exercised():

@@ -275,7 +275,7 @@ def clamp_corners(design) -> np.ndarray:
     """
     if design.dim != 2:
         return np.zeros((0, 2))
-    rings = [np.asarray(design.body.outline, dtype=float)] + [np.asarray(h, dtype=float) for h in design.body.holes]
+    rings = [np.asarray(loop, dtype=float) for loop in design.body_loops]
     points = []
     for pin in design.pins:
         if pin.kind != "fixed":

@@ -49,7 +49,7 @@ class DataError(ValueError):
 def live_keys(design) -> dict:
     """{key: value} of the live parameters a model of design exposes (scalars or 1D arrays)."""
     out: dict = {}
-    used = [design.body.material] + [b.material for b in design.bones]      # rigid ones too (inert)
+    used = [b.material for b in design.bodies] + [b.material for b in design.bones]   # rigid ones too (inert)
     for name in dict.fromkeys(used):
         m = design.materials[name]
         out[f"materials.{name}.E"] = float(m.E)
@@ -90,7 +90,7 @@ def live_keys(design) -> dict:
     if design.gravity is not None:
         out["gravity.acceleration"] = np.asarray(design.gravity, float).copy()
     if dens:
-        allm = [design.body.material] + [b.material for b in design.bones]
+        allm = [b.material for b in design.bodies] + [b.material for b in design.bones]
         for name in dict.fromkeys(allm):
             if design.materials[name].density is not None:
                 out[f"materials.{name}.density"] = float(design.materials[name].density)

@@ -528,6 +528,9 @@ def plan(design) -> Plan:
     from ..runtime.interrupts import interruptible
 
     spec = design.fabrication
+    if len(design.bodies) > 1:
+        raise FabricationError("bodies", f"fabrication casts one body; this design has {len(design.bodies)} "
+                                         "(fabricate each from a design of its own)")
     extent = fabrication_extent(design)          # every bound before Gmsh, which ignores signals
     if not MIN_PRINT <= float(extent.max()) <= MAX_PRINT:
         raise FabricationError("body", f"the body's largest extent ({float(extent.max()):.3g} mm) must lie in "

@@ -279,6 +279,11 @@ class Model(MatrixAssembly):
         """Every term's history (friction's anchors and slip states), to take a tried step back."""
         return [term.history() for term in self.terms]
 
+    @property
+    def path_dependent(self) -> bool:
+        """Whether the equilibrium depends on the load path (active friction: contacts, grounds, cables)."""
+        return any(getattr(term, "active", True) and term.history() is not None for term in self.terms)
+
     def set_history(self, histories: list) -> None:
         for term, h in zip(self.terms, histories):
             if h is not None:

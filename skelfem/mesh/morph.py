@@ -32,8 +32,9 @@ MIN_QUALITY = 0.25        # smallest shape ratio 2 r / R of a moved triangle (1:
 
 
 def polygons(design) -> list[np.ndarray]:
-    """The design's closed polygons, in a fixed order: body outline, holes, bone outlines, object outlines."""
-    out = [design.body.outline] + list(design.body.holes) + [b.outline for b in design.bones] \
+    """The design's closed polygons, in a fixed order: each body's outline and holes, bone outlines, object
+    outlines."""
+    out = list(design.body_loops) + [b.outline for b in design.bones] \
         + [o.outline for o in design.objects]
     return [np.asarray(p, dtype=float) for p in out]
 
