@@ -188,3 +188,51 @@ def test_the_bundled_two_fingers_press_on_each_other(tmp_path):
     f = np.asarray(pair["normal_force"]) + np.asarray(pair["friction_force"])
     assert np.allclose(np.asarray(data["pins"]["left_base"]["reaction"]), -f, atol=1e-6)
     assert np.allclose(np.asarray(data["pins"]["right_base"]["reaction"]), f, atol=1e-6)
+
+
+def test_objects_among_bodies_touch_the_body_they_lie_on():
+    """A box resting on the right strip (gravity on): the pair (right, box) carries its weight, the left
+    strip and the box do not touch, and each body is still in equilibrium."""
+    d = _two(push=0.0)
+    for m in d["materials"].values():
+        m["density"] = 1000.0
+    d["objects"] = [{"name": "box", "outline": [[12, 40.3], [19, 40.3], [19, 43], [12, 43]], "material": "hard"}]
+    d["gravity"] = {"acceleration": [0.0, -9.81]}
+    del d["loads"]
+    design = parse_design(d)
+    with Session(design) as s:
+        r = s.solve()
+        assert r.converged, r.status
+        pairs = {tuple(c["between"]): c for c in r.contacts}
+    W = 1000e-9 * 9.81 * 7 * 2.7 * 10
+    assert ("right", "box") in pairs and ("left", "box") not in pairs
+    assert pairs["right", "box"]["normal_force"][1] == pytest.approx(-W, rel=1e-4)
+    assert r.objects["box"]["weight"][1] == pytest.approx(-W)
+
+
+def test_solution_xdmf_holds_the_contact_forces_and_tractions(tmp_path):
+    """contact_force sums to the pair's force on each body (and to zero over both); the traction times
+    the nodes' boundary shares gives the force back."""
+    import meshio
+
+    from skelfem.io.xdmf import write_xdmf
+    for degree in (1, 2):
+        d = _two()
+        d["mesh"]["degree"] = degree
+        with Session(parse_design(d)) as s:
+            r = s.solve()
+            write_xdmf(tmp_path / "s.xdmf", s.model)
+            x_mid = 10.125
+        pair = next(c for c in r.contacts if c["between"] == ["left", "right"])
+        f_left = np.asarray(pair["normal_force"]) + np.asarray(pair["friction_force"])
+        m = meshio.read(tmp_path / "s.xdmf")
+        F = m.point_data["contact_force"][:, :2]
+        left = m.points[:, 0] < x_mid
+        assert np.abs(F).max() > 0
+        assert np.allclose(F[left].sum(axis=0), f_left, atol=1e-9 + 1e-6 * np.linalg.norm(f_left))
+        assert np.allclose(F.sum(axis=0), 0.0, atol=1e-9 + 1e-6 * np.linalg.norm(f_left))
+        T = m.point_data["contact_traction"][:, :2]
+        assert np.all((np.linalg.norm(T, axis=1) > 0) == (np.linalg.norm(F, axis=1) > 0))
+        ratio = np.linalg.norm(F, axis=1)[np.linalg.norm(F, axis=1) > 0] / \
+            np.linalg.norm(T, axis=1)[np.linalg.norm(F, axis=1) > 0] / 10.0     # share of the boundary, mm
+        assert np.all(ratio > 0.2) and np.all(ratio < 2.5 * 2.0)               # about the mesh size

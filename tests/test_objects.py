@@ -59,6 +59,24 @@ def test_object_rests_on_the_body():
     assert np.allclose(d["markers"]["corner"]["position"], expected, atol=2e-3)   # the nodes: rigid to ~4e-4 strain
 
 
+def test_stacked_boxes_report_the_normal_force_between_objects():
+    """A box on a box on the block: the lower box carries the upper's weight (an object-object pair in
+    contacts, with its normal force), the block both. Friction holds them sideways (frictionless, a box on a
+    rigid box has no lateral stiffness)."""
+    boxes = [_box(2, 10.5, 8, 13.5, "lower"), _box(3, 14, 7, 16, "upper")]
+    with Session(_base(boxes, contact={"dhat": 0.2, "friction": 0.5})) as s:
+        r = s.solve()
+        assert r.converged, r.status
+        d = r.to_dict()
+    W_lower = 1250e-9 * G * 6 * 3 * 10
+    W_upper = 1250e-9 * G * 4 * 2 * 10
+    pairs = {tuple(c["between"]): c for c in d["contacts"]}
+    assert set(pairs) == {("body", "lower"), ("lower", "upper")}
+    assert pairs["lower", "upper"]["normal_force"][1] == pytest.approx(-W_upper, rel=1e-5)
+    assert pairs["body", "lower"]["normal_force"][1] == pytest.approx(-(W_lower + W_upper), rel=1e-5)
+    assert pairs["lower", "upper"]["min_distance"] > 0
+
+
 def test_a_marker_outside_the_body_and_the_objects_is_refused():
     with pytest.raises(DesignError, match="markers.off: the marker lies outside the body"):
         parse_design(_base([_box(2, 10.5, 8, 13.5)], markers={"off": [5.0, 20.0]}), "d.toml")

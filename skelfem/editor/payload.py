@@ -93,7 +93,7 @@ def mesh_payload(model) -> dict:
                       "length": float(c["length"]), "rest_length": float(c["rest_length"]),
                       "slack": bool(c["tension"] <= 0.0)} for c in snap.cables]
     out["markers"] = {name: _round(p) for name, p in snap.markers.items()}
-    out["objects"] = [{"name": o["name"], "outline": _round(o["outline"]),
+    out["objects"] = [{"name": o["name"], "outline": _round(o.get("outline", np.zeros((0, 2)))),
                        "points": _round(o.get("points", np.zeros((0, 2)))),
                        "normal": _round(o.get("normal", np.zeros((0, 2)))),
                        "friction": _round(o.get("friction", np.zeros((0, 2))))} for o in snap.objects]

@@ -27,6 +27,43 @@ def vertex_displacements(model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return x, u, geo
 
 
+def contact_forces(model) -> tuple[np.ndarray, np.ndarray] | None:
+    """Serial, where pieces (bodies, objects) can touch: (force (n, 2) N, traction (n, 2) MPa) at every
+    node of the P1 geometry: the barrier's and friction's force the other pieces exert on it, and that
+    force over the node's share of the boundary (half its edges' lengths times the thickness). A P2
+    edge midpoint's force and share go half to each end of its edge; None without such contact."""
+    pieces = next((t for t in model.terms_in("contacts") if hasattr(t, "nodal_forces")), None)
+    if pieces is None or model.comm.size > 1:
+        return None
+    _, normal, friction = pieces.nodal_forces(model)
+    f = normal + friction
+    X, edges = pieces.X, pieces.edges
+    length = np.linalg.norm(X[edges[:, 1]] - X[edges[:, 0]], axis=1)
+    w = np.zeros(len(X))
+    np.add.at(w, edges.ravel(), np.repeat(0.5 * length, 2))
+    mesh, V = model.mesh, model.V
+    tdim = mesh.topology.dim
+    geo = mesh.geometry.dofmap.array.reshape(-1, tdim + 1)
+    dofs = V.dofmap.list.array.reshape(len(geo), -1)[:, :tdim + 1]
+    geom_of_node = np.full(V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts, -1, np.int64)
+    geom_of_node[dofs.ravel()] = geo.ravel()
+    where = geom_of_node[pieces.nodes]                      # -1: a P2 midpoint
+    mid = where < 0
+    if mid.any():                                           # its two edges lead to the two ends
+        a, b = edges[:, 0], edges[:, 1]
+        for s, t in ((a, b), (b, a)):
+            m = mid[s] & ~mid[t]
+            np.add.at(f, t[m], 0.5 * f[s[m]])
+            np.add.at(w, t[m], 0.5 * w[s[m]])
+    keep = ~mid
+    force = np.zeros((len(mesh.geometry.x), 2))
+    share = np.zeros(len(force))
+    np.add.at(force, where[keep], f[keep])
+    np.add.at(share, where[keep], w[keep])
+    traction = np.divide(force, share[:, None] * pieces.t, out=np.zeros_like(force), where=share[:, None] > 0)
+    return force, traction
+
+
 def cell_regions(model) -> np.ndarray:
     """Tag value of every local cell (body = 1, bones after)."""
     n = model.mesh.topology.index_map(model.mesh.topology.dim).size_local
@@ -58,14 +95,16 @@ def marker_positions(model) -> dict:
 
 def object_states(model) -> list[dict]:
     """Per free object: its name and outline moved by its rigid motion, and the contact forces on its
-    boundary nodes from the other pieces (positions, barrier and friction forces, N; serial)."""
+    boundary nodes from the other pieces (positions, barrier and friction forces, N; serial). Then,
+    without an outline, every body but the first that something touches, with the forces on it."""
     objects = model.terms_in("objects")
-    if not objects:
-        return []
     pieces = next((t for t in model.terms_in("contacts") if hasattr(t, "nodal_forces")), None)
+    if not objects and pieces is None:
+        return []
     y, normal, friction = pieces.nodal_forces(model) if pieces is not None else (None, None, None)
     out = []
-    for k, obj in enumerate(objects, start=1):
+    bodies = len(model.design.bodies)
+    for k, obj in enumerate(objects, start=bodies):
         r = obj.readout(model)[obj.name]
         c0 = np.asarray(r["position"]) - np.asarray(r["displacement"])
         a = r["rotation"]
@@ -77,6 +116,12 @@ def object_states(model) -> list[dict]:
             touched = on & (np.linalg.norm(normal, axis=1) + np.linalg.norm(friction, axis=1) > 0)
             entry.update(points=y[touched], normal=normal[touched], friction=friction[touched])
         out.append(entry)
+    for k in range(1, bodies if pieces is not None else 0):
+        on = pieces.label == k
+        touched = on & (np.linalg.norm(normal, axis=1) + np.linalg.norm(friction, axis=1) > 0)
+        if touched.any():
+            out.append({"name": pieces.pieces[k], "points": y[touched], "normal": normal[touched],
+                        "friction": friction[touched]})
     return out
 
 
@@ -106,6 +151,7 @@ def snapshot(model, to=(0,)) -> Snapshot | None:
     cables = cable_states(model)
     markers = marker_positions(model)
     objects = object_states(model) if comm.size == 1 else []
+    contacts = contact_forces(model)
     if comm.size > 1:
         orig = np.asarray(model.mesh.geometry.input_global_indices, dtype=np.int64)
         parts = comm.gather((orig, x, u, orig[cells], regions), root=0)
@@ -117,6 +163,7 @@ def snapshot(model, to=(0,)) -> Snapshot | None:
             cells = np.searchsorted(numbers, np.concatenate([p[3] for p in parts]))
             regions = np.concatenate([p[4] for p in parts])
     snap = Snapshot(x=x, u=u, cells=cells, regions=regions, cables=cables, markers=markers, objects=objects,
+                    contact_forces=contacts,
                     body_tag=soft_tags(model.tm.tags)[0],
                     body_tags=soft_tags(model.tm.tags), tags=dict(model.tm.tags), design=model.design) if comm.rank == 0 else None
     for rank in sorted(set(to) - {0}):
@@ -148,7 +195,8 @@ def largest_stretch(F: np.ndarray) -> np.ndarray:
 
 def write_xdmf(path: Path, state) -> None:
     """Mesh (rest coordinates) with displacement, region tag, largest principal stretch per cell, and
-    cables as polylines.
+    cables as polylines; where bodies and objects can touch, the contact force (N) and traction (MPa)
+    on every node (contact_forces).
 
     `state` is a model (collective) or a Snapshot of one.
 
@@ -191,7 +239,12 @@ def write_xdmf(path: Path, state) -> None:
         tens.append(np.asarray(tension, float))
         ids.append(np.asarray(cable_id, float))
         stretch.append(np.zeros(len(tension)))
-    m = meshio.Mesh(pts, blocks, point_data={"displacement": d3},
+    point_data = {"displacement": d3}
+    if getattr(snap, "contact_forces", None) is not None:      # pieces that can touch: forces between them
+        pad = len(pts) - len(x)
+        for name, values in zip(("contact_force", "contact_traction"), snap.contact_forces):
+            point_data[name] = np.column_stack([np.vstack([values, np.zeros((pad, 2))]), np.zeros(len(pts))])
+    m = meshio.Mesh(pts, blocks, point_data=point_data,
                     cell_data={"region": region, "tension": tens, "cable": ids, "stretch": stretch})
     atomic_write(path, lambda tmp: meshio.xdmf.write(tmp, m, data_format="XML"))
 

@@ -115,9 +115,13 @@ def draw_objects(ax, objects: list, show_rest: bool = True, rest: dict | None = 
     forces = [np.linalg.norm(o[k], axis=1) for o in objects if "points" in o for k in ("normal", "friction")
               if len(o[k])]
     fmax = max((float(f.max()) for f in forces), default=0.0)
-    size = max(float(np.linalg.norm(np.ptp(o["outline"], axis=0))) for o in objects)
+    size = max((float(np.linalg.norm(np.ptp(o["outline"], axis=0))) for o in objects if "outline" in o),
+               default=0.0) or float(np.linalg.norm(np.ptp(ax.dataLim.get_points(), axis=0))) / 2
     scale = (arrow_length or 0.2 * size) / fmax if fmax > 0 else 0.0
     for o in objects:
+        if "outline" not in o:                 # a body something touches: only the forces on it
+            _force_arrows(ax, o, scale, fmax)
+            continue
         closed = np.vstack([o["outline"], o["outline"][:1]])
         ax.plot(closed[:, 0], closed[:, 1], color="#1f4e79", lw=1.4, zorder=5)
         if show_rest and rest and o["name"] in rest:
@@ -125,16 +129,21 @@ def draw_objects(ax, objects: list, show_rest: bool = True, rest: dict | None = 
             loop = np.vstack([loop, loop[:1]])
             ax.plot(loop[:, 0], loop[:, 1], color="#1f4e79", lw=0.7, ls="--", zorder=1)
         ax.annotate(o["name"], o["outline"].mean(axis=0), ha="center", va="center", fontsize=8, color="#1f4e79")
-        if scale <= 0 or "points" not in o:
-            continue
-        for key, label in (("normal", "contact (normal) force"), ("friction", "friction force")):
-            f = o[key]
-            keep = np.linalg.norm(f, axis=1) > 1e-3 * fmax
-            if keep.any():
-                p = o["points"][keep]
-                ax.quiver(p[:, 0], p[:, 1], scale * f[keep, 0], scale * f[keep, 1], angles="xy",
-                          scale_units="xy", scale=1.0, color=FORCE_COLORS[key], width=0.004, zorder=6,
-                          label=f"{label} on {o['name']}")
+        _force_arrows(ax, o, scale, fmax)
+
+
+def _force_arrows(ax, o: dict, scale: float, fmax: float) -> None:
+    """The contact forces on one piece as arrows at its contact nodes (barrier red, friction green)."""
+    if scale <= 0 or "points" not in o:
+        return
+    for key, label in (("normal", "contact (normal) force"), ("friction", "friction force")):
+        f = o[key]
+        keep = np.linalg.norm(f, axis=1) > 1e-3 * fmax
+        if keep.any():
+            p = o["points"][keep]
+            ax.quiver(p[:, 0], p[:, 1], scale * f[keep, 0], scale * f[keep, 1], angles="xy",
+                      scale_units="xy", scale=1.0, color=FORCE_COLORS[key], width=0.004, zorder=6,
+                      label=f"{label} on {o['name']}")
 
 
 def plot_deformed_3d(path: Path, state, title: str = "", window_size=(900, 900),

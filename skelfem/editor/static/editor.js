@@ -414,7 +414,7 @@ function regionKind(name) {
 }
 
 function drawContacts() {
-  // the forces the other pieces exert on each object's boundary nodes: barrier (normal) and friction
+  // the forces the other pieces exert on each object's (and each body's but the first) boundary nodes
   const layer = $("layer-contacts"); layer.textContent = "";
   const a = S.answer; if (!a || !a.mesh || !a.mesh.objects || !a.mesh.objects.length) return;
   let fmax = 0;
@@ -432,7 +432,7 @@ function drawContacts() {
     }
   }
   const t = el("text", { x: 8, y: 16, class: "contact-legend" }, layer);
-  t.textContent = `contact forces on objects: normal (blue), friction (green); largest ${fmt(fmax, 3)} N`;
+  t.textContent = `contact forces: normal (blue), friction (green); largest ${fmt(fmax, 3)} N`;
 }
 
 function drawCables() {
