@@ -167,3 +167,67 @@ def test_a_refused_ik_trial_leaves_no_friction_history():
         after = s.model.history()
         ik.restore()
         assert _same(s.model.history(), after)             # accepted: its history is the new one
+
+
+def _ik_errors(s, marker: str, h: float) -> float:
+    """max |J - central differences| / max |J| of a marker's Soft IK Jacobian, the differences taken by
+    whole warm solves from the accepted state (its friction history put back after each)."""
+    from skelfem.analysis.control import SoftIK
+    ik = SoftIK(s, marker)
+    J = ik.jacobian()
+    fd = np.zeros_like(J)
+    for i in range(J.shape[1]):
+        for sign in (1.0, -1.0):
+            u = ik.u.copy()
+            u[i] += sign * h
+            assert ik.trial(u)
+            fd[:, i] += sign * ik.position() / (2 * h)
+            ik.restore()
+    return float(np.abs(fd - J).max() / np.abs(J).max())
+
+
+def test_ik_through_a_sticking_pinch_matches_central_differences():
+    """Two soft prongs pinch a box under gravity; a tendon in one prong lifts it. Loaded along a path that
+    ends with a small release, every contact node sticks; the Jacobian of the box's marker with respect
+    to the contraction (implicit function theorem at the frictional state) matches whole-solve central
+    differences to 1e-5."""
+    from test_objects import _pinch_design
+    d = _pinch_design(1.0)
+    d["cables"] = [{"name": "flexor", "kind": "tendon", "path": [[4.5, 36], [4.5, 1]], "stiffness": 0.05}]
+    d["markers"] = {"box": [20.0, 12.0]}
+    d["solver"] = {"rtol": 1e-12}
+    with Session(d) as s:
+        assert s.solve().converged
+        for u in (0.3, 0.28):                         # the release leaves every node inside its sticking zone
+            s.set({"cables.flexor.contraction": u})
+            r = s.solve()
+            assert r.converged, r.status
+        (pair,) = r.contacts
+        assert pair["sticking"] == 1.0
+        assert _ik_errors(s, "box", 1e-3) < 1e-5
+
+
+@pytest.mark.slow
+def test_ik_through_the_grippers_sticking_grasp_matches_central_differences():
+    """The gripper holds its box by friction; gravity eased from 9.81 to 9 m/s^2 leaves every contact
+    node sticking. Both flexors' columns of the box marker's Jacobian match whole-solve central
+    differences to 1e-5 (h = 1e-4 mm: at 1e-3 mm some nodes near their limit slip)."""
+    import tomllib
+
+    from skelfem.design import parse_design
+    from conftest import GEOMETRY
+    with open(GEOMETRY / "gripper.toml", "rb") as f:
+        d = tomllib.load(f)
+    d["markers"]["box_centre"] = [50.0, 2.0]
+    d["mesh"]["size"] = 3.0
+    d["solver"] = {"rtol": 1e-12}
+    with Session(parse_design(d, "gripper.toml")) as s:
+        s.set({"cables.left_flexor.contraction": 4.0, "cables.right_flexor.contraction": 4.0})
+        assert s.solve().converged
+        for g in (9.81, 9.0):
+            s.set({"gravity.acceleration": [0.0, -g], "materials.box_pla.density": 620.0})
+            r = s.solve()
+            assert r.converged, r.status
+        (pair,) = r.contacts
+        assert pair["sticking"] == 1.0
+        assert _ik_errors(s, "box_centre", 1e-4) < 1e-5
