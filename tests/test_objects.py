@@ -321,3 +321,73 @@ def test_objects_in_dynamics_need_a_density():
     d.pop("gravity")
     with pytest.raises(DesignError, match=r"materials.pla.density: missing \(required with \[dynamics\]"):
         parse_design(d, "d.toml")
+
+
+# -- elastic objects (rigid = false) ---------------------------------------------------------------------
+def _gel(E=0.01, rigid=False, **extra):
+    """A 6 x 12 mm block of gel resting 0.5 mm above the pinned block, friction 0.5."""
+    d = _base([dict(_box(2, 10.5, 8, 22.5), rigid=rigid, material="gel")], contact={"dhat": 0.2, "friction": 0.5},
+              markers={"top": [5.0, 22.4], "mid": [5.0, 16.5]}, **extra)
+    d["materials"]["gel"] = {"E": E, "nu": 0.3, "density": 1000.0}
+    return d
+
+
+def test_an_elastic_object_shortens_under_its_own_weight_as_a_column():
+    """Its upper half shortens by rho g (b^2 - a^2) (1 - nu^2) / (2 E) (a plane-strain column under its
+    own weight, a and b the depths of the markers below its top) within 2 %; the block carries its
+    weight, reported as a rigid object's."""
+    E = 0.01
+    with Session(_gel(E)) as s:
+        r = s.solve()
+        assert r.converged, r.status
+        d = r.to_dict()
+    m = d["markers"]
+    shortening = m["top"]["displacement"][1] - m["mid"]["displacement"][1]
+    a, b = 0.1, 6.0
+    assert shortening == pytest.approx(-1000e-9 * G * (b ** 2 - a ** 2) / 2 * (1 - 0.3 ** 2) / E, rel=0.02)
+    W = 1000e-9 * G * 6 * 12 * 10
+    assert d["objects"]["box"]["weight"][1] == pytest.approx(-W)
+    (pair,) = d["contacts"]
+    assert pair["normal_force"][1] + pair["friction_force"][1] == pytest.approx(-W, rel=1e-5)
+    assert pair["min_distance"] > 0
+
+
+def test_a_stiff_elastic_object_rests_like_a_rigid_one():
+    """E 1e3 times the block's: where it rests, its weight and the contact force are the rigid object's
+    (gravity ramped over 4 load steps: dropped 0.5 mm in one step with friction, the rigid box's lagged
+    friction does not settle)."""
+    out = []
+    for rigid in (True, False):
+        with Session(_gel(E=1e3, rigid=rigid, solver={"steps": 4})) as s:
+            r = s.solve()
+            assert r.converged, r.status
+            out.append(r.to_dict())
+    a, b = (o["objects"]["box"] for o in out)
+    assert np.allclose(a["position"], b["position"], atol=2e-4)
+    assert b["rotation"] == pytest.approx(a["rotation"], abs=1e-5)
+    assert np.allclose(out[0]["contacts"][0]["normal_force"], out[1]["contacts"][0]["normal_force"], rtol=1e-3, atol=1e-6)
+
+
+def test_an_elastic_object_nothing_holds_is_no_equilibrium():
+    d = _gel()
+    d["objects"][0]["outline"] = [[12, 10.5], [18, 10.5], [18, 22.5], [12, 22.5]]
+    d["markers"] = {}
+    with Session(d) as s:
+        r = s.solve()
+    assert not r.converged and r.status == "no equilibrium: object box is not held"
+
+
+@pytest.mark.slow
+def test_a_dropped_elastic_object_falls_at_g():
+    """Released 3 mm above the block (BDF2): its centre of mass falls at g (its mass from its cells)."""
+    d = _gel(E=0.1)
+    d["objects"][0]["outline"] = [[2, 13], [8, 13], [8, 16], [2, 16]]
+    d["markers"] = {"b": [5.0, 14.5]}
+    d["dynamics"] = {"dt": 0.002, "duration": 0.02, "integrator": "bdf2"}
+    with Session(d) as s:
+        r = s.run_in_time()
+        assert r.converged, r.status
+        rows = list(r.report.trajectory)
+    t, y = np.array([q["time"] for q in rows]), np.array([q["b_y"] for q in rows])
+    acc = (y[2:] - 2 * y[1:-1] + y[:-2]) / (t[1] - t[0]) ** 2 * 1e-3
+    assert acc[6] == pytest.approx(-G, rel=1e-3)

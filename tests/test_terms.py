@@ -54,7 +54,8 @@ def _designs():
                           {"name": "right", "outline": [[8.25, 0], [14, 0], [14, 30], [8.25, 30]], "material": "hard"}],
                   pins=[dict(base["pins"][0], region=[[-1, -1], [15, 1e-6]])])
     del bodies["body"]
-    return {"full": full, "spring": spring, "contact": contact, "dynamic": dynamic, "rigid": rigid,
+    elastic = dict(objects, objects=[dict(objects["objects"][0], rigid=False, material="soft")])
+    return {"elastic_object": elastic, "full": full, "spring": spring, "contact": contact, "dynamic": dynamic, "rigid": rigid,
             "friction": friction, "objects": objects, "bodies": bodies}
 
 
@@ -109,7 +110,8 @@ def _gradient(model, term, u, gform):
     return g
 
 
-@pytest.mark.parametrize("name", ["full", "spring", "contact", "dynamic", "rigid", "friction", "objects", "bodies"])
+@pytest.mark.parametrize("name", ["full", "spring", "contact", "dynamic", "rigid", "friction", "objects", "bodies",
+                                  "elastic_object"])
 def test_every_term_gradient_and_hessian_match_central_differences(name):
     import dolfinx.fem.petsc  # noqa: F401
     design = _designs()[name]
@@ -118,7 +120,7 @@ def test_every_term_gradient_and_hessian_match_central_differences(name):
     model.set_factor(0.7)
     seen = set()
     u0 = _perturbed_state(model, 0.02 if name not in ("contact", "objects") else 1e-3)
-    if name == "objects":                             # the box 0.12 mm from the strip: in the barrier's reach
+    if name in ("objects", "elastic_object"):          # the box 0.12 mm from the strip: in the barrier's reach
         box = model.term("objects", "box")
         u0[box.dofs[:, 0]] = -0.13
         model.u.x.array[:] = u0
@@ -208,6 +210,8 @@ def test_every_term_gradient_and_hessian_match_central_differences(name):
         assert {"RigidObject", "PieceContact", "ObjectFriction"} <= seen
     if name == "bodies":
         assert {"PieceContact", "ObjectFriction", "SelfContact"} <= seen
+    if name == "elastic_object":
+        assert {"ElasticObject", "PieceContact", "ObjectFriction", "Elasticity"} <= seen
 
 
 def test_every_builder_is_exercised():

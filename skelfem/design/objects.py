@@ -6,7 +6,7 @@ Keys read here (everything else of these sections is read by skelfem.design)::
     name = "ball"
     outline = [[40, 30], [60, 30], [60, 50], [40, 50]]   # simple polygon, clear of the body at rest
     material = "pla"          # its density gives the weight under [gravity]
-    rigid = true              # the only kind so far (3 DOFs)
+    rigid = true              # default: 3 rigid DOFs; false: meshed and elastic (its material's E and nu)
 
     [contact]
     friction = 0.5            # kinetic Coulomb coefficient, default for every contact (>= 0; default 0)
@@ -165,8 +165,6 @@ def _objects(top, dim: int, materials: dict, bodies: tuple) -> tuple:
         if material not in materials:
             t.fail("material", f"unknown material {material!r} (defined: {', '.join(materials)})")
         rigid = t.take("rigid", "bool", True)
-        if not rigid:
-            t.fail("rigid", "only rigid objects are implemented (rigid = true)")
         t.done()
         if (polygons.meeting_loops([outline, *loops], tol) & {(0, j) for j in range(1, len(loops) + 1)}
                 or polygons.region_contains(loops, outline[:1], tol).any()

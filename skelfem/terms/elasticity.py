@@ -24,7 +24,7 @@ import ufl
 from dolfinx import fem
 from mpi4py import MPI
 
-from ..mesh.geometry import body_tag_name, body_tags, bone_tag_name
+from ..mesh.geometry import body_tag_name, body_tags, bone_tag_name, object_tag_name
 from .base import Context, Term, touched
 from .rigid import closest_rigid_motion
 
@@ -49,11 +49,12 @@ def psi(F, mu, lam):
 
 
 def region_cells(ctx: Context, design) -> dict:
-    """{material name: local cells} over the body and the bones."""
+    """{material name: local cells} over the bodies, the bones and the elastic objects."""
     tm = ctx.tagged
     out: dict = {}
     regions = [(body_tag_name(b), b.material) for b in design.bodies] \
-        + [(bone_tag_name(b.name), b.material) for b in design.bones]
+        + [(bone_tag_name(b.name), b.material) for b in design.bones] \
+        + [(object_tag_name(o.name), o.material) for o in design.objects if not o.rigid]
     for tag_name, material in regions:
         cells = tm.cell_tags.find(tm.tags[tag_name])
         out[material] = np.concatenate([out.get(material, np.zeros(0, np.int32)), cells])
@@ -75,7 +76,8 @@ def elastic_measure(ctx: Context, design):
     if not any(b.rigid for b in design.bones):
         return ufl.dx(metadata={"quadrature_degree": degree})
     tm = ctx.tagged
-    ids = tuple(body_tags(tm, design)) + tuple(tm.tags[bone_tag_name(b.name)] for b in design.bones if not b.rigid)
+    ids = tuple(body_tags(tm, design)) + tuple(tm.tags[bone_tag_name(b.name)] for b in design.bones if not b.rigid) \
+        + tuple(tm.tags[object_tag_name(o.name)] for o in design.objects if not o.rigid)
     return ufl.Measure("dx", domain=ctx.mesh, subdomain_data=tm.cell_tags,
                        metadata={"quadrature_degree": degree})(ids)
 
@@ -133,7 +135,8 @@ class Elasticity(Term):
     def follow(self, ctx: Context, changed: set) -> bool:
         """Same materials and regions (the mesh's tags): keep the fields; drop the bones' node positions."""
         if touched(changed, "materials", "body.material") or any(
-                k.startswith("bones.") and k.rsplit(".", 1)[1] in ("material", "rigid") for k in changed):
+                k.split(".", 1)[0] in ("bones", "objects", "bodies") and k.rsplit(".", 1)[1] in ("material", "rigid")
+                for k in changed):
             return False
         self._groups = self._fit = self._corr = None
         return True

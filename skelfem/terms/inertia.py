@@ -243,10 +243,11 @@ class Inertia(Term):
 
 
 def object_cells(ctx: Context, design) -> dict:
-    """{material name: local cells} over the free rigid objects ([[objects]])."""
+    """{material name: local cells} over the free rigid objects ([[objects]]; elastic ones strain, and
+    region_cells has them)."""
     tm = ctx.tagged
     out: dict = {}
-    for spec in design.objects:
+    for spec in (o for o in design.objects if o.rigid):
         cells = tm.cell_tags.find(tm.tags[object_tag_name(spec.name)])
         out[spec.material] = np.concatenate([out.get(spec.material, np.zeros(0, np.int32)), cells])
     return out

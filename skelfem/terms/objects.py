@@ -1,9 +1,12 @@
-"""Free rigid objects (2D): their rigid motion, weight, contact with the body and the "not held" verdict.
+"""Free objects (2D): their rigid motion, weight, contact with the body and the "not held" verdict.
 
 An object (``[[objects]]``, :mod:`skelfem.design.objects`) is meshed as its
-own region, apart from the body (``object:<name>``); its cells carry no
-strain (Elasticity gives them no material) and its nodes follow three rigid
-DOFs through the machinery of rigid bones (:class:`.rigid.RigidBody`).
+own region, apart from the body (``object:<name>``). A rigid one's cells
+carry no strain (Elasticity gives them no material) and its nodes follow
+three rigid DOFs through the machinery of rigid bones
+(:class:`.rigid.RigidBody`); an elastic one (``rigid = false``,
+:class:`ElasticObject`) strains with its material's E and nu like the body,
+and reports the rigid motion closest to its nodes' (Kabsch).
 Its boundary is part of the mesh boundary, so grounds (:mod:`.grounds`,
 :mod:`.friction`) push it and hold it by friction like the body.
 
@@ -81,6 +84,7 @@ class RigidObject(Term):
         self.body = RigidBody(spec.name, self.dofs, self.X, ctx.comm)
         t = float(ctx.thickness.value)
         w = nodal_areas(V, cells)[owned]
+        self.w_area = w
         self.area = float(ctx.comm.allreduce(w.sum()))
         self.centroid0 = ctx.comm.allreduce(w @ self.X) / self.area
         self.w = KG_PER_M3_TIMES_M_PER_S2 * t * w                 # nodal volumes x (N/mm^3 per kg/m^3 m/s^2)
@@ -141,8 +145,7 @@ class RigidObject(Term):
             return None                         # in a run in time an object may fly: inertia holds it
         u = model.u.x.array
         pull = self.ctx.comm.allreduce((self.k / self.n * u[self.dofs]).sum(axis=0))
-        g = model.full_gradient()[self.dofs] - self.k / self.n * u[self.dofs]       # weight and contacts
-        loads = self.ctx.comm.allreduce(float(np.linalg.norm(g, axis=1).sum()))
+        loads = self.ctx.comm.allreduce(self._loads(model, u))
         moved = self.ctx.comm.allreduce(float(np.abs(u[self.dofs]).max(initial=0.0)), op=MPI.MAX)
         if not converged:
             return f"no equilibrium: object {self.name} is not held" if moved > self.size else None
@@ -150,11 +153,53 @@ class RigidObject(Term):
             return f"no equilibrium: object {self.name} is not held"
         return None
 
+    def _loads(self, model, u: np.ndarray) -> float:
+        """Sum of the magnitudes of the nodal forces on the object but the tether's: weight and contacts
+        (at a rigid object's nodes the full gradient holds just these)."""
+        g = model.full_gradient()[self.dofs] - self.k / self.n * u[self.dofs]
+        return float(np.linalg.norm(g, axis=1).sum())
+
     def readout(self, model) -> dict:
         t, R = self.body.fit(model.u.x.array)
-        c = self.centroid0 + t + (R - np.eye(self.ctx.dim)) @ (self.centroid0 - self.body.c0)
+        c = self.centroid(model.u.x.array, t, R)
         return {self.name: {"position": c, "rotation": float(np.arctan2(R[1, 0], R[0, 0])),
                             "displacement": c - self.centroid0, "weight": self.weight()}}
+
+    def centroid(self, u: np.ndarray, t: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """The centroid at u: the rest centroid moved by the rigid motion (t, R)."""
+        return self.centroid0 + t + (R - np.eye(self.ctx.dim)) @ (self.centroid0 - self.body.c0)
+
+
+class ElasticObject(RigidObject):
+    """A free elastic object: its tether as a rigid one's, its strain by Elasticity and its weight by
+    Gravity (its region has its material, as the body's), and no rigid kinematics; its rotation is the
+    closest rigid motion's. ``weight`` is still reported (and counted in the verdict)."""
+
+    def rigid_body(self):
+        return None
+
+    def energy(self, u: np.ndarray) -> float:
+        ub = u[self.dofs]
+        return float(0.5 * self.k / self.n * np.sum(ub * ub))
+
+    def gradient(self, u: np.ndarray):
+        return self.dofs.ravel(), (self.k / self.n * u[self.dofs]).ravel()
+
+    def _loads(self, model, u: np.ndarray) -> float:
+        """Its weight and the contacts' nodal forces on it (at an elastic object's nodes the full gradient
+        also holds the elastic forces, which balance them)."""
+        g = np.zeros(len(u))
+        for term in model.terms_in("contacts"):
+            out = term.gradient(u)
+            if out is not None:
+                np.add.at(g, out[0], out[1])
+        f = g[self.dofs] - self.factor * self.f
+        return float(np.linalg.norm(f, axis=1).sum())
+
+    def centroid(self, u: np.ndarray, t: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """The centre of mass at u: its nodes' positions weighted by their rest areas (exact for P1)."""
+        y = self.X + u[self.dofs]
+        return self.ctx.comm.allreduce(self.w_area @ y) / self.area
 
 
 class PieceContact(SelfContact):
@@ -286,7 +331,7 @@ def build(ctx: Context) -> list[Term]:
         what = "objects" if d.objects else "bodies"
         raise DesignError(f"{d.source}: {what}: contact between bodies and objects runs on one MPI process "
                           f"(got {ctx.comm.size})")
-    objects = [RigidObject(ctx, spec) for spec in d.objects]
+    objects = [(RigidObject if spec.rigid else ElasticObject)(ctx, spec) for spec in d.objects]
     contact = PieceContact(ctx, objects, d.contact.dhat, barrier_stiffness(d))
     d0 = contact.min_distance(np.zeros(len(ctx.u.x.array)))
     if d0 <= d.contact.dhat:
