@@ -175,7 +175,7 @@ def test_pinch_holds_above_mu_min_and_loses_below():
     (lambda d: d["objects"].append(_box(3, 11, 5, 12, name="b2")), "objects.b2.outline"),
     (lambda d: d["materials"]["pla"].pop("density"), "materials.pla.density"),
     (lambda d: d["objects"][0].update(material="steel"), "objects.box.material"),
-    (lambda d: d["objects"][0].update(rigid=False), "objects.box.rigid"),
+    (lambda d: d["objects"][0].update(rigid="no"), "objects.box.rigid"),
     (lambda d: d["objects"][0].update(mass=1.0), "objects.box.mass"),
     (lambda d: d.update(contact={"pairs": {"soft:steel": 0.3}}), 'contact.pairs."soft:steel"'),
     (lambda d: d.update(contact={"pairs": {"soft:pla": -0.3}}), 'contact.pairs."soft:pla"'),

@@ -201,7 +201,7 @@ class MatrixAssembly:
             cols = np.concatenate([c[5] for c in blocks])
             order = np.lexsort((cols, rows))
             r, k = rows[order], cols[order]
-            new = np.r_[True, (r[1:] != r[:-1]) | (k[1:] != k[:-1])]
+            new = np.r_[True, (r[1:] != r[:-1]) | (k[1:] != k[:-1])] if len(r) else np.zeros(0, bool)   # no rows here
             slot = np.empty(len(order), np.int64)
             slot[order] = np.cumsum(new) - 1
             urows, counts = np.unique(r[new], return_counts=True)

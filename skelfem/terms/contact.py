@@ -33,14 +33,19 @@ faces touch; the exact Hessian converges quadratically there but may
 wander before. Contact pairs change between iterations, so the matrix
 pattern holds the whole boundary-node x boundary-node block.
 
-Runs on one MPI process: ipctk needs the whole boundary.
+Under MPI every rank holds the whole boundary polygon (global node numbers,
+gathered once; the positions through a DofGather at each call) and computes
+the same barrier; each rank adds the rows it owns, and the collision-free
+step is the smallest over ranks.
 """
 from __future__ import annotations
 
 import ipctk
 import numpy as np
+import scipy.sparse as sp
 from dolfinx import fem as dolfinx_fem
 from dolfinx import mesh as dmesh
+from mpi4py import MPI
 
 from ..mesh.geometry import body_tag_name, object_tag_name
 from .base import Context, Term
@@ -71,8 +76,29 @@ def boundary_polygon(V) -> tuple[np.ndarray, np.ndarray]:
         pairs = fdofs
     else:                                                         # P2: a -> midpoint -> b
         pairs = np.vstack([fdofs[:, [0, 2]], fdofs[:, [2, 1]]])
+    comm = mesh.comm
+    if comm.size > 1:                    # global node numbers, the whole boundary on every rank
+        imap = V.dofmap.index_map
+        pairs = imap.local_to_global(pairs.ravel().astype(np.int32)).reshape(pairs.shape)
+        pairs = np.unique(np.sort(np.vstack(comm.allgather(pairs)), axis=1), axis=0)
     nodes = np.unique(pairs)
-    return nodes.astype(np.int32), np.searchsorted(nodes, pairs).astype(np.int32)
+    return nodes.astype(np.int64 if comm.size > 1 else np.int32), np.searchsorted(nodes, pairs).astype(np.int32)
+
+
+def boundary_coordinates(V, nodes: np.ndarray) -> np.ndarray:
+    """Rest coordinates of boundary nodes: local indices in serial, global numbers (every rank) under MPI."""
+    x = V.tabulate_dof_coordinates()[:, :V.mesh.geometry.dim]
+    comm = V.mesh.comm
+    if comm.size == 1:
+        return x[nodes]
+    imap = V.dofmap.index_map
+    n = imap.size_local
+    glob = imap.local_to_global(np.arange(n, dtype=np.int32))
+    mine = np.isin(glob, nodes)
+    X = np.zeros((len(nodes), x.shape[1]))
+    X[np.searchsorted(nodes, glob[mine])] = x[:n][mine]
+    comm.Allreduce(MPI.IN_PLACE, X, op=MPI.SUM)            # each node owned by one rank
+    return X
 
 
 def fortran_array(a) -> np.ndarray:
@@ -86,10 +112,13 @@ class SelfContact(Term):
     bounds_steps = True
 
     def __init__(self, V, dhat: float, stiffness: float, thickness: float = 1.0, project: bool = True):
+        from ..mesh.points import DofGather
         self.bs = V.dofmap.index_map_bs
-        self.nodes, self.edges = boundary_polygon(V)
+        self.nodes, self.edges = boundary_polygon(V)        # under MPI: global numbers, on every rank
         self.dofs = (self.nodes[:, None] * self.bs + np.arange(self.bs)).ravel()   # unrolled, node-major
-        self.X = V.tabulate_dof_coordinates()[self.nodes, :self.bs]
+        self.X = boundary_coordinates(V, self.nodes)
+        self.comm = V.mesh.comm
+        self.gather = DofGather(V, self.dofs) if self.comm.size > 1 else None
         self.dhat, self.kappa, self.t = float(dhat), float(stiffness), float(thickness)
         self.project = project
         self.approach = 0.8       # fraction of the way to first contact a step may go
@@ -97,9 +126,13 @@ class SelfContact(Term):
         self.barrier = ipctk.BarrierPotential(self.dhat, self.kappa, True)
 
     # -- geometry ------------------------------------------------------------------------
+    def boundary_values(self, u: np.ndarray) -> np.ndarray:
+        """u on the boundary DOFs (self.dofs), from a local array (gathered from every rank under MPI)."""
+        return u[self.dofs] if self.gather is None else self.gather(u)
+
     def positions(self, u: np.ndarray) -> np.ndarray:
         """Current boundary node positions x = X + u, (n_nodes, 2)."""
-        return self.X + u[self.dofs].reshape(-1, self.bs)
+        return self.X + self.boundary_values(u).reshape(-1, self.bs)
 
     def collisions(self, y: np.ndarray, dhat: float | None = None) -> ipctk.NormalCollisions:
         c = ipctk.NormalCollisions()
@@ -136,16 +169,16 @@ class SelfContact(Term):
         return self.dofs, self.t * np.asarray(g).ravel()
 
     def hessian(self, u: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-        """One dense block on the DOFs that take part in a collision (none if no contact)."""
+        """One sparse block over the boundary DOFs, its entries where collisions couple them (none if no
+        contact)."""
         y = self.positions(u)
         c = self.collisions(y)
         if len(c) == 0:
             return []
         method = ipctk.PSDProjectionMethod.CLAMP if self.project else ipctk.PSDProjectionMethod.NONE
-        H = self.barrier.hessian(c, self.mesh, fortran_array(y), method).tocsr()
-        active = np.flatnonzero(np.diff(H.indptr))
-        block = H[active][:, active].toarray()
-        return [(self.dofs[active], self.t * block)]
+        H = sp.coo_matrix(self.barrier.hessian(c, self.mesh, fortran_array(y), method))
+        H.sum_duplicates()
+        return [(self.dofs, self.t * H)]
 
     def pattern(self) -> list:
         """Node blocks the Hessian may fill: every boundary node with every other."""
@@ -161,8 +194,10 @@ class SelfContact(Term):
         collision-free step size (the time of first contact, conservatively).
         """
         y0 = self.positions(u0)
-        y1 = y0 + p[self.dofs].reshape(-1, self.bs)
+        y1 = y0 + self.boundary_values(p).reshape(-1, self.bs)
         toi = float(ipctk.compute_collision_free_stepsize(self.mesh, fortran_array(y0), fortran_array(y1)))
+        if self.gather is not None:                          # one step for every rank
+            toi = self.comm.allreduce(toi, op=MPI.MIN)
         return toi if toi >= 1.0 else self.approach * toi
 
     def admissible(self, u: np.ndarray) -> bool:
@@ -178,8 +213,6 @@ def build(ctx: Context) -> list[Term]:
     where = f"{d.source}: contact.self"
     if d.dim != 2:                     # a guard: design.py refuses it when read
         raise DesignError(f"{where}: self-contact is implemented for dim = 2 only")
-    if ctx.comm.size > 1:
-        raise DesignError(f"{where}: self-contact runs on one MPI process (got {ctx.comm.size})")
     if d.solver.line_search not in ("auto", *ENERGY_LINE_SEARCHES):   # a guard: design.py refuses it when read
         raise DesignError(f"{where}: self-contact needs solver.line_search = \"energy\" or \"curved\" "
                           f"(got {d.solver.line_search!r}): only it limits steps to collision-free ones")
@@ -211,7 +244,12 @@ def piece_labels(ctx: Context, nodes: np.ndarray) -> np.ndarray:
     regions = [body_tag_name(b) for b in design.bodies] + [object_tag_name(o.name) for o in design.objects]
     for k, region in enumerate(regions):
         cells = tm.cell_tags.find(tm.tags[region])
-        label[np.isin(nodes, dolfinx_fem.locate_dofs_topological(V, ctx.mesh.topology.dim, cells))] = k
+        mine = dolfinx_fem.locate_dofs_topological(V, ctx.mesh.topology.dim, cells)
+        if ctx.comm.size > 1:                 # nodes are global numbers; each rank marks those it has
+            mine = V.dofmap.index_map.local_to_global(mine.astype(np.int32))
+        label[np.isin(nodes, mine)] = k
+    if ctx.comm.size > 1:
+        ctx.comm.Allreduce(MPI.IN_PLACE, label, op=MPI.MAX)
     return label
 
 

@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from mpi4py import MPI
 
 from .base import Term
 from .contact import barrier_stiffness, fortran_array
@@ -68,6 +69,7 @@ class ObjectFriction(Term):
         design = ctx.design
         self.u_fn = ctx.u
         self.c = contact
+        self.gather = contact.gather
         self.t = contact.t
         self.bs = contact.bs
         X = contact.X
@@ -204,12 +206,19 @@ class ObjectFriction(Term):
         return on, np.where(stick, K * d, F * np.sign(d))          # de/dd
 
     def gradient(self, u: np.ndarray):
+        """On the contact's boundary DOFs (all of them: under MPI its gather's)."""
         if not self.active:
             return None
         on, f = self._force(u)
         if not len(on):
             return None
-        return self._dofs(on).ravel(), (f[:, None] * self._coefficients(on)).ravel()
+        g = np.zeros(len(self.c.dofs))
+        np.add.at(g, self._positions(on).ravel(), (f[:, None] * self._coefficients(on)).ravel())
+        return self.c.dofs, g
+
+    def _positions(self, on: np.ndarray) -> np.ndarray:
+        """(n, 6) positions in the contact's boundary DOFs of _dofs(on)."""
+        return np.searchsorted(self.c.dofs, self._dofs(on))
 
     def hessian(self, u: np.ndarray) -> list:
         if not self.active:
@@ -222,8 +231,13 @@ class ObjectFriction(Term):
         if not len(on):
             return []
         g = self._coefficients(on)
-        H = sp.block_diag(list(K[:, None, None] * g[:, :, None] * g[:, None, :]), format="coo")
-        return [(self._dofs(on).ravel(), H)]
+        pos = self._positions(on)
+        values = K[:, None, None] * g[:, :, None] * g[:, None, :]
+        rows = np.repeat(pos[:, :, None], pos.shape[1], axis=2)
+        cols = np.repeat(pos[:, None, :], pos.shape[1], axis=1)
+        n = len(self.c.dofs)
+        H = sp.coo_matrix((values.ravel(), (rows.ravel(), cols.ravel())), shape=(n, n))
+        return [(self.c.dofs, H)]
 
     def pattern(self) -> list:
         return self.c.pattern()          # a vertex with another piece's edge: the barrier's blocks
@@ -290,7 +304,7 @@ class ObjectFriction(Term):
     def set_factor(self, a: float) -> None:
         """A new attempt at a step starts from the committed states; a ramp from rest (u = 0) from none."""
         if self.active:
-            if not np.any(self.u_fn.x.array):
+            if not self.c.comm.allreduce(bool(np.any(self.u_fn.x.array)), op=MPI.LOR):
                 self.edge[:], self.N[:], self.run[:], self.sliding[:] = -1, 0.0, 0.0, False
                 self._N_step = self.N.copy()
             self.N = self._N_step.copy()          # a failed attempt's lagged N is forgotten

@@ -125,7 +125,11 @@ class RigidObject(Term):
 
     def energy(self, u: np.ndarray) -> float:
         ub = u[self.dofs]
-        return float(-self.factor * np.sum(self.f * ub) + 0.5 * self.k / self.n * np.sum(ub * ub))
+        return self._total(float(-self.factor * np.sum(self.f * ub) + 0.5 * self.k / self.n * np.sum(ub * ub)))
+
+    def _total(self, local: float) -> float:
+        """Pi is global: the sum over ranks of each one's owned nodes."""
+        return self.ctx.comm.allreduce(local) if self.ctx.comm.size > 1 else local
 
     def gradient(self, u: np.ndarray):
         return self.dofs.ravel(), (-self.factor * self.f + self.k / self.n * u[self.dofs]).ravel()
@@ -180,7 +184,7 @@ class ElasticObject(RigidObject):
 
     def energy(self, u: np.ndarray) -> float:
         ub = u[self.dofs]
-        return float(0.5 * self.k / self.n * np.sum(ub * ub))
+        return self._total(float(0.5 * self.k / self.n * np.sum(ub * ub)))
 
     def gradient(self, u: np.ndarray):
         return self.dofs.ravel(), (self.k / self.n * u[self.dofs]).ravel()
@@ -191,8 +195,12 @@ class ElasticObject(RigidObject):
         g = np.zeros(len(u))
         for term in model.terms_in("contacts"):
             out = term.gradient(u)
-            if out is not None:
+            if out is None:
+                continue
+            if term.gather is None:
                 np.add.at(g, out[0], out[1])
+            else:
+                term.gather.scatter_add(out[1], g)
         f = g[self.dofs] - self.factor * self.f
         return float(np.linalg.norm(f, axis=1).sum())
 
@@ -268,19 +276,22 @@ class PieceContact(SelfContact):
             k = float(ground.parameters()[f"grounds.{ground.name}.stiffness"])
             friction = next((t for t in model.terms_in("grounds") if isinstance(t, GroundFriction)
                              and t.name == ground.name and t.nodal is not None), None)
+            comm, owned = self.comm, model.V.dofmap.index_map.size_local
             for obj in self.objects:
-                nodes = obj.nodes[self._weights[obj.nodes] > 0]
+                nodes = obj.nodes[(obj.nodes < owned)]                # each node counted by its owner
+                nodes = nodes[self._weights[nodes] > 0]
                 y = X[nodes] + u[(nodes[:, None] * self.bs + np.arange(self.bs))]
-                N = k * self.t * self._weights[nodes] * np.maximum(-((y - ground.point) @ ground.normal), 0.0)
-                if not N.sum() > 0:
+                N = comm.allreduce(float((k * self.t * self._weights[nodes]
+                                          * np.maximum(-((y - ground.point) @ ground.normal), 0.0)).sum()))
+                if not N > 0:
                     continue
-                entry = {"between": [ground.name, obj.name], "normal_force": -N.sum() * ground.normal}
+                entry = {"between": [ground.name, obj.name], "normal_force": -N * ground.normal}
                 if friction is not None:
                     fn, ff, slipping, Nf = friction.nodal
                     mine = np.isin(fn, nodes)
-                    held = float(Nf[mine & ~slipping].sum())
-                    entry.update(friction_force=ff[mine].sum(axis=0),
-                                 sticking=held / float(Nf[mine].sum()) if Nf[mine].sum() > 0 else 1.0)
+                    held, total = comm.allreduce(np.array([Nf[mine & ~slipping].sum(), Nf[mine].sum()]))
+                    entry.update(friction_force=comm.allreduce(ff[mine].sum(axis=0)),
+                                 sticking=float(held / total) if total > 0 else 1.0)
                 out[f"{ground.name}|{obj.name}"] = entry
         return out
 
@@ -327,10 +338,6 @@ def build(ctx: Context) -> list[Term]:
     d = ctx.design
     if len(d.bodies) + len(d.objects) < 2:
         return []
-    if ctx.comm.size > 1:
-        what = "objects" if d.objects else "bodies"
-        raise DesignError(f"{d.source}: {what}: contact between bodies and objects runs on one MPI process "
-                          f"(got {ctx.comm.size})")
     objects = [(RigidObject if spec.rigid else ElasticObject)(ctx, spec) for spec in d.objects]
     contact = PieceContact(ctx, objects, d.contact.dhat, barrier_stiffness(d))
     d0 = contact.min_distance(np.zeros(len(ctx.u.x.array)))
