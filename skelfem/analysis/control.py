@@ -127,6 +127,7 @@ class SoftIK:
         self.forward_solves = 0                # over the object's life
         self.failed_solves = 0
         self.newton_iterations = 0
+        self.approximate_jacobians = 0         # steps steered without friction's coupling (see jacobian)
 
     def _upper_bounds(self, upper: dict) -> np.ndarray:
         """Each tendon's largest contraction: the user's bound, and never more than MAX_SHORTENING of
@@ -202,7 +203,15 @@ class SoftIK:
         lin = Linearization(self.model, self.solver)
         try:
             self.one_sided = np.isin(np.arange(len(self.names)), lin.kinked)
-            return lin.marker_jacobian(self.index)
+            try:
+                return lin.marker_jacobian(self.index)
+            except RuntimeError as exc:            # friction's coupling too strong for GMRES: steer without it
+                if not lin.lagged:
+                    raise
+                log.warning("Soft IK: %s; this step uses the Jacobian with friction's normal forces held", exc)
+                lin.lagged = []
+                self.approximate_jacobians += 1
+                return lin.marker_jacobian(self.index)
         finally:
             lin.destroy()
 

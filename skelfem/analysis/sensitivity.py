@@ -43,10 +43,14 @@ vanish. Everything here works on any number of MPI ranks.
 """
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 from petsc4py import PETSc
 
 from ..terms.contact import SelfContact
+
+log = logging.getLogger("skelfem")
 
 KINK = 1e-12      # |s| <= KINK * L0 counts as a tendon exactly at its rest length
 
@@ -371,7 +375,8 @@ def _friction_solve(lin, model, target, terms, frozen, u, h, tol) -> np.ndarray:
 
 def _gmres(matvec, rhs: np.ndarray, tol: float, restart: int, maxiter: int, what: str) -> np.ndarray:
     """y with matvec(y) = rhs to tol |rhs| by GMRES from y = rhs (a preconditioned system I + small);
-    RuntimeError naming `what` if it does not get there."""
+    short of it but within GMRES_ACCEPT |rhs| (a strong coupling, e.g. a disk rolled between two
+    fingers), y with a warning; RuntimeError naming `what` beyond."""
     from scipy.sparse.linalg import LinearOperator, gmres
     n = len(rhs)
     A = LinearOperator((n, n), matvec=lambda v: matvec(np.asarray(v).ravel()), dtype=float)
@@ -382,5 +387,11 @@ def _gmres(matvec, rhs: np.ndarray, tol: float, restart: int, maxiter: int, what
         y, info = gmres(A, rhs, x0=rhs, tol=0.0, atol=atol, restart=restart, maxiter=maxiter)
     residual = float(np.linalg.norm(A.matvec(y) - rhs))
     if info != 0 and residual > 1e3 * atol:        # SciPy 1.10 may report its iteration limit when done
-        raise RuntimeError(f"{what}: GMRES did not converge (|r| {residual:.3g})")
+        scale = max(float(np.linalg.norm(rhs)), 1e-300)
+        if residual > GMRES_ACCEPT * scale:
+            raise RuntimeError(f"{what}: GMRES did not converge (|r| {residual:.3g})")
+        log.warning("%s: GMRES reached %.2g relative, not %.2g", what, residual / scale, tol)
     return y
+
+
+GMRES_ACCEPT = 1e-6       # a derivative this accurate still steers Soft IK and optimisation
