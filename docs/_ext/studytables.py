@@ -133,6 +133,19 @@ def bench(_: dict) -> Table:
                   "iterations", "ratio", "nnz FE", "nnz K"], rows, caption, [path])
 
 
+def in_hand_roll(_: dict) -> Table:
+    d, path = load_json("in_hand_roll/in_hand_roll.json", "python studies/in_hand_roll.py")
+    rows = [[f"{r['target_deg']:g}", num(-r["rotation_deg"], 3), num(r["error"], 2), r["status"],
+             ", ".join(num(u, 3) for u in r["contractions"]), str(r["forward_solves"]),
+             ", ".join(num(v, 2) for v in r["sticking"].values()), num(r["min_distance"], 2)] for r in d["rows"]]
+    caption = (f"{d['design']}, {d['dofs']:,} DOFs; tendons {', '.join(d['tendons'])}; {d['reached']} of "
+               f"{len(d['rows'])} targets reached, the disk turned {num(d['largest_rotation_deg'], 3)}° in all, "
+               f"{d['approximate_jacobians']} IK steps without friction's coupling; {secs(d['seconds'])} for "
+               "the whole run.")
+    return Table(["target [°]", "disk turned [°]", "marker error [mm]", "IK", "contractions [mm]", "solves",
+                  "sticking (left, right)", "min distance [mm]"], rows, caption, [path])
+
+
 def mpi_speed(_: dict) -> Table:
     d, path = load_json("mpi_speed/mpi_speed.json", "python studies/mpi_speed.py")
     n = d["ranks"]
@@ -529,7 +542,7 @@ def cable_friction_cost(_: dict) -> Table:
                   "far end [N]"], rows, caption, [path])
 
 
-TABLES = {f.__name__: f for f in (bench, mpi_speed, editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
+TABLES = {f.__name__: f for f in (bench, in_hand_roll, mpi_speed, editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
                                   tol_check, tol_check_adaptive, scatter, adaptive_reach, adaptive_tol_runs,
                                   stability, stability_slender, friction_stability, peer, pull_test, dynamics_checks, grasp, grasp_bench,
                                   cable_friction, capstan, cable_friction_cost)}
