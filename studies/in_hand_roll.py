@@ -101,21 +101,26 @@ def _title(angle: float, rows: list) -> str:
     return f"target {angle:.0f}°: disk turned {abs(row['rotation_deg']):.0f}°"
 
 
+def _draw(ax, angle: float, snap, rows: list) -> None:
+    """One pose around the disk: the fingertips, the disk and the contact forces."""
+    from skelfem.viz.plots import plot_deformed
+    plot_deformed(None, snap, _title(angle, rows), ax=ax)
+    if ax.get_legend() is not None:
+        ax.get_legend().remove()
+    ax.set_xlim(45, 95)
+    ax.set_ylim(-20, 14)
+
+
 def _poses(path: Path, frames: list, rows: list) -> None:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     from skelfem.io.files import atomic_write
-    from skelfem.viz.plots import plot_deformed
     picks = [frames[0], frames[len(frames) // 2], frames[-1]]
     fig = Figure(figsize=(13, 4.4), dpi=110)
     FigureCanvasAgg(fig)
     axes = fig.subplots(1, 3)
     for ax, (angle, snap) in zip(axes, picks):
-        plot_deformed(None, snap, _title(angle, rows), ax=ax)
-        if ax.get_legend() is not None:
-            ax.get_legend().remove()
-        ax.set_xlim(45, 95)
-        ax.set_ylim(-20, 14)
+        _draw(ax, angle, snap, rows)
     fig.tight_layout()
     atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
 
@@ -127,17 +132,11 @@ def _gif(path: Path, frames: list, rows: list) -> None:
     from matplotlib.figure import Figure
     from PIL import Image
     from skelfem.io.files import atomic_write
-    from skelfem.viz.plots import plot_deformed
     images = []
     for angle, snap in frames:
         fig = Figure(figsize=(5, 4), dpi=80)
         FigureCanvasAgg(fig)
-        ax = fig.subplots()
-        plot_deformed(None, snap, _title(angle, rows), ax=ax)
-        if ax.get_legend() is not None:
-            ax.get_legend().remove()
-        ax.set_xlim(45, 95)
-        ax.set_ylim(-20, 14)
+        _draw(fig.subplots(), angle, snap, rows)
         fig.tight_layout()
         buf = io.BytesIO()
         fig.savefig(buf, format="png")
