@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 from dolfinx import fem
 from dolfinx import mesh as dmesh
-from mpi4py import MPI
 
 from _designs import simulate_refused_before_meshing, strip, variant
 from _studies import load_study

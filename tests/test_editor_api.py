@@ -467,3 +467,30 @@ def test_3d_design_opens_read_only(tmp_path):
         assert status == 200 and a["editor"]["how"] == "unchanged"
     finally:
         ed.stop()
+
+
+def test_several_bodies_open_solve_and_show_the_forces_between_them(tmp_path):
+    """geometry/two_fingers.toml in the editor: both bodies' regions, the contact between them (forces on
+    the right finger for the arrows), and a live edit of one body's outline re-meshes."""
+    from skelfem.editor.server import Editor
+    d = tomllib.loads((GEOMETRY / "two_fingers.toml").read_text())
+    d["mesh"]["size"] = 3.0
+    from _designs import toml_text
+    (tmp_path / "two.toml").write_text(toml_text(d))
+    ed = Editor(tmp_path / "two.toml", port=0).start()
+    try:
+        status, a = solve(ed, d)
+        assert status == 200 and a["converged"]
+        m = a["mesh"]
+        assert {"body:left", "body:right"} <= set(m["region_names"].values())
+        assert [c["between"] for c in a["contacts"]] == [["left", "right"]]
+        (right,) = [o for o in m["objects"] if o["name"] == "right"]
+        assert len(right["points"]) and len(right["outline"]) == 0       # forces on a body: no outline
+        d2 = copy.deepcopy(d)
+        d2["bodies"][1]["outline"][0][0] -= 1.0                        # the right finger's top corner
+        status, b = solve(ed, d2)
+        assert status == 200 and b["converged"]
+        status, bad = solve(ed, {**d2, "bodies": [d2["bodies"][0], {**d2["bodies"][1], "outline": d2["bodies"][0]["outline"]}]})
+        assert status == 422 and bad["key"].startswith("bodies.right.outline")
+    finally:
+        ed.stop()
