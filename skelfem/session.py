@@ -193,9 +193,10 @@ class Session:
             return "moved nodes" if morph and np.any(x != self._morph.X0) else "same mesh"
         old_model, old_solved = self.model, self.solved
         start = None
-        # a new mesh cannot take friction's history (anchors on the old boundary): a path-dependent design
-        # solves its load path from rest again, as skelfem simulate does
-        if old_solved and self.comm.size == 1 and not old_model.path_dependent:
+        # the same outlines on a new mesh (a --tol ladder's next level): friction's history (anchors on the
+        # old boundary) cannot follow, so a path-dependent design solves its load path from rest again, as
+        # skelfem simulate does; an edited outline starts from the carried-over state as any edit
+        if old_solved and self.comm.size == 1 and not (old_model.path_dependent and self._same_outlines(design)):
             start = (old_model.V.tabulate_dof_coordinates()[:, :old_model.dim].copy(),
                      old_model.u.x.array.reshape(-1, old_model.bs).copy(), old_model)
         saved = (self.design, self.size, self.model, self.solver, self.solved, self._meshed, self._morph,
@@ -216,19 +217,20 @@ class Session:
         self._release(old_model)
         return "re-meshed"
 
+    def _same_outlines(self, design) -> bool:
+        from .mesh.morph import same_polygons
+        return same_polygons(design, self.design)
+
     def _same_mesh(self, design, morph: bool) -> np.ndarray | None:
         """Node coordinates of the current mesh fit for design (see edit), or None to re-mesh."""
-        from .mesh.morph import Morph, polygons
+        from .mesh.morph import Morph, same_polygons
         meshed = self._meshed
         if (self.comm.size != 1 or design.dim != 2 or self.model is None
                 or float(design.mesh.size) != float(meshed.mesh.size)
                 or int(design.mesh.degree) != int(self.design.mesh.degree)):
             return None
         if not morph:                   # the polygons as meshed, or a new mesh (no Morph needed to tell)
-            new, old = polygons(design), polygons(meshed)
-            same = len(new) == len(old) and all(p.shape == q.shape and np.array_equal(p, q)
-                                                for p, q in zip(new, old))
-            if not same:
+            if not same_polygons(design, meshed):
                 return None
             return self._morph.X0 if self._morph is not None else self.model.mesh.geometry.x[:, :2].copy()
         if self._morph is None:

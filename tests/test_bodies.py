@@ -236,3 +236,21 @@ def test_solution_xdmf_holds_the_contact_forces_and_tractions(tmp_path):
         ratio = np.linalg.norm(F, axis=1)[np.linalg.norm(F, axis=1) > 0] / \
             np.linalg.norm(T, axis=1)[np.linalg.norm(F, axis=1) > 0] / 10.0     # share of the boundary, mm
         assert np.all(ratio > 0.2) and np.all(ratio < 2.5 * 2.0)               # about the mesh size
+
+
+def test_a_frictional_design_on_a_finer_mesh_solves_its_load_path_again():
+    """Friction's history lives on the old boundary: the same outlines re-meshed (a --tol ladder's next
+    level) start from rest; an edited outline starts from the carried-over state."""
+    d = _two(mu=0.5)
+    with Session(parse_design(d)) as s:
+        assert s.solve().converged
+        s.edit(parse_design(dict(d, mesh={"size": 1.5})))
+        assert not s.solved                                   # cold: the load path from rest
+        r = s.solve()
+        assert r.converged and r.contacts
+        d2 = copy.deepcopy(d)
+        d2["mesh"] = {"size": 1.5}
+        d2["bodies"][1]["outline"][2][0] += 1.0              # the right strip's top corner moves out
+        s.edit(parse_design(d2))
+        assert s.solved                                       # warm: the carried-over state
+        assert s.solve().converged

@@ -19,13 +19,24 @@ from skelfem.cli.main import main
 
 ROOT = Path(__file__).resolve().parents[1]
 GEOMETRY = ROOT / "geometry"
-DESIGNS_2D = sorted(p.stem for p in GEOMETRY.glob("*.toml") if tomllib.loads(p.read_text()).get("dim", 2) == 2)
+DESIGNS_2D = sorted(p.stem for p in GEOMETRY.glob("*.toml") if tomllib.loads(p.read_text()).get("dim", 2) == 2
+                    and "bodies" not in tomllib.loads(p.read_text()))     # one body: fabricate casts one
+SEVERAL_BODIES = sorted(p.stem for p in GEOMETRY.glob("*.toml") if "bodies" in tomllib.loads(p.read_text()))
 DESIGN_3D = "finger3d"
 DESIGNS = DESIGNS_2D + [DESIGN_3D]
 
 
 def test_every_2d_design_is_covered():
     assert set(DESIGNS_2D) >= {"finger", "finger4", "finger_bones", "finger_knuckles", "finger_soft"}
+
+
+@pytest.mark.parametrize("name", SEVERAL_BODIES)
+def test_a_design_of_several_bodies_is_refused_in_one_line(name, tmp_path, capsys):
+    out = tmp_path / "fab"
+    assert main(["fabricate", str(GEOMETRY / f"{name}.toml"), "--out", str(out), "-q"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and "bodies: fabrication casts one body" in err[0]
+    assert not out.exists()
 
 
 @pytest.fixture(scope="module")

@@ -31,6 +31,12 @@ import scipy.sparse.linalg as spla
 MIN_QUALITY = 0.25        # smallest shape ratio 2 r / R of a moved triangle (1: equilateral)
 
 
+def same_polygons(a, b) -> bool:
+    """Whether two designs have the same closed polygons, vertex for vertex."""
+    new, old = polygons(a), polygons(b)
+    return len(new) == len(old) and all(p.shape == q.shape and np.array_equal(p, q) for p, q in zip(new, old))
+
+
 def polygons(design) -> list[np.ndarray]:
     """The design's closed polygons, in a fixed order: each body's outline and holes, bone outlines, object
     outlines."""
