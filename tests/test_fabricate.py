@@ -150,6 +150,16 @@ def expected_bone_volume(name, bone, report) -> tuple[float, float]:
     return shoelace(outline) * depth - removed, removed
 
 
+def step_solids(path: Path) -> tuple[int, float]:
+    """(number of solids, their volume in mm^3) of a STEP file read back by OpenCASCADE (through Gmsh)."""
+    from skelfem.design.occ import gmsh_model
+    with gmsh_model("read-back") as model:
+        model.occ.importShapes(str(path))
+        model.occ.synchronize()
+        solids = model.getEntities(3)
+        return len(solids), float(sum(model.occ.getMass(3, t) for _, t in solids))
+
+
 # -- the checks the issue asks for ---------------------------------------------------------------------------------
 @pytest.mark.slow
 @pytest.mark.parametrize("name", DESIGNS)
@@ -162,6 +172,8 @@ def test_every_part_is_a_closed_oriented_solid(name, fabricated):
         assert entry["stl"] == f"{part}.stl" and (out / entry["stl"]).is_file()
         assert (out / entry["step"]).read_bytes().startswith(b"ISO-10303-21")
         r = solid_report(out / entry["stl"])
+        count, volume = step_solids(out / entry["step"])        # the STEP file holds exactly its part
+        assert count == 1 and volume == pytest.approx(r["volume"], rel=1e-3), (part, count, volume, r["volume"])
         assert r["edges_not_two"] == 0 and r["directed_repeats"] == 0 and r["zero_area"] == 0, (part, r)
         assert r["volume"] > 0 and r["volume"] == pytest.approx(entry["volume"], rel=0.01), (part, r)
         assert report["checks"]["stl"][part]["oriented"] and report["checks"]["stl"][part]["parts"] == 1

@@ -108,7 +108,7 @@ def build_bone(plan: Plan, bone, folder: Path | None = None) -> Part:
     design = plan.design
     with gmsh_model(f"skelfem-fabricate-bone-{bone.name}"):
         occ = gmsh.model.occ
-        _, tags = add_design_solids(occ, design, plan.spec.bone_depth or None, bones=[bone.name])
+        _, tags = add_design_solids(occ, design, plan.spec.bone_depth or None, bones=[bone.name], body=False)
         solid = [(3, t) for t in tags[bone.name]]
         tools = [s for tool in plan.bone_tools[bone.name] for s in _shapes(occ, tool)]
         removed = 0.0

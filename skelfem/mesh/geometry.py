@@ -54,27 +54,38 @@ class TaggedMesh:
 
 
 
-def add_design_solids(occ, design, bone_depth: float | None = None, bones=None) -> tuple[list[int], dict]:
+def add_design_solids(occ, design, bone_depth: float | None = None, bones=None,
+                      body: bool = True) -> tuple[list[int], dict]:
     """The design's body and bones as separate OCC volumes (not fragmented): (body tags, {bone: tags}).
 
     2D outlines are extruded along z: the body (outline minus holes) through
     [0, thickness], each bone over bone_depth centred in the slab. 3D solids
-    are the unions of their primitives. bones: the names to build (default all).
+    are the unions of their primitives. bones: the names to build (default all);
+    body = False builds no body (its tags are then []): a model that is written
+    whole, as a bone's STEP file, must hold the bone alone.
     Used by skelfem.fabricate, which needs the solids themselves, not a mesh.
     """
     wanted = [b for b in design.bones if bones is None or b.name in bones]
+    if not body:
+        return [], _bone_solids(occ, design, wanted, bone_depth)
     if design.dim == 3:
         body = fuse(occ, 3, [add_solid(occ, s) for s in design.body.solids])
-        return body, {b.name: fuse(occ, 3, [add_solid(occ, s) for s in b.solids]) for b in wanted}
+        return body, _bone_solids(occ, design, wanted, bone_depth)
     t = float(design.thickness)
     body = [add_solid(occ, {"extrude": {"outline": design.body.outline, "z": [0.0, t]}})]
     if design.body.holes:
         holes = [(3, add_solid(occ, {"extrude": {"outline": h, "z": [-1.0, t + 1.0]}})) for h in design.body.holes]
         out, _ = occ.cut([(3, body[0])], holes)
         body = [tag for d, tag in out if d == 3]
+    return body, _bone_solids(occ, design, wanted, bone_depth)
+
+
+def _bone_solids(occ, design, wanted: list, bone_depth: float | None) -> dict:
+    if design.dim == 3:
+        return {b.name: fuse(occ, 3, [add_solid(occ, s) for s in b.solids]) for b in wanted}
+    t = float(design.thickness)
     z0 = 0.5 * (t - float(bone_depth if bone_depth is not None else t))
-    bones = {b.name: [add_solid(occ, {"extrude": {"outline": b.outline, "z": [z0, t - z0]}})] for b in wanted}
-    return body, bones
+    return {b.name: [add_solid(occ, {"extrude": {"outline": b.outline, "z": [z0, t - z0]}})] for b in wanted}
 
 
 def _build_model(gmsh, design) -> dict:
