@@ -254,3 +254,27 @@ def test_a_frictional_design_on_a_finer_mesh_solves_its_load_path_again():
         s.edit(parse_design(d2))
         assert s.solved                                       # warm: the carried-over state
         assert s.solve().converged
+
+
+@pytest.mark.parametrize("change, key", [
+    (lambda d: d.update(bodies=[]), "bodies: at least one entry"),
+    (lambda d: d.update(bodies=[1, 2]), "bodies: must be an array of tables"),
+    (lambda d: d["bodies"][1].update(name="left"), "bodies.left.name: duplicate name"),
+    (lambda d: d["bodies"][1].update(colour="red"), "bodies.right.colour: unknown key"),
+    (lambda d: d["bodies"][1].update(outline=[[float("nan"), 0], [1, 0], [1, 1]]), "bodies.right.outline: must be finite"),
+    (lambda d: d["bodies"][1].update(outline=[[2, 2], [4, 2], [4, 4], [2, 4]]), "bodies.right.outline: overlaps"),
+    (lambda d: d.update(objects=[{"name": "o", "outline": [[12, 5], [14, 5], [14, 7]], "material": "hard"}]),
+     "objects.o.outline: overlaps the body"),
+    (lambda d: d.update(grounds=[{"name": "g", "point": [15, 0], "normal": [-1, 0], "stiffness": 1.0}]),
+     "grounds.g.point: the plane cuts the body"),
+    (lambda d: d.update(markers={"m": [10.1, 5]}), "markers.m: the marker lies outside"),
+    (lambda d: d.update(cables=[{"name": "c", "kind": "tendon", "path": [[5, 5], [15, 5]], "stiffness": 1.0}]),
+     "cables.c.path: the cable leaves the body"),
+])
+def test_every_section_checks_itself_against_every_body(change, key):
+    """The sections that look at the body look at all of them: objects, grounds, markers and cables."""
+    d = _two()
+    change(d)
+    with pytest.raises(DesignError) as e:
+        parse_design(d, "two.toml")
+    assert key in str(e.value) and "\n" not in str(e.value), str(e.value)
