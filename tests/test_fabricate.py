@@ -174,6 +174,15 @@ def test_every_part_is_a_closed_oriented_solid(name, fabricated):
         r = solid_report(out / entry["stl"])
         count, volume = step_solids(out / entry["step"])        # the STEP file holds exactly its part
         assert count == 1 and volume == pytest.approx(r["volume"], rel=1e-3), (part, count, volume, r["volume"])
+        # written as printed: on the bed at z = 0, in the orientation that needs the least support
+        from skelfem.fabricate.orientation import best_pose
+        tris, points = read_stl(out / entry["stl"])
+        assert abs(points[:, 2].min()) < 1e-6
+        again = best_pose(points, tris)
+        assert again.down == "-z" and again.support_area == pytest.approx(entry["print"]["support_area"], rel=1e-5,
+                                                                           abs=1e-6)   # float32 STL
+        if part.startswith("mould"):
+            assert entry["print"]["support_area"] == 0.0, part     # both halves print without support
         assert r["edges_not_two"] == 0 and r["directed_repeats"] == 0 and r["zero_area"] == 0, (part, r)
         assert r["volume"] > 0 and r["volume"] == pytest.approx(entry["volume"], rel=0.01), (part, r)
         assert report["checks"]["stl"][part]["oriented"] and report["checks"]["stl"][part]["parts"] == 1

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 from .meshing import generate_surface_mesh, quiet_gmsh, triangle_surface
+from .orientation import PrintPose, best_pose, move_into_pose
 from .parts import Frame, Plan, Tool
 from .surfaces import CURVATURE, Surface, orient
 
@@ -18,9 +19,10 @@ class Part:
 
     name: str
     kind: str                    # "bone" or "mould"
-    surface: Surface
+    surface: Surface             # in design coordinates (the exploded view); pose.apply for print ones
     cad_volume: float
     info: dict = field(default_factory=dict)
+    pose: PrintPose | None = None    # how it lies on the print bed (STL and STEP are written so)
 
 
 def _shapes(occ, tool: Tool) -> list:
@@ -80,18 +82,22 @@ def write_step(gmsh, path: Path) -> None:
 
 
 def _finish(gmsh, name: str, kind: str, volumes: list[int], plan: Plan, folder: Path | None, info: dict) -> Part:
-    """Measure, triangulate and (if folder) write the STEP file of the part in the current model."""
+    """Measure and triangulate the part in the current model, choose how it lies on the print bed, and (if
+    folder) write its STEP file so."""
     occ = gmsh.model.occ
     occ.synchronize()
     if len(volumes) != 1:
         raise RuntimeError(f"{name}: the geometry kernel made {len(volumes)} solids instead of one")
     cad = float(occ.getMass(3, volumes[0]))
-    if folder is not None:
-        write_step(gmsh, folder / f"{name}.step")
     generate_surface_mesh(gmsh, plan.scale / 6, CURVATURE)
     surface = triangle_surface(gmsh, volumes)
     surface.tris = orient(surface.points, surface.tris)
-    return Part(name, kind, surface, cad, info)
+    pose = best_pose(surface.points, surface.tris)
+    if folder is not None:
+        move_into_pose(occ, [(3, volumes[0])], pose)
+        occ.synchronize()
+        write_step(gmsh, folder / f"{name}.step")
+    return Part(name, kind, surface, cad, info, pose)
 
 
 def build_bone(plan: Plan, bone, folder: Path | None = None) -> Part:

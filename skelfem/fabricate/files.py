@@ -47,11 +47,11 @@ def write(plan: Plan, folder: Path, picture_file: bool = True) -> dict:
     stl = {}
     for part in parts:
         path = folder / f"{part.name}.stl"
-        write_stl(path, part.surface.points, part.surface.tris, part.name)
+        write_stl(path, part.pose.apply(part.surface.points), part.surface.tris, part.name)   # as printed
         stl[part.name] = check_mesh(*read_stl(path))
         report["parts"][part.name] = {"kind": part.kind, "stl": path.name, "step": f"{part.name}.step",
                                       "volume": part.cad_volume, "stl_volume": stl[part.name]["volume"],
-                                      "triangles": stl[part.name]["triangles"]}
+                                      "triangles": stl[part.name]["triangles"], "print": part.pose.to_dict()}
     checks = report["checks"]
     checks["stl"] = stl
     for bone, part in zip(design.bones, parts):
