@@ -11,13 +11,14 @@ SHELL := /bin/bash
 # The editor's web stack (Starlette, uvicorn, websockets, tomlkit) and what its
 # browser tests drive (Chromium, chromedriver, Selenium) are Debian's too:
 # nothing downloads a browser at run time. The documentation's tools (Sphinx,
-# MyST, the furo theme, sphinx-gallery) are Debian's too.
+# MyST, the furo theme, sphinx-gallery) are Debian's too, and so is the slicer
+# the fabrication study checks the printed parts with (prusa-slicer).
 APT_PACKAGES := python3-dolfinx python3-gmsh python3-meshio python3-venv python3-pil \
 	python3-scipy python3-matplotlib python3-pytest python3-setuptools python3-h5py \
 	libopenblas0-pthread openmpi-bin libegl1 libegl-mesa0 libgl1-mesa-dri admesh \
 	python3-starlette python3-uvicorn python3-websockets python3-tomlkit \
 	python3-selenium chromium chromium-driver \
-	python3-sphinx python3-myst-parser furo python3-sphinx-gallery python3-pytest-xdist
+	python3-sphinx python3-myst-parser furo python3-sphinx-gallery python3-pytest-xdist prusa-slicer
 SYSPY := /usr/bin/python3
 VENV := .venv
 PY := $(VENV)/bin/python

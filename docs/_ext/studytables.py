@@ -133,6 +133,18 @@ def bench(_: dict) -> Table:
                   "iterations", "ratio", "nnz FE", "nnz K"], rows, caption, [path])
 
 
+def slice_check(_: dict) -> Table:
+    d, path = load_json("slice_check/slice_check.json", "python studies/slice_check.py")
+    rows = [[r["design"], r["part"], r["down"], num(r["estimated_support_area"], 3), str(r["support_sections"]),
+             str(r["layers"]), "yes" if r["manifold"] and r["parts"] == 1 else "no", str(len(r["warnings"]))]
+            for r in d["rows"]]
+    caption = (f"{d['slicer']}: `--export-gcode --support-material` on every STL as written; "
+               f"{'every part sliced without a warning' if d['all_sliced'] else 'some parts did not slice cleanly'}"
+               f"; {'every mould half prints without support' if d['moulds_without_support'] else 'some mould halves need support'}.")
+    return Table(["design", "part", "face down", "skelfem's support estimate [mm²]", "support sections (G-code)",
+                  "layers", "manifold, one part", "warnings"], rows, caption, [path])
+
+
 def in_hand_roll(_: dict) -> Table:
     d, path = load_json("in_hand_roll/in_hand_roll.json", "python studies/in_hand_roll.py")
     rows = [[f"{r['target_deg']:g}", num(-r["rotation_deg"], 3), num(r["error"], 2), r["status"],
@@ -542,7 +554,7 @@ def cable_friction_cost(_: dict) -> Table:
                   "far end [N]"], rows, caption, [path])
 
 
-TABLES = {f.__name__: f for f in (bench, in_hand_roll, mpi_speed, editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
+TABLES = {f.__name__: f for f in (bench, in_hand_roll, slice_check, mpi_speed, editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
                                   tol_check, tol_check_adaptive, scatter, adaptive_reach, adaptive_tol_runs,
                                   stability, stability_slender, friction_stability, peer, pull_test, dynamics_checks, grasp, grasp_bench,
                                   cable_friction, capstan, cable_friction_cost)}
