@@ -71,7 +71,8 @@ def run(designs=DESIGNS, out: Path | None = OUT) -> dict:
                 print(f"{name:16s} {part:20s} down {row['down']}: support sections {row['support_sections']:3d} "
                       f"of {row['layers']} layers (estimate {row['estimated_support_area']:.1f} mm^2), "
                       f"manifold {row['manifold']}, warnings {len(row['warnings'])}", flush=True)
-    version = subprocess.run([slicer, "--help"], capture_output=True, text=True).stdout.splitlines()[:1]
+    help_text = subprocess.run([slicer, "--help"], capture_output=True, text=True).stdout.splitlines()
+    version = [line.split(" ")[0] for line in help_text if line.startswith("PrusaSlicer")]
     res = {"slicer": version[0] if version else "prusa-slicer", "designs": list(designs), "rows": rows,
            "all_sliced": all(r["returncode"] == 0 and not r["warnings"] for r in rows),
            "moulds_without_support": all(r["support_sections"] == 0 for r in rows if r["part"].startswith("mould"))}
