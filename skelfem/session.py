@@ -196,7 +196,8 @@ class Session:
         # the same outlines on a new mesh (a --tol ladder's next level): friction's history (anchors on the
         # old boundary) cannot follow, so a path-dependent design solves its load path from rest again, as
         # skelfem simulate does; an edited outline starts from the carried-over state as any edit
-        if old_solved and self.comm.size == 1 and not (old_model.path_dependent and self._same_outlines(design)):
+        from .mesh.morph import same_polygons
+        if old_solved and self.comm.size == 1 and not (old_model.path_dependent and same_polygons(design, self.design)):
             start = (old_model.V.tabulate_dof_coordinates()[:, :old_model.dim].copy(),
                      old_model.u.x.array.reshape(-1, old_model.bs).copy(), old_model)
         saved = (self.design, self.size, self.model, self.solver, self.solved, self._meshed, self._morph,
@@ -216,10 +217,6 @@ class Session:
         saved[3].destroy()
         self._release(old_model)
         return "re-meshed"
-
-    def _same_outlines(self, design) -> bool:
-        from .mesh.morph import same_polygons
-        return same_polygons(design, self.design)
 
     def _same_mesh(self, design, morph: bool) -> np.ndarray | None:
         """Node coordinates of the current mesh fit for design (see edit), or None to re-mesh."""

@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from . import polygons
-from .spec import Body, Bone, DesignError, MAX_COORDINATE, Material, PRIMITIVES
+from .spec import Body, Bone, loops_of, DesignError, MAX_COORDINATE, Material, PRIMITIVES
 from .table import Table, check_bounded, convert_value, memoised, plain_name, positive
 
 
@@ -240,13 +240,12 @@ def _read_bodies(top: Table, dim: int, materials: dict):
     for t, outline in zip(tables, outlines):
         material = _material_ref(t, materials)
         body, region = _outline_body(t, t.where.split(".", 1)[1], material, outline, tol)
-        for other, (t_other, _) in zip(bodies, out):
+        for other in bodies:
             if polygons.overlap(body.outline, other.outline, tol):
                 t.fail("outline", f"overlaps or touches body {other.name!r} (bodies must start apart)")
         bodies.append(body)
         out.append((t, region))
-    loops = [loop for b in bodies for loop in (b.outline, *b.holes)]
-    return tuple(bodies), _Region2D(None, (), tol, loops=loops), tol, out
+    return tuple(bodies), _Region2D(None, (), tol, loops=loops_of(bodies)), tol, out
 
 
 def _extent(data: dict) -> float:

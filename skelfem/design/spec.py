@@ -181,6 +181,11 @@ class FabricationSpec:
     split_normal: np.ndarray | None = None
 
 
+def loops_of(bodies) -> list:
+    """2D: the outlines and holes of the bodies, body by body."""
+    return [loop for b in bodies for loop in (b.outline, *b.holes)]
+
+
 class FrozenDict(dict):
     """A dict that refuses every change (TypeError), and pickles (MPI sends designs between ranks)."""
 
@@ -250,7 +255,7 @@ class Design:
     @property
     def body_loops(self) -> list:
         """2D: every body's outline and holes (the even-odd rule over them is the soft region)."""
-        return [loop for b in self.bodies for loop in (b.outline, *b.holes)]
+        return loops_of(self.bodies)
 
     @property
     def raw(self) -> dict:

@@ -102,6 +102,10 @@ def object_states(model) -> list[dict]:
     if not objects and pieces is None:
         return []
     y, normal, friction = pieces.nodal_forces(model) if pieces is not None else (None, None, None)
+
+    def forces_on(k: int) -> dict:
+        touched = (pieces.label == k) & (np.linalg.norm(normal, axis=1) + np.linalg.norm(friction, axis=1) > 0)
+        return {"points": y[touched], "normal": normal[touched], "friction": friction[touched]}
     out = []
     bodies = len(model.design.bodies)
     for k, obj in enumerate(objects, start=bodies):
@@ -112,16 +116,12 @@ def object_states(model) -> list[dict]:
         outline = (np.asarray(obj.spec.outline, float) - c0) @ R.T + np.asarray(r["position"])
         entry = {"name": obj.name, "outline": outline}
         if pieces is not None:
-            on = pieces.label == k
-            touched = on & (np.linalg.norm(normal, axis=1) + np.linalg.norm(friction, axis=1) > 0)
-            entry.update(points=y[touched], normal=normal[touched], friction=friction[touched])
+            entry.update(forces_on(k))
         out.append(entry)
     for k in range(1, bodies if pieces is not None else 0):
-        on = pieces.label == k
-        touched = on & (np.linalg.norm(normal, axis=1) + np.linalg.norm(friction, axis=1) > 0)
-        if touched.any():
-            out.append({"name": pieces.pieces[k], "points": y[touched], "normal": normal[touched],
-                        "friction": friction[touched]})
+        forces = forces_on(k)
+        if len(forces["points"]):
+            out.append({"name": pieces.pieces[k], **forces})
     return out
 
 

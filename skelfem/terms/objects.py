@@ -50,7 +50,6 @@ from .gravity import KG_PER_M3_TIMES_M_PER_S2
 from .rigid import RigidBody
 
 
-
 def nodal_areas(V, cells: np.ndarray) -> np.ndarray:
     """int phi_i dx over the cells for every local node (P1: a third of each cell's area at its vertices;
     P2: at its edge midpoints, the vertex functions integrating to zero)."""
@@ -190,18 +189,9 @@ class ElasticObject(RigidObject):
         return self.dofs.ravel(), (self.k / self.n * u[self.dofs]).ravel()
 
     def _loads(self, model, u: np.ndarray) -> float:
-        """Its weight and the contacts' nodal forces on it (at an elastic object's nodes the full gradient
-        also holds the elastic forces, which balance them)."""
-        g = np.zeros(len(u))
-        for term in model.terms_in("contacts"):
-            out = term.gradient(u)
-            if out is None:
-                continue
-            if term.gather is None:
-                np.add.at(g, out[0], out[1])
-            else:
-                term.gather.scatter_add(out[1], g)
-        f = g[self.dofs] - self.factor * self.f
+        """Its weight and the hand-written terms' nodal forces on it but the tether's (contacts, their
+        friction): the full gradient would also hold the elastic forces, which balance them."""
+        f = model.term_gradient(u)[self.dofs] - self.k / self.n * u[self.dofs] - self.factor * self.f
         return float(np.linalg.norm(f, axis=1).sum())
 
     def centroid(self, u: np.ndarray, t: np.ndarray, R: np.ndarray) -> np.ndarray:
