@@ -31,7 +31,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import polygons
-from .spec import loops_of
 
 FRICTION_KEYS = ("friction", "friction_static")
 
@@ -146,7 +145,7 @@ def _objects(top, dim: int, materials: dict, bodies: tuple) -> tuple:
     if dim != 2:
         top.fail("objects", "objects are implemented for dim = 2 only")
     out, seen = [], set()
-    loops = loops_of(bodies)
+    loops = polygons.loops_of(bodies)
     tol = 1e-9 * max(float(np.ptp(np.vstack([b.outline for b in bodies]), axis=0).max()), 1.0)
     for i, e in enumerate(entries):
         name = e.get("name")

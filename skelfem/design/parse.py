@@ -19,7 +19,7 @@ from . import polygons
 from .objects import take as take_objects
 from .sections import check_bodies_held, check_body_scale, read_cables, read_contact, read_dynamics, check_energy_line_search, read_fabrication, read_gravity, read_grounds, read_loads, read_markers, read_pins, read_solver, read_tractions
 from .shapes import read_body, read_bones, read_materials
-from .spec import Design, DesignError, FORMAT, loops_of, MeshSpec, SECTIONS_BY_NAME, force_scale
+from .spec import Design, DesignError, FORMAT, MeshSpec, SECTIONS_BY_NAME, force_scale
 from .table import Table, plain_name, positive, apply_override
 
 
@@ -76,7 +76,7 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     dynamics = read_dynamics(top, materials, list(soft))
     top.done()
     if dim == 2:
-        loops = loops_of(bodies)
+        loops = polygons.loops_of(bodies)
         measure = sum(abs(polygons.signed_area(b.outline)) - sum(abs(polygons.signed_area(h)) for h in b.holes)
                       for b in bodies)
         vertices = sum(len(loop) for loop in loops) + sum(len(b.outline) for b in bones)

@@ -23,6 +23,11 @@ CHUNK = 1 << 20           # pairs (or point-edge products) per vectorised batch
 MAX_DEPTH = 12
 
 
+def loops_of(bodies) -> list:
+    """The outlines and holes of 2D bodies (anything with ``outline`` and ``holes``), body by body."""
+    return [loop for b in bodies for loop in (b.outline, *b.holes)]
+
+
 def edges(poly: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Start and end points of the polygon's edges, each (n, 2)."""
     return poly, np.roll(poly, -1, axis=0)

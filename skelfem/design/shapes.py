@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from . import polygons
-from .spec import Body, Bone, loops_of, DesignError, MAX_COORDINATE, Material, PRIMITIVES
+from .spec import Body, Bone, DesignError, MAX_COORDINATE, Material, PRIMITIVES
 from .table import Table, check_bounded, convert_value, memoised, plain_name, positive
 
 
@@ -245,7 +245,7 @@ def _read_bodies(top: Table, dim: int, materials: dict):
                 t.fail("outline", f"overlaps or touches body {other.name!r} (bodies must start apart)")
         bodies.append(body)
         out.append((t, region))
-    return tuple(bodies), _Region2D(None, (), tol, loops=loops_of(bodies)), tol, out
+    return tuple(bodies), _Region2D(None, (), tol, loops=polygons.loops_of(bodies)), tol, out
 
 
 def _extent(data: dict) -> float:

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import polygons
 from .objects import FrictionSpec
 
 
@@ -181,11 +182,6 @@ class FabricationSpec:
     split_normal: np.ndarray | None = None
 
 
-def loops_of(bodies) -> list:
-    """2D: the outlines and holes of the bodies, body by body."""
-    return [loop for b in bodies for loop in (b.outline, *b.holes)]
-
-
 class FrozenDict(dict):
     """A dict that refuses every change (TypeError), and pickles (MPI sends designs between ranks)."""
 
@@ -255,7 +251,7 @@ class Design:
     @property
     def body_loops(self) -> list:
         """2D: every body's outline and holes (the even-odd rule over them is the soft region)."""
-        return loops_of(self.bodies)
+        return polygons.loops_of(self.bodies)
 
     @property
     def raw(self) -> dict:
