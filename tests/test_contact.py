@@ -12,7 +12,7 @@ from _studies import load_study
 from _taylor import hessian_error, taylor_rates
 from skelfem import Session
 from skelfem.design import DesignError, SolverSpec, parse_design
-from skelfem.terms.contact import SelfContact, boundary_polygon, crossing_edges, oriented_edges, overlap_area
+from skelfem.terms.contact import SelfContact, boundary_facets, crossing_edges, oriented_edges, overlap_area
 
 SLOT = [[2.0, 2.6], [8.0, 2.6], [8.0, 3.4], [2.0, 3.4]]      # a 0.8 mm slot in a 10 x 6 block
 
@@ -46,9 +46,9 @@ def _squeeze(V, closing=0.75, noise=0.0, seed=0):
 
 
 @pytest.mark.parametrize("degree", [1, 2])
-def test_boundary_polygon_is_closed_loops_through_all_boundary_nodes(degree):
+def test_boundary_facets_is_closed_loops_through_all_boundary_nodes(degree):
     sc = _model(_slot_design(degree, self_contact=False))
-    nodes, edges = boundary_polygon(sc.V)
+    nodes, edges = boundary_facets(sc.V)
     X = sc.V.tabulate_dof_coordinates()[nodes, :2]
     assert np.all(np.bincount(edges.ravel(), minlength=len(nodes)) == 2)     # every node on two edges
     length = np.linalg.norm(X[edges[:, 1]] - X[edges[:, 0]], axis=1).sum()

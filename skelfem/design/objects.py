@@ -2,9 +2,10 @@
 
 Keys read here (everything else of these sections is read by skelfem.design)::
 
-    [[objects]]               # free rigid bodies the robot touches (2D); no pins needed
+    [[objects]]               # free rigid bodies the robot touches; no pins needed
     name = "ball"
-    outline = [[40, 30], [60, 30], [60, 50], [40, 50]]   # simple polygon, clear of the body at rest
+    outline = [[40, 30], [60, 30], [60, 50], [40, 50]]   # 2D: simple polygon, clear of the body at rest
+    solids = [{ sphere = { center = [50, 40, 10], radius = 8 } }]   # 3D instead: primitives, as the body's
     material = "pla"          # its density gives the weight under [gravity]
     rigid = true              # default: 3 rigid DOFs; false: meshed and elastic (its material's E and nu)
 
@@ -68,9 +69,62 @@ class FrictionSpec:
 @dataclass(frozen=True, eq=False)
 class ObjectSpec:
     name: str
-    outline: np.ndarray       # (n, 2) mm, counter-clockwise or not
+    outline: np.ndarray | None    # 2D: (n, 2) mm, counter-clockwise or not; 3D: None
     material: str
     rigid: bool = True
+    solids: tuple = ()            # 3D: the union of these primitives (as the body's)
+
+    @property
+    def box(self) -> np.ndarray:
+        """(2, dim) corners of an axis-aligned box around the object at rest (3D: conservative)."""
+        if self.outline is not None:
+            return np.array([self.outline.min(axis=0), self.outline.max(axis=0)])
+        return np.array(primitives_box(self.solids))
+
+    @property
+    def size(self) -> float:
+        """The diagonal of its box, mm."""
+        return float(np.linalg.norm(np.ptp(self.box, axis=0)))
+
+
+def inside(obj: ObjectSpec, X: np.ndarray) -> bool:
+    """Whether point X lies in the object at rest (2D: its outline; 3D: one of its primitives)."""
+    X = np.asarray(X, float)
+    if obj.outline is not None:
+        return bool(polygons.parity(X, [np.asarray(obj.outline, float)])[0])
+    for prim in obj.solids:
+        (kind, p), = prim.items()
+        if kind == "box":
+            hit = np.all(X >= p["min"]) and np.all(X <= p["max"])
+        elif kind == "sphere":
+            hit = np.linalg.norm(X - p["center"]) <= p["radius"]
+        elif kind == "cylinder":
+            a, axis = p["from"], p["to"] - p["from"]
+            s = float((X - a) @ axis) / float(axis @ axis)
+            hit = 0.0 <= s <= 1.0 and np.linalg.norm(X - a - s * axis) <= p["radius"]
+        else:
+            hit = p["z"][0] <= X[2] <= p["z"][1] and bool(polygons.parity(X[:2], [p["outline"]])[0])
+        if hit:
+            return True
+    return False
+
+
+def primitives_box(solids) -> tuple[np.ndarray, np.ndarray]:
+    """An axis-aligned box around 3D primitives (exact for boxes and extrusions, conservative for round
+    ones)."""
+    los, his = [], []
+    for prim in solids:
+        (kind, p), = prim.items()
+        if kind == "box":
+            los.append(p["min"]), his.append(p["max"])
+        elif kind == "cylinder":
+            ends = np.array([p["from"], p["to"]])
+            los.append(ends.min(axis=0) - p["radius"]), his.append(ends.max(axis=0) + p["radius"])
+        elif kind == "sphere":
+            los.append(p["center"] - p["radius"]), his.append(p["center"] + p["radius"])
+        else:
+            los.append(np.r_[p["outline"].min(axis=0), p["z"][0]]), his.append(np.r_[p["outline"].max(axis=0), p["z"][1]])
+    return np.min(los, axis=0), np.max(his, axis=0)
 
 
 def _coulomb(t, default: Coulomb | None) -> Coulomb | None:
@@ -142,11 +196,13 @@ def _objects(top, dim: int, materials: dict, bodies: tuple) -> tuple:
     Table = type(top)
     if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
         top.fail("objects", "must be an array of tables ([[...]])")
-    if dim != 2:
-        top.fail("objects", "objects are implemented for dim = 2 only")
+    if dim == 2:
+        loops = polygons.loops_of(bodies)
+        tol = 1e-9 * max(float(np.ptp(np.vstack([b.outline for b in bodies]), axis=0).max()), 1.0)
+    else:
+        lo, hi = primitives_box([p for b in bodies for p in b.solids])
+        tol = 1e-9 * max(float(np.ptp([lo, hi], axis=0).max()), 1.0)
     out, seen = [], set()
-    loops = polygons.loops_of(bodies)
-    tol = 1e-9 * max(float(np.ptp(np.vstack([b.outline for b in bodies]), axis=0).max()), 1.0)
     for i, e in enumerate(entries):
         name = e.get("name")
         t = Table(e, f"objects.{name if isinstance(name, str) and name else i}", top.source)
@@ -156,27 +212,43 @@ def _objects(top, dim: int, materials: dict, bodies: tuple) -> tuple:
         if name in seen:
             t.fail("name", f"duplicate name {name!r} in objects")
         seen.add(name)
-        outline = t.take("outline", "points", dim=2)
-        if len(outline) < 3:
-            t.fail("outline", "a polygon needs at least 3 points")
-        if not polygons.is_simple(outline, tol) or abs(polygons.signed_area(outline)) <= tol:
-            t.fail("outline", "polygon is not simple or has zero area")
+        if dim == 2:
+            if t.has("solids"):
+                t.fail("solids", "is for dim = 3 (a 2D object is its outline)")
+            outline, solids = t.take("outline", "points", dim=2), ()
+            if len(outline) < 3:
+                t.fail("outline", "a polygon needs at least 3 points")
+            if not polygons.is_simple(outline, tol) or abs(polygons.signed_area(outline)) <= tol:
+                t.fail("outline", "polygon is not simple or has zero area")
+        else:
+            if t.has("outline"):
+                t.fail("outline", "is for dim = 2 (a 3D object is its solids)")
+            from .shapes import _solids
+            outline, solids = None, _solids(t, dim, tol)
         material = t.take("material", "str")
         if material not in materials:
             t.fail("material", f"unknown material {material!r} (defined: {', '.join(materials)})")
         rigid = t.take("rigid", "bool", True)
         t.done()
-        if (polygons.meeting_loops([outline, *loops], tol) & {(0, j) for j in range(1, len(loops) + 1)}
-                or polygons.region_contains(loops, outline[:1], tol).any()
-                or any(polygons.contains(outline, body.outline[:1], tol).any() for body in bodies)):
-            t.fail("outline", "overlaps the body at rest (an object must start clear of it)")
-        for other in out:
-            if polygons.overlap(outline, other.outline, tol):
-                t.fail("outline", f"overlaps object {other.name!r} at rest")
+        if dim == 2:
+            if (polygons.meeting_loops([outline, *loops], tol) & {(0, j) for j in range(1, len(loops) + 1)}
+                    or polygons.region_contains(loops, outline[:1], tol).any()
+                    or any(polygons.contains(outline, body.outline[:1], tol).any() for body in bodies)):
+                t.fail("outline", "overlaps the body at rest (an object must start clear of it)")
+            for other in out:
+                if polygons.overlap(outline, other.outline, tol):
+                    t.fail("outline", f"overlaps object {other.name!r} at rest")
+        else:
+            from .solids import common_volume
+            if common_volume(solids, [p for b in bodies for p in b.solids]) > tol:
+                t.fail("solids", "overlaps the body at rest (an object must start clear of it)")
+            for other in out:
+                if common_volume(solids, other.solids) > tol:
+                    t.fail("solids", f"overlaps object {other.name!r} at rest")
         for section in ("gravity", "dynamics"):
             if top.has(section) and materials[material].density is None:
                 top.fail(f"materials.{material}.density", f"missing (required with [{section}]: object {name!r})")
-        out.append(ObjectSpec(name, outline, material, rigid))
+        out.append(ObjectSpec(name, outline, material, rigid, solids))
     return tuple(out)
 
 

@@ -82,8 +82,10 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
         vertices = sum(len(loop) for loop in loops) + sum(len(b.outline) for b in bones)
     else:
         from . import solids
+        from .objects import inside
+        in_body = {k: X for k, X in markers.items() if not any(inside(o, X) for o in objects)}
         result = solids.check(body.solids, [(b.name, b.solids) for b in bones], [(c.name, c.path) for c in cables],
-                              markers, [(ld.name, ld.at) for ld in loads], [(p.name, p.region) for p in pins], tol)
+                              in_body, [(ld.name, ld.at) for ld in loads], [(p.name, p.region) for p in pins], tol)
         if result.error is not None:
             key, message = result.error
             raise DesignError(f"{source}: {key}: {message}")

@@ -7,6 +7,7 @@ import math
 import numpy as np
 
 from . import polygons
+from .objects import primitives_box
 from .shapes import check_inside, named_entries
 from .spec import Body, CableSpec, ContactSpec, DesignError, DynamicsSpec, ENERGY_LINE_SEARCHES, FabricationSpec, GroundSpec, INTEGRATORS, LINE_SEARCHES, LoadSpec, MAX_COORDINATE, MAX_STEPS, MAX_TIME_STEPS, PinSpec, SolverSpec, TractionSpec
 from .table import Table, check_bounded, is_finite, is_number, plain_name, positive, show_value
@@ -241,19 +242,7 @@ def _body_box(body, dim: int, thickness: float) -> tuple[np.ndarray, np.ndarray]
     if dim == 2:
         lo, hi = body.outline.min(axis=0), body.outline.max(axis=0)
         return np.r_[lo, 0.0], np.r_[hi, thickness]
-    los, his = [], []
-    for prim in body.solids:
-        (kind, p), = prim.items()
-        if kind == "box":
-            los.append(p["min"]), his.append(p["max"])
-        elif kind == "cylinder":
-            ends = np.array([p["from"], p["to"]])
-            los.append(ends.min(axis=0) - p["radius"]), his.append(ends.max(axis=0) + p["radius"])
-        elif kind == "sphere":
-            los.append(p["center"] - p["radius"]), his.append(p["center"] + p["radius"])
-        else:
-            los.append(np.r_[p["outline"].min(axis=0), p["z"][0]]), his.append(np.r_[p["outline"].max(axis=0), p["z"][1]])
-    return np.min(los, axis=0), np.max(his, axis=0)
+    return primitives_box(body.solids)
 
 
 def read_fabrication(top: Table, dim: int, thickness: float, body) -> FabricationSpec:
@@ -413,7 +402,7 @@ fabrication_extent = body_extent
 
 def read_markers(top: Table, dim: int, region, objects=()) -> dict:
     """[markers]: points inside the body, or inside a free object's outline (they follow the object)."""
-    from .polygons import parity
+    from .objects import inside
     t = Table(top.take("markers", "table", {}), "markers", top.source)
     out = {}
     for name in list(t.data):
@@ -421,8 +410,7 @@ def read_markers(top: Table, dim: int, region, objects=()) -> dict:
             t.fail(name, "marker names must not contain '.'")
         plain_name(t, name, name, "a marker name")
         X = check_bounded(t, name, t.take(name, "vector", dim=dim))
-        on_object = any(bool(parity(X, [np.asarray(o.outline, float)])[0]) for o in objects)
-        if not on_object:
+        if not any(inside(o, X) for o in objects):
             check_inside(t, name, X, region, "the marker")
         out[name] = X
     return out

@@ -80,6 +80,25 @@ def check(body_solids, bones, cables, markers, loads, pins, tol: float) -> Check
     return result
 
 
+def common_volume(a, b) -> float:
+    """The volume (mm^3) two unions of primitives share: 0 if they lie apart or only touch."""
+    key = _key("common", a, b)
+    if key in _CACHE:
+        return _CACHE[key]
+    import gmsh
+
+    from .occ import gmsh_model
+    with gmsh_model("skelfem-common"):
+        occ = gmsh.model.occ
+        out, _ = occ.intersect([(3, _add(occ, s)) for s in a], [(3, _add(occ, s)) for s in b])
+        occ.synchronize()
+        volume = float(sum(occ.getMass(3, t) for d, t in out if d == 3))
+    _CACHE[key] = volume
+    if len(_CACHE) > _CACHE_SIZE:
+        _CACHE.popitem(last=False)
+    return volume
+
+
 def _boundary(gmsh, dimtags) -> set:
     if not dimtags:
         return set()

@@ -28,19 +28,22 @@ def vertex_displacements(model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def contact_forces(model) -> tuple[np.ndarray, np.ndarray] | None:
-    """Serial, where pieces (bodies, objects) can touch: (force (n, 2) N, traction (n, 2) MPa) at every
-    node of the P1 geometry: the barrier's and friction's force the other pieces exert on it, and that
-    force over the node's share of the boundary (half its edges' lengths times the thickness). A P2
-    edge midpoint's force and share go half to each end of its edge; None without such contact."""
+    """Serial, where pieces (bodies, objects) can touch: (force (n, dim) N, traction (n, dim) MPa) at
+    every node of the P1 geometry: the barrier's and friction's force the other pieces exert on it, and
+    that force over the node's share of the boundary (2D: half its edges' lengths times the thickness;
+    3D: a third of its triangles' areas). A P2 edge midpoint's force and share go half to each end of
+    its edge; None without such contact."""
     pieces = next((t for t in model.terms_in("contacts") if hasattr(t, "nodal_forces")), None)
     if pieces is None or model.comm.size > 1:
         return None
     _, normal, friction = pieces.nodal_forces(model)
     f = normal + friction
-    X, edges = pieces.X, pieces.edges
-    length = np.linalg.norm(X[edges[:, 1]] - X[edges[:, 0]], axis=1)
+    X, edges, facets = pieces.X, pieces.edges, pieces.facets
+    side = X[facets[:, 1:]] - X[facets[:, :1]]
+    dim = X.shape[1]
+    measure = np.linalg.norm(side[:, 0], axis=1) if dim == 2 else 0.5 * np.linalg.norm(np.cross(side[:, 0], side[:, 1]), axis=1)
     w = np.zeros(len(X))
-    np.add.at(w, edges.ravel(), np.repeat(0.5 * length, 2))
+    np.add.at(w, facets.ravel(), np.repeat(measure / dim, dim))
     mesh, V = model.mesh, model.V
     tdim = mesh.topology.dim
     geo = mesh.geometry.dofmap.array.reshape(-1, tdim + 1)
@@ -56,7 +59,7 @@ def contact_forces(model) -> tuple[np.ndarray, np.ndarray] | None:
             np.add.at(f, t[m], 0.5 * f[s[m]])
             np.add.at(w, t[m], 0.5 * w[s[m]])
     keep = ~mid
-    force = np.zeros((len(mesh.geometry.x), 2))
+    force = np.zeros((len(mesh.geometry.x), dim))
     share = np.zeros(len(force))
     np.add.at(force, where[keep], f[keep])
     np.add.at(share, where[keep], w[keep])
@@ -109,12 +112,13 @@ def object_states(model) -> list[dict]:
     out = []
     bodies = len(model.design.bodies)
     for k, obj in enumerate(objects, start=bodies):
-        r = obj.readout(model)[obj.name]
-        c0 = np.asarray(r["position"]) - np.asarray(r["displacement"])
-        a = r["rotation"]
-        R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
-        outline = (np.asarray(obj.spec.outline, float) - c0) @ R.T + np.asarray(r["position"])
-        entry = {"name": obj.name, "outline": outline}
+        entry = {"name": obj.name}
+        if obj.spec.outline is not None:              # 3D: the object's cells are drawn with the mesh
+            r = obj.readout(model)[obj.name]
+            c0 = np.asarray(r["position"]) - np.asarray(r["displacement"])
+            a = r["rotation"]
+            R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+            entry["outline"] = (np.asarray(obj.spec.outline, float) - c0) @ R.T + np.asarray(r["position"])
         if pieces is not None:
             entry.update(forces_on(k))
         out.append(entry)
@@ -243,7 +247,8 @@ def write_xdmf(path: Path, state) -> None:
     if getattr(snap, "contact_forces", None) is not None:      # pieces that can touch: forces between them
         pad = len(pts) - len(x)
         for name, values in zip(("contact_force", "contact_traction"), snap.contact_forces):
-            point_data[name] = np.column_stack([np.vstack([values, np.zeros((pad, 2))]), np.zeros(len(pts))])
+            v = np.vstack([values, np.zeros((pad, values.shape[1]))])
+            point_data[name] = v if v.shape[1] == 3 else np.column_stack([v, np.zeros(len(pts))])
     m = meshio.Mesh(pts, blocks, point_data=point_data,
                     cell_data={"region": region, "tension": tens, "cable": ids, "stretch": stretch})
     atomic_write(path, lambda tmp: meshio.xdmf.write(tmp, m, data_format="XML"))

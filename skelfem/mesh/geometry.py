@@ -108,7 +108,8 @@ def _build_model(gmsh, design) -> dict:
     else:
         bones = {b.name: fuse(occ, 3, [add_solid(occ, s) for s in b.solids])
                  for b in design.bones}
-    objects = {object_tag_name(o.name): [add_polygon(occ, o.outline)] for o in design.objects}   # apart
+    objects = {object_tag_name(o.name): [add_polygon(occ, o.outline)] if dim == 2          # apart
+               else fuse(occ, 3, [add_solid(occ, s) for s in o.solids]) for o in design.objects}
     bone_list = [(name, t) for name, tags in bones.items() for t in tags]
     if not bone_list:
         occ.synchronize()

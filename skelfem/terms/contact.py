@@ -51,16 +51,18 @@ from ..mesh.geometry import body_tag_name, object_tag_name
 from .base import Context, Term
 
 
-def boundary_polygon(V) -> tuple[np.ndarray, np.ndarray]:
-    """Boundary nodes of V (local node indices, sorted) and edges (pairs of positions in nodes).
+def boundary_facets(V) -> tuple[np.ndarray, np.ndarray]:
+    """Boundary nodes of V (local node indices, sorted) and the boundary's simplices through them.
 
     A boundary facet's nodes come from its cell's DOFs through the element's
-    facet closure (vertices first, then the P2 midpoint), all vectorised.
+    facet closure (vertices first, then the P2 midpoints), all vectorised.
+    2D: edges, a P2 edge split at its midpoint node into two. 3D: triangles,
+    a P2 triangle split into four through its three edge midpoints (each
+    midpoint matched to its pair of vertices by position: the mesh is
+    straight-sided).
     """
     mesh = V.mesh
     tdim = mesh.topology.dim
-    if tdim != 2:
-        raise NotImplementedError("self-contact is implemented in 2D")
     mesh.topology.create_connectivity(tdim - 1, tdim)
     mesh.topology.create_connectivity(tdim, tdim - 1)
     facets = dmesh.exterior_facet_indices(mesh.topology)
@@ -71,18 +73,29 @@ def boundary_polygon(V) -> tuple[np.ndarray, np.ndarray]:
     layout = V.dofmap.dof_layout
     closure = np.array([layout.entity_closure_dofs(tdim - 1, i) for i in range(tdim + 1)])
     cell_dofs = V.dofmap.list.array.reshape(-1, layout.num_dofs)
-    fdofs = cell_dofs[cells[:, None], closure[local]]             # (n_facets, 2 or 3)
-    if fdofs.shape[1] == 2:
-        pairs = fdofs
-    else:                                                         # P2: a -> midpoint -> b
-        pairs = np.vstack([fdofs[:, [0, 2]], fdofs[:, [2, 1]]])
+    fdofs = cell_dofs[cells[:, None], closure[local]]             # (n_facets, tdim or more)
+    if fdofs.shape[1] == tdim:
+        pieces = fdofs
+    elif tdim == 2:                                               # P2: a -> midpoint -> b
+        pieces = np.vstack([fdofs[:, [0, 2]], fdofs[:, [2, 1]]])
+    else:                                                         # P2 triangle: four
+        x = V.tabulate_dof_coordinates()
+        v, m = fdofs[:, :3], fdofs[:, 3:]
+        pairs = np.array([[1, 2], [0, 2], [0, 1]])                # the edge opposite each vertex
+        mids = 0.5 * (x[v[:, pairs[:, 0]]] + x[v[:, pairs[:, 1]]])              # (n, 3 edges, 3)
+        which = np.argmin(np.linalg.norm(mids[:, :, None] - x[m][:, None], axis=3), axis=2)
+        o = np.take_along_axis(m, which, axis=1)                  # o[:, i]: the midpoint opposite vertex i
+        pieces = np.vstack([np.column_stack([v[:, 0], o[:, 2], o[:, 1]]), np.column_stack([v[:, 1], o[:, 0], o[:, 2]]),
+                            np.column_stack([v[:, 2], o[:, 1], o[:, 0]]), o])
     comm = mesh.comm
     if comm.size > 1:                    # global node numbers, the whole boundary on every rank
         imap = V.dofmap.index_map
-        pairs = imap.local_to_global(pairs.ravel().astype(np.int32)).reshape(pairs.shape)
-        pairs = np.unique(np.sort(np.vstack(comm.allgather(pairs)), axis=1), axis=0)
-    nodes = np.unique(pairs)
-    return nodes.astype(np.int64 if comm.size > 1 else np.int32), np.searchsorted(nodes, pairs).astype(np.int32)
+        pieces = imap.local_to_global(pieces.ravel().astype(np.int32)).reshape(pieces.shape)
+        every = np.vstack(comm.allgather(pieces))
+        _, first = np.unique(np.sort(every, axis=1), axis=0, return_index=True)   # shared facets once
+        pieces = every[np.sort(first)]
+    nodes = np.unique(pieces)
+    return nodes.astype(np.int64 if comm.size > 1 else np.int32), np.searchsorted(nodes, pieces).astype(np.int32)
 
 
 def boundary_coordinates(V, nodes: np.ndarray) -> np.ndarray:
@@ -114,7 +127,10 @@ class SelfContact(Term):
     def __init__(self, V, dhat: float, stiffness: float, thickness: float = 1.0, project: bool = True):
         from ..mesh.points import DofGather
         self.bs = V.dofmap.index_map_bs
-        self.nodes, self.edges = boundary_polygon(V)        # under MPI: global numbers, on every rank
+        self.nodes, self.facets = boundary_facets(V)        # under MPI: global numbers, on every rank
+        self.dim = V.mesh.topology.dim
+        # 2D: the facets are the collision mesh's edges; 3D: its faces, with their edges
+        self.edges = self.facets if self.dim == 2 else np.asarray(ipctk.edges(self.facets), np.int32)
         self.dofs = (self.nodes[:, None] * self.bs + np.arange(self.bs)).ravel()   # unrolled, node-major
         self.X = boundary_coordinates(V, self.nodes)
         self.comm = V.mesh.comm
@@ -122,7 +138,8 @@ class SelfContact(Term):
         self.dhat, self.kappa, self.t = float(dhat), float(stiffness), float(thickness)
         self.project = project
         self.approach = 0.8       # fraction of the way to first contact a step may go
-        self.mesh = ipctk.CollisionMesh(fortran_array(self.X), np.asfortranarray(self.edges))
+        faces = [] if self.dim == 2 else [np.asfortranarray(self.facets)]
+        self.mesh = ipctk.CollisionMesh(fortran_array(self.X), np.asfortranarray(self.edges), *faces)
         self.barrier = ipctk.BarrierPotential(self.dhat, self.kappa, True)
 
     # -- geometry ------------------------------------------------------------------------
@@ -131,7 +148,7 @@ class SelfContact(Term):
         return u[self.dofs] if self.gather is None else self.gather(u)
 
     def positions(self, u: np.ndarray) -> np.ndarray:
-        """Current boundary node positions x = X + u, (n_nodes, 2)."""
+        """Current boundary node positions x = X + u, (n_nodes, dim)."""
         return self.X + self.boundary_values(u).reshape(-1, self.bs)
 
     def collisions(self, y: np.ndarray, dhat: float | None = None) -> ipctk.NormalCollisions:

@@ -55,14 +55,61 @@ from .base import Term
 from .contact import barrier_stiffness, fortran_array
 
 
+def tangents(y: np.ndarray, facets: np.ndarray) -> np.ndarray:
+    """(n, dim, dim - 1) orthonormal tangent bases of facets (rows of vertex indices into y): 2D, the
+    edge's unit direction; 3D, the first edge's direction and the in-plane normal to it."""
+    t1 = y[facets[:, 1]] - y[facets[:, 0]]
+    t1 = t1 / np.linalg.norm(t1, axis=1)[:, None]
+    if facets.shape[1] == 2:
+        return t1[:, :, None]
+    n = np.cross(t1, y[facets[:, 2]] - y[facets[:, 0]])
+    t2 = np.cross(n / np.linalg.norm(n, axis=1)[:, None], t1)
+    return np.stack([t1, t2], axis=2)
+
+
+def closest_on_facets(P: np.ndarray, y: np.ndarray, facets: np.ndarray) -> np.ndarray:
+    """Barycentric coordinates (n, dim) of the points of facets (n, dim) closest to points P (n, dim).
+
+    2D: the clipped parameter along the edge. 3D: the point of the triangle
+    closest to P (its projection if inside, else the closest of its edges)."""
+    a, b = y[facets[:, 0]], y[facets[:, 1]]
+    if facets.shape[1] == 2:
+        ab = b - a
+        s = np.clip(np.einsum("nk,nk->n", P - a, ab) / np.einsum("nk,nk->n", ab, ab), 0.0, 1.0)
+        return np.column_stack([1.0 - s, s])
+    c = y[facets[:, 2]]
+    e1, e2, q = b - a, c - a, P - a                      # solve the 2x2 normal equations for the plane
+    d11, d12, d22 = (np.einsum("nk,nk->n", u, v) for u, v in ((e1, e1), (e1, e2), (e2, e2)))
+    q1, q2 = np.einsum("nk,nk->n", q, e1), np.einsum("nk,nk->n", q, e2)
+    det = d11 * d22 - d12 ** 2
+    v = (d22 * q1 - d12 * q2) / det
+    w = (d11 * q2 - d12 * q1) / det
+    best = np.column_stack([1.0 - v - w, v, w])
+    inside = (best >= 0.0).all(axis=1)
+    if inside.all():
+        return best
+    dist = np.where(inside, np.linalg.norm(P - np.einsum("nj,njk->nk", best, y[facets]), axis=1), np.inf)
+    for i, j in ((0, 1), (1, 2), (0, 2)):                 # outside: the closest point of the three edges
+        pa, pb = y[facets[:, i]], y[facets[:, j]]
+        ab = pb - pa
+        s = np.clip(np.einsum("nk,nk->n", P - pa, ab) / np.einsum("nk,nk->n", ab, ab), 0.0, 1.0)
+        dd = np.linalg.norm(P - pa - s[:, None] * ab, axis=1)
+        better = ~inside & (dd < dist)
+        bary = np.zeros((len(P), 3))
+        bary[:, i], bary[:, j] = 1.0 - s, s
+        best[better], dist[better] = bary[better], dd[better]
+    return best
+
+
 class ObjectFriction(Term):
-    """Friction of every body boundary node against the objects' boundary edges."""
+    """Friction of every boundary vertex of each piece against the other pieces' boundary facets."""
 
     section, name = "contacts", "friction"
     slip_length = 1e-6      # eps, as a fraction of the body's size
-    project = False         # True: Newton's Hessian of a slipping node is its secant F / |d| (exact: 0)
+    project = False         # True: Newton's Hessian of a slipping node is its secant F / |d| (exact: 0 along d)
     breakaway = 1e-4        # D_c, as a fraction of the body's size
-    history_fields = ("edge", "s", "T", "N", "fresh", "sliding", "trial", "run", "_report", "_relax",
+    candidates = 16         # 3D: facets of each other piece tried per vertex (nearest by centroid)
+    history_fields = ("facet", "b", "T", "N", "fresh", "sliding", "trial", "run", "_report", "_relax",
                       "_lag_change", "_N_step", "_y0")
 
     def __init__(self, ctx, contact, objects):
@@ -71,15 +118,15 @@ class ObjectFriction(Term):
         self.c = contact
         self.gather = contact.gather
         self.t = contact.t
-        self.bs = contact.bs
+        self.bs = dim = contact.bs
         X = contact.X
         size = float(np.linalg.norm(np.ptp(X, axis=0)))
         self.eps, self.dc = self.slip_length * size, self.breakaway * size
         self.body_vertices = np.arange(len(X))               # every boundary vertex (body and objects) ...
-        self.vertex_piece = contact.label                    # ... of its piece, anchored on other pieces' edges
-        edges = contact.edges
-        self.obj_edges = edges                               # (m, 2) vertex indices: every boundary edge
-        self.edge_piece = contact.label[edges[:, 0]]
+        self.vertex_piece = contact.label                    # ... of its piece, anchored on other pieces' facets
+        facets = contact.facets
+        self.facets = facets                                 # (m, dim) vertex indices: every boundary facet
+        self.facet_piece = contact.label[facets[:, 0]]
         mats = [b.material for b in design.bodies] + [o.spec.material for o in objects]
         coeff = [[design.friction.between(a, b) for b in mats] for a in mats]
         self.mu_k_pair = np.array([[c.kinetic for c in row] for row in coeff])
@@ -89,16 +136,18 @@ class ObjectFriction(Term):
         listed = [[frozenset((a, b)) in design.friction.pairs for b in mats] for a in mats]
         self.default_pair = ~np.array(listed, bool) & ~np.eye(len(mats), dtype=bool)   # [contact]'s pairs
         self.default = design.friction.default
-        # the vertices' boundary weights (half their edges' lengths): the fresh springs' areas
-        L = np.linalg.norm(X[edges[:, 1]] - X[edges[:, 0]], axis=1)
+        # the vertices' boundary weights (their share of the facets' measures): the fresh springs' areas
+        edges = X[facets[:, 1:]] - X[facets[:, :1]]
+        measure = (np.linalg.norm(edges[:, 0], axis=1) if dim == 2
+                   else 0.5 * np.linalg.norm(np.cross(edges[:, 0], edges[:, 1]), axis=1))
         w = np.zeros(len(X))
-        np.add.at(w, edges.ravel(), np.repeat(0.5 * L, 2))
+        np.add.at(w, facets.ravel(), np.repeat(measure / dim, dim))
         self.w = w
         self.k_fresh = barrier_stiffness(design) * self.t / self.eps      # stuck within eps: N/mm per mm
         n = len(self.body_vertices)
-        self.edge = np.full(n, -1)                           # anchor edge (row of obj_edges), -1: none
-        self.s = np.zeros(n)                                 # anchor parameter on it
-        self.T = np.zeros((n, 2))                            # lagged unit tangent of the anchor edge
+        self.facet = np.full(n, -1)                          # anchor facet (row of facets), -1: none
+        self.b = np.zeros((n, dim))                          # the anchor's barycentric coordinates on it
+        self.T = np.zeros((n, dim, dim - 1))                 # lagged tangent basis of the anchor facet
         self.N = np.zeros(n)                                 # lagged normal force
         self.fresh = np.zeros(n, bool)
         self.sliding = np.zeros(n, bool)
@@ -115,61 +164,81 @@ class ObjectFriction(Term):
 
     # -- geometry -------------------------------------------------------------------------------
     def _closest(self, P: np.ndarray, piece: np.ndarray):
-        """For points P (n, 2) of pieces `piece`: (edge, parameter s in [0, 1], distance) of the closest
-        edge of another piece."""
-        y = self._y
-        a, b = y[self.obj_edges[:, 0]], y[self.obj_edges[:, 1]]
-        ab = b - a
-        s = np.clip(np.einsum("nek,ek->ne", P[:, None, :] - a[None], ab) / np.einsum("ek,ek->e", ab, ab), 0, 1)
-        q = a[None] + s[..., None] * ab[None]
-        dist = np.linalg.norm(P[:, None, :] - q, axis=2)
-        dist[piece[:, None] == self.edge_piece[None, :]] = np.inf
-        j = np.argmin(dist, axis=1)
-        k = np.arange(len(P))
-        return j, s[k, j], dist[k, j]
-
-    def _tangents(self, y: np.ndarray, edge: np.ndarray) -> np.ndarray:
-        e = self.obj_edges[edge]
-        t = y[e[:, 1]] - y[e[:, 0]]
-        return t / np.linalg.norm(t, axis=1)[:, None]
+        """For points P (n, dim) of pieces `piece`: (facet, barycentric coordinates, distance) of the
+        closest facet of another piece. 2D: every edge is tried; 3D: the `candidates` facets of each other
+        piece whose centroids lie nearest."""
+        y, F = self._y, self.facets
+        if self.bs == 2:
+            a, b = y[F[:, 0]], y[F[:, 1]]
+            ab = b - a
+            s = np.clip(np.einsum("nek,ek->ne", P[:, None, :] - a[None], ab) / np.einsum("ek,ek->e", ab, ab), 0, 1)
+            q = a[None] + s[..., None] * ab[None]
+            dist = np.linalg.norm(P[:, None, :] - q, axis=2)
+            dist[piece[:, None] == self.facet_piece[None, :]] = np.inf
+            j = np.argmin(dist, axis=1)
+            k = np.arange(len(P))
+            return j, np.column_stack([1.0 - s[k, j], s[k, j]]), dist[k, j]
+        from scipy.spatial import cKDTree
+        centroid = y[F].mean(axis=1)
+        best_j = np.full(len(P), -1)
+        best_b = np.zeros((len(P), 3))
+        best_d = np.full(len(P), np.inf)
+        for q in np.unique(self.facet_piece):
+            mine = np.flatnonzero(self.facet_piece == q)
+            who = np.flatnonzero(piece != q)
+            if not len(who):
+                continue
+            k = min(self.candidates, len(mine))
+            _, near = cKDTree(centroid[mine]).query(P[who], k=k)
+            cand = mine[np.asarray(near).reshape(len(who), k)]                 # (n, k) facets
+            pts = np.repeat(P[who], k, axis=0)
+            bary = closest_on_facets(pts, y, F[cand.ravel()])
+            d = np.linalg.norm(pts - np.einsum("nj,njk->nk", bary, y[F[cand.ravel()]]), axis=1).reshape(len(who), k)
+            pick = np.argmin(d, axis=1)
+            rows = np.arange(len(who))
+            better = d[rows, pick] < best_d[who]
+            w = who[better]
+            best_j[w] = cand[rows, pick][better]
+            best_b[w] = bary.reshape(len(who), k, 3)[rows, pick][better]
+            best_d[w] = d[rows, pick][better]
+        return best_j, best_b, best_d
 
     def _anchor_new(self, y: np.ndarray, which: np.ndarray | None = None, start: np.ndarray | None = None) -> None:
-        """Anchor the unanchored vertices (of which, default all) within dhat of another piece's edge: where
-        they are, or (start: the positions at the step's start) where they were relative to that edge
-        when the step began -- a contact made during a step has not slipped yet."""
-        if not len(self.obj_edges):
+        """Anchor the unanchored vertices (of which, default all) within dhat of another piece's facet:
+        where they are, or (start: the positions at the step's start) where they were relative to that
+        facet when the step began -- a contact made during a step has not slipped yet."""
+        if not len(self.facets):
             return
         self._y = y
-        free = np.flatnonzero((self.edge < 0) & (True if which is None else which))
+        free = np.flatnonzero((self.facet < 0) & (True if which is None else which))
         if not len(free):
             return
-        j, s, dist = self._closest(y[self.body_vertices[free]], self.vertex_piece[free])
+        j, b, dist = self._closest(y[self.body_vertices[free]], self.vertex_piece[free])
         near = dist <= self.c.dhat
         idx = free[near]
         if start is not None and len(idx):
-            e = self.obj_edges[j[near]]
-            a, b, v = start[e[:, 0]], start[e[:, 1]], start[self.body_vertices[idx]]
-            s = s.copy()
-            s[near] = np.clip(np.einsum("nk,nk->n", v - a, b - a) / np.einsum("nk,nk->n", b - a, b - a), 0, 1)
-        self.edge[idx], self.s[idx] = j[near], s[near]
-        self.T[idx] = self._tangents(y, j[near])
+            b = b.copy()
+            b[near] = closest_on_facets(start[self.body_vertices[idx]], start, self.facets[j[near]])
+        self.facet[idx], self.b[idx] = j[near], b[near]
+        self.T[idx] = tangents(y, self.facets[j[near]])
+
+    def _anchor_points(self, y: np.ndarray, on: np.ndarray) -> np.ndarray:
+        return np.einsum("nj,njk->nk", self.b[on], y[self.facets[self.facet[on]]])
 
     def _slip(self, y: np.ndarray):
-        """(anchored nodes, d) at positions y."""
-        on = np.flatnonzero(self.edge >= 0)
-        e = self.obj_edges[self.edge[on]]
-        s = self.s[on][:, None]
-        P = (1 - s) * y[e[:, 0]] + s * y[e[:, 1]]
-        d = np.einsum("nk,nk->n", self.T[on], y[self.body_vertices[on]] - P)
+        """(anchored nodes, d (n, dim - 1)) at positions y: d = T^T (y_i - sum_k b_k y_k)."""
+        on = np.flatnonzero(self.facet >= 0)
+        d = np.einsum("nka,nk->na", self.T[on], y[self.body_vertices[on]] - self._anchor_points(y, on))
         return on, d
 
     # -- the potential ----------------------------------------------------------------------------
     def _mu(self) -> np.ndarray:
-        master = np.where(self.edge >= 0, self.edge_piece[np.maximum(self.edge, 0)], self.vertex_piece)
+        master = np.where(self.facet >= 0, self.facet_piece[np.maximum(self.facet, 0)], self.vertex_piece)
         return np.where(self.trial, self.mu_k_pair[self.vertex_piece, master],
                         self.mu_s_pair[self.vertex_piece, master])
 
     def _parts(self, u: np.ndarray):
+        """(anchored nodes with F > 0, d (n, dim - 1), r = |d|, K, F, sticking)."""
         y = self.c.positions(u)
         on, d = self._slip(y)
         F = np.where(self.fresh[on], np.inf, self._mu()[on] * self.N[on])
@@ -177,33 +246,33 @@ class ObjectFriction(Term):
         on, d, F = on[keep], d[keep], F[keep]
         last = self._mu()[on] * self.N[on] / self.eps            # fresh: the last lag's stiffness, if any
         K = np.where(self.fresh[on], np.where(last > 0, last, self.k_fresh * self.w[on]), F / self.eps)
-        r = np.abs(d)
+        r = np.linalg.norm(d, axis=1)
         stick = K * r <= F
         F = np.where(stick & np.isinf(F), K * r, F)
-        return on, d, K, F, stick
+        return on, d, r, K, F, stick
 
     def _dofs(self, on: np.ndarray) -> np.ndarray:
-        """(n, 3 vertices x 2) DOFs: the body node, then the anchor edge's two nodes."""
-        e = self.obj_edges[self.edge[on]]
-        verts = np.column_stack([self.body_vertices[on], e[:, 0], e[:, 1]])
+        """(n, (dim + 1) x dim) DOFs: the vertex, then its anchor facet's nodes."""
+        verts = np.column_stack([self.body_vertices[on], self.facets[self.facet[on]]])
         nodes = self.c.nodes[verts]
         return (nodes[:, :, None] * self.bs + np.arange(self.bs)).reshape(len(on), -1)
 
     def _coefficients(self, on: np.ndarray) -> np.ndarray:
-        """dd/dy for the 3 nodes: (n, 6) = [T, -(1 - s) T, -s T]."""
-        T, s = self.T[on], self.s[on][:, None]
-        return np.hstack([T, -(1 - s) * T, -s * T])
+        """dd/dy for the vertex and its facet's nodes: (n, dim - 1, (dim + 1) dim) = [T^T, -b_1 T^T, ...]."""
+        Tt = np.swapaxes(self.T[on], 1, 2)                                  # (n, dim - 1, dim)
+        c = np.column_stack([np.ones(len(on)), -self.b[on]])                 # (n, dim + 1)
+        return (c[:, None, :, None] * Tt[:, :, None, :]).reshape(len(on), Tt.shape[1], -1)
 
     def energy(self, u: np.ndarray) -> float:
         if not self.active:
             return 0.0
-        on, d, K, F, stick = self._parts(u)
-        r = np.abs(d)
+        on, d, r, K, F, stick = self._parts(u)
         return float(np.sum(np.where(stick, 0.5 * K * r ** 2, F * r - 0.5 * F ** 2 / np.where(stick, 1.0, K))))
 
     def _force(self, u: np.ndarray):
-        on, d, K, F, stick = self._parts(u)
-        return on, np.where(stick, K * d, F * np.sign(d))          # de/dd
+        """(anchored nodes, de/dd (n, dim - 1)): K d sticking, F d / r slipping."""
+        on, d, r, K, F, stick = self._parts(u)
+        return on, np.where(stick, K, F / np.where(stick, 1.0, r))[:, None] * d
 
     def gradient(self, u: np.ndarray):
         """On the contact's boundary DOFs (all of them: under MPI its gather's)."""
@@ -213,26 +282,31 @@ class ObjectFriction(Term):
         if not len(on):
             return None
         g = np.zeros(len(self.c.dofs))
-        np.add.at(g, self._positions(on).ravel(), (f[:, None] * self._coefficients(on)).ravel())
+        np.add.at(g, self._positions(on).ravel(), np.einsum("na,nax->nx", f, self._coefficients(on)).ravel())
         return self.c.dofs, g
 
     def _positions(self, on: np.ndarray) -> np.ndarray:
-        """(n, 6) positions in the contact's boundary DOFs of _dofs(on)."""
+        """Positions in the contact's boundary DOFs of _dofs(on)."""
         return np.searchsorted(self.c.dofs, self._dofs(on))
 
     def hessian(self, u: np.ndarray) -> list:
+        """G^T C G per anchored vertex: C = K I sticking, F / r (I - e e^T) slipping (e = d / r; 0 in 2D),
+        F / r I with `project`."""
         if not self.active:
             return []
-        on, d, K, F, stick = self._parts(u)
-        if self.project:                                             # slipping: F / |d| instead of 0
-            K = np.where(stick, K, F / np.where(stick, 1.0, np.abs(d)))
-        else:
-            on, K = on[stick], K[stick]
+        on, d, r, K, F, stick = self._parts(u)
+        m = d.shape[1]
+        e = d / np.where(r > 0, r, 1.0)[:, None]
+        along = np.where(stick | self.project, 0.0, 1.0)
+        C = np.where(stick, K, F / np.where(stick, 1.0, r))[:, None, None] \
+            * (np.eye(m)[None] - along[:, None, None] * e[:, :, None] * e[:, None, :])
+        keep = np.abs(C).reshape(len(on), m * m).max(axis=1, initial=0.0) > 0
+        on, C = on[keep], C[keep]
         if not len(on):
             return []
-        g = self._coefficients(on)
+        G = self._coefficients(on)
         pos = self._positions(on)
-        values = K[:, None, None] * g[:, :, None] * g[:, None, :]
+        values = np.einsum("nax,nab,nby->nxy", G, C, G)
         rows = np.repeat(pos[:, :, None], pos.shape[1], axis=2)
         cols = np.repeat(pos[:, None, :], pos.shape[1], axis=1)
         n = len(self.c.dofs)
@@ -240,7 +314,7 @@ class ObjectFriction(Term):
         return [(self.c.dofs, H)]
 
     def pattern(self) -> list:
-        return self.c.pattern()          # a vertex with another piece's edge: the barrier's blocks
+        return self.c.pattern()          # a vertex with another piece's facet: the barrier's blocks
 
     # -- parameters ---------------------------------------------------------------------------------
     def parameters(self) -> dict:
@@ -269,7 +343,7 @@ class ObjectFriction(Term):
         cs = self.c.collisions(y)
         if len(cs) == 0:
             return np.zeros(len(self.body_vertices))
-        g = np.asarray(self.c.barrier.gradient(cs, self.c.mesh, fortran_array(y))).reshape(-1, 2)
+        g = np.asarray(self.c.barrier.gradient(cs, self.c.mesh, fortran_array(y))).reshape(y.shape)
         return self._shares(0.5 * self.t * np.linalg.norm(g, axis=1), y)
 
     def _shares(self, N: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -283,14 +357,14 @@ class ObjectFriction(Term):
         the closest other piece's edge); the anchored ones of a pair share
         its sum. Where both sides anchor (faces on faces) nothing changes."""
         pressed = np.flatnonzero(N > 0)
-        anchored = self.edge[pressed] >= 0
+        anchored = self.facet[pressed] >= 0
         if anchored.all() or not anchored.any():
             return N
         self._y = y
-        partner = np.where(anchored, self.edge_piece[np.maximum(self.edge[pressed], 0)], -1)
+        partner = np.where(anchored, self.facet_piece[np.maximum(self.facet[pressed], 0)], -1)
         loose = ~anchored
         j, _, _ = self._closest(y[self.body_vertices[pressed[loose]]], self.vertex_piece[pressed[loose]])
-        partner[loose] = self.edge_piece[j]
+        partner[loose] = self.facet_piece[j]
         mine = self.vertex_piece[pressed]
         n = len(self.c.pieces)
         pair = np.minimum(mine, partner) * n + np.maximum(mine, partner)
@@ -305,14 +379,14 @@ class ObjectFriction(Term):
         """A new attempt at a step starts from the committed states; a ramp from rest (u = 0) from none."""
         if self.active:
             if not self.c.comm.allreduce(bool(np.any(self.u_fn.x.array)), op=MPI.LOR):
-                self.edge[:], self.N[:], self.run[:], self.sliding[:] = -1, 0.0, 0.0, False
+                self.facet[:], self.N[:], self.run[:], self.sliding[:] = -1, 0.0, 0.0, False
                 self._N_step = self.N.copy()
             self.N = self._N_step.copy()          # a failed attempt's lagged N is forgotten
             self.trial = self.sliding.copy()
             self._relax, self._lag_change = 1.0, None
             self._y0 = self.c.positions(self.u_fn.x.array)
             self._anchor_new(self._y0)
-            self.fresh = self.edge >= 0
+            self.fresh = self.facet >= 0
 
     def update_lag(self, model) -> bool:
         if not self.active:
@@ -336,20 +410,20 @@ class ObjectFriction(Term):
             self._lag_change = d
             N = np.maximum(self.N + self._relax * d, 0.0)
         self.N, self.fresh = N, np.zeros_like(self.fresh)
-        new = (N > 0) & (self.edge < 0)              # came into contact during the solve: stuck where they are
+        new = (N > 0) & (self.facet < 0)              # came into contact during the solve: stuck where they are
         if new.any():
-            before = int(np.count_nonzero(self.edge >= 0))
+            before = int(np.count_nonzero(self.facet >= 0))
             self._anchor_new(y, new, start=self._y0)
-            changed = changed or int(np.count_nonzero(self.edge >= 0)) > before
-        on = self.edge >= 0
+            changed = changed or int(np.count_nonzero(self.facet >= 0)) > before
+        on = self.facet >= 0
         if on.any():
-            T = self._tangents(y, self.edge[on])
+            T = tangents(y, self.facets[self.facet[on]])
             changed = changed or bool(np.abs(T - self.T[on]).max() > 1e-9)
             self.T[on] = T
         if (self.mu_s_pair > self.mu_k_pair).any():
             idx, d = self._slip(y)
             broke = np.zeros(len(N), bool)
-            broke[idx] = self.run[idx] + np.maximum(np.abs(d) - self.eps, 0.0) > self.dc
+            broke[idx] = self.run[idx] + np.maximum(np.linalg.norm(d, axis=1) - self.eps, 0.0) > self.dc
             broke &= ~self.trial & (N > 0)
             if broke.any():
                 self.trial |= broke
@@ -367,9 +441,9 @@ class ObjectFriction(Term):
     def lags_at(self, u: np.ndarray):
         y = self.c.positions(u)
         T = self.T.copy()
-        on = self.edge >= 0
+        on = self.facet >= 0
         if on.any():
-            T[on] = self._tangents(y, self.edge[on])
+            T[on] = tangents(y, self.facets[self.facet[on]])
         return self._normal_forces(y), T
 
     def end_step(self, model) -> None:
@@ -381,60 +455,57 @@ class ObjectFriction(Term):
         self._y = y
         on, d = self._slip(y)
         F = self._mu()[on] * self.N[on]
-        slip = (F > 0) & (np.abs(d) > self.eps * (1 + 1e-12))
+        slip = (F > 0) & (np.linalg.norm(d, axis=1) > self.eps * (1 + 1e-12))
         # slide the anchors of slipping nodes to eps behind them (re-projected onto the object's boundary)
         idx = on[slip]
         if len(idx):
-            e = self.obj_edges[self.edge[idx]]
-            s = self.s[idx][:, None]
-            P = (1 - s) * y[e[:, 0]] + s * y[e[:, 1]]
-            back = (np.abs(d[slip]) - self.eps) * np.sign(d[slip])
-            j, s_new, _ = self._closest(P + back[:, None] * self.T[idx], self.vertex_piece[idx])
-            self.edge[idx], self.s[idx] = j, s_new
-            self.T[idx] = self._tangents(y, j)
+            P = self._anchor_points(y, idx)
+            r = np.linalg.norm(d[slip], axis=1)
+            back = ((r - self.eps) / r)[:, None] * d[slip]                # (n, dim - 1)
+            j, b_new, _ = self._closest(P + np.einsum("nka,na->nk", self.T[idx], back), self.vertex_piece[idx])
+            self.facet[idx], self.b[idx] = j, b_new
+            self.T[idx] = tangents(y, self.facets[j])
         run = np.zeros(len(self.N))
-        run[idx] = self.run[idx] + np.abs(d[slip]) - self.eps
+        run[idx] = self.run[idx] + np.linalg.norm(d[slip], axis=1) - self.eps
         self.run = run
         self.sliding = self.run > self.dc
         # nodes that left the barrier's reach lose their anchor; new ones are anchored where they are
-        _, _, dist = self._closest(y[self.body_vertices], self.vertex_piece) if len(self.obj_edges) \
+        _, _, dist = self._closest(y[self.body_vertices], self.vertex_piece) if len(self.facets) \
             else (None, None, None)
         if dist is not None:
             gone = dist > self.c.dhat
-            self.edge[gone] = -1
+            self.facet[gone] = -1
             self.run[gone], self.sliding[gone] = 0.0, False
         self._anchor_new(y)
         self._y0 = y
         self.trial = self.sliding.copy()
-        self.fresh = self.edge >= 0
+        self.fresh = self.facet >= 0
         self._N_step = self.N.copy()
 
     # -- read-out ------------------------------------------------------------------------------------
     def vertex_forces(self, u: np.ndarray) -> np.ndarray:
-        """The friction force on every boundary vertex (n, 2), N: -f T on an anchored vertex, +f T
-        shared between the ends of its anchor edge."""
-        out = np.zeros((len(self.N), 2))
+        """The friction force on every boundary vertex (n, dim), N: -T f on an anchored vertex, +b_k T f
+        on the nodes of its anchor facet."""
+        out = np.zeros((len(self.N), self.bs))
         if not self.active:
             return out
         on, f = self._force(u)
-        ft = f[:, None] * self.T[on]
-        e, s = self.obj_edges[self.edge[on]], self.s[on][:, None]
+        ft = np.einsum("nka,na->nk", self.T[on], f)
         np.add.at(out, self.body_vertices[on], -ft)
-        np.add.at(out, e[:, 0], (1 - s) * ft)
-        np.add.at(out, e[:, 1], s * ft)
+        np.add.at(out, self.facets[self.facet[on]].ravel(), (self.b[on][:, :, None] * ft[:, None, :]).reshape(-1, self.bs))
         return out
 
     def _measure(self, u: np.ndarray) -> dict:
         """Per pair of pieces rubbing: the friction force on the first (N) and the share of the normal
         force carried by vertices that did not slip in this step (at a converged state, before the
-        return map). A vertex of piece p anchored on an edge of piece q feels -f T; the edge, +f T."""
+        return map). A vertex of piece p anchored on a facet of piece q feels -T f; the facet, +T f."""
         on, f = self._force(u)
         anchored, d = self._slip(self.c.positions(u))
         slipping = np.zeros(len(self.N), bool)
-        slipping[anchored] = np.abs(d) > self.eps * (1 + 1e-12)
-        mine = np.flatnonzero(self.edge >= 0)
-        slave, master = self.vertex_piece[mine], self.edge_piece[self.edge[mine]]
-        force_on = self.vertex_piece[on], self.edge_piece[self.edge[on]]
+        slipping[anchored] = np.linalg.norm(d, axis=1) > self.eps * (1 + 1e-12)
+        mine = np.flatnonzero(self.facet >= 0)
+        slave, master = self.vertex_piece[mine], self.facet_piece[self.facet[mine]]
+        force_on = self.vertex_piece[on], self.facet_piece[self.facet[on]]
         out = {}
         names = self.c.pieces
         for p in range(len(names)):
@@ -442,9 +513,9 @@ class ObjectFriction(Term):
                 pair = ((slave == p) & (master == q)) | ((slave == q) & (master == p))
                 if not pair.any() or not (self.mu_s_pair[p, q] > 0 or self.mu_s_pair[q, p] > 0):
                     continue
-                sign = np.where(force_on[0] == p, -1.0, 1.0)[:, None]         # on p: -f T as vertex, +f T as edge
+                sign = np.where(force_on[0] == p, -1.0, 1.0)[:, None]         # on p: -T f as vertex, +T f as facet
                 rub = ((force_on[0] == p) & (force_on[1] == q)) | ((force_on[0] == q) & (force_on[1] == p))
-                force = (sign[rub] * f[rub][:, None] * self.T[on[rub]]).sum(axis=0)
+                force = (sign[rub] * np.einsum("nka,na->nk", self.T[on[rub]], f[rub])).sum(axis=0)
                 N = self.N[mine[pair]]
                 total = float(N.sum())
                 held = float(N[~slipping[mine[pair]]].sum())

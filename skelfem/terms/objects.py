@@ -51,17 +51,35 @@ from .rigid import RigidBody
 
 
 def nodal_areas(V, cells: np.ndarray) -> np.ndarray:
-    """int phi_i dx over the cells for every local node (P1: a third of each cell's area at its vertices;
-    P2: at its edge midpoints, the vertex functions integrating to zero)."""
+    """int phi_i dx over the cells for every local node: areas in 2D, volumes in 3D.
+
+    P1: a third (2D) or a quarter (3D) of each cell's measure at its vertices.
+    P2 triangles: a third at each edge midpoint, the vertex functions
+    integrating to zero; P2 tetrahedra: -1/20 at each vertex and 1/5 at each
+    edge midpoint (the consistent loads of a uniform weight)."""
     npc = V.dofmap.dof_layout.num_dofs
+    tdim = V.mesh.topology.dim
     nodes = V.dofmap.list.array.reshape(-1, npc)[cells]
-    x = V.tabulate_dof_coordinates()[:, :2]
-    a, b, c = x[nodes[:, 0]], x[nodes[:, 1]], x[nodes[:, 2]]
-    area = 0.5 * np.abs((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
-    carriers = nodes[:, :3] if npc == 3 else nodes[:, 3:6]
+    x = V.tabulate_dof_coordinates()[:, :tdim]
+    edges = np.stack([x[nodes[:, k]] - x[nodes[:, 0]] for k in range(1, tdim + 1)], axis=2)
+    measure = np.abs(np.linalg.det(edges)) / (2.0 if tdim == 2 else 6.0)
     out = np.zeros(len(x))
-    np.add.at(out, carriers.ravel(), np.repeat(area / 3.0, 3))
+    if npc == tdim + 1:                                   # P1
+        weights = np.full(tdim + 1, 1.0 / (tdim + 1))
+    elif tdim == 2:                                       # P2 triangle: vertices 0, midpoints 1/3
+        weights = np.r_[np.zeros(3), np.full(3, 1.0 / 3.0)]
+    else:                                                 # P2 tetrahedron
+        weights = np.r_[np.full(4, -1.0 / 20.0), np.full(6, 1.0 / 5.0)]
+    np.add.at(out, nodes.ravel(), (measure[:, None] * weights[None]).ravel())
     return out
+
+
+def rotation_readout(R: np.ndarray):
+    """2D: the angle in rad; 3D: the rotation vector (axis times angle, rad)."""
+    if len(R) == 2:
+        return float(np.arctan2(R[1, 0], R[0, 0]))
+    from scipy.spatial.transform import Rotation
+    return Rotation.from_matrix(R).as_rotvec()
 
 
 class RigidObject(Term):
@@ -93,7 +111,7 @@ class RigidObject(Term):
         self.factor = 0.0
         self.k = self.tether * barrier_stiffness(design) * t
         self.n = self.body.count
-        self.size = float(np.linalg.norm(np.ptp(np.asarray(spec.outline, float), axis=0)))
+        self.size = spec.size
 
     def _weights(self) -> None:
         self.f = self.rho * self.w[:, None] * self.g                   # (k, dim) N at a = 1
@@ -165,7 +183,7 @@ class RigidObject(Term):
     def readout(self, model) -> dict:
         t, R = self.body.fit(model.u.x.array)
         c = self.centroid(model.u.x.array, t, R)
-        return {self.name: {"position": c, "rotation": float(np.arctan2(R[1, 0], R[0, 0])),
+        return {self.name: {"position": c, "rotation": rotation_readout(R),
                             "displacement": c - self.centroid0, "weight": self.weight()}}
 
     def centroid(self, u: np.ndarray, t: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -228,14 +246,14 @@ class PieceContact(SelfContact):
         return out
 
     def nodal_forces(self, model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(positions (n, 2), barrier forces (n, 2) N, friction forces (n, 2) N) on every boundary node
+        """(positions (n, dim), barrier forces (n, dim) N, friction forces (n, dim) N) on every boundary node
         (rows as self.nodes; self.label tells the piece), for pictures of the contact forces."""
         u = model.u.x.array
         y = self.positions(u)
         c = self.collisions(y)
         normal = np.zeros_like(y)
         if len(c):
-            normal = -self.t * np.asarray(self.barrier.gradient(c, self.mesh, fortran_array(y))).reshape(-1, 2)
+            normal = -self.t * np.asarray(self.barrier.gradient(c, self.mesh, fortran_array(y))).reshape(y.shape)
         friction = np.zeros_like(y)
         for term in model.terms_in("contacts"):
             if term is not self and hasattr(term, "vertex_forces"):
@@ -256,9 +274,11 @@ class PieceContact(SelfContact):
         if the ground has it), from the ground's nodal penalty forces on the object's nodes."""
         from .friction import GroundFriction, boundary_weights
         from .grounds import Ground
+        if not any(isinstance(g, Ground) for g in model.terms_in("grounds")):
+            return {}
         if self._weights is None:
             self._weights = boundary_weights(model.V)
-        X = model.V.tabulate_dof_coordinates()[:, :2]
+        X = model.V.tabulate_dof_coordinates()[:, :self.bs]
         out = {}
         for ground in model.terms_in("grounds"):
             if not isinstance(ground, Ground):
@@ -306,17 +326,17 @@ class PieceContact(SelfContact):
         return out
 
     def pair_forces(self, y: np.ndarray, c) -> dict:
-        """{(i, j), i < j: the barrier's nodal forces (n, 2) N of the collisions between pieces i and j},
+        """{(i, j), i < j: the barrier's nodal forces (n, dim) N of the collisions between pieces i and j},
         each collision's share taken from its own gradient (a node may touch two pieces at once)."""
         out: dict = {}
         edges, faces = self.mesh.edges, self.mesh.faces
-        for coll in [*c.vv_collisions, *c.ev_collisions]:
+        for coll in [*c.vv_collisions, *c.ev_collisions, *c.ee_collisions, *c.fv_collisions]:
             ids = np.array([v for v in coll.vertex_ids(edges, faces) if v >= 0])
             pieces = self.label[ids]
             pair = (int(pieces.min()), int(pieces.max()))
             if pair[0] == pair[1]:
                 continue
-            g = self.t * np.asarray(self.barrier.gradient(coll, coll.dof(y, edges, faces))).reshape(-1, 2)
+            g = self.t * np.asarray(self.barrier.gradient(coll, coll.dof(y, edges, faces))).reshape(-1, y.shape[1])
             force = out.setdefault(pair, np.zeros_like(y))
             np.add.at(force, ids, -g[:len(ids)])
         return out
