@@ -33,7 +33,14 @@ def block_keys(blocks, n: int) -> np.ndarray:
 
 
 class MatrixAssembly:
-    """TODO"""
+    """The Newton matrix of a Model (a mixin: the model holds V, the terms, the rigid bodies).
+
+    Serial, with rigid bodies: the terms' entries on a rigid body's DOFs
+    never enter the sparse matrix (its rows and columns become the identity
+    and the border anyway); they are kept aside (``_aside``) and added to
+    K T when the border is built. A contact block between the body and a
+    rigid object's boundary would otherwise couple every node of the two
+    in the pattern, and the factorisation would fill in over them."""
 
     def _term_blocks(self, term):
         """The term's pattern blocks as (global rows this rank sets, global columns)."""
@@ -97,6 +104,15 @@ class MatrixAssembly:
         out.append((every, every))
         return out, hosts
 
+    def _follower_nodes(self) -> np.ndarray | None:
+        """Serial: which local nodes follow a rigid body (None under MPI or without rigid bodies)."""
+        if self.comm.size != 1 or not self.rigid:
+            return None
+        out = np.zeros(self.n_local // self.bs, dtype=bool)
+        for body in self.rigid:
+            out[np.asarray(body.dofs)[:, 0] // self.bs] = True
+        return out
+
     def create_matrix(self) -> PETSc.Mat:
         """The sparse Newton matrix K: the UFL Hessian's pattern plus every term's (sparse) blocks.
 
@@ -109,7 +125,16 @@ class MatrixAssembly:
         if self.comm.size == 1:        # serial: the term blocks (and the rigid border) go into DOLFINx's pattern
             blocks = [block for term in self.terms for block in term.pattern()] + self._extra_rows()
             border_blocks, self._hosts = self._border_pattern(blocks)
-            for rn, cn in blocks + border_blocks:
+            follower = self._follower_nodes()
+            for rn, cn in blocks:      # a rigid body's nodes: kept aside (see the class)
+                rn, cn = np.asarray(rn, np.int32), np.asarray(cn, np.int32)
+                if follower is not None:
+                    rn, cn = rn[~follower[rn]], cn[~follower[cn]]
+                if len(rn) and len(cn):
+                    pattern.insert(rn, cn)
+            if follower is not None:   # their diagonal: the identity rows
+                pattern.insert_diagonal(np.flatnonzero(follower).astype(np.int32))
+            for rn, cn in border_blocks:
                 pattern.insert(np.asarray(rn, np.int32), np.asarray(cn, np.int32))
         pattern.assemble()
         A = _cpp.la.petsc.create_matrix(self.comm, pattern)
@@ -164,11 +189,19 @@ class MatrixAssembly:
         pos, grow = self._owned_rows(term, dofs)
         keep = np.zeros(len(dofs), dtype=bool)
         keep[pos] = True
-        sel = np.flatnonzero(keep[row] & free[row] & free[col])
+        ok = keep[row] & free[row] & free[col]
+        aside = np.zeros(0, np.int64)
+        if self.comm.size == 1 and self.rigid:               # entries on rigid bodies' DOFs: kept aside
+            slaved = self.slaved[np.asarray(dofs)]
+            on_rigid = slaved[row] | slaved[col]
+            aside = np.flatnonzero(ok & on_rigid)
+            ok &= ~on_rigid
+        sel = np.flatnonzero(ok)
         gcol = self.global_dofs[np.asarray(dofs)] if term.gather is None else np.asarray(dofs, np.int64)
         rowmap = np.full(len(dofs), -1, np.int64)
         rowmap[pos] = grow
-        return sel, rowmap[row[sel]], gcol[col[sel]]
+        local = np.asarray(dofs)
+        return sel, rowmap[row[sel]], gcol[col[sel]], aside, local[row[aside]], local[col[aside]]
 
     def _term_blocks_at(self, u: np.ndarray) -> tuple[list, list]:
         """Every term's sparse Hessian blocks at u: ([(dofs, row, col, sel, rows, cols)], [values]).
@@ -177,6 +210,7 @@ class MatrixAssembly:
         time (a cable's curvature) reuses its map into the matrix.
         """
         blocks, values = [], []
+        aside = ([], [], [])
         for term in self.terms:
             for i, (dofs, H) in enumerate(term.hessian(u)):
                 H = H if sp.isspmatrix_coo(H) else sp.coo_matrix(H)
@@ -188,6 +222,12 @@ class MatrixAssembly:
                     self._block_cache[(id(term), i)] = c
                 blocks.append(c)
                 values.append(H.data[c[3]])
+                if len(c[6]):
+                    for out, a in zip(aside, (H.data[c[6]], c[7], c[8])):
+                        out.append(a)
+        n = self.n_owned
+        self._aside = None if not aside[0] else sp.coo_matrix(
+            (np.concatenate(aside[0]), (np.concatenate(aside[1]), np.concatenate(aside[2]))), shape=(n, n)).tocsr()
         return blocks, values
 
     def _add_term_blocks(self, A: PETSc.Mat, u: np.ndarray) -> None:
@@ -250,6 +290,8 @@ class MatrixAssembly:
         B = PETSc.Mat().createDense([(self.n_owned, n_global), (None, m)], array=T, comm=self.comm)
         KT = A.matMult(B).getDenseArray().copy()            # K T, one sparse-dense product
         B.destroy()
+        if getattr(self, "_aside", None) is not None:        # the terms' entries kept out of A (serial)
+            KT += self._aside @ T
         C = T.T @ KT
         C = C if self.comm.size == 1 else self.comm.allreduce(C)
         j = 0
