@@ -155,14 +155,17 @@ class Elasticity(Term):
 
     # -- exact rotations of stiff bones ------------------------------------------------------------
     def _bone_groups(self) -> list:
-        """Owned unrolled DOFs (n_nodes, bs) of each bone with no pinned DOF (same list on every rank)."""
+        """Owned unrolled DOFs (n_nodes, bs) of each bone and each rigid object with no pinned DOF (same
+        list on every rank): the node groups that turn by exact rotations."""
         ctx, design = self.ctx, self.ctx.design
         tm, V, bs = ctx.tagged, ctx.V, ctx.bs
         tdim = ctx.mesh.topology.dim
         n_owned = V.dofmap.index_map.size_local
         groups = []
-        for b in design.bones:
-            cells = tm.cell_tags.find(tm.tags[bone_tag_name(b.name)])
+        regions = [bone_tag_name(b.name) for b in design.bones] \
+            + [object_tag_name(o.name) for o in design.objects if o.rigid]
+        for region in regions:
+            cells = tm.cell_tags.find(tm.tags[region])
             nodes = fem.locate_dofs_topological(V, tdim, cells)
             nodes = nodes[nodes < n_owned]
             dofs = nodes[:, None] * bs + np.arange(bs)
