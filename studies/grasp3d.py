@@ -55,7 +55,7 @@ def grasp(mu: float, ratios, contraction: float = 3.0, size: float | None = None
         c = _contact(d)
         out["close"] = {"converged": r.converged, "status": r.status, "newton_iterations": r.report.newton_iterations,
                         "time": time.perf_counter() - t0, "normal_magnitude": c.get("normal_magnitude", 0.0),
-                        "min_distance": c.get("min_distance"), "ball_position": d["objects"]["ball"]["position"]}
+                        "min_distance": c.get("min_distance"), "ball_position": d.get("objects", {}).get("ball", {}).get("position")}
         print(f"mu {mu:g}: closed ({r.status}, {r.report.newton_iterations} Newton iterations, "
               f"{out['close']['time']:.1f} s), sum N = {out['close']['normal_magnitude']:.4f} N", flush=True)
         N0 = out["close"]["normal_magnitude"]
@@ -87,7 +87,7 @@ def grasp(mu: float, ratios, contraction: float = 3.0, size: float | None = None
             entry.update(held=bool(r.converged), mu_min=W / N0, margin=mu * N0 / W,
                          normal_magnitude=c.get("normal_magnitude"), friction_force=c.get("friction_force"),
                          sticking=c.get("sticking"), min_distance=c.get("min_distance"),
-                         ball_displacement=d["objects"]["ball"]["displacement"])
+                         ball_displacement=d.get("objects", {}).get("ball", {}).get("displacement"))
             out["weighings"].append(entry)
             print(f"  W = {W:.4f} N ({ratio:g} mu sum N): {'held' if r.converged else 'lost'} "
                   f"({r.report.newton_iterations} its, {entry['time']:.1f} s)", flush=True)

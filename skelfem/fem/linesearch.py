@@ -19,7 +19,9 @@ WATCHDOG = 5       # relaxed (energy-raising) full steps of the curved strategy 
 
 
 class LineSearch:
-    """TODO"""
+    """The energy line search of the Newton solver (a mixin): SNES's pre-check scales each Newton step so
+    that the trial state is admissible (``Model.max_step``) and lowers the total energy (Armijo
+    backtracking, with a watchdog that lets a few full steps raise it), optionally along a curve."""
 
     def _energy_line_search(self, x, y):
         """SNES pre-check: scale the step -y so that x - y is admissible and lowers Pi

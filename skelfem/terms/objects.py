@@ -88,6 +88,8 @@ class RigidObject(Term):
     section = "objects"
     tether = 1e-9        # k_o / (E_body t)
     held_tol = 1e-3      # the tether may carry at most this share of the forces on the object
+    step_limit = 0.25    # a Newton step moves no node of the object by more than this share of its size
+    bounds_steps = True
 
     def __init__(self, ctx: Context, spec):
         self.ctx, self.name, self.spec = ctx, spec.name, spec
@@ -155,6 +157,18 @@ class RigidObject(Term):
         import scipy.sparse as sp
         d = self.dofs.ravel()
         return [(d, sp.identity(len(d), format="coo") * (self.k / self.n))]
+
+    def max_step(self, u0: np.ndarray, p: np.ndarray) -> float:
+        """alpha <= 1 such that alpha p moves no node of the object by more than step_limit x its size.
+
+        A direction only the tether resists (the object touches nothing yet, or
+        every contact node slips, where the exact friction Hessian has no
+        stiffness along the slip) is as long as the tiny tether makes it: a
+        trust region on the object keeps such steps from throwing it away."""
+        reach = float(np.linalg.norm(p[self.dofs], axis=1).max(initial=0.0))
+        reach = self.ctx.comm.allreduce(reach, op=MPI.MAX) if self.ctx.comm.size > 1 else reach
+        limit = self.step_limit * self.size
+        return 1.0 if reach <= limit else limit / reach
 
     def weight(self) -> np.ndarray:
         return self.ctx.comm.allreduce(self.f.sum(axis=0))
