@@ -48,15 +48,19 @@ def grasp(mu: float, ratios, contraction: float = 3.0, size: float | None = None
     out = {"mu": mu, "contraction": contraction, "weighings": []}
     with Session(DESIGN, overrides) as s:
         out["dofs"] = s.dofs
-        s.set({k: contraction for k in FLEXORS})
-        t0 = time.perf_counter()
-        r = s.solve()
+        t0, its = time.perf_counter(), 0
+        for c in np.linspace(0.0, contraction, 4)[1:]:          # closed in three steps
+            s.set({k: float(c) for k in FLEXORS})
+            r = s.solve()
+            its += r.report.newton_iterations
+            if not r.converged:
+                break
         d = r.to_dict()
         c = _contact(d)
-        out["close"] = {"converged": r.converged, "status": r.status, "newton_iterations": r.report.newton_iterations,
+        out["close"] = {"converged": r.converged, "status": r.status, "newton_iterations": its,
                         "time": time.perf_counter() - t0, "normal_magnitude": c.get("normal_magnitude", 0.0),
                         "min_distance": c.get("min_distance"), "ball_position": d.get("objects", {}).get("ball", {}).get("position")}
-        print(f"mu {mu:g}: closed ({r.status}, {r.report.newton_iterations} Newton iterations, "
+        print(f"mu {mu:g}: closed ({r.status}, {its} Newton iterations, "
               f"{out['close']['time']:.1f} s), sum N = {out['close']['normal_magnitude']:.4f} N", flush=True)
         N0 = out["close"]["normal_magnitude"]
         if not r.converged or not N0 > 0:

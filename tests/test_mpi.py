@@ -95,7 +95,8 @@ def _agree_contacts(serial, parallel, rel=1e-6):
     for name, o in serial.get("objects", {}).items():
         p = parallel["objects"][name]
         assert _close(o["position"], p["position"], rel), name
-        assert abs(o["rotation"] - p["rotation"]) <= 1e-9 + rel * abs(o["rotation"]), name
+        a, b = np.atleast_1d(o["rotation"]), np.atleast_1d(p["rotation"])      # 3D: rotation vectors
+        assert np.linalg.norm(a - b) <= 1e-9 + rel * np.linalg.norm(a), name
     assert [c["between"] for c in serial["contacts"]] == [c["between"] for c in parallel["contacts"]]
     scale = max(c.get("normal_magnitude", np.linalg.norm(c["normal_force"])) for c in serial["contacts"])
     for a, b in zip(serial["contacts"], parallel["contacts"]):
@@ -119,11 +120,11 @@ def test_self_contact_agrees_across_ranks(tmp_path, mpirun):
     assert _close(serial["markers"]["tip"]["position"], parallel["markers"]["tip"]["position"])
 
 
-@pytest.mark.parametrize("case", ["two_fingers", "gripper", "ground", "elastic"])
+@pytest.mark.parametrize("case", ["two_fingers", "gripper", "ground", "elastic", "cube3d"])
 def test_bodies_objects_and_their_friction_agree_across_ranks(tmp_path, mpirun, case):
     """Contact between bodies and objects (the IPC barrier on the whole boundary, gathered on every rank),
-    friction between them and on a ground, an elastic object: mpirun -n 2 gives the serial answer with
-    the same Newton iterations."""
+    friction between them and on a ground, an elastic object, a cube on a block in 3D: mpirun -n 2 gives
+    the serial answer with the same Newton iterations."""
     from test_objects import G, _base, _box, _gel
     sets = []
     if case == "two_fingers":
@@ -137,6 +138,10 @@ def test_bodies_objects_and_their_friction_agree_across_ranks(tmp_path, mpirun, 
             d = _base([_box(20, 0, 26, 3)], gravity={"acceleration": [G * np.sin(th), -G * np.cos(th)]},
                       grounds=[{"name": "floor", "point": [0, 0], "normal": [0, 1], "stiffness": 100.0,
                                 "friction": 0.5}], markers={"b": [23.0, 1.5]})
+        elif case == "cube3d":                    # 3D: the contact's triangles, friction on them
+            from test_objects_3d import _design
+            d = _design([0.0, -G, 0.0])
+            sets = ["mesh.size=2.5"]
         else:
             d = _gel(E=0.05)
         path = tmp_path / f"{case}.toml"

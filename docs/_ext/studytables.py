@@ -485,6 +485,22 @@ def grasp(_: dict) -> Table:
     return Table(["W (N)", "mu_min = W / sum N"] + [f"mu = {short(m)}" for m in mus], rows, "", [path])
 
 
+def grasp3d(_: dict) -> Table:
+    d, path = load_json("grasp3d/grasp3d.json", "python studies/grasp3d.py")
+    c = d["close"]
+    rows = [["close (gravity off)", "–", "–", f"sum N = {num(c['normal_magnitude'])} N",
+             f"{c['newton_iterations']} its, {secs(c['time'])}"]]
+    for w in d["weighings"]:
+        if w.get("status") == "skipped":
+            rows.append([f"{short(w['ratio'])} mu sum N", "–", "–", "(not tried: a lighter one was lost)", "–"])
+            continue
+        verdict = ("held" if w["held"] else "lost") if "held" in w else w["status"]
+        rows.append([f"{short(w['ratio'])} mu sum N", num(w["weight"]), num(w["mu_min"]) if "mu_min" in w else "–",
+                     verdict, f"{w['newton_iterations']} its, {secs(w['time'])}"])
+    return Table(["weighing", "W (N)", "mu_min = W / sum N", "result", "cost"], rows,
+                 f"mu = {short(d['mu'])}, flexors {short(d['contraction'])} mm, {thousands(d['dofs'])} DOFs.", [path])
+
+
 def grasp_bench(_: dict) -> Table:
     d, path = load_json("grasp_bench/grasp_bench.json", "python studies/grasp_bench.py")
     cells: dict = {}
@@ -556,7 +572,7 @@ def cable_friction_cost(_: dict) -> Table:
 
 TABLES = {f.__name__: f for f in (bench, in_hand_roll, slice_check, mpi_speed, editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
                                   tol_check, tol_check_adaptive, scatter, adaptive_reach, adaptive_tol_runs,
-                                  stability, stability_slender, friction_stability, peer, pull_test, dynamics_checks, grasp, grasp_bench,
+                                  stability, stability_slender, friction_stability, peer, pull_test, dynamics_checks, grasp, grasp3d, grasp_bench,
                                   cable_friction, capstan, cable_friction_cost)}
 
 

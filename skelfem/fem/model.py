@@ -297,6 +297,17 @@ class Model(MatrixAssembly):
         """Let every term refresh its lagged quantities at the converged state; True: solve again."""
         return any([term.update_lag(self) for term in self.terms])
 
+    def contact_event(self) -> bool:
+        """Whether some term took up a contact that formed at the present iterate (friction anchoring
+        it, ObjectFriction.contact_event): the energy changed, so Newton ends the solve there and starts
+        again from it (same answer on every rank)."""
+        watch = [t for t in self.terms if getattr(t, "contact_event", None) is not None]
+        if not watch:
+            return False
+        u = self.u.x.array
+        event = any(t.contact_event(u) for t in watch)
+        return self.comm.allreduce(event, op=MPI.LOR) if self.comm.size > 1 else event
+
     # -- state ----------------------------------------------------------------------------------
     def sync(self, x: PETSc.Vec) -> np.ndarray:
         """Make self.u hold x (ghosts updated); returns its local array."""

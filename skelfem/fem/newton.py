@@ -45,6 +45,7 @@ log = logging.getLogger("skelfem")
 
 
 MAX_LAG_UPDATES = 30   # re-solves with updated lagged quantities (friction's normal forces) per step
+MAX_CONTACT_EVENTS = 100   # solves stopped where contacts formed (Model.contact_event), per step
 MAX_FAILED_ROUNDS = 3  # re-solves in a row that fail although their lags changed: no equilibrium near
 LAG_LOOSE = 1e-2       # a re-solve whose lags will change again stops at this times its own first |R|
 
@@ -133,6 +134,8 @@ class NewtonSolver(LineSearch):
         #                                                   be below the reference
         self._watch = None            # the watchdog's reference (state, energy, Newton step) while relaxed
         self._watch_allowed = True
+        self._event = False           # the last SNES solve stopped at a contact event (Model.contact_event)
+        self._watch_events = any(getattr(t, "contact_event", None) is not None for t in model.terms)
         self._factorised = False      # lin holds a factorisation of K near the current state
         self.snes = self._create_snes(prefix)
 
@@ -193,6 +196,12 @@ class NewtonSolver(LineSearch):
         """|R| <= max(atol, rtol |R_0|), or a full Newton step below xtol * size."""
         xnorm, ynorm, fnorm = norms
         self._history.append(float(fnorm))
+        if it > 0 and self._watch_events:
+            self.model.sync(self.x)
+            if self.model.contact_event():      # a new contact that friction does not hold yet: lag now
+                log.debug("  newton %2d  |R| = %.3e: new contacts, their friction from here", it, fnorm)
+                self._event = True
+                return PETSc.SNES.ConvergedReason.DIVERGED_FUNCTION_DOMAIN
         if it == 0:
             # the force scale: |R| at the start of a solve from rest; a warm start, whose first
             # residual is small, is held to the same absolute accuracy, not to rtol of its own |R_0|
@@ -221,6 +230,7 @@ class NewtonSolver(LineSearch):
         self._watch, self._watch_allowed = None, True
         self._decrement_converged = False
         self._last_trial = None
+        self._event = False
         self.model.u.vector.copy(self.x)
         self.model.apply_bcs(self.x)
         if not self.model.admissible(self.x):
@@ -236,6 +246,8 @@ class NewtonSolver(LineSearch):
         self.model.sync(self.x)
         reason = self.snes.getConvergedReason()
         its = self.snes.getIterationNumber()
+        if self._event:                 # stopped where contacts formed (anchored there): go on with them
+            return self._relag(its)
         if self.model.update_lag():     # lagged friction (or contacts a failed solve ran into): solve again
             return self._relag(its)
         if reason > 0:
@@ -252,8 +264,8 @@ class NewtonSolver(LineSearch):
         """Newton again after each change of the terms' lagged quantities, until none changes."""
         if self._history:                       # the re-solves keep the first solve's force scale
             self.reference_residual = max(self.reference_residual, self._history[0])
-        loose, failed = LAG_LOOSE, 0
-        for _ in range(MAX_LAG_UPDATES):
+        loose, failed, rounds, events = LAG_LOOSE, 0, 0, 0
+        while rounds < MAX_LAG_UPDATES and events < MAX_CONTACT_EVENTS:
             self._failure, self._newton_step, self._decrement_converged = None, np.inf, False
             self._watch, self._watch_allowed, self._last_trial = None, True, None
             self._loose = loose
@@ -264,7 +276,11 @@ class NewtonSolver(LineSearch):
             its += more
             if not ok and status.startswith("no equilibrium"):   # an object gone: new lags cannot hold it
                 return False, status, its
+            if status == "contact_event":          # not a failure: the new contacts are held from here
+                failed, events = 0, events + 1
+                continue
             changed = self.model.update_lag()
+            rounds += 1
             failed = 0 if ok else failed + 1
             if not ok and (not changed or failed >= MAX_FAILED_ROUNDS):   # new lags did not help either
                 return False, status, its
@@ -280,7 +296,9 @@ class NewtonSolver(LineSearch):
         return False, "friction_not_converged", its
 
     def _newton_once(self) -> tuple[bool, str, int]:
-        """One SNES solve from self.x (no lag update); the model's state follows it."""
+        """One SNES solve from self.x (no lag update); the model's state follows it. Status
+        "contact_event": it stopped where a contact formed that friction does not hold yet."""
+        self._event = False
         try:
             self.snes.solve(None, self.x)
         except np.linalg.LinAlgError as exc:
@@ -290,6 +308,8 @@ class NewtonSolver(LineSearch):
             return False, "linear_solve_failed", 0
         self.model.sync(self.x)
         reason = self.snes.getConvergedReason()
+        if self._event:
+            return False, "contact_event", self.snes.getIterationNumber()
         if reason > 0:
             return True, "converged", self.snes.getIterationNumber()
         why = self.model.failure(converged=False)

@@ -120,6 +120,9 @@ class ObjectFriction(Term):
         self.gather = contact.gather
         self.t = contact.t
         self.bs = dim = contact.bs
+        # 3D: a contact that forms during a solve is anchored at once (contact_event); 2D: when the solve
+        # ends (update_lag). In 2D anchoring at once made a box dropped on a box lose the upper one.
+        self.anchor_during_solve = dim == 3
         X = contact.X
         size = float(np.linalg.norm(np.ptp(X, axis=0)))
         self.eps, self.dc = self.slip_length * size, self.breakaway * size
@@ -403,6 +406,28 @@ class ObjectFriction(Term):
             self._y0 = self.c.positions(self.u_fn.x.array)
             self._anchor_new(self._y0)
             self.fresh = self.facet >= 0
+
+    def contact_event(self, u: np.ndarray) -> bool:
+        """Anchor the vertices the barrier presses at u that have no anchor yet (a contact formed during
+        the solve) where they were, relative to the other side, when the step began, held by a spring
+        that cannot slip until the next lag update gives their N (as the contacts a step starts with);
+        True if there were any. Newton stops there and goes on with them (Model.contact_event): a
+        frictionless squeeze of a free object has no equilibrium, and Newton wandered off with it."""
+        if not (self.anchor_during_solve and self.active) or not (self.facet < 0).any():
+            return False
+        y = self.c.positions(u)
+        cs = self.c.collisions(y)
+        if len(cs) == 0:
+            return False
+        g = np.asarray(self.c.barrier.gradient(cs, self.c.mesh, fortran_array(y))).reshape(y.shape)
+        new = (np.linalg.norm(g, axis=1) > 0) & (self.facet < 0)
+        if not new.any():
+            return False
+        before = self.facet >= 0
+        self._anchor_new(y, new, start=self._y0)
+        added = (self.facet >= 0) & ~before
+        self.fresh |= added
+        return bool(added.any())
 
     def update_lag(self, model) -> bool:
         if not self.active:
