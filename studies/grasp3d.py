@@ -16,8 +16,7 @@ Analytically a two-pad pinch holds iff W <= mu sum N, that is iff ratio <= 1
 lost the heavier ones are skipped.
 
 run(**params) returns the numbers; main(argv) also writes grasp3d.json into
-out and grasp3d.png (the heaviest sphere held, with its contact forces) into
-figures.
+out and grasp3d.png (the heaviest sphere held) into figures.
 """
 from __future__ import annotations
 
@@ -103,16 +102,10 @@ def grasp(mu: float, ratios, contraction: float = 3.0, size: float | None = None
 
 
 def _draw(path: Path, session, title: str) -> None:
-    from matplotlib.figure import Figure
-
-    from skelfem.io.files import atomic_write
-    from skelfem.viz.plots import plot_deformed
-    fig = Figure(figsize=(6.4, 6.4), dpi=120)
-    ax = fig.subplots()
-    plot_deformed(None, session.model, title, ax=ax)
-    fig.tight_layout()
+    """The deformed gripper and the sphere (opaque, as bones), rendered off-screen."""
+    from skelfem.viz.plots import plot_deformed_3d
     path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))
+    plot_deformed_3d(path, session.model, title, window_size=(800, 800))
 
 
 def run(mu: float = 0.8, ratios=(0.5, 0.9, 1.1), contraction: float = 3.0, size: float | None = None,

@@ -570,9 +570,44 @@ def cable_friction_cost(_: dict) -> Table:
                   "far end [N]"], rows, caption, [path])
 
 
+def hand_grasp(_: dict) -> Table:
+    d, path = load_json("hand_grasp/hand_grasp.json", "python studies/hand_grasp.py")
+
+    def cell(w) -> str:
+        return f"{num(w['weight'])} N ({num(w['margin'])} / {num(w['margin_pads'])})"
+    rows = []
+    for r in d["results"]:
+        c = r["close"]
+        if not c.get("converged"):
+            rows.append([r["shape"], short(r["mu"]), f"not closed: {c['status']}", "–", "–", "–"])
+            continue
+        f = c["fingers"]
+        tried = [w for w in r["weighings"] if "held" in w]
+        held = [w for w in tried if w["held"]]
+        lost = next((w for w in tried if not w["held"]), None)
+        last = cell(lost) if lost else "none (heaviest tried held)"
+        if lost and not lost["status"].startswith("no equilibrium"):
+            last += f" ({lost['status'].split(' (')[0]})"
+        moved = held[-1]["moved"] if held else None
+        rows.append([r["shape"], short(r["mu"]), f"{num(f['left'])} / {num(f['centre'])} / {num(f['right'])}",
+                     cell(held[-1]) if held else "none held", last,
+                     (f"({num(moved['displacement'][0], 2)}, {num(moved['displacement'][1], 2)}) mm, "
+                      f"{num(math.degrees(moved['rotation']), 2)}°") if moved else "–"])
+    p = d["params"]
+    caption = (f"Outer flexors {short(p['contraction'])} mm, centre flexor {short(p['centre'])} mm, mesh "
+               f"{short(p['size'])} mm; densities {short(p['densities'][0])} to {short(p['densities'][-1])} kg/m^3 "
+               f"in steps of {short(p['densities'][1] - p['densities'][0]) if len(p['densities']) > 1 else '–'}. "
+               "Margin: mu / mu_min, with mu_min = W / sum N of the three contacts (as the gripper) and "
+               "W / (N_left + N_right) of the outer fingers (pads). Moved: the heaviest held object's "
+               f"displacement and turn since the closed grip. {d['agree_with_mu_min']} of {d['weighings']} "
+               f"weighings agree with the three contacts' mu_min, {d['agree_with_mu_min_pads']} with the pads'.")
+    return Table(["shape", "mu", "closed: N left / centre / right (N)", "heaviest held: W (margin three / pads)",
+                  "first lost: W (margin three / pads)", "held object moved"], rows, caption, [path])
+
+
 TABLES = {f.__name__: f for f in (bench, in_hand_roll, slice_check, mpi_speed, editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
                                   tol_check, tol_check_adaptive, scatter, adaptive_reach, adaptive_tol_runs,
-                                  stability, stability_slender, friction_stability, peer, pull_test, dynamics_checks, grasp, grasp3d, grasp_bench,
+                                  stability, stability_slender, friction_stability, peer, pull_test, dynamics_checks, grasp, grasp3d, hand_grasp, grasp_bench,
                                   cable_friction, capstan, cable_friction_cost)}
 
 
