@@ -1,4 +1,10 @@
-"""Self-contact: the IPC barrier between parts of the body's boundary (2D).
+"""Self-contact: the IPC barrier between parts of the body's boundary (2D); its boundary machinery serves
+contact between pieces in 2D and 3D too (:mod:`.objects`).
+
+In 3D the collision mesh is the boundary's triangles (a P2 triangle split
+into four through its edge midpoints) with their edges, and the same
+barrier, filter and collision-free steps apply (``boundary_facets``).
+The rest of this note describes the 2D polygon.
 
 The collision mesh is the boundary polygon of the mesh (outline and holes):
 its vertices are the boundary nodes of the displacement space, x = X + u,

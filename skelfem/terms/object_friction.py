@@ -1,4 +1,11 @@
-"""Coulomb friction between the body and rigid objects (2D), anchored on the object's surface.
+"""Coulomb friction between pieces (bodies, objects), anchored on the other piece's surface.
+
+Written below for 2D (edges, a scalar slip); in 3D the anchor is a point of
+a boundary triangle in barycentric coordinates b, T the triangle's
+orthonormal tangent basis (3 x 2) and the slip d = T^T (y_i - sum_k b_k y_k)
+a 2-vector, with r = |d| in the slider below (a slipping node then keeps the
+stiffness F / r across its slip); a contact that forms during a solve is
+anchored at once (``contact_event``).
 
 The body's boundary nodes touch the objects' boundary edges through the IPC
 barrier (:class:`.objects.PieceContact`). A body node i in contact sticks
