@@ -189,7 +189,7 @@ def _pairs(contact, materials: dict, default: Coulomb) -> dict:
     return out
 
 
-def _objects(top, dim: int, materials: dict, bodies: tuple) -> tuple:
+def _objects(top, dim: int, materials: dict, bodies: tuple, read_solids) -> tuple:
     entries = top.data.pop("objects", None)
     if entries is None:
         return ()
@@ -223,8 +223,7 @@ def _objects(top, dim: int, materials: dict, bodies: tuple) -> tuple:
         else:
             if t.has("outline"):
                 t.fail("outline", "is for dim = 2 (a 3D object is its solids)")
-            from .shapes import _solids
-            outline, solids = None, _solids(t, dim, tol)
+            outline, solids = None, read_solids(t, dim, tol)
         material = t.take("material", "str")
         if material not in materials:
             t.fail("material", f"unknown material {material!r} (defined: {', '.join(materials)})")
@@ -252,9 +251,10 @@ def _objects(top, dim: int, materials: dict, bodies: tuple) -> tuple:
     return tuple(out)
 
 
-def take(top, dim: int, materials: dict, bodies: tuple) -> tuple[FrictionSpec, tuple]:
-    """Read (and remove from top's tables) [[objects]] and the friction keys of [contact] and [[grounds]]."""
-    objects = _objects(top, dim, materials, bodies)
+def take(top, dim: int, materials: dict, bodies: tuple, read_solids) -> tuple[FrictionSpec, tuple]:
+    """Read (and remove from top's tables) [[objects]] and the friction keys of [contact] and [[grounds]].
+    read_solids(table, dim, tol): a 3D object's `solids`, read as the body's (skelfem.design.shapes)."""
+    objects = _objects(top, dim, materials, bodies, read_solids)
     contact = _stripped(top, "contact", "table")
     default = Coulomb()
     if contact is not None:

@@ -18,7 +18,7 @@ from pathlib import Path
 from . import polygons
 from .objects import take as take_objects
 from .sections import check_bodies_held, check_body_scale, read_cables, read_contact, read_dynamics, check_energy_line_search, read_fabrication, read_gravity, read_grounds, read_loads, read_markers, read_pins, read_solver, read_tractions
-from .shapes import read_body, read_bones, read_materials
+from .shapes import read_body, read_bones, read_materials, read_solids
 from .spec import Design, DesignError, FORMAT, MeshSpec, SECTIONS_BY_NAME, force_scale
 from .table import Table, plain_name, positive, apply_override
 
@@ -64,7 +64,7 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     pins = read_pins(top, dim)
     check_bodies_held(str(source), bodies, pins, tol)
     loads = read_loads(top, dim, region)
-    friction, objects = take_objects(top, dim, materials, bodies)   # [[objects]], friction keys
+    friction, objects = take_objects(top, dim, materials, bodies, read_solids)   # [[objects]], friction keys
     grounds = read_grounds(top, dim, bodies, tol)
     contact = read_contact(top, dim)
     markers = read_markers(top, dim, region, objects)

@@ -192,7 +192,7 @@ def _small(t: Table, name: str, r: float, tol: float) -> float:
     return r
 
 
-def _solids(t: Table, dim: int, tol: float) -> tuple:
+def read_solids(t: Table, dim: int, tol: float) -> tuple:
     prims = t.take("solids", "list")
     if not prims:
         t.fail("solids", "at least one primitive is required")
@@ -209,7 +209,7 @@ def read_body(top: Table, dim: int, materials: dict):
     material = _material_ref(t, materials)
     if dim == 3:
         tol = 1e-9 * max(_extent(top.data), 1.0)
-        body = Body(material, solids=_solids(t, dim, tol))
+        body = Body(material, solids=read_solids(t, dim, tol))
         t.done()
         return (body,), None, tol, [(t, None)]
     outline = t.take("outline", "points", dim=2)
@@ -277,7 +277,7 @@ def read_bones(top: Table, dim: int, materials: dict, tol, body_tables: list) ->
         material = _material_ref(t, materials)
         rigid = t.take("rigid", "bool", False)
         if dim == 3:
-            bones.append(Bone(name, material, solids=_solids(t, dim, tol), rigid=rigid))
+            bones.append(Bone(name, material, solids=read_solids(t, dim, tol), rigid=rigid))
             t.done()
             continue
         outline = _polygon(t, "outline", t.take("outline", "points", dim=2), tol)
