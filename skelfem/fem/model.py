@@ -200,6 +200,11 @@ class Model(MatrixAssembly):
         """Whether every pattern block (row nodes, column nodes) is inside the last matrix made (serial)."""
         if self._pattern_keys is None:
             return False
+        follower = self._follower_nodes()           # rigid bodies' nodes: kept out of the pattern
+        if follower is not None:
+            blocks = [(np.asarray(r)[~follower[np.asarray(r)]], np.asarray(c)[~follower[np.asarray(c)]])
+                      for r, c in blocks]
+            blocks = [(r, c) for r, c in blocks if len(r) and len(c)]
         keys = block_keys(blocks, self.n_local // self.bs)
         if not len(keys):
             return True
