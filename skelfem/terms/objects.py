@@ -47,7 +47,7 @@ from ..mesh.geometry import object_tag_name
 from .base import Context, Term
 from .contact import SelfContact, barrier_stiffness, fortran_array, piece_labels, piece_names
 from .gravity import KG_PER_M3_TIMES_M_PER_S2
-from .rigid import RigidBody
+from .rigid import RigidBody, rotation_readout
 
 
 def nodal_areas(V, cells: np.ndarray) -> np.ndarray:
@@ -72,14 +72,6 @@ def nodal_areas(V, cells: np.ndarray) -> np.ndarray:
         weights = np.r_[np.full(4, -1.0 / 20.0), np.full(6, 1.0 / 5.0)]
     np.add.at(out, nodes.ravel(), (measure[:, None] * weights[None]).ravel())
     return out
-
-
-def rotation_readout(R: np.ndarray):
-    """2D: the angle in rad; 3D: the rotation vector (axis times angle, rad)."""
-    if len(R) == 2:
-        return float(np.arctan2(R[1, 0], R[0, 0]))
-    from scipy.spatial.transform import Rotation
-    return Rotation.from_matrix(R).as_rotvec()
 
 
 class RigidObject(Term):

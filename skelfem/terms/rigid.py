@@ -80,6 +80,14 @@ def closest_rigid_motion(X: np.ndarray, y: np.ndarray, total=lambda a: a):
     return cx, cy, Vt.T @ D @ U.T
 
 
+def rotation_readout(R: np.ndarray):
+    """2D: the angle in rad; 3D: the rotation vector (axis times angle, rad)."""
+    if len(R) == 2:
+        return float(np.arctan2(R[1, 0], R[0, 0]))
+    from scipy.spatial.transform import Rotation
+    return Rotation.from_matrix(R).as_rotvec()
+
+
 class RigidBody:
     """The kinematics of one rigid node group: modes, reduced gradient, projection, second derivatives.
 
@@ -169,14 +177,7 @@ class RigidBone(Term):
 
     def readout(self, model) -> dict:
         t, R = self.body.fit(model.u.x.array)
-        if self.ctx.dim == 2:
-            rot = float(np.arctan2(R[1, 0], R[0, 0]))
-        else:
-            angle = float(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)))
-            axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-            n = float(np.linalg.norm(axis))
-            rot = (angle / n * axis) if n > 1e-300 else np.zeros(3)
-        return {self.name: {"rigid": True, "translation": t, "rotation": rot}}
+        return {self.name: {"rigid": True, "translation": t, "rotation": rotation_readout(R)}}
 
 
 def build(ctx: Context) -> list[Term]:
