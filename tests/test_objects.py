@@ -2,6 +2,7 @@
 design errors of [[objects]] and [contact.pairs]."""
 import json
 import math
+import pickle
 import subprocess
 import sys
 
@@ -262,6 +263,41 @@ def test_a_failed_warm_re_solve_cuts_the_change_from_the_last_equilibrium():
     assert r.report.attempts[0].get("warm") and all("path" in a for a in r.report.attempts[1:])
     assert r.report.attempts[-1]["path"] == 1.0
     assert np.allclose(moved, out[False][1], atol=2e-3), (moved, out[False][1])
+
+
+
+def test_a_failed_attempt_leaves_no_anchors_or_slips_behind():
+    """A warm attempt that ran (its contacts anchored, its slips and lagged normal forces moved) and
+    then failed is taken back whole: the parameter path starts from the last equilibrium's friction
+    history, not from the failed attempt's (a retry that started from it held a cube past its
+    friction limit)."""
+    from skelfem.fem.newton import NewtonSolver
+    d = _base([_box(2, 10.5, 8, 13.5)], contact={"dhat": 0.2, "friction": 0.5})
+    th = math.radians(15.0)
+    with Session(d) as s:
+        assert s.solve().converged
+        committed = s.model.history()
+        s.set({"gravity.acceleration": [G * math.sin(th), -G * math.cos(th)]})
+        calls, seen = [], []
+        real_newton, real_path = NewtonSolver._newton, NewtonSolver.path
+
+        def newton(solver):
+            calls.append(1)
+            ok, status, its = real_newton(solver)          # it runs (and changes the history) ...
+            return (False, "max_iterations", its) if len(calls) == 1 else (ok, status, its)   # ... then fails
+
+        def path(solver, *args, **kw):
+            seen.append(s.model.history())
+            return real_path(solver, *args, **kw)
+        s.solver._newton = lambda: newton(s.solver)
+        s.solver.path = lambda *a, **k: path(s.solver, *a, **k)
+        r = s.solve()
+        assert r.converged, r.status
+    (at_path,) = seen
+    changed = [k for h0, h1 in zip(committed, at_path) if h0 is not None for k in h0
+               if pickle.dumps(h0[k]) != pickle.dumps(h1[k])]
+    assert any(h is not None and h["N"].any() for h in committed)       # a history worth keeping
+    assert changed == []
 
 
 # -- objects in a run in time ---------------------------------------------------------------------------

@@ -6,7 +6,8 @@ the inertia term (:mod:`skelfem.terms.inertia`) build its predictor x~ and
 coefficients for h, starts Newton at x~ (or at x_n if x~ is not admissible)
 and, if Newton converges, accepts the state (``model.end_step``: the inertia
 term shifts its history). A step that fails is never accepted: the state
-goes back to x_n and the step is retried with h / 2, down to dt / 2^max_cuts;
+goes back to x_n (and friction to its anchors and slips at t) and the step is
+retried with h / 2, down to dt / 2^max_cuts;
 after a cut h doubles back towards dt on steps that converge easily. Loads,
 gravity, pin moves and tendons without a schedule act at full value from
 t = 0 (a sudden load); the run starts at rest in the reference shape.
@@ -174,6 +175,7 @@ class Dynamics:
             self._record(rep, 0.0, on_step)
             T, dt = spec.duration, spec.dt
             t, h, cuts_in_row = 0.0, dt, 0
+            committed = model.history()         # friction's anchors and slips at t: a failed step's go
             while T - t > 1e-9 * dt:
                 h_try = min(h, T - t)
                 if T - t - h_try < 1e-6 * dt:
@@ -196,6 +198,7 @@ class Dynamics:
                         rep.states.append(model.u.x.array.copy())
                         rep.steps.append((t_next, h_try, inertia.alpha))
                     model.end_step()
+                    committed = model.history()
                     t = t_next
                     rep.load_steps += 1
                     rep.residual_history.append(step.residual_history[0])
@@ -210,6 +213,7 @@ class Dynamics:
                 cuts_in_row += 1
                 log.info("time step to t = %.6g s (dt %.3g s) failed (%s)", t_next, h_try, step.status)
                 model.u.x.array[:] = x_n
+                model.set_history(committed)
                 model.sync(model.u.vector)
                 if cuts_in_row > MAX_CUTS:
                     rep.status = step.status

@@ -345,6 +345,7 @@ class NewtonSolver(LineSearch):
         a, da, cuts = start, (end - start) / max(int(steps), 1), 0
         da0 = da
         saved = model.u.vector.copy()
+        committed = model.history()          # a failed attempt's anchors and slips are taken back
         prev, a_prev = None, a
         while a < end - 1e-12:
             target = min(a + da, end)
@@ -363,6 +364,7 @@ class NewtonSolver(LineSearch):
                          self._history[0] if self._history else 0.0,
                          self._history[-1] if self._history else 0.0)
                 model.end_step()
+                committed = model.history()
                 prev = prev or saved.duplicate()
                 saved.copy(prev)
                 a_prev, a = a, target
@@ -372,6 +374,7 @@ class NewtonSolver(LineSearch):
                 continue
             log.info("load step to factor %.4g failed (%s)", target, status)
             saved.copy(model.u.vector)
+            model.set_history(committed)
             model.set_factor(a)
             model.sync(model.u.vector)
             cuts += 1
@@ -472,6 +475,7 @@ class NewtonSolver(LineSearch):
         t0 = time.perf_counter()
         model = self.model
         saved = model.u.vector.copy()
+        committed = model.history()
         changes = dict(model.changes)
         model.set_factor(1.0)
         predicted = self._tangent_predictor()
@@ -487,6 +491,7 @@ class NewtonSolver(LineSearch):
             return self._finish(report, t0)
         log.info("warm re-solve failed (%s); cutting the step along the parameter path", status)
         saved.copy(model.u.vector)
+        model.set_history(committed)       # the failed attempt's new anchors and slips are not history
         model.sync(model.u.vector)
         saved.destroy()
         path = self.path(changes, max(int(steps), 2))
@@ -508,6 +513,7 @@ class NewtonSolver(LineSearch):
         s, ds, cuts, verdicts = 0.0, 1.0 / steps, 0, 0
         ds0 = ds
         saved = model.u.vector.copy()
+        committed = model.history()
 
         def at(key: str, t: float):
             old, new = changes[key]
@@ -530,6 +536,7 @@ class NewtonSolver(LineSearch):
                     log.info("path step %d: to %.4g of the change, %d Newton iterations", report.load_steps,
                              target, its)
                     model.end_step()
+                    committed = model.history()
                     model.u.vector.copy(saved)
                     s = target
                     if its <= 8:
@@ -537,6 +544,7 @@ class NewtonSolver(LineSearch):
                     continue
                 log.info("path step to %.4g of the change failed (%s)", target, status)
                 saved.copy(model.u.vector)
+                model.set_history(committed)
                 model.sync(model.u.vector)
                 self._factorised = False
                 cuts += 1
