@@ -5,7 +5,7 @@ import pytest
 from skelfem import Session
 from skelfem.accuracy import adapt, ladder as ladder_rules
 from skelfem.design import parse_design
-from skelfem.mesh.geometry import SizeField, mesh_design
+from skelfem.mesh.geometry import mesh_design
 
 from _designs import strip, variant
 

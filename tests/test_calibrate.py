@@ -1,5 +1,4 @@
 """Calibration: sensitivities of every parameter kind, recovery, identifiability, coverage, bad data."""
-import math
 
 import numpy as np
 import pytest

@@ -14,7 +14,6 @@ import socket
 import subprocess
 import sys
 import threading
-import time
 import tomllib
 
 import numpy as np
@@ -210,7 +209,7 @@ def test_own_hosts_are_served(editor):
 
 def _ws_handshake(port, host, origin=None) -> bytes:
     s = socket.create_connection(("127.0.0.1", port), timeout=10)
-    lines = [f"GET /api/live HTTP/1.1", f"Host: {host}", "Upgrade: websocket", "Connection: Upgrade",
+    lines = ["GET /api/live HTTP/1.1", f"Host: {host}", "Upgrade: websocket", "Connection: Upgrade",
              "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==", "Sec-WebSocket-Version: 13"]
     if origin:
         lines.append(f"Origin: {origin}")

@@ -14,7 +14,7 @@ import time
 
 import pytest
 
-from _hardening import ENV, ROOT, SKELFEM, assert_one_error, box3d, changed, listing, strip2d, toml_dumps
+from _hardening import ENV, SKELFEM, assert_one_error, box3d, changed, listing, strip2d, toml_dumps
 
 pytestmark = [pytest.mark.mpi, pytest.mark.skipif(shutil.which("mpirun") is None, reason="needs mpirun")]
 

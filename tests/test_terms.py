@@ -234,11 +234,10 @@ def test_every_builder_is_exercised():
 def test_woodbury_direction_equals_the_full_hessian_direction():
     """Newton's direction with the rank-one parts out of the matrix equals the one with them in it."""
     import dolfinx.fem.petsc  # noqa: F401
-    from petsc4py import PETSc
     s = Session(_designs()["full"])
     model, solver = s.model, s.solver
     model.set_factor(1.0)
-    u = _perturbed_state(model, 0.05)
+    _perturbed_state(model, 0.05)
     x = model.u.vector.copy()
     model.apply_bcs(x)
     b, p = x.duplicate(), x.duplicate()
