@@ -77,7 +77,11 @@ def result_dict(design, model, report, timings: dict) -> dict:
         "cells": int(model.mesh.topology.index_map(model.mesh.topology.dim).size_global),
         "degree": int(design.mesh.degree),
         "min_jacobian": float(report.min_jacobian),
+        "linear_solver": getattr(report, "linear_solver", "direct"),
     }
+    if res["linear_solver"] == "iterative":      # Krylov iterations per Newton step, and MUMPS fallbacks
+        res["linear_iterations"] = [int(k) for k in getattr(report, "linear_iterations", [])]
+        res["linear_fallbacks"] = int(getattr(report, "linear_fallbacks", 0))
     readouts = model.readouts() if converged else {}
     for section in STANDARD_SECTIONS:
         res[section] = readouts.pop(section, {}) if converged else None

@@ -129,8 +129,8 @@ class Session:
 
     @staticmethod
     def _release(model) -> None:
-        """Destroy the PETSc vectors DOLFINx made for a model being dropped (see fem.newton.release_vectors)."""
-        from .fem.newton import release_vectors
+        """Destroy the PETSc vectors DOLFINx made for a model being dropped (see fem.release.release_vectors)."""
+        from .fem.release import release_vectors
         if model is not None:
             release_vectors(model)
 

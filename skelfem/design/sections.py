@@ -9,7 +9,7 @@ import numpy as np
 from . import polygons
 from .objects import primitives_box
 from .shapes import check_inside, named_entries
-from .spec import Body, CableSpec, ContactSpec, DesignError, DynamicsSpec, ENERGY_LINE_SEARCHES, FabricationSpec, GroundSpec, INTEGRATORS, LINE_SEARCHES, LoadSpec, MAX_COORDINATE, MAX_STEPS, MAX_TIME_STEPS, PinSpec, SolverSpec, TractionSpec
+from .spec import Body, CableSpec, ContactSpec, DesignError, DynamicsSpec, ENERGY_LINE_SEARCHES, FabricationSpec, GroundSpec, INTEGRATORS, LINE_SEARCHES, LINEAR_SOLVERS, LoadSpec, MAX_COORDINATE, MAX_STEPS, MAX_TIME_STEPS, PinSpec, SolverSpec, TractionSpec
 from .table import Table, check_bounded, is_finite, is_number, plain_name, positive, show_value
 
 
@@ -439,8 +439,11 @@ def read_solver(top: Table) -> SolverSpec:
         t.fail("line_search", f"must be one of {', '.join(LINE_SEARCHES)}; got {ls!r}")
     rtol = positive(t, "rtol", t.take("rtol", "number", d.rtol))
     atol = positive(t, "atol", t.take("atol", "number")) if t.has("atol") else None
+    linear = t.take("linear", "str", d.linear)
+    if linear not in LINEAR_SOLVERS:
+        t.fail("linear", f"must be one of {', '.join(LINEAR_SOLVERS)}; got {linear!r}")
     t.done()
-    return SolverSpec(steps, its, ls, rtol, atol)
+    return SolverSpec(steps, its, ls, rtol, atol, linear)
 
 
 def check_energy_line_search(top: Table, solver: SolverSpec, bones: tuple, contact: ContactSpec,

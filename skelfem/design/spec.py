@@ -24,6 +24,7 @@ INTEGRATORS = ("euler", "bdf2")
 MAX_TIME_STEPS = 1_000_000   # duration / dt: a cap against runaway runs
 SECTIONS_BY_NAME = ("bones", "cables", "pins", "loads", "grounds", "tractions")
 PRIMITIVES = ("box", "cylinder", "sphere", "extrude")
+LINEAR_SOLVERS = ("auto", "direct", "iterative")
 
 
 class DesignError(ValueError):
@@ -128,6 +129,7 @@ class SolverSpec:
     line_search: str = "auto"
     rtol: float = 1e-9
     atol: float | None = None     # N, absolute, when given; None: ATOL_RELATIVE x the design's force scale
+    linear: str = "auto"          # Newton's linear solves: "direct" (MUMPS), "iterative" (Krylov + AMG), "auto"
 
 
 ATOL_RELATIVE = 1e-12     # the default |R| that ends Newton, relative to force_scale (1e-10 N on finger.toml)

@@ -85,6 +85,9 @@ class DynamicsReport:
     newton_iterations: int = 0
     load_steps: int = 0                  # accepted time steps
     cuts: int = 0                        # failed attempts (each halved the step)
+    linear_solver: str = "direct"        # as SolveReport's
+    linear_iterations: list = field(default_factory=list)
+    linear_fallbacks: int = 0
     residual_history: Decimated = field(default_factory=lambda: Decimated(KEEP_HISTORY))
     attempts: Decimated = field(default_factory=lambda: Decimated(KEEP_HISTORY))
     energy: float = float("nan")         # potential energy Pi at the last accepted state
@@ -222,6 +225,8 @@ class Dynamics:
             else:
                 rep.converged, rep.status = True, "converged"
             rep.t_end = t
+            rep.linear_solver, rep.linear_iterations = solver.lin.kind, solver.lin.take_krylov()
+            rep.linear_fallbacks, solver.lin.fallbacks = solver.lin.fallbacks, 0
         finally:
             self.set_time(rep.t_end)
             inertia.stop()

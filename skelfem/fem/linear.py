@@ -42,6 +42,21 @@ takes the rows and columns of a few slaved DOFs, which then hold E^T and C
 instead of identity rows. The system above is then a plain (K + G D G^T)
 solve with b -> (b_f, T^T b on the hosts) and g_i -> (g_f, h_i on the
 hosts), and x = x_f + T z: one factorisation and no extra right-hand sides.
+
+**Iterative solves** (``[solver] linear = "iterative"``): K is not factorised
+but preconditioned by algebraic multigrid (PETSc GAMG, smoothed aggregation,
+Chebyshev-Jacobi smoothing) with the rigid-body modes of the node
+coordinates as its near-nullspace (3 in 2D, 6 in 3D), and every K^{-1}
+above is a conjugate-gradient solve to ``KRYLOV_RTOL`` of |b| (true
+residual). The same formulas hold, so the cables' rank-one parts stay out of
+the matrix (Woodbury) and the rigid bones' border stays outside K (their
+rows are identity rows, z from the small system): multigrid sees the soft
+body only. The multigrid hierarchy is built at the first update and its
+interpolation reused at later ones (``pc_gamg_reuse_interpolation``); each
+update re-makes only the coarse operators. A Krylov solve that fails (an
+indefinite K breaks CG; a stall) is retried with FGMRES, then the update
+falls back to a MUMPS factorisation for the rest of its solves, counted in
+``fallbacks`` (reported in result.json, never silent).
 """
 from __future__ import annotations
 
@@ -60,6 +75,63 @@ def default_petsc_options() -> dict:
     per factorisation with the same iterates.
     """
     return {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "mumps"}
+
+
+KRYLOV_RTOL = 1e-10       # |r| / |b| of an iterative solve: Newton's and the sensitivities' answers to ~1e-10
+
+
+def iterative_petsc_options() -> dict:
+    """A fresh dict of PETSc options for CG preconditioned by GAMG (see the module docstring)."""
+    return {"ksp_type": "cg", "ksp_norm_type": "unpreconditioned", "ksp_rtol": KRYLOV_RTOL,
+            "ksp_atol": 0.0, "ksp_max_it": 1000,
+            "pc_type": "gamg", "pc_gamg_type": "agg", "pc_gamg_agg_nsmooths": 1,
+            "pc_gamg_reuse_interpolation": True, "pc_gamg_threshold": 0.01,
+            "mg_levels_ksp_type": "chebyshev", "mg_levels_pc_type": "jacobi",
+            "mg_levels_ksp_max_it": 3, "mg_levels_esteig_ksp_type": "cg"}
+
+
+AUTO_ITERATIVE_DOFS = 300_000   # "auto": 3D designs with more unknowns than this solve iteratively
+
+
+def choose_linear(kind: str, model) -> str:
+    """"direct" or "iterative" for a [solver] linear value: "auto" is direct in 2D and for 3D designs
+    up to AUTO_ITERATIVE_DOFS unknowns (MUMPS is faster there), iterative above."""
+    if kind != "auto":
+        return kind
+    n = model.comm.allreduce(model.n_owned)
+    return "iterative" if model.dim == 3 and n > AUTO_ITERATIVE_DOFS else "direct"
+
+
+def rigid_body_modes(X: np.ndarray, dim: int, centred: bool = False) -> np.ndarray:
+    """(n * dim, 3 or 6) the rigid motions of points X (n, dim), interleaved like the DOFs: the
+    translations, then the rotations about the points' centroid (2D: one, 3D: three; centred: X is
+    already relative to the centre, as under MPI, where each rank holds a part of the points)."""
+    n = len(X)
+    Y = X[:, :dim] - (X[:, :dim].mean(axis=0) if n and not centred else 0.0)
+    modes = []
+    for k in range(dim):
+        m = np.zeros((n, dim))
+        m[:, k] = 1.0
+        modes.append(m)
+    axes = [(0, 1)] if dim == 2 else [(0, 1), (1, 2), (2, 0)]
+    for a, b in axes:
+        m = np.zeros((n, dim))
+        m[:, a], m[:, b] = -Y[:, b], Y[:, a]
+        modes.append(m)
+    return np.column_stack([m.ravel() for m in modes])
+
+
+def near_nullspace(K: PETSc.Mat, modes: np.ndarray, comm) -> PETSc.NullSpace:
+    """An orthonormal PETSc near-nullspace from the owned rows of the modes (modified Gram-Schmidt)."""
+    vecs = []
+    for j in range(modes.shape[1]):
+        v = K.createVecLeft()
+        v.array_w[:] = modes[:, j]
+        for w in vecs:
+            v.axpy(-v.dot(w), w)
+        v.normalize()
+        vecs.append(v)
+    return PETSc.NullSpace().create(vectors=vecs, comm=comm)
 
 
 @dataclass
@@ -85,19 +157,23 @@ class Border:
 class LowRankSolver:
     """Solves (K + G D G^T) x = b with one factorisation of the sparse K per update."""
 
-    def __init__(self, K: PETSc.Mat, comm, options: dict | None = None, prefix: str = "skelfem_k_"):
+    def __init__(self, K: PETSc.Mat, comm, options: dict | None = None, prefix: str = "skelfem_k_",
+                 modes: np.ndarray | None = None):
+        """modes: the near-nullspace of K (owned rows, one mode per column) for an iterative solve
+        (``[solver] linear = "iterative"``); None: a direct factorisation."""
         self.K, self.comm = K, comm
-        self.ksp = PETSc.KSP().create(comm)
-        self.ksp.setOptionsPrefix(prefix)
-        opts = PETSc.Options()
-        options = {**default_petsc_options(), **(options or {})}
-        for key, value in options.items():
-            opts[f"{prefix}{key}"] = value
-        self.ksp.setOperators(K)
-        self.ksp.setFromOptions()
-        self.ksp.getPC().setFromOptions()
-        for key in options:
-            del opts[f"{prefix}{key}"]
+        self.kind = "direct" if modes is None else "iterative"
+        self.prefix = prefix
+        base = default_petsc_options() if modes is None else iterative_petsc_options()
+        self._options = {**base, **(options or {})}
+        if modes is not None:
+            self._nullspace = near_nullspace(K, modes, comm)
+            K.setNearNullSpace(self._nullspace)
+        self.ksp = self._make_ksp(prefix, self._options)
+        self._direct = None             # iterative: the fallback factorisation, made when first needed
+        self._fallen = False            # iterative: this update's solves use the fallback
+        self.fallbacks = 0              # updates whose Krylov solves failed and fell back to MUMPS
+        self.krylov = []                # iterative: Krylov iterations since each update (one entry per update)
         self.c = np.zeros(0)
         self.G = self.Z = None
         self.border = None
@@ -106,11 +182,30 @@ class LowRankSolver:
         self._work = None               # the embedded right-hand side (Border.hosts)
         self.solves = 0                 # solve phases run (one multi-RHS solve counts once)
 
+    def _make_ksp(self, prefix: str, options: dict) -> PETSc.KSP:
+        ksp = PETSc.KSP().create(self.comm)
+        ksp.setOptionsPrefix(prefix)
+        ksp.setOperators(self.K)
+        with _options(prefix, options):
+            ksp.setFromOptions()
+            ksp.getPC().setFromOptions()
+        return ksp
+
+    def _set_up(self) -> None:
+        """KSPSetUp with the options in PETSc's database: multigrid reads its levels' options
+        (mg_levels_*) when it makes them, at the first set-up."""
+        with _options(self.prefix, self._options):
+            self.ksp.setUp()
+
     def update(self, parts: list[tuple[float, PETSc.Vec]], border: Border | None = None) -> None:
-        """Factorise K (as it is now) and take the rank-one parts [(c_i, g_i)], c_i > 0, and a border."""
+        """Factorise K (as it is now; iterative: make its multigrid) and take the rank-one parts
+        [(c_i, g_i)], c_i > 0, and a border."""
         self.ksp.setOperators(self.K)
-        self.ksp.setUp()
+        self._set_up()
         self._check()
+        self._fallen = False
+        if self.kind == "iterative":
+            self.krylov.append(0)
         self.c = np.array([c for c, _ in parts], dtype=float)
         n = self.K.getLocalSize()[0]
         self.G = np.column_stack([g.array_r for _, g in parts]) if parts else np.zeros((n, 0))
@@ -127,18 +222,74 @@ class LowRankSolver:
         """Forget a failed factorisation (the next update factorises from scratch)."""
         self.ksp.reset()
         self.ksp.setOperators(self.K)
-        self.ksp.setFromOptions()
+        with _options(self.prefix, self._options):
+            self.ksp.setFromOptions()
+        if self._direct is not None:
+            self._direct.destroy()
+            self._direct, self._fallen = None, False
         self._dense = {}
         self.Z = None
 
-    def _check(self) -> None:
-        reason = self.ksp.getConvergedReason()
+    def _check(self, ksp: PETSc.KSP | None = None) -> None:
+        reason = (ksp or self.ksp).getConvergedReason()
         if reason < 0:
             raise np.linalg.LinAlgError(f"factorisation of the Newton matrix failed (KSP reason {reason})")
 
+    def _factorised(self) -> PETSc.KSP:
+        """The KSP whose factorisation the solves use: self.ksp (direct), else the fallback's."""
+        if self.kind == "direct":
+            return self.ksp
+        if self._direct is None:
+            self._direct = self._make_ksp(self.prefix + "direct_", default_petsc_options())
+        if not self._fallen:
+            self._direct.setOperators(self.K)
+            self._direct.setUp()
+            self._check(self._direct)
+            self._fallen = True
+            self.fallbacks += 1
+        return self._direct
+
+    def _ksp_solve(self, b: PETSc.Vec, x: PETSc.Vec) -> None:
+        """x = K^{-1} b: one back-substitution, or a Krylov solve (GMRES if CG fails, else the fallback)."""
+        self.solves += 1
+        if self.kind == "direct" or self._fallen:
+            ksp = self._factorised()
+            ksp.solve(b, x)
+            self._check(ksp)
+            return
+        first = self._options["ksp_type"]
+        for ksp_type in (first, "fgmres"):          # FGMRES: right-preconditioned, true residual norm
+            if self.ksp.getType() != ksp_type:
+                self.ksp.setType(ksp_type)
+            self.ksp.solve(b, x)
+            self.krylov[-1] += self.ksp.getIterationNumber()
+            reason = self.ksp.getConvergedReason()
+            if reason > 0:
+                break
+        if self.ksp.getType() != first:
+            self.ksp.setType(first)
+            self.ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
+        if reason > 0:
+            return
+        ksp = self._factorised()
+        ksp.solve(b, x)
+        self._check(ksp)
+
     def _multi_solve(self, cols: np.ndarray) -> np.ndarray:
-        """K^{-1} cols for a block of right-hand sides (owned rows), one MUMPS solve phase."""
+        """K^{-1} cols for a block of right-hand sides (owned rows): one MUMPS solve phase, or a Krylov
+        solve per column."""
         n, k = cols.shape
+        if self.kind == "iterative" and not self._fallen:
+            b, x = self.K.createVecLeft(), self.K.createVecRight()
+            out = np.empty((n, k))
+            for j in range(k):
+                b.array_w[:] = cols[:, j]
+                self._ksp_solve(b, x)
+                out[:, j] = x.array_r
+            self.solves -= k - 1                # one solve phase, as MUMPS's
+            b.destroy()
+            x.destroy()
+            return out
         if k not in self._dense:
             B = PETSc.Mat().createDense([(n, None), (k, k)], comm=self.comm)
             X = PETSc.Mat().createDense([(n, None), (k, k)], comm=self.comm)
@@ -149,7 +300,7 @@ class LowRankSolver:
         B.getDenseArray()[:] = cols
         B.assemble()
         X.assemble()
-        self.ksp.getPC().getFactorMatrix().matSolve(B, X)
+        self._factorised().getPC().getFactorMatrix().matSolve(B, X)
         self.solves += 1
         return X.getDenseArray().copy()
 
@@ -174,9 +325,7 @@ class LowRankSolver:
         """solve() with the border (if any) outside K."""
         k = len(self.c)
         if k == 0 and border is None:
-            self.ksp.solve(b, x)
-            self.solves += 1
-            self._check()
+            self._ksp_solve(b, x)
             return
         E = border.E if border is not None else np.zeros((len(self.G), 0))
         m = E.shape[1]
@@ -186,15 +335,13 @@ class LowRankSolver:
             self._take_z(Y[:, :k + m], E, border)
             y = Y[:, k + m]
         elif border is None:
-            self.ksp.solve(b, x)
-            self.solves += 1
+            self._ksp_solve(b, x)
             y = x.array_r.copy()
         else:
             bvec = b.copy()
             bvec.array_w[:] = bf
-            self.ksp.solve(bvec, x)
+            self._ksp_solve(bvec, x)
             bvec.destroy()
-            self.solves += 1
             y = x.array_r.copy()
         ZG, ZE = self.Z[:, :k], self.Z[:, k:]
         rhs = np.concatenate([(self._dots(border.T, b.array_r[:, None])[:, 0] if m else np.zeros(0))
@@ -256,8 +403,16 @@ class LowRankSolver:
         pc.setType(PETSc.PC.Type.PYTHON)
         pc.setPythonContext(_ApplyPC(self))
 
+    def take_krylov(self) -> list[int]:
+        """The Krylov iterations of each update since the last call (iterative; [] for direct)."""
+        out, self.krylov = self.krylov, []
+        return out
+
     def destroy(self) -> None:
         self.ksp.destroy()
+        if self._direct is not None:
+            self._direct.destroy()
+            self._direct = None
         for B, X in self._dense.values():
             B.destroy()
             X.destroy()
@@ -265,6 +420,22 @@ class LowRankSolver:
         if self._work is not None:
             self._work.destroy()
             self._work = None
+
+
+class _options:
+    """PETSc's options database holds {prefix + key: value} inside the with block only (a later solver
+    with the same prefix must not inherit them)."""
+
+    def __init__(self, prefix: str, options: dict):
+        self.prefix, self.options, self.db = prefix, options, PETSc.Options()
+
+    def __enter__(self):
+        for key, value in self.options.items():
+            self.db[f"{self.prefix}{key}"] = value
+
+    def __exit__(self, *exc):
+        for key in self.options:
+            self.db.delValue(f"{self.prefix}{key}")
 
 
 class _ApplyPC:

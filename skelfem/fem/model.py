@@ -43,6 +43,7 @@ from ..terms import BUILDERS, Context
 from ..terms.elasticity import cell_values_min, min_jacobian_expression
 from .assembly import MatrixAssembly, block_keys
 from .follow import MODEL_KEYS, CannotFollow, PackedCoefficients, raw_value
+from .linear import rigid_body_modes
 
 
 
@@ -79,6 +80,7 @@ class Model(MatrixAssembly):
         self._pattern_keys = None     # node pairs (row * nodes + column) of the last matrix made (serial)
         self._extra_keys = np.zeros(0, np.int64)  # node pairs of terms replaced by refresh, kept in new matrices
         self._hosts = None            # serial rigid bodies: [(host DOFs, coupled DOFs)] per body (_border_pattern)
+        self.embed_border = True      # serial: the rigid border goes into K (a direct solve; see linear.py)
 
         parts = [e for e in (term.ufl_energy(self.ctx) for term in self.terms) if e is not None]
         Pi = sum(parts[1:], parts[0])
@@ -279,6 +281,13 @@ class Model(MatrixAssembly):
         self.u.x.array[:] = 0.0
         for term in self.terms:
             term.rest()
+
+    def rigid_body_modes(self) -> np.ndarray:
+        """The rigid motions of the owned nodes (owned DOF rows, 3 columns in 2D, 6 in 3D): the
+        near-nullspace of K that algebraic multigrid keeps on its coarse levels."""
+        X = self.V.tabulate_dof_coordinates()[: self.n_owned // self.bs]
+        centre = self.comm.allreduce(X.sum(axis=0)) / max(self.comm.allreduce(len(X)), 1)
+        return rigid_body_modes(X - centre, self.dim, centred=True)
 
     def history(self) -> list:
         """Every term's history (friction's anchors and slip states), to take a tried step back."""

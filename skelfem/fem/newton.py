@@ -39,7 +39,7 @@ from petsc4py import PETSc
 
 from ..design.spec import ATOL_RELATIVE, ENERGY_LINE_SEARCHES, LINE_SEARCHES as STRATEGIES, force_scale
 from .linesearch import WATCHDOG, LineSearch
-from .linear import LowRankSolver, default_petsc_options  # noqa: F401 (re-exported)
+from .linear import LowRankSolver, choose_linear, default_petsc_options  # noqa: F401 (re-exported)
 
 log = logging.getLogger("skelfem")
 
@@ -91,6 +91,9 @@ class SolveReport:
     energy: float = float("nan")
     min_jacobian: float = float("nan")
     time: float = 0.0
+    linear_solver: str = "direct"                           # "direct" (MUMPS) or "iterative" (CG + GAMG)
+    linear_iterations: list = field(default_factory=list)  # iterative: Krylov iterations per Newton step
+    linear_fallbacks: int = 0                               # iterative: Newton steps solved by MUMPS instead
 
 
 class NewtonSolver(LineSearch):
@@ -121,8 +124,11 @@ class NewtonSolver(LineSearch):
         self._loose, self._round_f0 = 0.0, 0.0   # a loose re-solve (see _relag) and its own first |R|
         self.etol = 1e-15             # Newton decrement -grad Pi . p relative to |Pi| that ends the solve
         self._decrement_converged = False
+        self.linear = choose_linear(spec.linear, model)
+        model.embed_border = self.linear == "direct"    # iterative: the rigid border stays outside K
         self.A = model.create_matrix()
-        self.lin = LowRankSolver(self.A, model.comm, petsc_options, prefix + "k_")
+        modes = model.rigid_body_modes() if self.linear == "iterative" else None
+        self.lin = LowRankSolver(self.A, model.comm, petsc_options, prefix + "k_", modes)
         self.b = model.u.vector.duplicate()
         self.x = model.u.vector.copy()      # SNES iterate; model.u is scratch for evaluations
         self._history: list[float] = []
@@ -406,6 +412,9 @@ class NewtonSolver(LineSearch):
 
     def _finish(self, report: SolveReport, t0: float) -> SolveReport:
         model = self.model
+        report.linear_solver = self.lin.kind
+        report.linear_iterations = self.lin.take_krylov()
+        report.linear_fallbacks, self.lin.fallbacks = self.lin.fallbacks, 0
         report.energy = model.energy(model.u.vector)
         report.min_jacobian = model.min_jacobian(model.u.vector)
         report.time = time.perf_counter() - t0
@@ -563,41 +572,3 @@ class NewtonSolver(LineSearch):
             model.set_factor(1.0)
             saved.destroy()
         return self._finish(report, t0)
-
-
-def release_vectors(model) -> None:
-    """Destroy the PETSc objects of a model being dropped: DOLFINx's Function.vector wrappers and
-    the vectors and matrices its terms hold.
-
-    Python's collection of them destroys nothing: petsc4py 3.18 parks collected
-    objects until a collective ``PETSc.garbage_cleanup`` on their own
-    communicator (the mesh's duplicate, gone with the mesh), and DOLFINx's
-    wrapper of a function's array is never freed; every re-meshing edit left
-    ~65 KB of vectors in PETSc on finger.toml. Call it only on a model no
-    longer used (a Function's wrapper is made again on access, but a term's
-    vectors are not).
-    """
-    from dolfinx import fem
-    seen, stack = set(), [(model, 0)]
-    while stack:                           # the model, its terms and what they hold, a few levels down
-        obj, depth = stack.pop()
-        if obj is None or id(obj) in seen or depth > 5:
-            continue
-        seen.add(id(obj))
-        if isinstance(obj, fem.Function):
-            if getattr(obj, "_petsc_x", None) is not None:
-                obj._petsc_x.destroy()
-                obj._petsc_x = None
-            continue
-        if isinstance(obj, PETSc.Object):       # vectors and matrices the terms made (rank-one parts...)
-            obj.destroy()
-            continue
-        if isinstance(obj, dict):
-            items = list(obj.values())
-        elif isinstance(obj, (list, tuple)):
-            items = list(obj)
-        elif type(obj).__module__.startswith("skelfem.") and hasattr(obj, "__dict__"):
-            items = list(vars(obj).values())
-        else:
-            continue
-        stack.extend((v, depth + 1) for v in items)

@@ -19,8 +19,12 @@ penetration shrinks like 1/k and F_g converges to the contact force of the
 rigid constraint. Pi_g is a UFL form: the residual and Jacobian follow from
 ufl.derivative, compiled once with the rest of the model's energy.
 
-Quadrature: the boundary integrals use Gauss-Lobatto points, which are the
-displacement's nodes on each facet (trapezoidal rule for P1, Simpson for P2).
+Quadrature: the boundary integrals use points at the displacement's nodes on
+each facet: Gauss-Lobatto on 2D edges (trapezoidal rule for P1, Simpson for
+P2), a nodal rule on 3D triangles (a third of the area at each vertex for P1;
+for P2 each node's share of the four triangles the edge midpoints cut a
+triangle into, 1/12 at a vertex and 1/4 at a midpoint, the weights the
+contact's collision mesh uses too).
 So the penalty acts node by node, weighted by each node's share of the
 boundary (the paper's per-node penalty, made mesh-independent), the extreme
 points of a P1 boundary -- its nodes -- are the ones held back, and energy,
@@ -38,11 +42,27 @@ from mpi4py import MPI
 from .base import Context, Term, constant, touched
 
 
+# Nodal rules on the reference triangle (area 1/2) for 3D boundaries: P1 its vertices (1/3 of the area
+# each); P2 its vertices and edge midpoints, each with its share of the four triangles the midpoints cut it
+# into (1/12 of the area at a vertex, 1/4 at a midpoint): positive at every node, exact for linear functions.
+_TRIANGLE_NODES = {
+    1: ([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]], [1 / 6] * 3),
+    2: ([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [0.5, 0.5], [0.0, 0.5], [0.5, 0.0]], [1 / 24] * 3 + [1 / 8] * 3),
+}
+
+
 def nodal_ds(u):
-    """Boundary measure with Gauss-Lobatto points at the nodes of u's element on each facet."""
+    """Boundary measure with points at the nodes of u's element on each facet: Gauss-Lobatto on the
+    edges of a 2D boundary, the nodal rule above on the triangles of a 3D one."""
     degree = u.function_space.ufl_element().degree()
-    return ufl.Measure("ds", domain=u.function_space.mesh,
-                       metadata={"quadrature_rule": "GLL", "quadrature_degree": 2 * degree - 1})
+    mesh = u.function_space.mesh
+    if mesh.topology.dim == 2:
+        metadata = {"quadrature_rule": "GLL", "quadrature_degree": 2 * degree - 1}
+    else:
+        points, weights = _TRIANGLE_NODES[degree]
+        metadata = {"quadrature_rule": "custom", "quadrature_degree": degree,
+                    "quadrature_points": np.array(points), "quadrature_weights": np.array(weights)}
+    return ufl.Measure("ds", domain=mesh, metadata=metadata)
 
 
 class Ground(Term):
