@@ -47,8 +47,10 @@ hosts), and x = x_f + T z: one factorisation and no extra right-hand sides.
 but preconditioned by algebraic multigrid (PETSc GAMG, smoothed aggregation,
 Chebyshev-Jacobi smoothing) with the rigid-body modes of the node
 coordinates as its near-nullspace (3 in 2D, 6 in 3D), and every K^{-1}
-above is a conjugate-gradient solve to ``KRYLOV_RTOL`` of |b| (true
-residual). The same formulas hold, so the cables' rank-one parts stay out of
+above is a conjugate-gradient solve to a relative true residual: Newton's
+own steps are inexact (Eisenstat-Walker forcing, ``forcing``: 0.1 far from
+the solution, down to ``KRYLOV_RTOL`` near it), every other solve
+(sensitivities, adjoints) to ``KRYLOV_RTOL``. The same formulas hold, so the cables' rank-one parts stay out of
 the matrix (Woodbury) and the rigid bones' border stays outside K (their
 rows are identity rows, z from the small system): multigrid sees the soft
 body only. The multigrid hierarchy is built at the first update and its
@@ -78,6 +80,22 @@ def default_petsc_options() -> dict:
 
 
 KRYLOV_RTOL = 1e-10       # |r| / |b| of an iterative solve: Newton's and the sensitivities' answers to ~1e-10
+
+
+ETA_MAX = 0.1             # the loosest forcing term of an inexact Newton step
+REBUILD_RATIO = 2.0       # a lagged multigrid is rebuilt when it needs this many times the iterations
+
+
+def forcing(residuals: list[float], last: float) -> float:
+    """Eisenstat and Walker's second forcing term for Newton step k: eta = 0.9 (|F_k| / |F_k-1|)^2,
+    safeguarded (not below 0.9 last^2 while that is above 0.1) and kept in [KRYLOV_RTOL, ETA_MAX]:
+    loose while Newton is far from the solution, as tight as a direct solve near it."""
+    if len(residuals) < 2 or residuals[-2] <= 0.0:
+        return ETA_MAX
+    eta = 0.9 * (residuals[-1] / residuals[-2]) ** 2
+    if 0.9 * last ** 2 > 0.1:
+        eta = max(eta, 0.9 * last ** 2)
+    return float(min(max(eta, KRYLOV_RTOL), ETA_MAX))
 
 
 def iterative_petsc_options() -> dict:
@@ -174,6 +192,11 @@ class LowRankSolver:
         self._fallen = False            # iterative: this update's solves use the fallback
         self.fallbacks = 0              # updates whose Krylov solves failed and fell back to MUMPS
         self.krylov = []                # iterative: Krylov iterations since each update (one entry per update)
+        self._its_since, self._decades_since = 0, 0.0   # iterative: since the last update, for ...
+        self._fresh_rate = None         # ... the iterations per decade of residual of a fresh multigrid
+        self._rebuilt = True
+        self.rebuilds = 0               # iterative: multigrid set-ups (see _lag_preconditioner)
+        self.rtol = KRYLOV_RTOL         # iterative: the relative residual of a Newton step's solve (forcing)
         self.c = np.zeros(0)
         self.G = self.Z = None
         self.border = None
@@ -191,6 +214,19 @@ class LowRankSolver:
             ksp.getPC().setFromOptions()
         return ksp
 
+    def _lag_preconditioner(self) -> None:
+        """Keep the multigrid of an earlier K while it works: rebuild it (the Galerkin products, most
+        of a set-up's cost) only when the last update's solves took more than REBUILD_RATIO times the
+        iterations per decade of residual of the update right after the last rebuild, or fell back."""
+        rate = self._its_since / self._decades_since if self._decades_since > 0 else None
+        if self._rebuilt:
+            self._fresh_rate = rate
+        rebuild = rate is None or self._fresh_rate is None or self._fallen \
+            or rate > REBUILD_RATIO * self._fresh_rate
+        self.ksp.getPC().setReusePreconditioner(not rebuild)
+        self._rebuilt, self.rebuilds = rebuild, self.rebuilds + rebuild
+        self._its_since, self._decades_since = 0, 0.0
+
     def _set_up(self) -> None:
         """KSPSetUp with the options in PETSc's database: multigrid reads its levels' options
         (mg_levels_*) when it makes them, at the first set-up."""
@@ -201,6 +237,8 @@ class LowRankSolver:
         """Factorise K (as it is now; iterative: make its multigrid) and take the rank-one parts
         [(c_i, g_i)], c_i > 0, and a border."""
         self.ksp.setOperators(self.K)
+        if self.kind == "iterative":
+            self._lag_preconditioner()
         self._set_up()
         self._check()
         self._fallen = False
@@ -249,8 +287,10 @@ class LowRankSolver:
             self.fallbacks += 1
         return self._direct
 
-    def _ksp_solve(self, b: PETSc.Vec, x: PETSc.Vec) -> None:
-        """x = K^{-1} b: one back-substitution, or a Krylov solve (GMRES if CG fails, else the fallback)."""
+    def _ksp_solve(self, b: PETSc.Vec, x: PETSc.Vec, rtol: float | None = None) -> None:
+        """x = K^{-1} b: one back-substitution, or a Krylov solve to rtol (default self.rtol; FGMRES if
+        CG fails, else the fallback)."""
+        rtol = self.rtol if rtol is None else rtol
         self.solves += 1
         if self.kind == "direct" or self._fallen:
             ksp = self._factorised()
@@ -258,12 +298,16 @@ class LowRankSolver:
             self._check(ksp)
             return
         first = self._options["ksp_type"]
+        self.ksp.setTolerances(rtol=rtol)
         for ksp_type in (first, "fgmres"):          # FGMRES: right-preconditioned, true residual norm
             if self.ksp.getType() != ksp_type:
                 self.ksp.setType(ksp_type)
             self.ksp.solve(b, x)
             self.krylov[-1] += self.ksp.getIterationNumber()
             reason = self.ksp.getConvergedReason()
+            if reason > 0:
+                self._its_since += self.ksp.getIterationNumber()
+                self._decades_since += -np.log10(rtol)
             if reason > 0:
                 break
         if self.ksp.getType() != first:
@@ -275,16 +319,17 @@ class LowRankSolver:
         ksp.solve(b, x)
         self._check(ksp)
 
-    def _multi_solve(self, cols: np.ndarray) -> np.ndarray:
+    def _multi_solve(self, cols: np.ndarray, step: bool = False) -> np.ndarray:
         """K^{-1} cols for a block of right-hand sides (owned rows): one MUMPS solve phase, or a Krylov
-        solve per column."""
+        solve per column, each to KRYLOV_RTOL but the last one if it is a Newton step's (step: to the
+        forcing term self.rtol; Z = K^{-1} [G | E] must be tight, the small system amplifies its error)."""
         n, k = cols.shape
         if self.kind == "iterative" and not self._fallen:
             b, x = self.K.createVecLeft(), self.K.createVecRight()
             out = np.empty((n, k))
             for j in range(k):
                 b.array_w[:] = cols[:, j]
-                self._ksp_solve(b, x)
+                self._ksp_solve(b, x, self.rtol if step and j == k - 1 else KRYLOV_RTOL)
                 out[:, j] = x.array_r
             self.solves -= k - 1                # one solve phase, as MUMPS's
             b.destroy()
@@ -331,7 +376,7 @@ class LowRankSolver:
         m = E.shape[1]
         bf = b.array_r if border is None else b.array_r * ~border.rows
         if self.Z is None:                      # first solve: K^{-1} [G | E | b] in one go
-            Y = self._multi_solve(np.column_stack([self.G, E, bf]))
+            Y = self._multi_solve(np.column_stack([self.G, E, bf]), step=True)
             self._take_z(Y[:, :k + m], E, border)
             y = Y[:, k + m]
         elif border is None:

@@ -39,7 +39,7 @@ from petsc4py import PETSc
 
 from ..design.spec import ATOL_RELATIVE, ENERGY_LINE_SEARCHES, LINE_SEARCHES as STRATEGIES, force_scale
 from .linesearch import WATCHDOG, LineSearch
-from .linear import LowRankSolver, choose_linear, default_petsc_options  # noqa: F401 (re-exported)
+from .linear import KRYLOV_RTOL, LowRankSolver, choose_linear, default_petsc_options, forcing  # noqa: F401 (re-exported)
 
 log = logging.getLogger("skelfem")
 
@@ -150,6 +150,8 @@ class NewtonSolver(LineSearch):
         """Assemble K at x and factorise it with the rank-one parts (what every Newton solve uses)."""
         self.model.jacobian(x, self.A)
         self.lin.update(self.model.low_rank(), self.model.border)
+        if self.lin.kind == "iterative":          # an inexact Newton step (the forcing term)
+            self.lin.rtol = forcing(self._history, self.lin.rtol)
 
     def _create_snes(self, prefix: str) -> PETSc.SNES:
         snes = PETSc.SNES().create(self.model.comm)
@@ -407,11 +409,13 @@ class NewtonSolver(LineSearch):
             self.reference_residual = max(self.reference_residual, self._history[0])
         report = SolveReport(ok, status, its, int(ok), [self._history],
                              [{"factor": self.model.factor, "iterations": int(its), "status": status}])
+        self.lin.rtol = KRYLOV_RTOL
         report.time = time.perf_counter() - t0
         return report
 
     def _finish(self, report: SolveReport, t0: float) -> SolveReport:
         model = self.model
+        self.lin.rtol = KRYLOV_RTOL                    # what follows a solve (sensitivities) solves tightly
         report.linear_solver = self.lin.kind
         report.linear_iterations = self.lin.take_krylov()
         report.linear_fallbacks, self.lin.fallbacks = self.lin.fallbacks, 0
