@@ -56,8 +56,9 @@ def test_iterative_equals_direct(path, overrides, krylov_only):
     iterative = _solve(path, overrides + ["solver.linear=iterative", "solver.rtol=1e-11"])
     assert direct["linear_solver"] == "direct" and "linear_iterations" not in direct
     assert iterative["linear_solver"] == "iterative"
-    its = iterative["linear_iterations"]
-    assert len(its) >= iterative["newton_iterations"] and min(its) > 0     # one entry per Newton matrix
+    its = iterative["linear_iterations"]                 # per load step, per Newton matrix
+    assert len(its) == iterative["load_steps"] and min(min(step) for step in its) > 0
+    assert sum(len(step) for step in its) >= iterative["newton_iterations"]
     assert 0 <= iterative["linear_fallbacks"] <= (0 if krylov_only else iterative["newton_iterations"])
     _agree(direct, iterative)
 

@@ -605,7 +605,24 @@ def hand_grasp(_: dict) -> Table:
                   "first lost: W (margin three / pads)", "held object moved"], rows, caption, [path])
 
 
-TABLES = {f.__name__: f for f in (bench, in_hand_roll, slice_check, mpi_speed, editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
+def linear_scaling(_: dict) -> Table:
+    d, path = load_json("linear_scaling/linear_scaling.json", "python studies/linear_scaling.py")
+    rows = []
+    for r in d["rows"]:
+        its = r["krylov_per_newton"]
+        rows.append([thousands(r["dofs"]) if r["dofs"] else "–", r["solver"], secs(r["wall_s"]),
+                     f"{num(r['peak_mb'])} MB", num(r.get("kb_per_dof")),
+                     str(r["newton_iterations"]), span(its, str) if its else "–", str(r["fallbacks"]),
+                     f"{num(r['time_ratio'])} / {num(r['memory_ratio'])}" if "time_ratio" in r else "",
+                     num(r["marker_difference_mm"]) if "marker_difference_mm" in r else "", r["status"]])
+    return Table(["DOFs", "solver", "wall time", "peak memory", "KB / DOF", "Newton its", "Krylov its per step",
+                  "fallbacks", "iterative / direct: time / memory", "tip difference (mm)", "status"], rows,
+                 f"{d['design']}, P{d['degree']}: one `skelfem simulate` per row, in its own process "
+                 f"({d['cpu']} cores); peak memory is the process's maximum resident set, the interpreter "
+                 "and DOLFINx included.", [path])
+
+
+TABLES = {f.__name__: f for f in (linear_scaling, bench, in_hand_roll, slice_check, mpi_speed, editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
                                   tol_check, tol_check_adaptive, scatter, adaptive_reach, adaptive_tol_runs,
                                   stability, stability_slender, friction_stability, peer, pull_test, dynamics_checks, grasp, grasp3d, hand_grasp, grasp_bench,
                                   cable_friction, capstan, cable_friction_cost)}

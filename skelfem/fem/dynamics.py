@@ -86,7 +86,7 @@ class DynamicsReport:
     load_steps: int = 0                  # accepted time steps
     cuts: int = 0                        # failed attempts (each halved the step)
     linear_solver: str = "direct"        # as SolveReport's
-    linear_iterations: list = field(default_factory=list)
+    linear_iterations: Decimated = field(default_factory=lambda: Decimated(KEEP_HISTORY))   # per time step
     linear_fallbacks: int = 0
     residual_history: Decimated = field(default_factory=lambda: Decimated(KEEP_HISTORY))
     attempts: Decimated = field(default_factory=lambda: Decimated(KEEP_HISTORY))
@@ -205,6 +205,7 @@ class Dynamics:
                     t = t_next
                     rep.load_steps += 1
                     rep.residual_history.append(step.residual_history[0])
+                    rep.linear_iterations.append(solver.lin.take_krylov())
                     self._record(rep, t, on_step)
                     cuts_in_row = 0
                     if h < dt and step.newton_iterations <= EASY_ITERATIONS:
@@ -225,7 +226,7 @@ class Dynamics:
             else:
                 rep.converged, rep.status = True, "converged"
             rep.t_end = t
-            rep.linear_solver, rep.linear_iterations = solver.lin.kind, solver.lin.take_krylov()
+            rep.linear_solver = solver.lin.kind
             rep.linear_fallbacks, solver.lin.fallbacks = solver.lin.fallbacks, 0
         finally:
             self.set_time(rep.t_end)

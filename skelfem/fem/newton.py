@@ -92,7 +92,8 @@ class SolveReport:
     min_jacobian: float = float("nan")
     time: float = 0.0
     linear_solver: str = "direct"                           # "direct" (MUMPS) or "iterative" (CG + GAMG)
-    linear_iterations: list = field(default_factory=list)  # iterative: Krylov iterations per Newton step
+    linear_iterations: list = field(default_factory=list)  # iterative: Krylov iterations per Newton step,
+    #                                                       one list per load step
     linear_fallbacks: int = 0                               # iterative: Newton steps solved by MUMPS instead
 
 
@@ -367,6 +368,7 @@ class NewtonSolver(LineSearch):
             if ok:
                 report.load_steps += 1
                 report.residual_history.append(self._history)
+                report.linear_iterations.append(self.lin.take_krylov())
                 log.info("load step %d: factor %.4g, %d Newton iterations, |R| %.2e -> %.2e",
                          report.load_steps, target, its,
                          self._history[0] if self._history else 0.0,
@@ -389,6 +391,7 @@ class NewtonSolver(LineSearch):
             if cuts > self.max_cuts or status.startswith("no equilibrium"):   # smaller steps cannot help
                 report.status = status
                 report.residual_history.append(self._history)
+                report.linear_iterations.append(self.lin.take_krylov())
                 break
             da = (target - a) / 2.0
         else:
@@ -417,7 +420,9 @@ class NewtonSolver(LineSearch):
         model = self.model
         self.lin.rtol = KRYLOV_RTOL                    # what follows a solve (sensitivities) solves tightly
         report.linear_solver = self.lin.kind
-        report.linear_iterations = self.lin.take_krylov()
+        rest = self.lin.take_krylov()                  # a failed attempt's, not followed by a step
+        if rest:
+            report.linear_iterations.append(rest)
         report.linear_fallbacks, self.lin.fallbacks = self.lin.fallbacks, 0
         report.energy = model.energy(model.u.vector)
         report.min_jacobian = model.min_jacobian(model.u.vector)
@@ -496,7 +501,8 @@ class NewtonSolver(LineSearch):
         ok, status, its = self._newton()
         report = SolveReport(ok, status, its, int(ok), [self._history] if ok else [],
                              [{"factor": 1.0, "iterations": int(its), "status": status, "warm": True,
-                               "predictor_step": predicted}])
+                               "predictor_step": predicted}],
+                             linear_iterations=[self.lin.take_krylov()] if ok else [])
         if ok or not changes or status.startswith("no equilibrium"):   # an object not held: no smaller step
             if ok:                                                    # of the same change holds it either
                 model.end_step()
@@ -546,6 +552,7 @@ class NewtonSolver(LineSearch):
                 if ok:
                     report.load_steps += 1
                     report.residual_history.append(self._history)
+                    report.linear_iterations.append(self.lin.take_krylov())
                     log.info("path step %d: to %.4g of the change, %d Newton iterations", report.load_steps,
                              target, its)
                     model.end_step()
@@ -565,6 +572,7 @@ class NewtonSolver(LineSearch):
                 if cuts > self.max_cuts or verdicts > self.max_verdict_cuts:
                     report.status = status
                     report.residual_history.append(self._history)
+                    report.linear_iterations.append(self.lin.take_krylov())
                     break
                 ds = (target - s) / 2.0
             else:
