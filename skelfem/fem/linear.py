@@ -49,13 +49,15 @@ Chebyshev-Jacobi smoothing) with the rigid-body modes of the node
 coordinates as its near-nullspace (3 in 2D, 6 in 3D), and every K^{-1}
 above is a conjugate-gradient solve to a relative true residual: Newton's
 own steps are inexact (Eisenstat-Walker forcing, ``forcing``: 0.1 far from
-the solution, down to ``KRYLOV_RTOL`` near it), every other solve
-(sensitivities, adjoints) to ``KRYLOV_RTOL``. The same formulas hold, so the cables' rank-one parts stay out of
-the matrix (Woodbury) and the rigid bones' border stays outside K (their
-rows are identity rows, z from the small system): multigrid sees the soft
-body only. The multigrid hierarchy is built at the first update and its
-interpolation reused at later ones (``pc_gamg_reuse_interpolation``); each
-update re-makes only the coarse operators. A Krylov solve that fails (an
+the solution, down to ``KRYLOV_RTOL`` near it); every other solve (the
+columns of Z = K^{-1} [G | E], which the small system amplifies, warm-started
+from the last update's Z; sensitivities, adjoints) is to ``KRYLOV_RTOL``. The
+same formulas hold, so the cables' rank-one parts stay out of the matrix
+(Woodbury) and the rigid bones' border stays outside K (their rows are
+identity rows, z from the small system): multigrid sees the soft body only.
+The multigrid is built at the first update and kept at later ones
+(``_lag_preconditioner``) until its iterations per decade of residual
+exceed REBUILD_RATIO times a fresh one's. A Krylov solve that fails (an
 indefinite K breaks CG; a stall) is retried with FGMRES, then the update
 falls back to a MUMPS factorisation for the rest of its solves, counted in
 ``fallbacks`` (reported in result.json, never silent).
@@ -79,7 +81,7 @@ def default_petsc_options() -> dict:
     return {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "mumps"}
 
 
-KRYLOV_RTOL = 1e-10       # |r| / |b| of an iterative solve: Newton's and the sensitivities' answers to ~1e-10
+KRYLOV_RTOL = 1e-12       # |r| / |b| of a tight iterative solve (sensitivities to 1e-8 behind a 1e4 condition)
 
 
 ETA_MAX = 0.1             # the loosest forcing term of an inexact Newton step
@@ -189,6 +191,7 @@ class LowRankSolver:
             K.setNearNullSpace(self._nullspace)
         self.ksp = self._make_ksp(prefix, self._options)
         self._direct = None             # iterative: the fallback factorisation, made when first needed
+        self._z_guess = None            # iterative: the last update's Z, the next one's initial guesses
         self._fallen = False            # iterative: this update's solves use the fallback
         self.fallbacks = 0              # updates whose Krylov solves failed and fell back to MUMPS
         self.krylov = []                # iterative: Krylov iterations since each update (one entry per update)
@@ -254,6 +257,7 @@ class LowRankSolver:
         elif border is not None:
             self.H = self._dots(border.T, self.G)          # h_i = T^T g_i
             self.G = self.G * ~border.rows[:, None]
+        self._z_guess = self.Z if self.kind == "iterative" else None   # the last K's Z: a warm start
         self.Z = None
 
     def reset(self) -> None:
@@ -287,10 +291,11 @@ class LowRankSolver:
             self.fallbacks += 1
         return self._direct
 
-    def _ksp_solve(self, b: PETSc.Vec, x: PETSc.Vec, rtol: float | None = None) -> None:
+    def _ksp_solve(self, b: PETSc.Vec, x: PETSc.Vec, rtol: float | None = None, warm: bool = False) -> None:
         """x = K^{-1} b: one back-substitution, or a Krylov solve to rtol (default self.rtol; FGMRES if
-        CG fails, else the fallback)."""
+        CG fails, else the fallback) from x (warm) or from 0."""
         rtol = self.rtol if rtol is None else rtol
+        self.ksp.setInitialGuessNonzero(bool(warm) and self.kind == "iterative" and not self._fallen)
         self.solves += 1
         if self.kind == "direct" or self._fallen:
             ksp = self._factorised()
@@ -327,9 +332,13 @@ class LowRankSolver:
         if self.kind == "iterative" and not self._fallen:
             b, x = self.K.createVecLeft(), self.K.createVecRight()
             out = np.empty((n, k))
+            guess = self._z_guess if step else None         # Z of the last K for the same columns
+            warm = guess is not None and guess.shape == (n, k - 1)
             for j in range(k):
                 b.array_w[:] = cols[:, j]
-                self._ksp_solve(b, x, self.rtol if step and j == k - 1 else KRYLOV_RTOL)
+                if warm and j < k - 1:
+                    x.array_w[:] = guess[:, j]
+                self._ksp_solve(b, x, self.rtol if step and j == k - 1 else KRYLOV_RTOL, warm and j < k - 1)
                 out[:, j] = x.array_r
             self.solves -= k - 1                # one solve phase, as MUMPS's
             b.destroy()
