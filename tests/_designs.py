@@ -92,3 +92,17 @@ def simulate_refused_before_meshing(d: dict, tmp_path, monkeypatch, capsys) -> s
     assert len(lines) == 1 and lines[0].startswith(f"error: {path}: ") and "Traceback" not in err, err
     assert not out.exists()
     return lines[0][len(f"error: {path}: "):]
+
+
+def land_and_tilt(design: dict, theta_deg: float, g: float = 9.81):
+    """Solve a 3D design under gravity -y (its objects land), then tilt gravity by theta in the x-y
+    plane and solve again, warm (the friction history of the landing kept): (landed, tilted) results."""
+    import math
+
+    from skelfem import Session
+    th = math.radians(theta_deg)
+    with Session(design) as s:
+        landed = s.solve()
+        assert landed.converged, landed.status
+        s.set({"gravity.acceleration": [g * math.sin(th), -g * math.cos(th), 0.0]})
+        return landed, s.solve()

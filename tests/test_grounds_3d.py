@@ -12,6 +12,8 @@ from mpi4py import MPI
 from skelfem import Session
 from skelfem.terms.grounds import nodal_ds
 
+from _designs import land_and_tilt
+
 G = 9.81
 RHO = 1250.0
 SIDE = 4.0
@@ -122,14 +124,10 @@ def test_a_cube_on_a_3d_floor_sticks_iff_tan_theta_below_mu(theta, held):
     """mu = 0.5 (atan 0.5 = 26.57 deg) on the floor: gravity tilts after the cube has landed; at 26.2 deg
     the floor's friction carries W sin theta, at 27.0 deg nothing holds the cube."""
     th = math.radians(theta)
-    with Session(_cube_on_floor([0.0, -G, 0.0])) as s:
-        r = s.solve()
-        assert r.converged, r.status
-        W = RHO * 1e-9 * G * SIDE ** 3
-        floor = r.to_dict()["grounds"]["floor"]
-        assert floor["force"] == pytest.approx([0.0, -W, 0.0], rel=1e-5, abs=1e-6 * W)   # the cube's weight
-        s.set({"gravity.acceleration": [G * math.sin(th), -G * math.cos(th), 0.0]})
-        r = s.solve()
+    landed, r = land_and_tilt(_cube_on_floor([0.0, -G, 0.0]), theta, G)
+    W = RHO * 1e-9 * G * SIDE ** 3
+    floor = landed.to_dict()["grounds"]["floor"]
+    assert floor["force"] == pytest.approx([0.0, -W, 0.0], rel=1e-5, abs=1e-6 * W)   # the cube's weight
     if not held:
         assert r.status == "no equilibrium: object cube is not held"
         return
