@@ -154,15 +154,18 @@ def test_rigid_body_modes_are_rigid_motions():
         assert np.allclose(B, -B.T, atol=1e-12)
 
 
-def test_auto_is_direct_in_2d_and_for_small_3d_designs():
+def test_auto_is_direct_in_2d_for_small_3d_designs_and_with_stiff_elastic_bones():
+    elastic, rigid = load_design("geometry/finger3d.toml"), load_design("geometry/finger3d.toml", RIGID)
+
     class Fake:
         comm = MPI.COMM_WORLD
 
-        def __init__(self, dim, n):
-            self.dim, self.n_owned = dim, n
+        def __init__(self, dim, n, design=rigid):
+            self.dim, self.n_owned, self.design = dim, n, design
     assert choose_linear("auto", Fake(2, 10_000_000)) == "direct"
     assert choose_linear("auto", Fake(3, 50_000)) == "direct"
     assert choose_linear("auto", Fake(3, 2_000_000)) == "iterative"
+    assert choose_linear("auto", Fake(3, 2_000_000, elastic)) == "direct"     # PLA 3e4 x the silicone
     assert choose_linear("direct", Fake(3, 2_000_000)) == "direct"
     assert choose_linear("iterative", Fake(2, 100)) == "iterative"
 
