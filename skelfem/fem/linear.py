@@ -110,7 +110,7 @@ def iterative_petsc_options() -> dict:
             "mg_levels_ksp_max_it": 3, "mg_levels_esteig_ksp_type": "cg"}
 
 
-AUTO_ITERATIVE_DOFS = 300_000   # "auto": 3D designs with more unknowns than this may solve iteratively ...
+AUTO_ITERATIVE_DOFS = 150_000   # "auto": 3D designs with more unknowns than this may solve iteratively ...
 AUTO_MAX_CONTRAST = 100.0       # ... unless an elastic bone is this many times stiffer than its body
 
 
