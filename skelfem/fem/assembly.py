@@ -82,7 +82,7 @@ class MatrixAssembly:
         hosts), [(host DOFs, coupled DOFs)] per body); ([], None) under MPI or
         without rigid bodies.
         """
-        if self.comm.size != 1 or not self.rigid or not getattr(self, "embed_border", True):
+        if self.comm.size != 1 or not self.rigid or not self.embed_border:
             return [], None
         bs, n = self.bs, self.n_local // self.bs
         npc = self.V.dofmap.dof_layout.num_dofs

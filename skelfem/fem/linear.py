@@ -196,6 +196,7 @@ class LowRankSolver:
         self.K, self.comm = K, comm
         self.kind = "direct" if modes is None else "iterative"
         self.prefix = prefix
+        self._nullspace = None
         base = default_petsc_options() if modes is None else iterative_petsc_options()
         self._options = {**base, **(options or {})}
         if modes is not None:
@@ -210,7 +211,6 @@ class LowRankSolver:
         self._its_since, self._decades_since = 0, 0.0   # iterative: since the last update, for ...
         self._fresh_rate = None         # ... the iterations per decade of residual of a fresh multigrid
         self._rebuilt = True
-        self.rebuilds = 0               # iterative: multigrid set-ups (see _lag_preconditioner)
         self.rtol = KRYLOV_RTOL         # iterative: the relative residual of a Newton step's solve (forcing)
         self.c = np.zeros(0)
         self.G = self.Z = None
@@ -239,7 +239,7 @@ class LowRankSolver:
         rebuild = rate is None or self._fresh_rate is None or self._fallen \
             or rate > REBUILD_RATIO * self._fresh_rate
         self.ksp.getPC().setReusePreconditioner(not rebuild)
-        self._rebuilt, self.rebuilds = rebuild, self.rebuilds + rebuild
+        self._rebuilt = rebuild
         self._its_since, self._decades_since = 0, 0.0
 
     def _set_up(self) -> None:
@@ -325,7 +325,6 @@ class LowRankSolver:
             if reason > 0:
                 self._its_since += self.ksp.getIterationNumber()
                 self._decades_since += -np.log10(rtol)
-            if reason > 0:
                 break
         if self.ksp.getType() != first:
             self.ksp.setType(first)
@@ -479,6 +478,9 @@ class LowRankSolver:
         if self._direct is not None:
             self._direct.destroy()
             self._direct = None
+        if self._nullspace is not None:
+            self._nullspace.destroy()
+            self._nullspace = None
         for B, X in self._dense.values():
             B.destroy()
             X.destroy()
