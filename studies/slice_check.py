@@ -6,8 +6,15 @@ STL file `prusa-slicer --info` (manifold, parts, volume) and
 printed: the file's orientation is kept). Per part it records the exit
 code, warnings or errors the slicer logs, and the number of G-code sections
 of support material (0: the part prints without support), beside skelfem's
-own estimate from fabrication.json (``print.support_area``). Writes
-studies/output/slice_check/slice_check.json.
+own estimate from fabrication.json (``print.support_area``).
+
+Then the single-process print: `skelfem fabricate --format 3mf` and the 3MF
+sliced on a two-extruder printer (``--nozzle-diameter 0.4,0.4``), with
+automatic support on the build plate only (support inside a channel could
+not be removed) and, for comparison, everywhere. Per design (under
+``prints``): the slicer's parts, manifold flag and volume, the filament each
+extruder uses, the support sections, or the one-line error of a design that
+cannot be printed so. Writes studies/output/slice_check/slice_check.json.
 
     python studies/slice_check.py [--designs finger gripper ...]
 
@@ -48,11 +55,40 @@ def _slice(slicer: str, stl: Path, gcode: Path) -> dict:
             "layers": text.count(";LAYER_CHANGE")}
 
 
-def run(designs=DESIGNS, out: Path | None = OUT) -> dict:
+def _filament(gcode: Path) -> list[float]:
+    """cm^3 of filament per extruder, from the G-code's summary."""
+    line = next((x for x in gcode.read_text().splitlines() if x.startswith("; filament used [cm3] =")), "")
+    return [float(v) for v in line.split("=", 1)[1].split(",")] if line else []
+
+
+def _print(slicer: str, name: str, folder: Path) -> dict:
+    """skelfem fabricate --format 3mf, then the 3MF sliced on two extruders."""
+    r = subprocess.run([SKELFEM, "fabricate", str(ROOT / "geometry" / f"{name}.toml"), "--format", "3mf",
+                        "--out", str(folder), "-q", "--no-picture"], capture_output=True, text=True, timeout=900)
+    if r.returncode != 0:
+        return {"design": name, "error": r.stderr.strip().splitlines()[-1] if r.stderr.strip() else r.returncode}
+    report = json.loads((folder / "fabrication.json").read_text())
+    three = folder / report["file"]
+    row = {"design": name, "down": report["print"]["down"], "volume_3mf": sum(
+        p["mesh_volume"] for p in report["parts"].values()), **_info(slicer, three)}
+    two = ["--nozzle-diameter", "0.4,0.4", "--filament-diameter", "1.75,1.75"]
+    for key, extra in (("plate", ["--support-material-buildplate-only"]), ("everywhere", [])):
+        g = folder / f"print_{key}.gcode"
+        res = subprocess.run([slicer, "--loglevel", "2", "--export-gcode", "--support-material", *two, *extra,
+                              "--output", str(g), str(three)], capture_output=True, text=True, timeout=600)
+        log = (res.stdout + res.stderr).splitlines()
+        text = g.read_text() if g.exists() else ""
+        row[key] = {"returncode": res.returncode, "support_sections": text.count(SUPPORT),
+                    "warnings": [x for x in log if "[warning]" in x.lower() or "[error]" in x.lower()],
+                    "layers": text.count(";LAYER_CHANGE"), "filament_cm3": _filament(g) if g.exists() else []}
+    return row
+
+
+def run(designs=DESIGNS, out: Path | None = OUT, prints: bool = True) -> dict:
     slicer = shutil.which("prusa-slicer")
     if slicer is None:
         raise SystemExit("error: prusa-slicer is not installed (make setup installs Debian's)")
-    rows = []
+    rows, printed = [], []
     with tempfile.TemporaryDirectory() as tmp:
         for name in designs:
             folder = Path(tmp) / name
@@ -71,11 +107,25 @@ def run(designs=DESIGNS, out: Path | None = OUT) -> dict:
                 print(f"{name:16s} {part:20s} down {row['down']}: support sections {row['support_sections']:3d} "
                       f"of {row['layers']} layers (estimate {row['estimated_support_area']:.1f} mm^2), "
                       f"manifold {row['manifold']}, warnings {len(row['warnings'])}", flush=True)
+        for name in designs if prints else ():
+            row = _print(slicer, name, Path(tmp) / f"{name}_3mf")
+            printed.append(row)
+            if "error" in row:
+                print(f"{name:16s} 3MF: not printable: {row['error']}", flush=True)
+                continue
+            a, b = row["plate"], row["everywhere"]
+            print(f"{name:16s} 3MF: {row['parts']} parts, manifold {row['manifold']}, filament "
+                  f"{', '.join(f'{v:.2f}' for v in a['filament_cm3'])} cm^3 per extruder; support sections "
+                  f"{a['support_sections']} (build plate only), {b['support_sections']} (everywhere) of "
+                  f"{a['layers']} layers, warnings {len(a['warnings'])}", flush=True)
     help_text = subprocess.run([slicer, "--help"], capture_output=True, text=True).stdout.splitlines()
     version = [line.split(" ")[0] for line in help_text if line.startswith("PrusaSlicer")]
     res = {"slicer": version[0] if version else "prusa-slicer", "designs": list(designs), "rows": rows,
            "all_sliced": all(r["returncode"] == 0 and not r["warnings"] for r in rows),
-           "moulds_without_support": all(r["support_sections"] == 0 for r in rows if r["part"].startswith("mould"))}
+           "moulds_without_support": all(r["support_sections"] == 0 for r in rows if r["part"].startswith("mould")),
+           "prints": printed,
+           "prints_sliced": all(p["plate"]["returncode"] == 0 and not p["plate"]["warnings"]
+                                for p in printed if "plate" in p)}
     if out is not None:
         from skelfem.io.files import write_json
         out.mkdir(parents=True, exist_ok=True)

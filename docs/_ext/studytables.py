@@ -145,6 +145,23 @@ def slice_check(_: dict) -> Table:
                   "layers", "manifold, one part", "warnings"], rows, caption, [path])
 
 
+def slice_check_3mf(_: dict) -> Table:
+    d, path = load_json("slice_check/slice_check.json", "python studies/slice_check.py")
+    rows = []
+    for p in d.get("prints", []):
+        if "error" in p:
+            rows.append([p["design"], "not printable: " + p["error"].split(": ", 2)[-1], "", "", "", "", ""])
+            continue
+        a, b = p["plate"], p["everywhere"]
+        rows.append([p["design"], p["down"], str(p["parts"]), ", ".join(num(v, 3) for v in a["filament_cm3"]),
+                     str(a["support_sections"]), str(b["support_sections"]), str(len(a["warnings"]))])
+    caption = (f"{d['slicer']}: `--export-gcode --support-material --nozzle-diameter 0.4,0.4` on the 3MF of "
+               "`skelfem fabricate --format 3mf`, support on the build plate only (and, for comparison, "
+               "everywhere); the slicer's parts count every closed shell (a bone's cavity in the body is one).")
+    return Table(["design", "face down", "parts", "filament per extruder [cm³]", "support sections (plate only)",
+                  "support sections (everywhere)", "warnings"], rows, caption, [path])
+
+
 def in_hand_roll(_: dict) -> Table:
     d, path = load_json("in_hand_roll/in_hand_roll.json", "python studies/in_hand_roll.py")
     rows = [[f"{r['target_deg']:g}", num(-r["rotation_deg"], 3), num(r["error"], 2), r["status"],
@@ -622,7 +639,7 @@ def linear_scaling(_: dict) -> Table:
                  "and DOLFINx included.", [path])
 
 
-TABLES = {f.__name__: f for f in (linear_scaling, bench, in_hand_roll, slice_check, mpi_speed, editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
+TABLES = {f.__name__: f for f in (linear_scaling, bench, in_hand_roll, slice_check, slice_check_3mf, mpi_speed, editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
                                   tol_check, tol_check_adaptive, scatter, adaptive_reach, adaptive_tol_runs,
                                   stability, stability_slender, friction_stability, peer, pull_test, dynamics_checks, grasp, grasp3d, hand_grasp, grasp_bench,
                                   cable_friction, capstan, cable_friction_cost)}

@@ -25,15 +25,20 @@ def fabricate(args) -> int:
     try:
         design = load_design(args.design, args.overrides)
         plan = fab.plan(design)
+        if args.format == "3mf":
+            fab.check_print(plan)
     except DesignError as exc:
         raise InputError(str(exc)) from None
     except fab.FabricationError as exc:
         raise InputError(f"{design.source}: {exc.key}: {exc.message}") from None
     args.out = reserve_output(args, design, "fabricate")
-    log.info("%s: building %d bone(s) and the mould", design.name, len(design.bones))
+    printed = args.format == "3mf"
+    log.info("%s: building %d bone(s) and %s", design.name, len(design.bones),
+             "the body for one multi-material print" if printed else "the mould")
     with publish(args.out, MPI.COMM_WORLD, "fabricate") as stage:
         try:
-            report = fab.write(plan, stage.path, picture_file=not args.no_picture)
+            write = fab.write_print if printed else fab.write
+            report = write(plan, stage.path, picture_file=not args.no_picture)
         except OSError as exc:
             stage.errors.append(f"cannot write {Path(exc.filename).name if exc.filename else 'the parts'}: "
                                 f"{exc.strerror or exc}")
@@ -42,6 +47,8 @@ def fabricate(args) -> int:
         return EXIT_INPUT
     for note in report["notes"]:
         log.warning("%s: warning: %s", design.name, note)
+    if printed:
+        return _printed(args, design, report, t0)
     checks = report["checks"]
     if not checks["passed"]:
         failed = [k for k in ("stl_closed_and_oriented", "bone_volumes", "cavity_is_body") if not checks[k]]
@@ -60,3 +67,23 @@ def fabricate(args) -> int:
     return EXIT_OK
 
 
+
+
+def _printed(args, design, report: dict, t0: float) -> int:
+    """The 3MF's checks and summary."""
+    checks = report["checks"]
+    if not checks["passed"]:
+        failed = [k for k in ("parts_closed_and_oriented", "part_volumes") if not checks[k]]
+        failed += [] if checks["complement"]["complement"] else ["complement"]
+        error(f"internal error: {design.name}: fabrication check(s) failed: {', '.join(failed)}; "
+              f"see {args.out / 'fabrication.json'}")
+        return EXIT_INTERNAL
+    if not args.quiet:
+        print(f"{design.name}: one multi-material print, {report['file']} in {args.out}/, "
+              f"{time.perf_counter() - t0:.1f} s")
+        for name, part in report["parts"].items():
+            print(f"  {name:24s} {part['volume']:10.1f} mm^3  extruder {part['extruder']}  ({part['material']})")
+        c = checks["complement"]
+        print(f"  body and bones fill the body with its channels open to {abs(c['relative_error']):.1g} "
+              f"(channels {c['channels_volume']:.1f} mm^3); lying on its {report['print']['down']} face")
+    return EXIT_OK

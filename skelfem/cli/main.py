@@ -50,13 +50,18 @@ def _parser() -> argparse.ArgumentParser:
                    help="with --tol: graded meshes refined where element indicators of the marker error are "
                         "large, instead of uniform ones (serial runs)")
     s.set_defaults(handler=simulate)
-    f = sub.add_parser("fabricate", help="printable bones (STL, STEP) and a two-part mould for casting the body",
+    f = sub.add_parser("fabricate", help="printable bones (STL, STEP) and a two-part mould for casting the body, "
+                                         "or one multi-material 3MF",
                        description="Bones with cable channels and ligament anchor holes, and a two-part mould "
                                    "whose cavity is the body, from the design's [fabrication] section.")
     f.add_argument("design", type=Path, help="design file (TOML)")
     f.add_argument("--out", type=Path, default=None, help="output folder (default: results/<name>)")
     f.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override one design value, e.g. fabrication.channel_diameter=1.5")
+    f.add_argument("--format", choices=("cast", "3mf"), default="cast",
+                   help="cast: bones (STL, STEP) and a two-part mould to cast the body in (default); 3mf: the "
+                        "whole robot as one multi-material 3MF, body and bones on their own extruders, printed "
+                        "in one process")
     f.add_argument("--no-picture", action="store_true", help="skip fabrication.png")
     f.add_argument("-q", "--quiet", action="store_true", help="print only errors")
     f.add_argument("-v", "--verbose", action="store_true", help="print the tracebacks of internal errors")

@@ -3,12 +3,14 @@
 ``plan`` finds every problem on triangulations before anything is written
 (``surfaces``: triangle surfaces, rays, STL; ``meshing``: Gmsh surfaces;
 ``plan``: the plan), ``build`` makes each part with OpenCASCADE, ``picture``
-draws the exploded view and ``files`` writes a checked folder.
+draws the exploded view and ``files`` writes a checked folder; ``multimaterial``
+writes the whole robot as one multi-material 3MF instead (``write_print``).
 """
 from .files import build, write
+from .multimaterial import check_print, write as write_print
 from .parts import Plan
 from .plan import plan
 from .surfaces import FabricationError, check_mesh, orient, read_stl, write_stl
 
-__all__ = ["FabricationError", "Plan", "build", "check_mesh", "orient", "plan", "read_stl", "write",
-           "write_stl"]
+__all__ = ["FabricationError", "Plan", "build", "check_print", "check_mesh", "orient", "plan", "read_stl", "write",
+           "write_print", "write_stl"]

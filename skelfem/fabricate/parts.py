@@ -77,5 +77,7 @@ class Plan:
     body_volume: float = 0.0
     bone_volumes: dict = field(default_factory=dict)    # un-cut bone volumes (probe pass)
     notes: list = field(default_factory=list)
+    body_surface: object = None                         # the probe's triangulated body and bones (Surface)
+    bone_surfaces: dict = field(default_factory=dict)
 
 

@@ -23,12 +23,17 @@ def coarsen(points: np.ndarray, tris: np.ndarray, h: float) -> tuple[np.ndarray,
     return merged / counts[:, None], t[keep]
 
 
-COLOURS = {"bone": (0.93, 0.55, 0.18), "mould_bottom": (0.45, 0.62, 0.85), "mould_top": (0.55, 0.75, 0.60)}
+COLOURS = {"bone": (0.93, 0.55, 0.18), "mould_bottom": (0.45, 0.62, 0.85), "mould_top": (0.55, 0.75, 0.60),
+           "body": (0.80, 0.45, 0.55)}
+LEGEND = {"mould_top": "mould top (translucent)", "bone": "bones", "mould_bottom": "mould bottom",
+          "body": "body (translucent)"}
+TRANSLUCENT = ("mould_top", "body")
 
 
 def picture(path, parts: list, plan: Plan, title: str = "") -> None:
     """Exploded view of the parts (matplotlib, headless): mould halves drawn apart along the mould's
-    normal (up in the picture), bones between them where they are cast.
+    normal (up in the picture), bones between them where they are cast; a printed body (part "body")
+    translucent around its bones.
 
     Each triangle is shaded by Lambert's law, colour x (0.35 + 0.65 max(0, n . l)),
     with n its outward normal and l a fixed light from above and in front;
@@ -62,7 +67,7 @@ def picture(path, parts: list, plan: Plan, title: str = "") -> None:
         tri, n = tri[facing], n[facing]
         base = np.array(COLOURS.get(part.name, COLOURS["bone"]))
         shade = 0.35 + 0.65 * np.clip(n @ light, 0.0, 1.0)
-        alpha = 0.35 if part.name == "mould_top" else 1.0
+        alpha = 0.35 if part.name in TRANSLUCENT else 1.0
         colours = np.column_stack([np.clip(shade[:, None] * base, 0, 1), np.full(len(tri), alpha)])
         ax.add_collection3d(Poly3DCollection(tri, facecolors=colours, edgecolors=colours,
                                              linewidths=0.2 if alpha == 1.0 else 0.0))
@@ -74,8 +79,9 @@ def picture(path, parts: list, plan: Plan, title: str = "") -> None:
     ax.view_init(elev=math.degrees(elev), azim=math.degrees(azim))
     ax.set_xlabel("u [mm]"), ax.set_ylabel("v [mm]"), ax.set_zlabel("n [mm]")
     ax.tick_params(labelsize=7)
-    handles = [Rectangle((0, 0), 1, 1, color=COLOURS[k]) for k in ("mould_top", "bone", "mould_bottom")]
-    ax.legend(handles, ["mould top (translucent)", "bones", "mould bottom"], loc="upper left", fontsize=8)
+    shown = [k for k in LEGEND if any((p.name if p.name in COLOURS else "bone") == k for p in parts)]
+    ax.legend([Rectangle((0, 0), 1, 1, color=COLOURS[k]) for k in shown], [LEGEND[k] for k in shown],
+              loc="upper left", fontsize=8)
     ax.set_title(title or f"{plan.design.name}: parts, exploded along the mould's normal", fontsize=10)
     fig.subplots_adjust(left=0.0, right=1.0, bottom=0.04, top=0.94)
     atomic_write(Path(path), lambda tmp: fig.savefig(tmp, format="png"))

@@ -43,7 +43,7 @@ from .parts import Frame, Plan, Tool
 from .surfaces import FabricationError, GRAZING, PROBE_CURVATURE, Surface, face_distances, inside, point_triangle_distance, ray_hits
 
 
-def _samples(points: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+def path_samples(points: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
     """Points every <= step along a polyline (its corners included) and their arclengths."""
     seg = np.diff(points, axis=0)
     lengths = np.linalg.norm(seg, axis=1)
@@ -57,7 +57,7 @@ def _samples(points: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(out), np.concatenate(arc)
 
 
-def _where(x) -> str:
+def where_text(x) -> str:
     return "(" + ", ".join(f"{v:.3g}" for v in x) + ")"
 
 
@@ -140,9 +140,9 @@ class _Planner:
             if end_["at"] == "face" and end_["sin"] < GRAZING:
                 angle = math.degrees(math.asin(min(1.0, end_["sin"])))
                 raise FabricationError(key_path, f"{what} meets the surface of bone {tool.bone!r} at "
-                                                 f"{_where(end_['point'])} at a grazing {angle:.0f} degrees "
+                                                 f"{where_text(end_['point'])} at a grazing {angle:.0f} degrees "
                                                  f"(at least 30 are needed, or the channel opens the bone's side)")
-        pts, arc = _samples(tool.points, min(0.25, tool.radius / 2))
+        pts, arc = path_samples(tool.points, min(0.25, tool.radius / 2))
         dist, faces = face_distances(pts, surface)
         total = arc[-1]
         for end_, s_from in ((start, arc), (end, total - arc)):
@@ -159,7 +159,7 @@ class _Planner:
                                              f"{2 * max(self.inradius(tool.bone) - self.wall, 0):.3g} mm there)")
         i = int(np.argmin(worst))
         raise FabricationError(key_path, f"{what} would open the side of bone {tool.bone!r}: near "
-                                         f"{_where(pts[i])} its axis passes {worst[i]:.2f} mm from the bone's "
+                                         f"{where_text(pts[i])} its axis passes {worst[i]:.2f} mm from the bone's "
                                          f"surface, and radius + min_wall = {need:g} mm are needed")
 
     def inradius(self, bone: str) -> float:
@@ -247,15 +247,15 @@ class _Planner:
         _, t, _ = ray_hits(origin, d, self.body.corners, self.tol)
         t = t[t > self.tol]
         if not len(t):
-            raise FabricationError(key, f"its end at {_where(p)} does not lead out of the body")
+            raise FabricationError(key, f"its end at {where_text(p)} does not lead out of the body")
         leave = float(t[0])
         for bone, surface in self.bones.items():
             _, tb, _ = ray_hits(origin, d, surface.corners, self.tol)
             if np.any((tb > self.tol) & (tb < leave)):
-                raise FabricationError(key, f"its end at {_where(p)} runs into bone {bone!r} on its way out of the "
+                raise FabricationError(key, f"its end at {where_text(p)} runs into bone {bone!r} on its way out of the "
                                             "body (a tendon leaves the body straight on from its spool end)")
         if len(t) > 1:
-            raise FabricationError(key, f"straight on from its end at {_where(p)} the tendon would re-enter the "
+            raise FabricationError(key, f"straight on from its end at {where_text(p)} the tendon would re-enter the "
                                         "body; route its spool end to the surface")
         return {"point": p, "direction": d, "origin": origin, "leave": origin + leave * d}
 
@@ -274,12 +274,12 @@ class _Planner:
         """Channels and holes of different cables in one bone must not meet."""
         from scipy.spatial import cKDTree
         for i, a in enumerate(tools):
-            pa, _ = _samples(a.points, 0.1)
+            pa, _ = path_samples(a.points, 0.1)
             tree = cKDTree(pa)
             for b in tools[:i]:
                 if b.cable == a.cable:
                     continue
-                pb, _ = _samples(b.points, 0.1)
+                pb, _ = path_samples(b.points, 0.1)
                 gap = float(tree.query(pb)[0].min())      # sampled every 0.1 mm: within 0.05 mm
                 need = a.radius + b.radius + self.wall
                 if gap < need - 0.05:
@@ -344,14 +344,14 @@ class _Planner:
         from scipy.spatial import cKDTree
         spec, f = self.spec, self.frame
         h = spec.socket_depth
-        cable_pts = [_samples(self.cable_points(c), 0.2)[0] for c in self.design.cables]
+        cable_pts = [path_samples(self.cable_points(c), 0.2)[0] for c in self.design.cables]
         cable_tree = cKDTree(np.concatenate(cable_pts)) if cable_pts else None
         pegs = []
         for bone in self.design.bones:
             surface = self.bones[bone.name]
             others = [s for name, s in self.bones.items() if name != bone.name]
             holes = [t for t in bone_tools[bone.name]]
-            hole_pts = [_samples(t.points, 0.2)[0] for t in holes]
+            hole_pts = [path_samples(t.points, 0.2)[0] for t in holes]
             hole_r = np.concatenate([np.full(len(p), t.radius) for p, t in zip(hole_pts, holes)]) if holes else None
             hole_tree = cKDTree(np.concatenate(hole_pts)) if holes else None
             sites = self.grid(f.local(surface.points)[:, :2], 150, margin=self.r_socket + self.wall)
@@ -373,11 +373,11 @@ class _Planner:
                     axis = f.world([[*sites[i], tip], [*sites[i], leave]])
                     sock = f.world([[*sites[i], e], [*sites[i], e - side * h]])
                     if cable_tree is not None:
-                        near = cable_tree.query(_samples(axis, 0.2)[0])[0].min()
+                        near = cable_tree.query(path_samples(axis, 0.2)[0])[0].min()
                         if near < self.r_peg + self.r_channel + self.wall:
                             continue
                     if hole_tree is not None:
-                        d, j = hole_tree.query(_samples(sock, 0.2)[0])
+                        d, j = hole_tree.query(path_samples(sock, 0.2)[0])
                         if np.any(d < self.r_socket + hole_r[j] + self.wall):
                             continue
                     ok.append((sites[i], e, tip, leave))
@@ -543,7 +543,8 @@ def plan(design) -> Plan:
     bone_tools = planner.route()
     pegs = planner.pegs(bone_tools)
     mould = planner.openings(pegs) + planner.pins() + planner.exits()
-    p = Plan(design, spec, planner.frame, scale, bone_tools, pegs, mould, body_volume, bone_volumes)
+    p = Plan(design, spec, planner.frame, scale, bone_tools, pegs, mould, body_volume, bone_volumes,
+             body_surface=body, bone_surfaces=bones)
     unheld = [b.name for b in design.bones if not any(t.bone == b.name for t in pegs)]
     if unheld:
         p.notes.append(f"no peg can reach bone(s) {', '.join(unheld)} along the mould's normal; "

@@ -193,7 +193,8 @@ def _edges(tris: np.ndarray):
 
 def orient(points: np.ndarray, tris: np.ndarray) -> np.ndarray:
     """The triangles of a closed 2-manifold, reordered so that every shared edge is used once each way
-    and every connected part encloses positive volume.
+    and every connected part encloses positive volume, except a part inside an odd number of others:
+    it bounds a cavity and encloses negative volume.
 
     Neighbours across an edge agree when they use it in opposite
     directions. A breadth-first tree over the triangles (scipy) gives each
@@ -235,6 +236,15 @@ def orient(points: np.ndarray, tris: np.ndarray) -> np.ndarray:
         sel = label == comp
         if signed_volume(points, out[sel]) < 0:
             out[sel] = out[sel][:, [0, 2, 1]]
+    if ncomp > 1:                   # a part inside an odd number of others bounds a cavity: inward
+        scale = float(np.ptp(points, axis=0).max())
+        for comp in range(ncomp):
+            sel = label == comp
+            probe = points[tris[np.flatnonzero(sel)[0], :1]]
+            depth = sum(bool(inside(probe, Surface(points, out[label == other], None), 1e-9 * scale)[0])
+                        for other in range(ncomp) if other != comp)
+            if depth % 2:
+                out[sel] = out[sel][:, [0, 2, 1]]
     return out
 
 
@@ -273,7 +283,8 @@ def check_mesh(points: np.ndarray, tris: np.ndarray) -> dict:
     open_edges: edges of one triangle only; nonmanifold_edges: of three or
     more; misoriented_edges: shared edges that both triangles run the same
     way; degenerate: triangles with a repeated corner or zero area; parts:
-    connected pieces (through shared edges); volume: divergence theorem.
+    connected pieces (through shared edges), of which outer_shells enclose positive volume and
+    cavities negative (a solid with voids: one outer shell, a cavity per void); volume: divergence theorem.
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
@@ -291,9 +302,11 @@ def check_mesh(points: np.ndarray, tris: np.ndarray) -> dict:
     m = len(tris)
     ti, tj = owner[i], owner[j]
     graph = coo_matrix((np.ones(len(ti)), (ti, tj)), shape=(m, m))
-    parts = int(connected_components(graph, directed=False)[0]) if m else 0
+    parts, label = connected_components(graph, directed=False) if m else (0, np.zeros(0, int))
+    shells = np.array([signed_volume(points, tris[label == k]) for k in range(parts)])
     report = {"triangles": m, "open_edges": int(np.sum(count == 1)), "nonmanifold_edges": int(np.sum(count > 2)),
-              "misoriented_edges": misoriented, "degenerate": degenerate, "parts": parts,
+              "misoriented_edges": misoriented, "degenerate": degenerate, "parts": int(parts),
+              "outer_shells": int(np.sum(shells > 0)), "cavities": int(np.sum(shells < 0)),
               "volume": signed_volume(points, tris), "area": float(area.sum())}
     report["closed"] = report["open_edges"] == 0 and report["nonmanifold_edges"] == 0
     report["oriented"] = report["closed"] and misoriented == 0 and report["volume"] > 0
