@@ -50,11 +50,12 @@ def run(size: float = 2.0, contraction: float = 8.0, out: Path | None = None, ar
 
 
 def _fabrication(out: Path | None) -> dict:
-    """finger.toml's bones and mould (skelfem.fabricate); the exploded view as fabrication.png, and the
-    single-process print (body and bones) as fabrication_3mf.png."""
+    """finger.toml's bones and mould (skelfem.fabricate); the exploded view as fabrication.png, the casting
+    sequence as casting.png and the single-process print (body and bones) as fabrication_3mf.png."""
     from skelfem import fabricate
     from skelfem.fabricate.multimaterial import build_print
     from skelfem.fabricate.picture import picture as draw
+    from skelfem.fabricate.sequence import casting_sequence
     from skelfem.design import load_design
 
     plan = fabricate.plan(load_design(ROOT / "geometry" / "finger.toml"))
@@ -64,6 +65,7 @@ def _fabrication(out: Path | None) -> dict:
         Path(out).mkdir(parents=True, exist_ok=True)
         draw(Path(out) / "fabrication.png", parts, plan,
                           "finger.toml: bones and the two-part mould, exploded along the mould's normal")
+        casting_sequence(Path(out) / "casting.png", parts, plan)
         draw(Path(out) / "fabrication_3mf.png", printed, plan,
              "finger.toml as one print: the body (translucent) and its bones, channels open")
     return {p.name: p.cad_volume for p in parts}

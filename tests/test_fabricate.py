@@ -305,8 +305,11 @@ def test_report_lists_parts_and_picture_shows_them(fabricated, picture):
     assert {p["half"] for p in mould["pegs"]} == {"bottom", "top"}
     assert report["checks"]["passed"] and report["checks"]["tolerance"] == 0.01
     assert sorted(p.name for p in out.iterdir()) == sorted(
-        ["fabrication.json", "fabrication.png"] + [f"{n}.{e}" for n in report["parts"] for e in ("stl", "step")])
+        ["fabrication.json", "fabrication.png", "casting.png"]
+        + [f"{n}.{e}" for n in report["parts"] for e in ("stl", "step")])
     picture(out / "fabrication.png", 900, 700)
+    picture(out / "casting.png", 1200, 800)                       # six panels: the casting sequence
+    assert len(report["casting"]) == 6 and report["casting"][0].startswith("1  print")
 
 
 # -- bad input: one line naming the key, exit 1, nothing written -------------------------------------------------------

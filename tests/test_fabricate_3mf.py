@@ -136,3 +136,15 @@ def test_orient_turns_a_cavity_inward():
     r = check_mesh(pts, orient(pts, tris))
     assert r["oriented"] and r["outer_shells"] == 1 and r["cavities"] == 1
     assert r["volume"] == pytest.approx(64 - 8)
+
+
+def test_the_folder_holds_one_complete_result_when_the_format_changes(tmp_path):
+    """A cast run's folder re-used for a print holds the print alone, and back again."""
+    out = tmp_path / "fab"
+    design = str(GEOMETRY / "thumb.toml")
+    assert main(["fabricate", design, "--out", str(out), "-q", "--no-picture"]) == 0
+    assert {p.suffix for p in out.iterdir()} == {".json", ".stl", ".step"}
+    assert main(["fabricate", design, "--format", "3mf", "--out", str(out), "-q", "--no-picture"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["fabrication.json", "thumb.3mf"]
+    assert main(["fabricate", design, "--out", str(out), "-q", "--no-picture"]) == 0
+    assert not (out / "thumb.3mf").exists() and (out / "mould_top.stl").exists()

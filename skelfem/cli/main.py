@@ -62,7 +62,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="cast: bones (STL, STEP) and a two-part mould to cast the body in (default); 3mf: the "
                         "whole robot as one multi-material 3MF, body and bones on their own extruders, printed "
                         "in one process")
-    f.add_argument("--no-picture", action="store_true", help="skip fabrication.png")
+    f.add_argument("--no-picture", action="store_true", help="skip fabrication.png and casting.png")
     f.add_argument("-q", "--quiet", action="store_true", help="print only errors")
     f.add_argument("-v", "--verbose", action="store_true", help="print the tracebacks of internal errors")
     f.set_defaults(handler=fabricate)

@@ -25,7 +25,7 @@ class Part:
     pose: PrintPose | None = None    # how it lies on the print bed (STL and STEP are written so)
 
 
-def _shapes(occ, tool: Tool) -> list:
+def tool_shapes(occ, tool: Tool) -> list:
     """OCC solids of a tool: a cylinder per segment of its axis (the ends extended), a ball at each bend."""
     p = tool.points.copy()
     p[0], p[-1] = tool.ends()
@@ -37,7 +37,7 @@ def _shapes(occ, tool: Tool) -> list:
     return out
 
 
-def _mass(occ, dimtags) -> float:
+def total_mass(occ, dimtags) -> float:
     occ.synchronize()
     return float(sum(occ.getMass(*v) for v in dimtags))
 
@@ -46,7 +46,7 @@ def _volumes(out) -> list[int]:
     return [t for d, t in out if d == 3]
 
 
-def _solid(occ, out) -> list:
+def clean_solids(occ, out) -> list:
     """The volumes of a boolean's result without the empty slivers OpenCASCADE sometimes leaves
     (a solid of zero volume where a plane touches a sphere, say); those are removed from the model."""
     occ.synchronize()
@@ -116,7 +116,7 @@ def build_bone(plan: Plan, bone, folder: Path | None = None) -> Part:
         occ = gmsh.model.occ
         _, tags = add_design_solids(occ, design, plan.spec.bone_depth or None, bones=[bone.name], body=False)
         solid = [(3, t) for t in tags[bone.name]]
-        tools = [s for tool in plan.bone_tools[bone.name] for s in _shapes(occ, tool)]
+        tools = [s for tool in plan.bone_tools[bone.name] for s in tool_shapes(occ, tool)]
         removed = 0.0
         if tools:
             copies = occ.copy(tools)
@@ -126,7 +126,7 @@ def build_bone(plan: Plan, bone, folder: Path | None = None) -> Part:
             occ.synchronize()
             removed = float(sum(occ.getMass(3, t) for t in _volumes(common)))
             occ.remove(common, recursive=True)
-            solid = _solid(occ, occ.cut(solid, tools)[0])
+            solid = clean_solids(occ, occ.cut(solid, tools)[0])
         kinds = [t.kind for t in plan.bone_tools[bone.name]]
         info = {"uncut_volume": plan.bone_volumes[bone.name], "removed_volume": removed,
                 "channels": kinds.count("channel"), "anchor_holes": kinds.count("anchor"),
@@ -171,18 +171,18 @@ def build_half(plan: Plan, side: str, folder: Path | None = None) -> Part:
         body, _ = add_design_solids(occ, plan.design, bones=[])
         n0, n1 = (f.lo[2], f.c) if side == "bottom" else (f.c, f.hi[2])
         box, block = _block(occ, f, n0, n1)
-        half = _solid(occ, occ.cut([(3, box)], [(3, t) for t in body])[0])
-        mass = [_mass(occ, half)]                     # the slab minus the body
+        half = clean_solids(occ, occ.cut([(3, box)], [(3, t) for t in body])[0])
+        mass = [total_mass(occ, half)]                     # the slab minus the body
         adds = [t for t in plan.pegs if t.side == side] + [t for t in plan.mould_tools if t.kind == "pin"
                                                             and side == "bottom"]
         if adds:
-            half = _solid(occ, occ.fuse(half, [s for t in adds for s in _shapes(occ, t)])[0])
-        mass.append(_mass(occ, half))
+            half = clean_solids(occ, occ.fuse(half, [s for t in adds for s in tool_shapes(occ, t)])[0])
+        mass.append(total_mass(occ, half))
         cuts = [t for t in plan.mould_tools
                 if t.kind == "exit" or (side == "top" and t.kind in ("pin_hole", "pour", "vent"))]
         if cuts:
-            half = _solid(occ, occ.cut(half, [s for t in cuts for s in _shapes(occ, t)])[0])
-        mass.append(_mass(occ, half))
+            half = clean_solids(occ, occ.cut(half, [s for t in cuts for s in tool_shapes(occ, t)])[0])
+        mass.append(total_mass(occ, half))
         info = {"block_volume": block, "pegs": sum(t.side == side for t in plan.pegs),
                 "added_volume": mass[1] - mass[0], "cut_volume": mass[1] - mass[2]}
         return _finish(gmsh, f"mould_{side}", "mould", _volumes(half), plan, folder, info)

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 from .build import Part, build_bone, build_half
 from .picture import picture
+from .sequence import STEPS, casting_sequence
 from .parts import Plan
 from .surfaces import FORMAT, check_mesh, read_stl, write_stl
 
@@ -29,7 +30,8 @@ def _plain(x) -> list:
 
 def write(plan: Plan, folder: Path, picture_file: bool = True) -> dict:
     """Build every part into folder (STL, STEP), check the STL files as written, and write
-    fabrication.json and fabrication.png; returns the report (fabrication.json's content)."""
+    fabrication.json, fabrication.png (the exploded view) and casting.png (the casting sequence); returns
+    the report (fabrication.json's content)."""
     from ..design import polygons
     from ..io.files import write_json
 
@@ -96,7 +98,9 @@ def write(plan: Plan, folder: Path, picture_file: bool = True) -> dict:
     checks["cavity_is_body"] = abs(report["mould"]["closed_relative_error"]) <= TOLERANCE
     checks["tolerance"] = TOLERANCE
     checks["passed"] = checks["stl_closed_and_oriented"] and checks["bone_volumes"] and checks["cavity_is_body"]
+    report["casting"] = list(STEPS)
     if picture_file:
         picture(folder / "fabrication.png", parts, plan)
+        casting_sequence(folder / "casting.png", parts, plan)
     write_json(folder / "fabrication.json", report)
     return report

@@ -30,6 +30,43 @@ LEGEND = {"mould_top": "mould top (translucent)", "bone": "bones", "mould_bottom
 TRANSLUCENT = ("mould_top", "body")
 
 
+ELEV, AZIM = math.radians(22), math.radians(-58)
+EYE = np.array([math.cos(ELEV) * math.cos(AZIM), math.cos(ELEV) * math.sin(AZIM), math.sin(ELEV)])
+LIGHT = np.array([0.4, -0.6, 0.7]) / np.linalg.norm([0.4, -0.6, 0.7])
+
+
+def colour_of(name: str) -> tuple:
+    return COLOURS.get(name, COLOURS["bone"])
+
+
+def draw_surface(ax, y: np.ndarray, tris: np.ndarray, base, alpha: float = 1.0) -> None:
+    """Triangles (points y in the frame's u, v, n) into a 3D axes, Lambert-shaded (see picture)."""
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+    tri = y[tris]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+    facing = n @ EYE > 0                # back faces are hidden in a closed solid: not drawn
+    tri, n = tri[facing], n[facing]
+    shade = 0.35 + 0.65 * np.clip(n @ LIGHT, 0.0, 1.0)
+    colours = np.column_stack([np.clip(shade[:, None] * np.asarray(base), 0, 1), np.full(len(tri), alpha)])
+    ax.add_collection3d(Poly3DCollection(tri, facecolors=colours, edgecolors=colours,
+                                         linewidths=0.2 if alpha == 1.0 else 0.0))
+
+
+def frame_axes(ax, lo: np.ndarray, hi: np.ndarray, labels: bool = True) -> None:
+    """Equal scales over the box lo..hi, the common view."""
+    centre, span = (lo + hi) / 2, np.maximum(hi - lo, 1e-9)
+    for set_lim, c, s in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre, span):
+        set_lim(c - s / 2, c + s / 2)
+    ax.set_box_aspect(span)
+    ax.view_init(elev=math.degrees(ELEV), azim=math.degrees(AZIM))
+    if labels:
+        ax.set_xlabel("u [mm]"), ax.set_ylabel("v [mm]"), ax.set_zlabel("n [mm]")
+        ax.tick_params(labelsize=7)
+    else:
+        ax.set_axis_off()
+
+
 def picture(path, parts: list, plan: Plan, title: str = "") -> None:
     """Exploded view of the parts (matplotlib, headless): mould halves drawn apart along the mould's
     normal (up in the picture), bones between them where they are cast; a printed body (part "body")
@@ -42,16 +79,12 @@ def picture(path, parts: list, plan: Plan, title: str = "") -> None:
     """
     from matplotlib.figure import Figure
     from matplotlib.patches import Rectangle
-    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     from ..io.files import atomic_write
 
     f = plan.frame
-    elev, azim = math.radians(22), math.radians(-58)
-    eye = np.array([math.cos(elev) * math.cos(azim), math.cos(elev) * math.sin(azim), math.sin(elev)])
     height = float(f.hi[2] - f.lo[2])
     shift = {"mould_bottom": -0.9 * height, "mould_top": 0.9 * height}
-    light = np.array([0.4, -0.6, 0.7]) / np.linalg.norm([0.4, -0.6, 0.7])
     fig = Figure(figsize=(9, 7), dpi=110)
     ax = fig.add_subplot(projection="3d")
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
@@ -60,30 +93,12 @@ def picture(path, parts: list, plan: Plan, title: str = "") -> None:
         points, tris = coarsen(part.surface.points, part.surface.tris, h)
         y = f.local(points)
         y[:, 2] += shift.get(part.name, 0.0)
-        tri = y[tris]
-        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
-        facing = n @ eye > 0                # back faces are hidden in a closed solid: not drawn
-        tri, n = tri[facing], n[facing]
-        base = np.array(COLOURS.get(part.name, COLOURS["bone"]))
-        shade = 0.35 + 0.65 * np.clip(n @ light, 0.0, 1.0)
-        alpha = 0.35 if part.name in TRANSLUCENT else 1.0
-        colours = np.column_stack([np.clip(shade[:, None] * base, 0, 1), np.full(len(tri), alpha)])
-        ax.add_collection3d(Poly3DCollection(tri, facecolors=colours, edgecolors=colours,
-                                             linewidths=0.2 if alpha == 1.0 else 0.0))
+        draw_surface(ax, y, tris, colour_of(part.name), 0.35 if part.name in TRANSLUCENT else 1.0)
         lo, hi = np.minimum(lo, y.min(axis=0)), np.maximum(hi, y.max(axis=0))
-    centre, span = (lo + hi) / 2, (hi - lo)
-    for set_lim, c, s in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre, span):
-        set_lim(c - s / 2, c + s / 2)
-    ax.set_box_aspect(span)
-    ax.view_init(elev=math.degrees(elev), azim=math.degrees(azim))
-    ax.set_xlabel("u [mm]"), ax.set_ylabel("v [mm]"), ax.set_zlabel("n [mm]")
-    ax.tick_params(labelsize=7)
+    frame_axes(ax, lo, hi)
     shown = [k for k in LEGEND if any((p.name if p.name in COLOURS else "bone") == k for p in parts)]
     ax.legend([Rectangle((0, 0), 1, 1, color=COLOURS[k]) for k in shown], [LEGEND[k] for k in shown],
               loc="upper left", fontsize=8)
     ax.set_title(title or f"{plan.design.name}: parts, exploded along the mould's normal", fontsize=10)
     fig.subplots_adjust(left=0.0, right=1.0, bottom=0.04, top=0.94)
     atomic_write(Path(path), lambda tmp: fig.savefig(tmp, format="png"))
-
-
