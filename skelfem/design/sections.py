@@ -289,6 +289,8 @@ def read_fabrication(top: Table, dim: int, thickness: float, body) -> Fabricatio
         t.fail("vents", f"must be between 0 and 16, got {vents}")
     peg = length("peg_diameter", d.peg_diameter)
     socket = length("socket_depth", d.socket_depth)
+    post = length("post_diameter", d.post_diameter)
+    route = length("route_tolerance", d.route_tolerance)
     if dim == 2:
         if t.has("split"):
             t.fail("split", "is for dim = 3 only (a 2D mould parts at the slab's mid-plane)")
@@ -306,7 +308,7 @@ def read_fabrication(top: Table, dim: int, thickness: float, body) -> Fabricatio
         s.done()
     t.done()
     spec = FabricationSpec(channel, anchor, depth, min_wall, wall, clearance, pour, vent, vents, peg, socket,
-                           point, normal)
+                           post, route, point, normal)
     for key, message in fabrication_bounds(spec, extent):
         if key in given:               # a default out of range is refused by skelfem fabricate only
             t.fail(key, message)
@@ -318,9 +320,10 @@ FEATURE_RATIO = 1e-3         # ... and no feature smaller than this fraction of 
 MIN_MOULD_WALL = 1.0         # mm: a thinner mould wall does not hold the pour (and gives broken STL normals)
 MAX_MOULD_WALL_RATIO = 2.0   # the mould wall is at most this many times the body's largest extent
 MIN_PRINT, MAX_PRINT = 1.0, 2000.0   # mm: the body's largest extent that a printed mould can cast
-# [fabrication] keys: (kind, zero allowed); kinds: hole (diameters, depths), gap (clearance, min_wall), wall
+# [fabrication] keys: their kinds: hole (diameters, depths), depth, gap (clearance, min_wall), tolerance, wall
 FABRICATION_LIMITS = {"channel_diameter": "hole", "anchor_diameter": "hole", "pour_diameter": "hole",
                       "vent_diameter": "hole", "peg_diameter": "hole", "socket_depth": "hole",
+                      "post_diameter": "hole", "route_tolerance": "tolerance",
                       "bone_depth": "depth", "min_wall": "gap", "clearance": "gap", "wall": "wall"}
 
 
@@ -330,7 +333,8 @@ def fabrication_bounds(spec: FabricationSpec, extent) -> list[tuple[str, str]]:
     Features are at least the printer's resolution (2 x PRINTER_RESOLUTION for
     holes and pegs, which Gmsh must resolve) and FEATURE_RATIO of the body's
     largest extent, and at most the body's smallest extent; gaps (clearance,
-    min_wall) are 0 or at least PRINTER_RESOLUTION / 2, at most a quarter of the smallest extent;
+    min_wall) are 0 or at least PRINTER_RESOLUTION / 2, at most a quarter of the smallest extent; the
+    route tolerance lies between the gaps' floor and the largest extent;
     the mould wall lies in [MIN_MOULD_WALL, MAX_MOULD_WALL_RATIO x largest extent].
     Gmsh hung (ignoring signals) on a 0.01 mm channel and on a 1e5 mm wall.
     """
@@ -350,6 +354,8 @@ def fabrication_bounds(spec: FabricationSpec, extent) -> list[tuple[str, str]]:
             if value == 0.0:
                 continue
             lo, hi = max(PRINTER_RESOLUTION / 2, FEATURE_RATIO * big), max(small / 4, PRINTER_RESOLUTION)
+        elif kind == "tolerance":
+            lo, hi = max(PRINTER_RESOLUTION / 2, FEATURE_RATIO * big), big
         else:
             lo, hi = MIN_MOULD_WALL, max(MAX_MOULD_WALL_RATIO * big, 2 * MIN_MOULD_WALL)
         if not lo <= value <= hi:

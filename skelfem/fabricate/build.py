@@ -159,8 +159,8 @@ def _block(occ, frame: Frame, n0: float, n1: float) -> tuple[int, float]:
 
 
 def build_half(plan: Plan, side: str, folder: Path | None = None) -> Part:
-    """One mould half: its slab of the block minus the body, with pins or pin holes, its pegs, the
-    tendon exits and (top) the pour hole and vents."""
+    """One mould half: its slab of the block minus the body, with pins or pin holes, its pegs and guide
+    posts, the tendon exits and (top) the pour hole and vents."""
     import gmsh
 
     from ..design.occ import gmsh_model
@@ -173,8 +173,8 @@ def build_half(plan: Plan, side: str, folder: Path | None = None) -> Part:
         box, block = _block(occ, f, n0, n1)
         half = clean_solids(occ, occ.cut([(3, box)], [(3, t) for t in body])[0])
         mass = [total_mass(occ, half)]                     # the slab minus the body
-        adds = [t for t in plan.pegs if t.side == side] + [t for t in plan.mould_tools if t.kind == "pin"
-                                                            and side == "bottom"]
+        adds = [t for t in plan.pegs + plan.posts if t.side == side] + [t for t in plan.mould_tools
+                                                                         if t.kind == "pin" and side == "bottom"]
         if adds:
             half = clean_solids(occ, occ.fuse(half, [s for t in adds for s in tool_shapes(occ, t)])[0])
         mass.append(total_mass(occ, half))

@@ -89,15 +89,21 @@ def write(plan: Plan, folder: Path, picture_file: bool = True) -> dict:
         "exits": {t.cable: {"from": _plain(t.points[0]), "to": _plain(t.points[-1])}
                   for t in plan.mould_tools if t.kind == "exit"},
         "pegs": [{"bone": t.bone, "half": t.side, "tip": _plain(t.points[0]), "diameter": 2 * t.radius}
-                 for t in plan.pegs]}
+                 for t in plan.pegs],
+        "posts": [{"cable": t.cable, "half": t.side, "tip": _plain(t.points[0]), "diameter": 2 * t.radius}
+                  for t in plan.posts]}
+    report["routes"] = plan.routes
     checks["stl_closed_and_oriented"] = all(r["oriented"] and r["degenerate"] == 0 and r["parts"] == 1
                                             for r in stl.values())
     checks["bone_volumes"] = all(abs(b["relative_error"]) <= TOLERANCE for b in report["bones"].values())
     # the cavity (block minus both halves, from the STL files) holds the body plus what the pour hole,
     # vents, exits and pin holes take out of the halves, minus what the pegs and pins put in
     checks["cavity_is_body"] = abs(report["mould"]["closed_relative_error"]) <= TOLERANCE
+    # every cable cast within route_tolerance of its sketch (the plan refuses a route it cannot hold)
+    checks["routes_held"] = all(r["deviation"] <= spec.route_tolerance for r in plan.routes.values())
     checks["tolerance"] = TOLERANCE
-    checks["passed"] = checks["stl_closed_and_oriented"] and checks["bone_volumes"] and checks["cavity_is_body"]
+    checks["passed"] = (checks["stl_closed_and_oriented"] and checks["bone_volumes"] and checks["cavity_is_body"]
+                        and checks["routes_held"])
     report["casting"] = list(STEPS)
     if picture_file:
         picture(folder / "fabrication.png", parts, plan)

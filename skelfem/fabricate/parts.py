@@ -43,13 +43,13 @@ class Frame:
 class Tool:
     """A cylinder-swept cut or addition: an axis polyline, its radius, where it extends past its ends."""
 
-    kind: str              # "channel", "anchor", "socket", "peg", "pin", "pin_hole", "pour", "vent", "exit"
+    kind: str              # "channel", "anchor", "socket", "peg", "post", "pin", "pin_hole", "pour", "vent", "exit"
     points: np.ndarray     # (k, 3) axis polyline
     radius: float
     bone: str | None = None
     cable: str | None = None
     extend: tuple = (0.0, 0.0)     # lengths the cylinder runs on beyond the first and the last point
-    side: str | None = None        # pegs: the mould half they belong to, "bottom" or "top"
+    side: str | None = None        # pegs and posts: the mould half they belong to, "bottom" or "top"
 
     @property
     def length(self) -> float:
@@ -79,5 +79,7 @@ class Plan:
     notes: list = field(default_factory=list)
     body_surface: object = None                         # the probe's triangulated body and bones (Surface)
     bone_surfaces: dict = field(default_factory=dict)
+    posts: list = field(default_factory=list)           # Tools of kind "post": cable bends held in silicone
+    routes: dict = field(default_factory=dict)          # cable -> how its cast line keeps to the sketch
 
 

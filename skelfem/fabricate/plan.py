@@ -40,6 +40,7 @@ import math
 import numpy as np
 from .meshing import generate_surface_mesh, triangle_surface
 from .parts import Frame, Plan, Tool
+from .routes import RouteHolder
 from .surfaces import FabricationError, GRAZING, PROBE_CURVATURE, Surface, face_distances, inside, point_triangle_distance, ray_hits
 
 
@@ -542,9 +543,15 @@ def plan(design) -> Plan:
     planner.block()
     bone_tools = planner.route()
     pegs = planner.pegs(bone_tools)
-    mould = planner.openings(pegs) + planner.pins() + planner.exits()
+    posts, routes = RouteHolder(design, spec, planner.frame, body, bones, scale).hold(pegs)
+    mould = planner.openings(pegs + posts) + planner.pins() + planner.exits()
     p = Plan(design, spec, planner.frame, scale, bone_tools, pegs, mould, body_volume, bone_volumes,
-             body_surface=body, bone_surfaces=bones)
+             body_surface=body, bone_surfaces=bones, posts=posts, routes=routes)
+    for t in posts:
+        if 2 * t.radius < spec.post_diameter - 1e-9:
+            p.notes.append(f"the guide post of cable {t.cable!r} at {where_text(t.points[0])} is only "
+                           f"{2 * t.radius:.2g} mm thick (no room for fabrication.post_diameter): print the mould "
+                           "finely, or move the cable's bend")
     unheld = [b.name for b in design.bones if not any(t.bone == b.name for t in pegs)]
     if unheld:
         p.notes.append(f"no peg can reach bone(s) {', '.join(unheld)} along the mould's normal; "

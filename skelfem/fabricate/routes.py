@@ -1,0 +1,255 @@
+"""Cable routes held while the silicone is cast: guide posts at bends in silicone, and the route check.
+
+A taut line runs straight between the points that hold it. In the mould
+those are the bones' channels (the line follows a channel: its ends at the
+bone's faces, and every sketch point inside a bone, are held) and the cable's
+own ends. Where a sketch bends in silicone nothing holds it, and the cast
+line cuts the corner: on finger.toml the flexor's bend before the distal bone.
+
+So each bend in silicone gets a **guide post**: a cylinder of
+``post_diameter`` (down to 0.3 of it, at least MIN_POST, where the full one finds no room)
+standing on the mould's wall along the mould's normal n (so
+that it pulls out with its half) and reaching past the cable, placed on the
+inner side of the bend. A line of radius r_c pulled round a post of radius
+r_p follows both straight sketch segments up to their tangent points and an
+arc of radius rho = r_p + r_c between them; the post's axis lies on the
+bend's inner bisector at rho / sin(theta/2) from the bend point B (theta the
+angle between the two segments at B). The cast line then misses B by
+
+    rho (1 / sin(theta/2) - 1)
+
+and follows the sketch elsewhere. The line's radius is taken as its
+channel's (the thickest line that runs in it: the conservative choice).
+
+The check: the route as cast (straight between holds, round each post) is
+sampled, and its largest distance from the sketch, and the sketch's from it
+(both ways: a Hausdorff distance), must be at most ``route_tolerance``
+(0.3 mm by default). Posts are placed only for a cable whose line, held by
+the bones alone, strays further. A route that cannot be held so is refused,
+naming the cable and the point, with the reason of the bend nearest it: a
+bend turning toward n (a post along n cannot hold it), a post that would
+meet a bone, another cable or a peg, or a bend too sharp for the
+tolerance. The posts leave holes in the silicone, filled after
+demoulding like the pegs'.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from .parts import Frame, Tool
+from .surfaces import FabricationError, Surface, inside, point_triangle_distance, ray_hits
+
+MAX_TILT = math.radians(20)       # a bend's inner bisector at most this far out of the plane normal to n
+ARC_STEP = math.radians(2)        # the arc round a post, sampled (chords: rho (1 - cos 1 deg) inside it)
+POST_SCALES = (1.0, 0.75, 0.5, 0.4, 0.3)    # of post_diameter: a post that finds no room is tried thinner
+MIN_POST = 0.6                    # mm: no thinner post (a printed pin this thin breaks off)
+
+
+def _segment_distance(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Distance of each point (k, 3) to a polyline (m, 3)."""
+    a, b = poly[:-1], poly[1:]
+    d = b - a
+    L2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-300)
+    t = np.clip(np.einsum("kij,ij->ki", points[:, None, :] - a[None], d) / L2, 0.0, 1.0)
+    foot = a[None] + t[..., None] * d[None]
+    return np.linalg.norm(points[:, None, :] - foot, axis=2).min(axis=1)
+
+
+def _dense(poly: np.ndarray, step: float) -> np.ndarray:
+    out = [poly[:1]]
+    for a, b in zip(poly[:-1], poly[1:]):
+        k = max(1, int(math.ceil(np.linalg.norm(b - a) / step)))
+        out.append(a + (np.arange(1, k + 1) / k)[:, None] * (b - a))
+    return np.concatenate(out)
+
+
+def hausdorff(sketch: np.ndarray, cast: np.ndarray, step: float) -> tuple[float, np.ndarray]:
+    """(largest distance between the two polylines, both ways; the sketch or cast point where it is)."""
+    s, c = _dense(sketch, step), _dense(cast, step)
+    ds, dc = _segment_distance(s, cast), _segment_distance(c, sketch)
+    i, j = int(np.argmax(ds)), int(np.argmax(dc))
+    return (float(ds[i]), s[i]) if ds[i] >= dc[j] else (float(dc[j]), c[j])
+
+
+def bend(p: np.ndarray, i: int) -> tuple[float, np.ndarray]:
+    """(theta: the angle at sketch point i between its two segments, pi for straight on; the unit inner
+    bisector)."""
+    d1 = (p[i - 1] - p[i]) / np.linalg.norm(p[i - 1] - p[i])
+    d2 = (p[i + 1] - p[i]) / np.linalg.norm(p[i + 1] - p[i])
+    theta = math.acos(float(np.clip(d1 @ d2, -1.0, 1.0)))
+    b = d1 + d2
+    return theta, b / max(float(np.linalg.norm(b)), 1e-300)
+
+
+def wrap(p: np.ndarray, i: int, rho: float) -> np.ndarray:
+    """The line round a post at bend i: tangent point, arc samples, tangent point."""
+    theta, b = bend(p, i)
+    centre = p[i] + b * rho / math.sin(theta / 2)
+    t1 = p[i] + (p[i - 1] - p[i]) / np.linalg.norm(p[i - 1] - p[i]) * rho / math.tan(theta / 2)
+    t2 = p[i] + (p[i + 1] - p[i]) / np.linalg.norm(p[i + 1] - p[i]) * rho / math.tan(theta / 2)
+    u, v = t1 - centre, t2 - centre
+    sweep = math.pi - theta
+    k = max(2, int(math.ceil(sweep / ARC_STEP)))
+    w = v - (v @ u) / (u @ u) * u                       # in the arc's plane, normal to u
+    w = w / max(float(np.linalg.norm(w)), 1e-300) * rho
+    a = np.linspace(0.0, sweep, k + 1)
+    return centre + np.cos(a)[:, None] * u + np.sin(a)[:, None] * w
+
+
+def cast_route(p: np.ndarray, held: np.ndarray, posts: dict) -> np.ndarray:
+    """The line as cast: straight between held points (held: a mask over the sketch points, in bones or
+    ends) and crossings (already sketch points), round the posts (sketch index -> rho, the post's radius
+    plus the line's)."""
+    out = []
+    for i in range(len(p)):
+        if held[i]:
+            out.append(p[i:i + 1])
+        elif i in posts:
+            out.append(wrap(p, i, posts[i]))
+    return np.concatenate(out)
+
+
+class RouteHolder:
+    """Posts for one design's cables and the route report; see the module doc."""
+
+    def __init__(self, design, spec, frame: Frame, body: Surface, bones: dict, scale: float):
+        self.design, self.spec, self.frame = design, spec, frame
+        self.body, self.bones, self.scale = body, bones, scale
+        self.tol = 1e-7 * scale
+        self.r_post = spec.post_diameter / 2
+
+    def points(self, cable) -> np.ndarray:
+        """The sketch in 3D, with a point added wherever it crosses a bone's surface (held there)."""
+        p = np.asarray(cable.path, float)
+        if self.design.dim == 2:
+            p = np.column_stack([p, np.full(len(p), self.design.thickness / 2)])
+        out = [p[:1]]
+        for a, b in zip(p[:-1], p[1:]):
+            L = float(np.linalg.norm(b - a))
+            d = (b - a) / L
+            ts = []
+            for s in self.bones.values():
+                _, t, _ = ray_hits(a, d, s.corners, self.tol)
+                ts += [float(x) for x in t if self.tol < x < L - self.tol]
+            for t in sorted(ts):
+                out.append((a + t * d)[None])
+            out.append(b[None])
+        return np.concatenate(out)
+
+    def in_bone(self, x: np.ndarray) -> np.ndarray:
+        if not self.bones:
+            return np.zeros(len(x), bool)
+        return np.any([inside(x, s, self.tol) for s in self.bones.values()], axis=0)
+
+    def hold(self, pegs: list) -> tuple[list[Tool], dict]:
+        """(posts as Tools of kind "post", {cable: route report}); raises FabricationError for a route
+        that cannot be held within route_tolerance."""
+        spec = self.spec
+        posts, report = [], {}
+        for cable in self.design.cables:
+            r_c = spec.channel_diameter / 2 if cable.kind == "tendon" else spec.anchor_diameter / 2
+            p = self.points(cable)
+            mids = 0.5 * (p[:-1] + p[1:])
+            inner = self.in_bone(mids)                  # which pieces run in bones
+            held = np.zeros(len(p), bool)
+            held[[0, -1]] = True
+            held[:-1] |= inner
+            held[1:] |= inner
+            free = [i for i in range(1, len(p) - 1) if not held[i] and bend(p, i)[0] < math.pi - 1e-9]
+            dev0, where0 = hausdorff(p, cast_route(p, held, {}), min(0.1, self.r_post / 4))
+            posted, failed = {}, {}
+            if dev0 > spec.route_tolerance:            # held by the bones alone it strays: posts at the bends
+                for i in free:
+                    try:
+                        posted[i] = self.post(cable, p, i, r_c, pegs)
+                    except FabricationError as exc:
+                        failed[i] = exc.message
+            dev, where = hausdorff(p, cast_route(p, held, {i: t.radius + r_c for i, t in posted.items()}),
+                                   min(0.1, self.r_post / 4))
+            if dev > spec.route_tolerance:
+                near = min(failed, key=lambda i: float(np.linalg.norm(p[i] - where)), default=None)
+                why = (failed[near] if near is not None else "even round a guide post; soften the bend or raise "
+                       "fabrication.route_tolerance")
+                raise FabricationError(f"cables.{cable.name}.path",
+                                       f"cast, its line would lie {dev:.2g} mm off its sketch near {_at(where)} "
+                                       f"(fabrication.route_tolerance {spec.route_tolerance:g} mm): {why}")
+            here = list(posted.values())
+            report[cable.name] = {"deviation": dev, "unheld_deviation": dev0, "where_unheld": _plain(where0),
+                                  "posts": [{"at": _plain(p[i]), "tip": _plain(t.points[0]), "diameter": 2 * t.radius,
+                                             "angle_deg": math.degrees(bend(p, i)[0]), "half": t.side}
+                                            for i, t in posted.items()]}
+            posts += here
+        return posts, report
+
+    def post(self, cable, p: np.ndarray, i: int, r_c: float, pegs: list) -> Tool:
+        """The guide post holding bend i: from the mould's wall along n past the line, on the inner side;
+        post_diameter, else (no room) thinner ones (POST_SCALES, not below MIN_POST)."""
+        f = self.frame
+        key = f"cables.{cable.name}.path"
+        theta, b = bend(p, i)
+        if abs(float(b @ f.n)) > math.sin(MAX_TILT):
+            raise FabricationError(key, f"its bend at {_at(p[i])} turns toward the mould's normal, and a guide post "
+                                        "along the normal cannot hold it (keep bends in silicone across the normal)")
+        b = b - (b @ f.n) * f.n
+        b /= np.linalg.norm(b)
+        for scale in POST_SCALES:
+            r_p = scale * self.r_post
+            if 2 * r_p < MIN_POST:
+                break
+            tool = self.place(cable, p[i] + b * (r_p + r_c) / math.sin(theta / 2), r_p, r_c, pegs)
+            if tool is not None:
+                return tool
+        raise FabricationError(key, f"no guide post can hold its bend at {_at(p[i])}: along the "
+                                    "mould's normal its column meets a bone, a peg or another cable, even "
+                                    f"{MIN_POST:g} mm thin (fabrication.post_diameter {self.spec.post_diameter:g} mm); move "
+                                    "the bend, or put it inside a bone")
+
+    def place(self, cable, axis: np.ndarray, r_p: float, r_c: float, pegs: list) -> Tool | None:
+        """A post of radius r_p through axis (at the line's height), from the bottom half or else the top
+        one; None where neither column is clear."""
+        spec, f = self.spec, self.frame
+        reach = r_p + r_c                             # past the line's axis: the line cannot slip off
+        for side in (-1.0, 1.0):                      # the bottom half first
+            d = side * f.n
+            _, t, _ = ray_hits(axis, d, self.body.corners, self.tol)
+            t = t[t > self.tol]
+            if len(t) != 1:
+                continue                              # leaves the body more than once, or never
+            root = axis + (float(t[0]) + spec.wall / 2) * d
+            tip = axis - reach * d
+            if not inside(tip, self.body, self.tol)[0]:
+                continue                              # the tip would leave the body: the other half
+            column = _dense(np.array([tip, root - spec.wall / 2 * d]), 0.2)
+            if self.in_bone(column).any() or (self.bones and min(
+                    float(point_triangle_distance(column, s.corners).min()) for s in self.bones.values())
+                    < r_p + spec.clearance):
+                continue
+            if self.too_near_cables(column, cable.name, r_p) or self.too_near_pegs(column, pegs, r_p):
+                continue
+            return Tool("post", np.array([tip, root]), r_p, cable=cable.name, side="top" if side > 0 else "bottom")
+        return None
+
+    def too_near_cables(self, column: np.ndarray, name: str, r_p: float) -> bool:
+        for other in self.design.cables:
+            if other.name == name:
+                continue
+            r = self.spec.channel_diameter / 2 if other.kind == "tendon" else self.spec.anchor_diameter / 2
+            q = np.asarray(other.path, float)
+            if self.design.dim == 2:
+                q = np.column_stack([q, np.full(len(q), self.design.thickness / 2)])
+            if _segment_distance(column, q).min() < r_p + r + self.spec.min_wall:
+                return True
+        return False
+
+    def too_near_pegs(self, column: np.ndarray, pegs: list, r_p: float) -> bool:
+        return any(_segment_distance(column, t.points).min() < r_p + t.radius + self.spec.clearance
+                   for t in pegs)
+
+
+def _at(x) -> str:
+    return "(" + ", ".join(f"{v:.3g}" for v in x) + ")"
+
+
+def _plain(x) -> list:
+    return [round(float(v), 6) for v in np.ravel(x)]

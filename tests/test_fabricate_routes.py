@@ -1,0 +1,85 @@
+"""Cable routes held while the silicone is cast (skelfem.fabricate.routes): the cast line's distance from its
+sketch against closed forms, the guide post in the mould, and routes that cannot be held."""
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from skelfem.cli.main import main
+from skelfem.fabricate.routes import ARC_STEP, cast_route, hausdorff
+
+ROOT = Path(__file__).resolve().parents[1]
+GEOMETRY = ROOT / "geometry"
+
+
+@pytest.mark.parametrize("theta_deg", [60.0, 90.0, 135.0, 170.0])
+@pytest.mark.parametrize("rho", [0.5, 1.6])
+def test_a_line_round_a_post_misses_the_corner_by_rho_times_cosecant_minus_one(theta_deg, rho):
+    theta = math.radians(theta_deg)
+    d2 = np.array([math.cos(math.pi - theta), math.sin(math.pi - theta), 0.0])   # turning by pi - theta
+    sketch = np.array([[-20.0, 0.0, 0.0], [0.0, 0.0, 0.0], 20.0 * d2])
+    held = np.array([True, False, True])
+    dev, where = hausdorff(sketch, cast_route(sketch, held, {1: rho}), 0.01)
+    sag = rho * (1 - math.cos(ARC_STEP / 2))                            # the sampled arc's chords lie inside it
+    assert abs(dev - rho * (1 / math.sin(theta / 2) - 1)) <= sag + 1e-9
+    assert np.linalg.norm(where) < 1e-9 or dev < 1e-3                   # the corner is the farthest point
+    straight, _ = hausdorff(sketch, cast_route(sketch, held, {}), 0.01)
+    assert straight == pytest.approx(20 * math.cos(theta / 2), rel=1e-6)   # unheld: the chord
+
+
+@pytest.fixture(scope="module")
+def finger(tmp_path_factory):
+    out = tmp_path_factory.mktemp("routes") / "fab"
+    assert main(["fabricate", str(GEOMETRY / "finger.toml"), "--out", str(out), "-q", "--no-picture"]) == 0
+    return out, json.loads((out / "fabrication.json").read_text())
+
+
+def test_finger_flexor_cut_its_corner_by_2_9_mm_and_a_post_holds_it_within_0_3(finger):
+    """The flexor [3,0] -> [3,78] -> [9,84] runs in silicone until it enters the distal bone (x = 6) at
+    (6, 81): held by its spool end and that crossing alone, it lies 3 * 78 / |(3, 81)| off its bend."""
+    out, report = finger
+    route = report["routes"]["flexor"]
+    assert route["unheld_deviation"] == pytest.approx(3 * 78 / math.hypot(3, 81), rel=1e-3)
+    (post,) = route["posts"]
+    assert post["at"][:2] == [3.0, 78.0] and post["half"] == "bottom" and post["diameter"] == 2.0
+    assert post["angle_deg"] == pytest.approx(135.0)
+    rho = 1.0 + 0.6                                         # post radius + line radius (its 1.2 mm channel)
+    assert route["deviation"] == pytest.approx(rho * (1 / math.sin(math.radians(67.5)) - 1), abs=1e-3 * rho)
+    assert route["deviation"] <= 0.3 and report["checks"]["routes_held"] and report["checks"]["passed"]
+    # the post: on the bend's inner bisector, rho / sin(theta/2) from the bend, reaching rho past the line
+    b = np.array([math.cos(math.radians(-22.5)), math.sin(math.radians(-22.5))])
+    axis = np.array([3.0, 78.0]) + b * rho / math.sin(math.radians(67.5))
+    (mould_post,) = report["mould"]["posts"]
+    assert mould_post["cable"] == "flexor" and mould_post["half"] == "bottom"
+    assert mould_post["tip"] == pytest.approx([*axis, 10.0 + rho], abs=1e-6)
+    # ... and it is part of the bottom half as printed: the point on its axis at the line's height is solid
+    from skelfem.fabricate import read_stl
+    from skelfem.fabricate.surfaces import inside, Surface
+    pts, tris = read_stl(out / "mould_bottom.stl")
+    pose = report["parts"]["mould_bottom"]["print"]
+    x = np.array([*axis, 10.0]) @ np.array(pose["rotation"]).T + np.array(pose["translation"])
+    assert inside(x, Surface(pts, tris, None), 1e-9)[0]
+
+
+def test_a_bend_too_sharp_to_hold_is_refused_with_the_cable_and_the_point(tmp_path, capsys):
+    out = tmp_path / "sub" / "fab"
+    # a bend of 133.1 degrees in silicone, then into the middle bone: round a 2 mm post the line misses the
+    # corner by 1.6 (1 / sin(66.6 deg) - 1) = 0.14 mm, more than a 0.1 mm tolerance
+    assert main(["fabricate", str(GEOMETRY / "finger.toml"), "--out", str(out), "-q",
+                 "--set", "cables.flexor.path=[[3,0],[3,39.5],[11,47]]",
+                 "--set", "fabrication.route_tolerance=0.1"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and ": cables.flexor.path: cast, its line" in err[0], err
+    assert "0.14 mm off its sketch near (3, 39.5, 10)" in err[0] and "fabrication.route_tolerance 0.1 mm" in err[0]
+    assert "even round a guide post" in err[0]
+    assert not (tmp_path / "sub").exists()
+
+
+@pytest.mark.parametrize("value", ["0.01", "-1", "1e9"])
+def test_a_route_tolerance_out_of_bounds_is_one_error_line(value, tmp_path, capsys):
+    assert main(["fabricate", str(GEOMETRY / "finger.toml"), "--out", str(tmp_path / "fab"), "-q",
+                 "--set", f"fabrication.route_tolerance={value}"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "fabrication.route_tolerance" in err[0], err
