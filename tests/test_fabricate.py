@@ -309,7 +309,7 @@ def test_report_lists_parts_and_picture_shows_them(fabricated, picture):
         + [f"{n}.{e}" for n in report["parts"] for e in ("stl", "step")])
     picture(out / "fabrication.png", 900, 700)
     picture(out / "casting.png", 1200, 800)                       # six panels: the casting sequence
-    assert len(report["casting"]) == 6 and report["casting"][0].startswith("1  print")
+    assert len(report["casting_steps"]) == 6 and report["casting_steps"][0].startswith("1  print")
 
 
 # -- bad input: one line naming the key, exit 1, nothing written -------------------------------------------------------

@@ -93,6 +93,7 @@ def write(plan: Plan, folder: Path, picture_file: bool = True) -> dict:
         "posts": [{"cable": t.cable, "half": t.side, "tip": _plain(t.points[0]), "diameter": 2 * t.radius}
                   for t in plan.posts]}
     report["routes"] = plan.routes
+    report["mould"]["flow"] = plan.flow
     checks["stl_closed_and_oriented"] = all(r["oriented"] and r["degenerate"] == 0 and r["parts"] == 1
                                             for r in stl.values())
     checks["bone_volumes"] = all(abs(b["relative_error"]) <= TOLERANCE for b in report["bones"].values())
@@ -104,7 +105,7 @@ def write(plan: Plan, folder: Path, picture_file: bool = True) -> dict:
     checks["tolerance"] = TOLERANCE
     checks["passed"] = (checks["stl_closed_and_oriented"] and checks["bone_volumes"] and checks["cavity_is_body"]
                         and checks["routes_held"])
-    report["casting"] = list(STEPS)
+    report["casting_steps"] = list(STEPS)
     if picture_file:
         picture(folder / "fabrication.png", parts, plan)
         casting_sequence(folder / "casting.png", parts, plan)

@@ -81,5 +81,6 @@ class Plan:
     bone_surfaces: dict = field(default_factory=dict)
     posts: list = field(default_factory=list)           # Tools of kind "post": cable bends held in silicone
     routes: dict = field(default_factory=dict)          # cable -> how its cast line keeps to the sketch
+    flow: dict = field(default_factory=dict)            # pour, high points, vents, air under bones, undercuts
 
 

@@ -40,6 +40,7 @@ import math
 import numpy as np
 from .meshing import generate_surface_mesh, triangle_surface
 from .parts import Frame, Plan, Tool
+from . import casting
 from .routes import RouteHolder
 from .surfaces import FabricationError, GRAZING, PROBE_CURVATURE, Surface, face_distances, inside, point_triangle_distance, ray_hits
 
@@ -438,65 +439,6 @@ class _Planner:
         return [items[first], items[second]][:count]
 
     # -- pour hole, vents, pins, exits
-    def openings(self, pegs: list) -> list:
-        """The pour hole and vents through the top half, where the body's top surface is flat enough.
-
-        Sites on a grid over the body: a line along n must meet the body's
-        top with a ring of the hole's radius meeting it within a radius of the
-        same height, above the parting plane, with body beneath for a radius;
-        and keep clear of the top pegs. The pour hole takes the site nearest
-        the middle, the vents the sites farthest from it and from each other.
-        """
-        spec, f = self.spec, self.frame
-        top_pegs = np.array([f.local(p.points[0])[:2] for p in pegs if p.side == "top"]).reshape(-1, 2)
-        sites = self.grid(f.local(self.body.points)[:, :2], 600)
-        tools = []
-
-        def usable(radius):
-            rings = np.stack([self.ring(p, radius) for p in sites])
-            body = self.column(np.concatenate([sites, rings.reshape(-1, 2)]), [self.body])[0]
-            q, good, tops = len(sites), [], []
-            for i in range(q):
-                ax = body[i]
-                if len(ax) < 2 or ax[-1] - ax[-2] < radius or ax[-1] - f.c < radius:
-                    continue
-                ring = [body[q + 8 * i + k] for k in range(8)]
-                if any(not len(r) or abs(r[-1] - ax[-1]) > 0.5 * radius for r in ring):
-                    continue
-                if len(top_pegs) and np.linalg.norm(top_pegs - sites[i], axis=1).min() < \
-                        radius + self.r_peg + spec.clearance + self.wall:
-                    continue
-                good.append(i), tops.append(ax[-1] - min(radius, 0.5 * (ax[-1] - ax[-2])))
-            return np.array(good, int), np.array(tops)
-
-        good, tops = usable(spec.pour_diameter / 2)
-        if not len(good):
-            raise FabricationError("fabrication.pour_diameter", f"no place on the top of the body (above the parting "
-                                                                f"plane) fits a pour hole of {spec.pour_diameter:g} mm")
-        mid = f.local(self.body.points)[:, :2].mean(axis=0)
-        k = int(np.argmin(np.linalg.norm(sites[good] - mid, axis=1)))
-        pour = sites[good[k]]
-        tools.append(Tool("pour", f.world([[*pour, tops[k]], [*pour, f.hi[2]]]), spec.pour_diameter / 2,
-                          extend=(0.0, 1.0)))
-        if spec.vents:
-            good, tops = usable(spec.vent_diameter / 2)
-            far = np.linalg.norm(sites[good] - pour, axis=1)
-            ok = far >= (spec.pour_diameter + spec.vent_diameter) / 2 + 2 * self.wall
-            good, tops, far = good[ok], tops[ok], far[ok]
-            chosen = []
-            for _ in range(spec.vents):
-                if not len(good):
-                    raise FabricationError("fabrication.vents", f"room for only {len(chosen)} vent(s) of "
-                                                                f"{spec.vent_diameter:g} mm on the top of the body")
-                k = int(np.argmax(far))
-                chosen.append(sites[good[k]])
-                tools.append(Tool("vent", f.world([[*sites[good[k]], tops[k]], [*sites[good[k]], f.hi[2]]]),
-                                  spec.vent_diameter / 2, extend=(0.0, 1.0)))
-                far = np.minimum(far, np.linalg.norm(sites[good] - sites[good[k]], axis=1))
-                ok = far >= spec.vent_diameter + 2 * self.wall
-                good, tops, far = good[ok], tops[ok], far[ok]
-        return tools
-
     def pins(self) -> list:
         """Four registration pins at the block's corners (radius wall/4, height wall/2) and their holes."""
         f, w, c = self.frame, self.spec.wall, self.spec.clearance
@@ -544,9 +486,12 @@ def plan(design) -> Plan:
     bone_tools = planner.route()
     pegs = planner.pegs(bone_tools)
     posts, routes = RouteHolder(design, spec, planner.frame, body, bones, scale).hold(pegs)
-    mould = planner.openings(pegs + posts) + planner.pins() + planner.exits()
+    openings, flow, notes = casting.openings(planner, pegs + posts)
+    flow["air_under_bones"], more = casting.ceilings(planner)
+    flow["undercut"], most = casting.undercuts(planner)
+    mould = openings + planner.pins() + planner.exits()
     p = Plan(design, spec, planner.frame, scale, bone_tools, pegs, mould, body_volume, bone_volumes,
-             body_surface=body, bone_surfaces=bones, posts=posts, routes=routes)
+             notes + more + most, body_surface=body, bone_surfaces=bones, posts=posts, routes=routes, flow=flow)
     for t in posts:
         if 2 * t.radius < spec.post_diameter - 1e-9:
             p.notes.append(f"the guide post of cable {t.cable!r} at {where_text(t.points[0])} is only "

@@ -1,0 +1,266 @@
+"""Where the silicone goes in and the air goes out, and whether the halves come off: pour, vents, air
+traps under bones, undercuts.
+
+The mould is filled with its top half up (the mould's normal n up). Sites
+are the points of a grid over the parting plane; along the line through a
+site parallel to n, the body's top is its last crossing.
+
+- **Pour hole**: among the sites where the body's top is flat enough for
+  the hole (a ring of its radius meets the top within a radius of the same
+  height, with body beneath) and clear of the top pegs and posts, those
+  whose hole's column down to the parting plane meets no bone (the silicone
+  falls to the bottom, not onto a bone), then the highest, then the nearest
+  the body's middle. If every site's column meets a bone, the best one is
+  taken and a note says so.
+- **Vents**: air rises to the local high points of the cavity's roof, the
+  body's top: the sites whose top is at least as high as every neighbour's
+  (within a tolerance), grouped into connected plateaus. Each plateau
+  without the pour hole gets a vent (where it is flattest, farthest from
+  the pour); then, up to ``vents``, more vents as far from the pour and from
+  each other as possible (on a flat 2D slab every site is one plateau, and
+  the vents go to its far ends). A high point that cannot take a vent is a
+  note: air stays there.
+- **Air under bones**: a bone's faces that look down (their outward normal
+  within 30 degrees of -n) are ceilings in the rising silicone where air
+  clings; their area per bone is reported, with a note to pour in layers
+  (the bottom layer up to the bones first, as the paper does) or degas.
+- **Undercuts**: each half pulls off along its side of n. From each
+  triangle of the body's surface on that side, a ray along the pull
+  direction (started just outside the body) that meets the body again
+  crosses mould material that is locked in: the triangle's area counts as
+  undercut. Silicone forgives small ones; their area per half is reported,
+  with a note.
+"""
+from __future__ import annotations
+
+import numpy as np
+from .parts import Tool
+from .surfaces import FabricationError, Surface, inside, orient, ray_hits
+
+CEILING = np.cos(np.radians(30.0))       # a face looks down if its normal is this close to -n
+
+
+def _neighbours(shape: tuple[int, int]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(i, j) index pairs of the 8-neighbourhood on a grid of this shape, per offset."""
+    out = []
+    a, b = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
+    for di in (-1, 0, 1):
+        for dj in (-1, 0, 1):
+            if di == dj == 0:
+                continue
+            ok = (a + di >= 0) & (a + di < shape[0]) & (b + dj >= 0) & (b + dj < shape[1])
+            out.append((np.ravel_multi_index((a[ok], b[ok]), shape), np.ravel_multi_index((a[ok] + di, b[ok] + dj), shape)))
+    return out
+
+
+def cavity_intervals(planner, sites: np.ndarray) -> list[list[tuple[float, float, bool]]]:
+    """Per site, the stretches (lo, hi, is the body's top) of its line along n inside the body and
+    outside every bone: the cavity the silicone fills, column by column."""
+    surfaces = [planner.body] + list(planner.bones.values())
+    hits = planner.column(sites, surfaces)
+    out = []
+    for i in range(len(sites)):
+        body = hits[0][i]
+        zs = np.unique(np.concatenate([h[i] for h in hits]))
+        pieces = []
+        for a, b in zip(zs[:-1], zs[1:]):
+            m = 0.5 * (a + b)
+            in_body = np.sum(body < m) % 2 == 1
+            in_bone = any(np.sum(h[i] < m) % 2 == 1 for h in hits[1:])
+            if in_body and not in_bone:
+                if pieces and abs(pieces[-1][1] - a) <= planner.tol:
+                    pieces[-1][1] = b
+                else:
+                    pieces.append([a, b])
+        top = body[-1] if len(body) else np.nan
+        out.append([(float(a), float(b), bool(abs(b - top) <= planner.tol)) for a, b in pieces])
+    return out
+
+
+def high_points(intervals: list, shape: tuple[int, int], tol: float) -> list[list[tuple[int, int]]]:
+    """The cavity's local high points, where rising air is trapped: plateaus of stretches (site, k) whose
+    tops are equal (within tol) across neighbouring sites' overlapping stretches, none of which has an
+    overlapping neighbour reaching higher. Each plateau a list of (site, stretch index)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    ids = {}
+    for i, pieces in enumerate(intervals):
+        for k in range(len(pieces)):
+            ids[(i, k)] = len(ids)
+    top = np.array([intervals[i][k][1] for i, k in ids])
+    higher = np.zeros(len(ids), bool)
+    rows, cols = [], []
+    for ii, jj in _neighbours(shape):
+        for i, j in zip(ii.tolist(), jj.tolist()):
+            for k, (alo, ahi, _) in enumerate(intervals[i]):
+                for m, (blo, bhi, _) in enumerate(intervals[j]):
+                    if min(ahi, bhi) - max(alo, blo) <= tol:
+                        continue                                  # not connected through the cavity
+                    u, v = ids[(i, k)], ids[(j, m)]
+                    if top[v] > top[u] + tol:
+                        higher[u] = True
+                    elif abs(top[v] - top[u]) <= tol:
+                        rows.append(u), cols.append(v)
+    n = len(ids)
+    _, label = connected_components(coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n)), directed=False)
+    keys = list(ids)
+    out = []
+    for lab in np.unique(label):
+        members = np.flatnonzero(label == lab)
+        if not higher[members].any():
+            out.append([keys[u] for u in members])
+    return out
+
+
+def openings(planner, blockers: list) -> tuple[list[Tool], dict, list[str]]:
+    """The pour hole and vents (Tools), the report's "casting" entries and notes; see the module doc."""
+    spec, f = planner.spec, planner.frame
+    top_tools = np.array([f.local(p.points[0])[:2] for p in blockers if p.side == "top"]).reshape(-1, 2)
+    uv = f.local(planner.body.points)[:, :2]
+    lo, hi = uv.min(axis=0), uv.max(axis=0)
+    h = float(np.sqrt(np.prod(np.maximum(hi - lo, 1e-9)) / 600))
+    axes = [np.arange(a + 0.5 * ((b - a) % h), b + 1e-12, h) if b - a > h else np.array([(a + b) / 2])
+            for a, b in zip(lo, hi)]
+    shape = (len(axes[0]), len(axes[1]))
+    sites = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 2)
+    q = len(sites)
+    body = planner.column(sites, [planner.body])[0]
+    notes = []
+
+    def usable(radius):
+        rings = np.stack([planner.ring(p, radius) for p in sites])
+        ring_hits = planner.column(rings.reshape(-1, 2), [planner.body])[0]
+        good, tops = [], []
+        for i in range(q):
+            ax = body[i]
+            if len(ax) < 2 or ax[-1] - ax[-2] < radius or ax[-1] - f.c < radius:
+                continue
+            ring = [ring_hits[8 * i + k] for k in range(8)]
+            if any(not len(r) or abs(r[-1] - ax[-1]) > 0.5 * radius for r in ring):
+                continue
+            if len(top_tools) and np.linalg.norm(top_tools - sites[i], axis=1).min() < \
+                    radius + planner.r_peg + spec.clearance + planner.wall:
+                continue
+            good.append(i), tops.append(ax[-1] - min(radius, 0.5 * (ax[-1] - ax[-2])))
+        return np.array(good, int), np.array(tops)
+
+    r_pour = spec.pour_diameter / 2
+    good, tops = usable(r_pour)
+    if not len(good):
+        raise FabricationError("fabrication.pour_diameter", f"no place on the top of the body (above the parting "
+                                                            f"plane) fits a pour hole of {spec.pour_diameter:g} mm")
+    # the pour's column, down to the parting plane, clear of every bone (a ring of its radius)
+    rings = np.concatenate([sites[good], np.stack([planner.ring(p, r_pour) for p in sites[good]]).reshape(-1, 2)])
+    bone_hits = planner.column(rings, list(planner.bones.values())) if planner.bones else []
+    m = len(good)
+    clear = np.ones(m, bool)
+    for hits in bone_hits:
+        for k in range(m):
+            lines = [hits[k]] + [hits[m + 8 * k + r] for r in range(8)]
+            if any(len(x) and x.max() > f.c - planner.tol for x in lines):
+                clear[k] = False
+    mid = uv.mean(axis=0)
+    tol = 1e-6 * planner.scale
+    choice = np.flatnonzero(clear) if clear.any() else np.arange(m)
+    highest = tops[choice].max()
+    choice = choice[tops[choice] >= highest - max(tol, 0.05 * r_pour)]
+    k = int(choice[np.argmin(np.linalg.norm(sites[good[choice]] - mid, axis=1))])
+    pour = sites[good[k]]
+    if not clear.any():
+        notes.append("every place for the pour hole lies over a bone: pour slowly, down the side of the cavity")
+    tools = [Tool("pour", f.world([[*pour, tops[k]], [*pour, f.hi[2]]]), r_pour, extend=(0.0, 1.0))]
+    body_stretches = cavity_intervals(planner, sites)
+    peaks = high_points(body_stretches, shape, max(tol, 0.02 * h))
+    pour_i = int(good[k])
+    report = {"pour": {"site": [float(v) for v in pour], "clear_of_bones": bool(clear[k])},
+              "high_points": [], "vents": []}
+    chosen = []
+    r_vent = spec.vent_diameter / 2
+    vgood, vtops = usable(r_vent)
+    index = {int(i): n for n, i in enumerate(vgood)}
+    for plateau in peaks:
+        at = np.array([i for i, _ in plateau])
+        entry = {"site": [float(v) for v in sites[at].mean(axis=0)], "sites": len(plateau),
+                 "height": float(max(body_stretches[i][k][1] for i, k in plateau))}
+        if pour_i in set(at.tolist()):
+            entry["vented_by"] = "pour"
+            report["high_points"].append(entry)
+            continue
+        cand = [i for i, k in plateau if i in index and body_stretches[i][k][2]]   # on the body's top
+        if not cand:
+            entry["vented_by"] = None
+            notes.append(f"the cavity's high point near ({', '.join(f'{v:.3g}' for v in entry['site'])}) in the "
+                         "parting plane has no room for a vent: air stays there")
+            report["high_points"].append(entry)
+            continue
+        far = [float(np.linalg.norm(sites[i] - pour)) for i in cand]
+        chosen.append(cand[int(np.argmax(far))])
+        entry["vented_by"] = "vent"
+        report["high_points"].append(entry)
+    # more vents, up to spec.vents, as far from the pour and from each other as possible
+    d_pour = np.linalg.norm(sites[vgood] - pour, axis=1) if len(vgood) else np.zeros(0)
+    d_vent = np.full(len(vgood), np.inf)
+    for i in chosen:
+        d_vent = np.minimum(d_vent, np.linalg.norm(sites[vgood] - sites[i], axis=1))
+    while len(chosen) < spec.vents:
+        ok = (d_pour >= (spec.pour_diameter + spec.vent_diameter) / 2 + 2 * planner.wall) & \
+             (d_vent >= spec.vent_diameter + 2 * planner.wall)
+        if not ok.any():
+            raise FabricationError("fabrication.vents", f"room for only {len(chosen)} vent(s) of "
+                                                        f"{spec.vent_diameter:g} mm on the top of the body")
+        j = int(np.flatnonzero(ok)[np.argmax(np.minimum(d_pour, d_vent)[ok])])
+        chosen.append(int(vgood[j]))
+        d_vent = np.minimum(d_vent, np.linalg.norm(sites[vgood] - sites[vgood[j]], axis=1))
+    for i in chosen:
+        t = vtops[index[i]]
+        tools.append(Tool("vent", f.world([[*sites[i], t], [*sites[i], f.hi[2]]]), r_vent, extend=(0.0, 1.0)))
+        report["vents"].append([float(v) for v in sites[i]])
+    return tools, report, notes
+
+
+def ceilings(planner) -> tuple[dict, list[str]]:
+    """Per bone, the area of its faces that look down in the rising silicone (air clings there)."""
+    n = planner.frame.n
+    out, notes = {}, []
+    for name, s in planner.bones.items():
+        s = Surface(s.points, orient(s.points, s.tris), s.faces)        # outward normals
+        c = s.corners
+        area = 0.5 * np.linalg.norm(np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), axis=1)
+        down = s.normals @ n < -CEILING
+        out[name] = float(area[down].sum())
+    big = {k: v for k, v in out.items() if v > 0}
+    if big:
+        notes.append("air can cling under the downward faces of bone(s) " + ", ".join(sorted(big)) +
+                     " as the silicone rises: pour in layers (the bottom layer up to the bones first) or degas")
+    return out, notes
+
+
+def undercuts(planner) -> tuple[dict, list[str]]:
+    """Per half, the body surface area whose mould material is locked in against the half's pull."""
+    f, body = planner.frame, planner.body
+    body = Surface(body.points, orient(body.points, body.tris), body.faces)   # outward normals
+    c = body.corners
+    centre = c.mean(axis=1)
+    area = 0.5 * np.linalg.norm(np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), axis=1)
+    normal = body.normals
+    eps = 1e-4 * planner.scale
+    height = f.local(centre)[:, 2]
+    out, notes = {}, []
+    for side, sign in (("bottom", -1.0), ("top", 1.0)):
+        mine = np.flatnonzero(sign * (height - f.c) > eps)          # this half's side of the parting plane
+        start = centre[mine] + eps * normal[mine]
+        outside = ~inside(start, body, planner.tol)
+        r, t, _ = ray_hits(start, sign * f.n, body.corners, planner.tol)
+        hit = np.zeros(len(mine), bool)
+        hit[r[t > planner.tol]] = True              # a face looking down, on its own, is locked too
+        locked = outside & hit
+        out[side] = float(area[mine[locked]].sum())
+        if out[side] > 0:
+            where = centre[mine[locked]][np.argmax(area[mine[locked]])]
+            notes.append(f"the {side} half has {out[side]:.3g} mm^2 of undercut (near {_at(where)}): it comes off "
+                         "only as far as the silicone bends; another fabrication.split avoids it")
+    return out, notes
+
+
+def _at(x) -> str:
+    return "(" + ", ".join(f"{v:.3g}" for v in x) + ")"
