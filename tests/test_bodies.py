@@ -156,7 +156,7 @@ def test_bones_belong_to_the_body_around_them():
     ({"bones.0.outline": [[30, 10], [32, 10], [32, 12], [30, 12]]}, "bones.rb.outline: a bone must lie strictly inside one body"),
     ({"bones.0.outline": [[9, 10], [13, 10], [13, 12], [9, 12]]}, "bones.rb.outline"),
     ({"pins": [{"name": "left_base", "region": [[-1, -1], [10.1, 1e-6]]}]}, "bodies.right: nothing holds this body"),
-    ({"dim": 3, "thickness": None}, "bodies: several bodies are implemented for dim = 2 only"),
+    ({"dim": 3, "thickness": None}, "bodies.left.solids: missing (required)"),     # 3D bodies are solids
     ({"bodies.0.material": "steel"}, "bodies.left.material: unknown material"),
     ({"solver": {"line_search": "residual"}}, "solver.line_search"),
 ])

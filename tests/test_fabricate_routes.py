@@ -83,3 +83,29 @@ def test_a_route_tolerance_out_of_bounds_is_one_error_line(value, tmp_path, caps
                  "--set", f"fabrication.route_tolerance={value}"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "fabrication.route_tolerance" in err[0], err
+
+
+def test_pry_slots_cut_both_halves_at_the_parting_line(finger):
+    """Two round slots across the parting plane on the block's long sides, wall/2 deep: a point on a slot's
+    axis is in neither printed half; one a slot's radius and a bit above or below it is in a half."""
+    from skelfem.fabricate import read_stl
+    from skelfem.fabricate.surfaces import inside, Surface
+    out, report = finger
+    slots = report["mould"]["pry_slots"]
+    assert len(slots) == 2
+    halves = {}
+    for half in ("mould_bottom", "mould_top"):
+        pts, tris = read_stl(out / f"{half}.stl")
+        pose = report["parts"][half]["print"]
+        halves[half] = (Surface(pts, tris, None), np.array(pose["rotation"]), np.array(pose["translation"]))
+
+    def solid(x, half):
+        s, R, t = halves[half]
+        return bool(inside(np.asarray(x, float) @ R.T + t, s, 1e-9)[0])
+
+    for slot in slots:
+        a, b, r = np.array(slot["from"]), np.array(slot["to"]), slot["diameter"] / 2
+        assert a[2] == b[2] == 10.0 and abs(a[1] - 50.0) < 1e-9          # on the parting plane, mid-side
+        mid = a + 0.75 * (b - a)                                         # inside the wall, on the slot's axis
+        assert not solid(mid, "mould_bottom") and not solid(mid, "mould_top")
+        assert solid(mid - [0, 0, 1.5 * r], "mould_bottom") and solid(mid + [0, 0, 1.5 * r], "mould_top")

@@ -84,13 +84,14 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
         from . import solids
         from .objects import inside
         in_body = {k: X for k, X in markers.items() if not any(inside(o, X) for o in objects)}
-        result = solids.check(body.solids, [(b.name, b.solids) for b in bones], [(c.name, c.path) for c in cables],
+        every = tuple(s for b in bodies for s in b.solids)        # several bodies: the parts the pins must hold
+        result = solids.check(every, [(b.name, b.solids) for b in bones], [(c.name, c.path) for c in cables],
                               in_body, [(ld.name, ld.at) for ld in loads], [(p.name, p.region) for p in pins], tol)
         if result.error is not None:
             key, message = result.error
             raise DesignError(f"{source}: {key}: {message}")
         measure = result.volume
-        vertices = sum(len(next(iter(s.values())).get("outline", ())) + 8 for s in body.solids) \
+        vertices = sum(len(next(iter(s.values())).get("outline", ())) + 8 for s in every) \
             + sum(len(next(iter(s.values())).get("outline", ())) + 8 for b in bones for s in b.solids)
     design = Design(
         source=str(source), name=name, dim=dim, thickness=thickness, mesh=mesh,

@@ -389,11 +389,20 @@ def body_extent(design) -> np.ndarray:
 
 
 def check_bodies_held(source: str, bodies: tuple, pins: tuple, tol: float) -> None:
-    """[[bodies]]: every body must meet a pin's region (else nothing holds it: a singular solve)."""
+    """[[bodies]]: every body must meet a pin's region (else nothing holds it: a singular solve); in 3D,
+    a region box that shares volume with the body's solids (OpenCASCADE)."""
     if len(bodies) < 2:
         return
     for body in bodies:
-        if not any(polygons.overlap(body.outline, _box_polygon(p.region), tol) for p in pins):
+        if body.outline is None:
+            from .solids import common_volume
+            grow = 1e3 * tol                   # 1e-6 of the design's size: a flat region still meets its face
+            held = any(common_volume([{"box": {"min": [float(v) - grow for v in p.region[0]],
+                                               "max": [float(v) + grow for v in p.region[1]]}}], body.solids) > 0
+                       for p in pins)
+        else:
+            held = any(polygons.overlap(body.outline, _box_polygon(p.region), tol) for p in pins)
+        if not held:
             raise DesignError(f"{source}: bodies.{body.name}: nothing holds this body: no pin's region meets "
                               "it (add a [[pins]] entry whose region overlaps it)")
 

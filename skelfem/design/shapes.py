@@ -229,10 +229,10 @@ def _outline_body(t: Table, name: str, material: str, outline, tol: float):
 
 
 def _read_bodies(top: Table, dim: int, materials: dict):
-    """[[bodies]]: several soft bodies, apart at rest (2D)."""
+    """[[bodies]]: several soft bodies, apart at rest (2D outlines, 3D solids)."""
     tables = named_entries(top, "bodies", required=True)
-    if dim != 2:
-        top.fail("bodies", "several bodies are implemented for dim = 2 only (3D: one [body])")
+    if dim == 3:
+        return _read_bodies_3d(tables, materials)
     outlines = [t.take("outline", "points", dim=2) for t in tables]
     sizes = [float(np.ptp(o, axis=0).max()) for o in outlines if len(o) >= 1]
     tol = 1e-9 * max(max(sizes, default=1.0), 1.0)
@@ -246,6 +246,25 @@ def _read_bodies(top: Table, dim: int, materials: dict):
         bodies.append(body)
         out.append((t, region))
     return tuple(bodies), _Region2D(None, (), tol, loops=polygons.loops_of(bodies)), tol, out
+
+
+def _read_bodies_3d(tables: list, materials: dict):
+    """[[bodies]] in 3D: each its solids; no two may overlap or touch (checked with OpenCASCADE)."""
+    from .solids import touching
+    tol = 1e-9 * max(max((_extent({"body": t.data}) for t in tables), default=1.0), 1.0)
+    bodies, out = [], []
+    for t in tables:
+        name = t.where.split(".", 1)[1]
+        material = _material_ref(t, materials)
+        body = Body(material, solids=read_solids(t, 3, tol), name=name)
+        t.done()
+        for other in bodies:
+            how = touching(body.solids, other.solids, tol)
+            if how:
+                t.fail("solids", f"{how} body {other.name!r} (bodies must start apart)")
+        bodies.append(body)
+        out.append((t, None))
+    return tuple(bodies), None, tol, out
 
 
 def _extent(data: dict) -> float:

@@ -99,6 +99,27 @@ def common_volume(a, b) -> float:
     return volume
 
 
+def touching(a, b, tol: float) -> str | None:
+    """"overlaps" or "touches" if two unions of primitives share volume, or a face, edge or corner;
+    None if they lie apart."""
+    if common_volume(a, b) > tol:
+        return "overlaps"
+    key = _key("touching", a, b)
+    if key not in _CACHE:
+        import gmsh
+
+        from .occ import gmsh_model
+        with gmsh_model("skelfem-touching"):
+            occ = gmsh.model.occ
+            pa, pb = [(3, _add(occ, s)) for s in a], [(3, _add(occ, s)) for s in b]
+            _, children = occ.fragment(pa, pb)
+            occ.synchronize()
+            kids = [{t for d, t in c if d == 3} for c in children]
+            ka, kb = set().union(*kids[:len(pa)]), set().union(*kids[len(pa):])
+            _CACHE[key] = bool(_closure(gmsh, ka) & _closure(gmsh, kb))
+    return "touches" if _CACHE[key] else None
+
+
 def _boundary(gmsh, dimtags) -> set:
     if not dimtags:
         return set()

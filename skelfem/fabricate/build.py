@@ -160,7 +160,7 @@ def _block(occ, frame: Frame, n0: float, n1: float) -> tuple[int, float]:
 
 def build_half(plan: Plan, side: str, folder: Path | None = None) -> Part:
     """One mould half: its slab of the block minus the body, with pins or pin holes, its pegs and guide
-    posts, the tendon exits and (top) the pour hole and vents."""
+    posts, the tendon exits, the pry slots and (top) the pour hole and vents."""
     import gmsh
 
     from ..design.occ import gmsh_model
@@ -179,7 +179,7 @@ def build_half(plan: Plan, side: str, folder: Path | None = None) -> Part:
             half = clean_solids(occ, occ.fuse(half, [s for t in adds for s in tool_shapes(occ, t)])[0])
         mass.append(total_mass(occ, half))
         cuts = [t for t in plan.mould_tools
-                if t.kind == "exit" or (side == "top" and t.kind in ("pin_hole", "pour", "vent"))]
+                if t.kind in ("exit", "pry") or (side == "top" and t.kind in ("pin_hole", "pour", "vent"))]
         if cuts:
             half = clean_solids(occ, occ.cut(half, [s for t in cuts for s in tool_shapes(occ, t)])[0])
         mass.append(total_mass(occ, half))

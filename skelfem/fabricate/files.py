@@ -91,7 +91,9 @@ def write(plan: Plan, folder: Path, picture_file: bool = True) -> dict:
         "pegs": [{"bone": t.bone, "half": t.side, "tip": _plain(t.points[0]), "diameter": 2 * t.radius}
                  for t in plan.pegs],
         "posts": [{"cable": t.cable, "half": t.side, "tip": _plain(t.points[0]), "diameter": 2 * t.radius}
-                  for t in plan.posts]}
+                  for t in plan.posts],
+        "pry_slots": [{"from": _plain(t.points[0]), "to": _plain(t.points[-1]), "diameter": 2 * t.radius}
+                      for t in plan.mould_tools if t.kind == "pry"]}
     report["routes"] = plan.routes
     report["mould"]["flow"] = plan.flow
     checks["stl_closed_and_oriented"] = all(r["oriented"] and r["degenerate"] == 0 and r["parts"] == 1

@@ -43,7 +43,7 @@ class Frame:
 class Tool:
     """A cylinder-swept cut or addition: an axis polyline, its radius, where it extends past its ends."""
 
-    kind: str              # "channel", "anchor", "socket", "peg", "post", "pin", "pin_hole", "pour", "vent", "exit"
+    kind: str              # "channel", "anchor", "socket", "peg", "post", "pin", "pin_hole", "pour", "vent", "exit", "pry"
     points: np.ndarray     # (k, 3) axis polyline
     radius: float
     bone: str | None = None

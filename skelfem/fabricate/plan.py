@@ -450,6 +450,29 @@ class _Planner:
                 tools.append(Tool("pin_hole", f.world([[a, b, f.c - 1.0], [a, b, f.c + h + c]]), r + c))
         return tools
 
+    def pry_slots(self, exits: list) -> list:
+        """A pry slot on each of the block's two longer sides: a round hole across the parting plane, half
+        in each half, wall/2 deep into the wall (a flat blade in it levers the halves apart); at the side's
+        middle, or a quarter along where a tendon exit is in the way."""
+        f, w = self.frame, self.spec.wall
+        r = min(w / 4, 2.0)
+        depth = w / 2
+        k = int(np.argmax(f.hi[:2] - f.lo[:2]))          # along the longer in-plane axis
+        other = 1 - k
+        away = [f.local(t.points[-1]) for t in exits]
+        tools = []
+        for face, inward in ((f.lo[other], 1.0), (f.hi[other], -1.0)):
+            for frac in (0.5, 0.25, 0.75):
+                along = f.lo[k] + frac * (f.hi[k] - f.lo[k])
+                a, b = np.zeros(3), np.zeros(3)
+                a[k] = b[k] = along
+                a[other], b[other] = face - inward * 1.0, face + inward * depth
+                a[2] = b[2] = f.c
+                if all(np.linalg.norm((y - a)[[k, 2]]) > r + self.r_channel + self.wall for y in away):
+                    tools.append(Tool("pry", f.world([a, b]), r))
+                    break
+        return tools
+
     def exits(self) -> list:
         """A channel through the mould wall where each tendon leaves the body toward its spool."""
         f = self.frame
@@ -489,7 +512,8 @@ def plan(design) -> Plan:
     openings, flow, notes = casting.openings(planner, pegs + posts)
     flow["air_under_bones"], more = casting.ceilings(planner)
     flow["undercut"], most = casting.undercuts(planner)
-    mould = openings + planner.pins() + planner.exits()
+    exits = planner.exits()
+    mould = openings + planner.pins() + exits + planner.pry_slots(exits)
     p = Plan(design, spec, planner.frame, scale, bone_tools, pegs, mould, body_volume, bone_volumes,
              notes + more + most, body_surface=body, bone_surfaces=bones, posts=posts, routes=routes, flow=flow)
     for t in posts:
