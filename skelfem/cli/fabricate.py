@@ -49,11 +49,7 @@ def fabricate(args) -> int:
         log.warning("%s: warning: %s", design.name, note)
     if printed:
         return _printed(args, design, report, t0)
-    checks = report["checks"]
-    if not checks["passed"]:
-        failed = [k for k in ("stl_closed_and_oriented", "bone_volumes", "cavity_is_body") if not checks[k]]
-        error(f"internal error: {design.name}: fabrication check(s) failed: {', '.join(failed)}; "
-              f"see {args.out / 'fabrication.json'}")
+    if _failed(args, design, report, ("stl_closed_and_oriented", "bone_volumes", "cavity_is_body", "routes_held")):
         return EXIT_INTERNAL
     if not args.quiet:
         print(f"{design.name}: {len(design.bones)} bone(s) and a two-part mould in {args.out}/, "
@@ -67,16 +63,21 @@ def fabricate(args) -> int:
     return EXIT_OK
 
 
+def _failed(args, design, report: dict, keys: tuple) -> bool:
+    """Report the failed checks of fabrication.json (an internal error: the plan checked the input)."""
+    checks = report["checks"]
+    if checks["passed"]:
+        return False
+    failed = [k for k in keys if not checks[k]]
+    error(f"internal error: {design.name}: fabrication check(s) failed: {', '.join(failed)}; "
+          f"see {args.out / 'fabrication.json'}")
+    return True
 
 
 def _printed(args, design, report: dict, t0: float) -> int:
     """The 3MF's checks and summary."""
     checks = report["checks"]
-    if not checks["passed"]:
-        failed = [k for k in ("parts_closed_and_oriented", "part_volumes") if not checks[k]]
-        failed += [] if checks["complement"]["complement"] else ["complement"]
-        error(f"internal error: {design.name}: fabrication check(s) failed: {', '.join(failed)}; "
-              f"see {args.out / 'fabrication.json'}")
+    if _failed(args, design, report, ("parts_closed_and_oriented", "part_volumes", "complement_exact")):
         return EXIT_INTERNAL
     if not args.quiet:
         print(f"{design.name}: one multi-material print, {report['file']} in {args.out}/, "

@@ -279,7 +279,8 @@ def write(plan: Plan, folder: Path, picture_file: bool = True) -> dict:
     checks["parts_closed_and_oriented"] = all(m["oriented"] and m["degenerate"] == 0 and m["outer_shells"] == 1
                                               for m in meshes.values())       # a body may hold bone cavities
     checks["part_volumes"] = all(abs(p["relative_error"]) <= MESH_TOLERANCE for p in report["parts"].values())
-    checks["passed"] = bool(complement["complement"] and checks["parts_closed_and_oriented"]
+    checks["complement_exact"] = bool(complement["complement"])
+    checks["passed"] = bool(checks["complement_exact"] and checks["parts_closed_and_oriented"]
                             and checks["part_volumes"])
     report["notes"].append(
         f"the body prints in a flexible filament (extruder {BODY_EXTRUDER}) in place of the cast "

@@ -345,7 +345,7 @@ class _Planner:
         """
         from scipy.spatial import cKDTree
         spec, f = self.spec, self.frame
-        h = spec.socket_depth
+        self.shallow = []
         cable_pts = [path_samples(self.cable_points(c), 0.2)[0] for c in self.design.cables]
         cable_tree = cKDTree(np.concatenate(cable_pts)) if cable_pts else None
         pegs = []
@@ -364,33 +364,40 @@ class _Planner:
             lines = np.concatenate([sites, ring_s.reshape(-1, 2), ring_p.reshape(-1, 2)])
             hits = self.column(lines, [surface, self.body] + others)
             q = len(sites)
-            for side in (-1, 1):
-                ok = []
-                for i in range(q):
-                    site = self._peg_site(i, q, side, hits, h)
-                    if site is None:
-                        continue
-                    e, leave = site
-                    tip = e - side * (h - spec.clearance)
-                    axis = f.world([[*sites[i], tip], [*sites[i], leave]])
-                    sock = f.world([[*sites[i], e], [*sites[i], e - side * h]])
-                    if cable_tree is not None:
-                        near = cable_tree.query(path_samples(axis, 0.2)[0])[0].min()
-                        if near < self.r_peg + self.r_channel + self.wall:
+            for h in (spec.socket_depth, spec.socket_depth / 2):     # half as deep where the full depth finds none
+                found = []
+                for side in (-1, 1):
+                    ok = []
+                    for i in range(q):
+                        site = self._peg_site(i, q, side, hits, h)
+                        if site is None:
                             continue
-                    if hole_tree is not None:
-                        d, j = hole_tree.query(path_samples(sock, 0.2)[0])
-                        if np.any(d < self.r_socket + hole_r[j] + self.wall):
-                            continue
-                    ok.append((sites[i], e, tip, leave))
-                for site, e, tip, leave in self._spread(ok, 2):
-                    far = leave + side * spec.wall / 2          # into the half's material beyond the body
-                    peg = Tool("peg", f.world([[*site, tip], [*site, far]]), self.r_peg, bone.name,
-                               side="top" if side > 0 else "bottom")
-                    sock = Tool("socket", f.world([[*site, e + side * h], [*site, e - side * h]]), self.r_socket,
-                                bone.name)
-                    pegs.append(peg)
-                    bone_tools[bone.name].append(sock)
+                        e, leave = site
+                        tip = e - side * (h - spec.clearance)
+                        axis = f.world([[*sites[i], tip], [*sites[i], leave]])
+                        sock = f.world([[*sites[i], e], [*sites[i], e - side * h]])
+                        if cable_tree is not None:
+                            near = cable_tree.query(path_samples(axis, 0.2)[0])[0].min()
+                            if near < self.r_peg + self.r_channel + self.wall:
+                                continue
+                        if hole_tree is not None:
+                            d, j = hole_tree.query(path_samples(sock, 0.2)[0])
+                            if np.any(d < self.r_socket + hole_r[j] + self.wall):
+                                continue
+                        ok.append((sites[i], e, tip, leave))
+                    found += [(side, *x) for x in self._spread(ok, 2)]
+                if found:
+                    break
+            if found and h < spec.socket_depth:
+                self.shallow.append(bone.name)
+            for side, site, e, tip, leave in found:
+                far = leave + side * spec.wall / 2          # into the half's material beyond the body
+                peg = Tool("peg", f.world([[*site, tip], [*site, far]]), self.r_peg, bone.name,
+                           side="top" if side > 0 else "bottom")
+                sock = Tool("socket", f.world([[*site, e + side * h], [*site, e - side * h]]), self.r_socket,
+                            bone.name)
+                pegs.append(peg)
+                bone_tools[bone.name].append(sock)
         return pegs
 
     def _peg_site(self, i, q, side, hits, h):
@@ -516,6 +523,9 @@ def plan(design) -> Plan:
     mould = openings + planner.pins() + exits + planner.pry_slots(exits)
     p = Plan(design, spec, planner.frame, scale, bone_tools, pegs, mould, body_volume, bone_volumes,
              notes + more + most, body_surface=body, bone_surfaces=bones, posts=posts, routes=routes, flow=flow)
+    if planner.shallow:
+        p.notes.append(f"the pegs enter bone(s) {', '.join(planner.shallow)} only {spec.socket_depth / 2:g} mm "
+                       f"(half of fabrication.socket_depth: no room for {spec.socket_depth:g} mm)")
     for t in posts:
         if 2 * t.radius < spec.post_diameter - 1e-9:
             p.notes.append(f"the guide post of cable {t.cable!r} at {where_text(t.points[0])} is only "
