@@ -37,7 +37,7 @@ import numpy as np
 from .build import clean_solids, tool_shapes, total_mass
 from .meshing import generate_surface_mesh, triangle_surface
 from .orientation import PrintPose, best_pose
-from .parts import Plan, Tool
+from .parts import Plan, Tool, cable_points, cable_radius
 from .surfaces import CURVATURE, Surface, orient
 
 BODY_EXTRUDER, BONE_EXTRUDER = 1, 2
@@ -64,10 +64,7 @@ def cable_tools(plan: Plan, up: np.ndarray) -> list[Tool]:
     reach = 2.0 * plan.scale                        # past the top of the body
     tools = []
     for cable in design.cables:
-        r = spec.channel_diameter / 2 if cable.kind == "tendon" else spec.anchor_diameter / 2
-        p = np.asarray(cable.path, float)
-        if design.dim == 2:
-            p = np.column_stack([p, np.full(len(p), design.thickness / 2)])
+        r, p = cable_radius(spec, cable), cable_points(design, cable)
         tools.append(Tool("channel", p, r, cable=cable.name))
         for end in (p[0], p[-1]):
             if any(_ends_in(plan, bone.name, end) for bone in design.bones):
@@ -93,11 +90,8 @@ def check_print(plan: Plan) -> None:
     exits = {t.cable: t.points[0] for t in plan.mould_tools if t.kind == "exit"}
     tol = 1e-7 * plan.scale
     for cable in design.cables:
-        r = spec.channel_diameter / 2 if cable.kind == "tendon" else spec.anchor_diameter / 2
-        p = np.asarray(cable.path, float)
-        if design.dim == 2:
-            p = np.column_stack([p, np.full(len(p), design.thickness / 2)])
-        x, _ = path_samples(p, r / 2)
+        r = cable_radius(spec, cable)
+        x, _ = path_samples(cable_points(design, cable), r / 2)
         free = ~np.any([inside(x, s, tol) for s in plan.bone_surfaces.values()], axis=0) if plan.bone_surfaces \
             else np.ones(len(x), bool)
         if cable.name in exits:                 # the spool exit opens the channel on purpose

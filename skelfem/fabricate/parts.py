@@ -6,6 +6,19 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
+def cable_points(design, cable) -> np.ndarray:
+    """A cable's sketch in 3D: 2D paths lie in the slab's mid-plane z = thickness / 2."""
+    p = np.asarray(cable.path, float)
+    if design.dim == 2:
+        p = np.column_stack([p, np.full(len(p), design.thickness / 2)])
+    return p
+
+
+def cable_radius(spec, cable) -> float:
+    """The radius of a cable's channel: channel_diameter for tendons, anchor_diameter for ligaments."""
+    return (spec.channel_diameter if cable.kind == "tendon" else spec.anchor_diameter) / 2
+
+
 # -- the plan's data ----------------------------------------------------------------------------------------------------
 @dataclass
 class Frame:

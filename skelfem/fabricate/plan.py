@@ -39,7 +39,7 @@ import math
 
 import numpy as np
 from .meshing import generate_surface_mesh, triangle_surface
-from .parts import Frame, Plan, Tool
+from .parts import Frame, Plan, Tool, cable_points
 from . import casting
 from .routes import RouteHolder
 from .surfaces import FabricationError, GRAZING, PROBE_CURVATURE, Surface, face_distances, inside, point_triangle_distance, ray_hits
@@ -80,10 +80,7 @@ class _Planner:
 
     # cables in 3D coordinates
     def cable_points(self, cable) -> np.ndarray:
-        p = np.asarray(cable.path, float)
-        if self.dim == 2:
-            p = np.column_stack([p, np.full(len(p), self.design.thickness / 2)])
-        return p
+        return cable_points(self.design, cable)
 
     def cable_key(self, cable) -> str:
         return f"cables.{cable.name}.path"

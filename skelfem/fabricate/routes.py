@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from .parts import Frame, Tool
+from .parts import Frame, Tool, cable_points, cable_radius
 from .surfaces import FabricationError, Surface, inside, point_triangle_distance, ray_hits
 
 MAX_TILT = math.radians(20)       # a bend's inner bisector at most this far out of the plane normal to n
@@ -121,9 +121,7 @@ class RouteHolder:
 
     def points(self, cable) -> np.ndarray:
         """The sketch in 3D, with a point added wherever it crosses a bone's surface (held there)."""
-        p = np.asarray(cable.path, float)
-        if self.design.dim == 2:
-            p = np.column_stack([p, np.full(len(p), self.design.thickness / 2)])
+        p = cable_points(self.design, cable)
         out = [p[:1]]
         for a, b in zip(p[:-1], p[1:]):
             L = float(np.linalg.norm(b - a))
@@ -148,7 +146,7 @@ class RouteHolder:
         spec = self.spec
         posts, report = [], {}
         for cable in self.design.cables:
-            r_c = spec.channel_diameter / 2 if cable.kind == "tendon" else spec.anchor_diameter / 2
+            r_c = cable_radius(spec, cable)
             p = self.points(cable)
             mids = 0.5 * (p[:-1] + p[1:])
             inner = self.in_bone(mids)                  # which pieces run in bones
@@ -234,10 +232,7 @@ class RouteHolder:
         for other in self.design.cables:
             if other.name == name:
                 continue
-            r = self.spec.channel_diameter / 2 if other.kind == "tendon" else self.spec.anchor_diameter / 2
-            q = np.asarray(other.path, float)
-            if self.design.dim == 2:
-                q = np.column_stack([q, np.full(len(q), self.design.thickness / 2)])
+            r, q = cable_radius(self.spec, other), cable_points(self.design, other)
             if _segment_distance(column, q).min() < r_p + r + self.spec.min_wall:
                 return True
         return False

@@ -20,7 +20,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from .parts import Plan
+from .parts import Plan, cable_points
 from .picture import COLOURS, coarsen, colour_of, draw_surface, frame_axes
 
 STEPS = ("1  print the bones and both mould halves",
@@ -34,14 +34,7 @@ SILICONE = (0.80, 0.45, 0.55)
 
 
 def _cable_lines(plan: Plan) -> list[tuple[str, np.ndarray]]:
-    design = plan.design
-    out = []
-    for cable in design.cables:
-        p = np.asarray(cable.path, float)
-        if design.dim == 2:
-            p = np.column_stack([p, np.full(len(p), design.thickness / 2)])
-        out.append((cable.kind, plan.frame.local(p)))
-    return out
+    return [(c.kind, plan.frame.local(cable_points(plan.design, c))) for c in plan.design.cables]
 
 
 def casting_sequence(path, parts: list, plan: Plan) -> list[str]:

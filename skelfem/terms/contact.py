@@ -56,6 +56,12 @@ from mpi4py import MPI
 from ..mesh.geometry import body_tag_name, object_tag_name
 from .base import Context, Term
 
+# One thread: ipctk's parallel sums (barrier, friction, distances) then add in one order, so the same input
+# gives the same answer to the last bit. With two threads the order varied from run to run and so did a
+# path near a stick/slip threshold (a 3D cube at its friction limit took 9 s to 5 min to be found "not held").
+# skelfem runs its parallelism as MPI ranks and sweep processes instead.
+ipctk.set_num_threads(1)
+
 
 def boundary_facets(V) -> tuple[np.ndarray, np.ndarray]:
     """Boundary nodes of V (local node indices, sorted) and the boundary's simplices through them.
