@@ -113,16 +113,11 @@ def high_points(intervals: list, shape: tuple[int, int], tol: float) -> list[lis
 
 
 def openings(planner, blockers: list) -> tuple[list[Tool], dict, list[str]]:
-    """The pour hole and vents (Tools), the report's "casting" entries and notes; see the module doc."""
+    """The pour hole and vents (Tools), the report's ``mould.flow`` entries and notes; see the module doc."""
     spec, f = planner.spec, planner.frame
     top_tools = np.array([f.local(p.points[0])[:2] for p in blockers if p.side == "top"]).reshape(-1, 2)
     uv = f.local(planner.body.points)[:, :2]
-    lo, hi = uv.min(axis=0), uv.max(axis=0)
-    h = float(np.sqrt(np.prod(np.maximum(hi - lo, 1e-9)) / 600))
-    axes = [np.arange(a + 0.5 * ((b - a) % h), b + 1e-12, h) if b - a > h else np.array([(a + b) / 2])
-            for a, b in zip(lo, hi)]
-    shape = (len(axes[0]), len(axes[1]))
-    sites = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 2)
+    sites, shape, h = planner.lattice(uv, 600)
     q = len(sites)
     body = planner.column(sites, [planner.body])[0]
     notes = []

@@ -316,13 +316,19 @@ class _Planner:
         return center + radius / math.cos(math.pi / count) * np.column_stack([np.cos(a), np.sin(a)])
 
     def grid(self, uv_points: np.ndarray, target: int, margin: float = 0.0) -> np.ndarray:
+        return self.lattice(uv_points, target, margin)[0]
+
+    @staticmethod
+    def lattice(uv_points: np.ndarray, target: int, margin: float = 0.0) -> tuple[np.ndarray, tuple, float]:
+        """About target points on a square grid over the points' box (less margin): (points (q, 2) in
+        row-major order, the grid's shape, its spacing)."""
         lo, hi = uv_points.min(axis=0) + margin, uv_points.max(axis=0) - margin
         if np.any(hi <= lo):
-            return np.zeros((0, 2))
+            return np.zeros((0, 2)), (0, 0), 0.0
         h = math.sqrt(float(np.prod(hi - lo)) / target)
         axes = [np.arange(a + 0.5 * ((b - a) % h), b + 1e-12, h) if b - a > h else np.array([(a + b) / 2])
                 for a, b in zip(lo, hi)]
-        return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 2)
+        return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 2), (len(axes[0]), len(axes[1])), h
 
     # -- pegs and sockets
     def pegs(self, bone_tools: dict) -> list:

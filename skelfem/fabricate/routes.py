@@ -172,12 +172,11 @@ class RouteHolder:
                 raise FabricationError(f"cables.{cable.name}.path",
                                        f"cast, its line would lie {dev:.2g} mm off its sketch near {_at(where)} "
                                        f"(fabrication.route_tolerance {spec.route_tolerance:g} mm): {why}")
-            here = list(posted.values())
             report[cable.name] = {"deviation": dev, "unheld_deviation": dev0, "where_unheld": _plain(where0),
                                   "posts": [{"at": _plain(p[i]), "tip": _plain(t.points[0]), "diameter": 2 * t.radius,
                                              "angle_deg": math.degrees(bend(p, i)[0]), "half": t.side}
                                             for i, t in posted.items()]}
-            posts += here
+            posts += posted.values()
         return posts, report
 
     def post(self, cable, p: np.ndarray, i: int, r_c: float, pegs: list) -> Tool:
