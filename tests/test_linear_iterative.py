@@ -80,11 +80,12 @@ def test_marker_sensitivities_agree_with_the_direct_solver():
 
 def test_a_krylov_failure_falls_back_to_the_direct_solver_and_says_so():
     with Session("geometry/finger3d.toml", overrides=["mesh.size=4", "solver.linear=iterative"]) as s:
-        s.solver = NewtonSolver(s.model, s.design.solver, petsc_options={"ksp_max_it": 2})
+        s.solver = NewtonSolver(s.model, s.design.solver, petsc_options={"ksp_max_it": 1})
         r = s.solve()
         assert r.converged, r.status
         d = r.to_dict()
-    assert d["linear_solver"] == "iterative" and d["linear_fallbacks"] == d["newton_iterations"] > 0
+    # one Krylov iteration fails every tight solve; a loose Newton step (forcing 0.1) may pass in one
+    assert d["linear_solver"] == "iterative" and 0 < d["linear_fallbacks"] <= d["newton_iterations"]
 
 
 def _elastic_block(length: float = 16.0, n: int = 3):

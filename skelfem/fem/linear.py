@@ -219,6 +219,10 @@ class LowRankSolver:
         self._dense: dict = {}
         self._work = None               # the embedded right-hand side (Border.hosts)
         self.solves = 0                 # solve phases run (one multi-RHS solve counts once)
+        self._op = False                # iterative, border in K or none: Krylov on H itself (_hksp)
+        self._hksp = None               # ... its KSP: operator H (_LowRankOperator), Woodbury multigrid
+        self.BG = np.zeros((0, 0))      # ... B G, B the multigrid's action (an approximate K^{-1})
+        self.S = np.zeros((0, 0))       # ... D^{-1} + G^T B G
 
     def _make_ksp(self, prefix: str, options: dict) -> PETSc.KSP:
         ksp = PETSc.KSP().create(self.comm)
@@ -271,6 +275,36 @@ class LowRankSolver:
             self.G = self.G * ~border.rows[:, None]
         self._z_guess = self.Z if self.kind == "iterative" else None   # the last K's Z: a warm start
         self.Z = None
+        self._op = self.kind == "iterative" and (border is None or border.hosts is not None)
+        if self._op:
+            self._woodbury()
+
+    def _woodbury(self) -> None:
+        """Operator mode: B G and S = D^{-1} + G^T B G for the preconditioner of H (see _WoodburyPC)."""
+        if self._hksp is None:
+            n, N = self.K.getSizes()[0]
+            H = PETSc.Mat().createPython([(n, N), (n, N)], _LowRankOperator(self), comm=self.comm)
+            H.setUp()
+            self._hksp = PETSc.KSP().create(self.comm)
+            self._hksp.setOperators(H)
+            H.destroy()
+            self._hksp.setType(self._options["ksp_type"])
+            self._hksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
+            self._hksp.setTolerances(atol=0.0, max_it=int(self._options["ksp_max_it"]))
+            pc = self._hksp.getPC()
+            pc.setType(PETSc.PC.Type.PYTHON)
+            pc.setPythonContext(_WoodburyPC(self))
+        pc, k = self.ksp.getPC(), len(self.c)
+        self.BG = np.empty((len(self.G), k))
+        r, y = self.K.createVecLeft(), self.K.createVecRight()
+        for j in range(k):
+            r.array_w[:] = self.G[:, j]
+            pc.apply(r, y)
+            self.BG[:, j] = y.array_r
+        r.destroy()
+        y.destroy()
+        S = np.diag(1.0 / self.c) + self._dots(self.G, self.BG)
+        self.S = 0.5 * (S + S.T)
 
     def reset(self) -> None:
         """Forget a failed factorisation (the next update factorises from scratch)."""
@@ -307,33 +341,33 @@ class LowRankSolver:
         """x = K^{-1} b: one back-substitution, or a Krylov solve to rtol (default self.rtol; FGMRES if
         CG fails, else the fallback) from x (warm) or from 0."""
         rtol = self.rtol if rtol is None else rtol
-        self.ksp.setInitialGuessNonzero(bool(warm) and self.kind == "iterative" and not self._fallen)
         self.solves += 1
-        if self.kind == "direct" or self._fallen:
-            ksp = self._factorised()
-            ksp.solve(b, x)
-            self._check(ksp)
-            return
-        first = self._options["ksp_type"]
-        self.ksp.setTolerances(rtol=rtol)
-        for ksp_type in (first, "fgmres"):          # FGMRES: right-preconditioned, true residual norm
-            if self.ksp.getType() != ksp_type:
-                self.ksp.setType(ksp_type)
-            self.ksp.solve(b, x)
-            self.krylov[-1] += self.ksp.getIterationNumber()
-            reason = self.ksp.getConvergedReason()
-            if reason > 0:
-                self._its_since += self.ksp.getIterationNumber()
-                self._decades_since += -np.log10(rtol)
-                break
-        if self.ksp.getType() != first:
-            self.ksp.setType(first)
-            self.ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
-        if reason > 0:
+        if self.kind == "iterative" and not self._fallen and self._krylov(self.ksp, b, x, rtol, warm):
             return
         ksp = self._factorised()
         ksp.solve(b, x)
         self._check(ksp)
+
+    def _krylov(self, ksp: PETSc.KSP, b: PETSc.Vec, x: PETSc.Vec, rtol: float, warm: bool = False) -> bool:
+        """A Krylov solve to rtol (FGMRES if the first method fails), its iterations counted; whether it
+        converged."""
+        ksp.setInitialGuessNonzero(bool(warm))
+        first = self._options["ksp_type"]
+        ksp.setTolerances(rtol=rtol)
+        for ksp_type in (first, "fgmres"):          # FGMRES: right-preconditioned, true residual norm
+            if ksp.getType() != ksp_type:
+                ksp.setType(ksp_type)
+            ksp.solve(b, x)
+            self.krylov[-1] += ksp.getIterationNumber()
+            reason = ksp.getConvergedReason()
+            if reason > 0:
+                self._its_since += ksp.getIterationNumber()
+                self._decades_since += -np.log10(rtol)
+                break
+        if ksp.getType() != first:
+            ksp.setType(first)
+            ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
+        return reason > 0
 
     def _multi_solve(self, cols: np.ndarray, step: bool = False) -> np.ndarray:
         """K^{-1} cols for a block of right-hand sides (owned rows): one MUMPS solve phase, or a Krylov
@@ -377,6 +411,19 @@ class LowRankSolver:
     def solve(self, b: PETSc.Vec, x: PETSc.Vec) -> None:
         """x = (K + G D G^T)^{-1} b, reduced to the border unknowns if there is a border."""
         border = self.border
+        if self._op and not self._fallen:
+            rhs = b
+            if border is not None:
+                if self._work is None:
+                    self._work = b.duplicate()
+                rhs = self._work
+                rhs.array_w[:] = border.embed(b.array_r)
+            self.solves += 1
+            if self._krylov(self._hksp, rhs, x, self.rtol):
+                if border is not None:
+                    x.array_w[:] = border.expand(x.array_r)
+                return
+            self._factorised()                      # the rest of this update: MUMPS and Woodbury
         if border is None or border.hosts is None:
             self._solve(b, x, border)
             return
@@ -439,10 +486,32 @@ class LowRankSolver:
         """
         B = np.asarray(B, dtype=float)
         border = self.border
+        if self._op and not self._fallen:
+            out = self._op_solve_many(B if border is None else border.embed(B))
+            if out is not None:
+                return out if border is None else out * ~border.rows[:, None] + border.T @ out[border.hosts]
         if border is not None and border.hosts is not None:
             Y = self._solve_block(border.embed(B), None)
             return Y * ~border.rows[:, None] + border.T @ Y[border.hosts]
         return self._solve_block(B, border)
+
+    def _op_solve_many(self, B: np.ndarray) -> np.ndarray | None:
+        """Operator mode: H^{-1} B column by column, each to KRYLOV_RTOL; None (and the fallback from
+        now on) if a column's Krylov solve fails."""
+        b, x = self.K.createVecLeft(), self.K.createVecRight()
+        out = np.empty_like(B)
+        self.solves += 1
+        try:
+            for j in range(B.shape[1]):
+                b.array_w[:] = B[:, j]
+                if not self._krylov(self._hksp, b, x, KRYLOV_RTOL):
+                    self._factorised()
+                    return None
+                out[:, j] = x.array_r
+        finally:
+            b.destroy()
+            x.destroy()
+        return out
 
     def _solve_block(self, B: np.ndarray, border: Border | None) -> np.ndarray:
         k = len(self.c)
@@ -475,6 +544,9 @@ class LowRankSolver:
 
     def destroy(self) -> None:
         self.ksp.destroy()
+        if self._hksp is not None:
+            self._hksp.destroy()
+            self._hksp = None
         if self._direct is not None:
             self._direct.destroy()
             self._direct = None
@@ -514,3 +586,35 @@ class _ApplyPC:
 
     def apply(self, pc, x, y):
         self.solver.solve(x, y)
+
+
+class _LowRankOperator:
+    """A PETSc python Mat: y = H x = K x + G D G^T x (operator mode of LowRankSolver; G, D = diag(c)
+    of the last update, G with the border's rows if the border is in K)."""
+
+    def __init__(self, solver: LowRankSolver):
+        self.solver = solver
+
+    def mult(self, mat, x, y):
+        s = self.solver
+        s.K.mult(x, y)
+        if len(s.c):
+            y.array_w[:] += s.G @ (s.c * s._dots(s.G, x.array_r[:, None])[:, 0])
+
+
+class _WoodburyPC:
+    """A PETSc python PC: the Woodbury formula with the multigrid's action B in place of K^{-1},
+
+        P r = B r - B G S^{-1} G^T B r,   S = D^{-1} + G^T B G,
+
+    the exact inverse of B^{-1} + G D G^T: symmetric positive definite when B is (GAMG's V-cycle with
+    as many pre- as post-smoothing steps), and as good a preconditioner of H as B is of K."""
+
+    def __init__(self, solver: LowRankSolver):
+        self.solver = solver
+
+    def apply(self, pc, r, y):
+        s = self.solver
+        s.ksp.getPC().apply(r, y)
+        if len(s.c):
+            y.array_w[:] -= s.BG @ np.linalg.solve(s.S, s._dots(s.G, y.array_r[:, None])[:, 0])

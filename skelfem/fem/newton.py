@@ -126,7 +126,7 @@ class NewtonSolver(LineSearch):
         self.etol = 1e-15             # Newton decrement -grad Pi . p relative to |Pi| that ends the solve
         self._decrement_converged = False
         self.linear = choose_linear(spec.linear, model)
-        model.embed_border = self.linear == "direct"    # iterative: the rigid border stays outside K
+        model.embed_border = True      # serial: the rigid border goes into K (MPI: outside it)
         self.A = model.create_matrix()
         modes = model.rigid_body_modes() if self.linear == "iterative" else None
         self.lin = LowRankSolver(self.A, model.comm, petsc_options, prefix + "k_", modes)
