@@ -46,21 +46,23 @@ hosts), and x = x_f + T z: one factorisation and no extra right-hand sides.
 **Iterative solves** (``[solver] linear = "iterative"``): K is not factorised
 but preconditioned by algebraic multigrid (PETSc GAMG, smoothed aggregation,
 Chebyshev-Jacobi smoothing) with the rigid-body modes of the node
-coordinates as its near-nullspace (3 in 2D, 6 in 3D), and every K^{-1}
-above is a conjugate-gradient solve to a relative true residual: Newton's
-own steps are inexact (Eisenstat-Walker forcing, ``forcing``: 0.1 far from
-the solution, down to ``KRYLOV_RTOL`` near it); every other solve (the
-columns of Z = K^{-1} [G | E], which the small system amplifies, warm-started
-from the last update's Z; sensitivities, adjoints) is to ``KRYLOV_RTOL``. The
-same formulas hold, so the cables' rank-one parts stay out of the matrix
-(Woodbury) and the rigid bones' border stays outside K (their rows are
-identity rows, z from the small system): multigrid sees the soft body only.
-The multigrid is built at the first update and kept at later ones
-(``_lag_preconditioner``) until its iterations per decade of residual
-exceed REBUILD_RATIO times a fresh one's. A Krylov solve that fails (an
-indefinite K breaks CG; a stall) is retried with FGMRES, then the update
-falls back to a MUMPS factorisation for the rest of its solves, counted in
-``fallbacks`` (reported in result.json, never silent).
+coordinates as its near-nullspace (3 in 2D, 6 in 3D). The border stays
+outside K (its rows are identity rows: multigrid sees the soft body only),
+and one Krylov solve (conjugate gradients) takes the whole system above at
+once: its unknowns are (x, z), z on the first rank; its operator applies K,
+E, C and the cables' G D G^T without forming them; its preconditioner is the
+exact inverse of that system with one multigrid cycle B in place of K^{-1},
+i.e. the formulas above with ZB = B [G | E] for Z (k + m cycles per
+update, no Krylov solve). Newton's own steps are inexact (Eisenstat-Walker
+forcing, ``forcing``: ETA_MAX far from the solution, tighter near it, never
+tighter than the residual test needs); every other solve (sensitivities,
+adjoints) is to ``KRYLOV_RTOL``. The multigrid is built at the first update
+and kept at later ones (``_lag_preconditioner``) until its iterations per
+decade of residual exceed REBUILD_RATIO times a fresh one's. A Krylov solve
+that fails (an indefinite K breaks CG; a stall) is retried with FGMRES, then
+the update falls back to a MUMPS factorisation and the formulas above for
+the rest of its solves, counted in ``fallbacks`` (reported in result.json,
+never silent).
 """
 from __future__ import annotations
 
@@ -84,7 +86,7 @@ def default_petsc_options() -> dict:
 KRYLOV_RTOL = 1e-12       # |r| / |b| of a tight iterative solve (sensitivities to 1e-8 behind a 1e4 condition)
 
 
-ETA_MAX = 0.1             # the loosest forcing term of an inexact Newton step
+ETA_MAX = 0.01            # the loosest forcing term of an inexact Newton step
 REBUILD_RATIO = 2.0       # a lagged multigrid is rebuilt when it needs this many times the iterations
 
 
@@ -204,7 +206,6 @@ class LowRankSolver:
             K.setNearNullSpace(self._nullspace)
         self.ksp = self._make_ksp(prefix, self._options)
         self._direct = None             # iterative: the fallback factorisation, made when first needed
-        self._z_guess = None            # iterative: the last update's Z, the next one's initial guesses
         self._fallen = False            # iterative: this update's solves use the fallback
         self.fallbacks = 0              # updates whose Krylov solves failed and fell back to MUMPS
         self.krylov = []                # iterative: Krylov iterations since each update (one entry per update)
@@ -219,10 +220,11 @@ class LowRankSolver:
         self._dense: dict = {}
         self._work = None               # the embedded right-hand side (Border.hosts)
         self.solves = 0                 # solve phases run (one multi-RHS solve counts once)
-        self._op = False                # iterative, border in K or none: Krylov on H itself (_hksp)
-        self._hksp = None               # ... its KSP: operator H (_LowRankOperator), Woodbury multigrid
-        self.BG = np.zeros((0, 0))      # ... B G, B the multigrid's action (an approximate K^{-1})
-        self.S = np.zeros((0, 0))       # ... D^{-1} + G^T B G
+        self._op = False                # iterative: Krylov on the whole system (_Bordered), see _operator_mode
+        self._hksp = None               # ... its KSP on (x, z) vectors: n rows and the border's m
+        self._bvecs = None              # ... (rhs, solution) of that size, and two n-vectors
+        self.ZB = np.zeros((0, 0))      # ... B [G | E], B one multigrid cycle (an approximate K^{-1})
+        self.CB = np.zeros((0, 0))      # ... the small system's matrix made from ZB
 
     def _make_ksp(self, prefix: str, options: dict) -> PETSc.KSP:
         ksp = PETSc.KSP().create(self.comm)
@@ -273,38 +275,90 @@ class LowRankSolver:
         elif border is not None:
             self.H = self._dots(border.T, self.G)          # h_i = T^T g_i
             self.G = self.G * ~border.rows[:, None]
-        self._z_guess = self.Z if self.kind == "iterative" else None   # the last K's Z: a warm start
         self.Z = None
-        self._op = self.kind == "iterative" and (border is None or border.hosts is not None)
+        self._op = self.kind == "iterative" and (border is None or border.hosts is None)
         if self._op:
-            self._woodbury()
+            self._operator_mode()
 
-    def _woodbury(self) -> None:
-        """Operator mode: B G and S = D^{-1} + G^T B G for the preconditioner of H (see _WoodburyPC)."""
-        if self._hksp is None:
-            n, N = self.K.getSizes()[0]
-            H = PETSc.Mat().createPython([(n, N), (n, N)], _LowRankOperator(self), comm=self.comm)
-            H.setUp()
+    def _operator_mode(self) -> None:
+        """Iterative solves on the whole system: one Krylov solve per right-hand side.
+
+        The unknowns (x, z): x the n rows of K (the border's slaved rows stay 0), z the border's m
+        (on the first rank). The operator (_Bordered.mult) is the bordered matrix of the module
+        docstring with the cables' rank-one parts, applied without forming it; the preconditioner
+        (_Bordered.apply) is that matrix's exact inverse with K^{-1} replaced by one multigrid
+        cycle B: the same formulas as a direct solve with ZB = B [G | E] for Z (k + m cycles per
+        update), symmetric positive definite when B and the system are."""
+        m = 0 if self.border is None else self.border.E.shape[1]
+        n, N = self.K.getSizes()[0]
+        mine = m if self.comm.rank == 0 else 0
+        if self._hksp is None or self._bvecs[0].getSize() != N + m:
+            if self._hksp is not None:
+                self._hksp.destroy()
+                for v in self._bvecs:
+                    v.destroy()
+            ctx = _Bordered(self)
+            A = PETSc.Mat().createPython([(n + mine, N + m), (n + mine, N + m)], ctx, comm=self.comm)
+            A.setUp()
             self._hksp = PETSc.KSP().create(self.comm)
-            self._hksp.setOperators(H)
-            H.destroy()
+            self._hksp.setOperators(A)
+            A.destroy()
             self._hksp.setType(self._options["ksp_type"])
             self._hksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
             self._hksp.setTolerances(atol=0.0, max_it=int(self._options["ksp_max_it"]))
             pc = self._hksp.getPC()
             pc.setType(PETSc.PC.Type.PYTHON)
-            pc.setPythonContext(_WoodburyPC(self))
-        pc, k = self.ksp.getPC(), len(self.c)
-        self.BG = np.empty((len(self.G), k))
-        r, y = self.K.createVecLeft(), self.K.createVecRight()
-        for j in range(k):
-            r.array_w[:] = self.G[:, j]
-            pc.apply(r, y)
-            self.BG[:, j] = y.array_r
-        r.destroy()
-        y.destroy()
-        S = np.diag(1.0 / self.c) + self._dots(self.G, self.BG)
-        self.S = 0.5 * (S + S.T)
+            pc.setPythonContext(ctx)
+            big = PETSc.Vec().createMPI((n + mine, N + m), comm=self.comm)
+            self._bvecs = (big, big.duplicate(), self.K.createVecLeft(), self.K.createVecRight())
+        E = self.border.E if m else np.zeros((n, 0))
+        cols = np.column_stack([self.G, E])
+        ZB = np.empty_like(cols)
+        for j in range(cols.shape[1]):
+            ZB[:, j] = self._cycle(cols[:, j])
+        self.ZB = ZB
+        self.CB = self._small_system(ZB, E, self.border)
+
+    def _cycle(self, r: np.ndarray) -> np.ndarray:
+        """B r: one multigrid cycle of K (the border's slaved rows, identity rows of K, passed through)."""
+        rin, out = self._bvecs[2], self._bvecs[3]
+        rows = None if self.border is None else self.border.rows
+        rin.array_w[:] = r if rows is None else r * ~rows
+        self.ksp.getPC().apply(rin, out)
+        y = out.array_r.copy()
+        if rows is not None:
+            y[rows] = r[rows]
+        return y
+
+    def _split(self, v: PETSc.Vec) -> tuple[np.ndarray, np.ndarray]:
+        """(x, z) of a bordered vector, z on every rank."""
+        n, a = self.K.getLocalSize()[0], v.array_r
+        z = a[n:].copy()
+        if self.comm.size > 1:
+            z = self.comm.bcast(z, root=0)
+        return a[:n], z
+
+    def _join(self, v: PETSc.Vec, x: np.ndarray, z: np.ndarray) -> None:
+        n, a = self.K.getLocalSize()[0], v.array_w
+        a[:n] = x
+        if len(a) > n:
+            a[n:] = z
+
+    def _op_solve(self, b: np.ndarray, rtol: float) -> np.ndarray | None:
+        """x = H^{-1} b (owned rows) by one Krylov solve on the bordered system; None if it fails (the
+        fallback from then on)."""
+        rhs, sol = self._bvecs[:2]
+        border = self.border
+        if border is None:
+            self._join(rhs, b, np.zeros(0))
+        else:
+            self._join(rhs, b * ~border.rows, self._dots(border.T, b[:, None])[:, 0])
+        self.solves += 1
+        if not self._krylov(self._hksp, rhs, sol, rtol):
+            self._factorised()
+            return None
+        x, z = self._split(sol)
+        return x.copy() if border is None else x * ~border.rows + border.T @ z
 
     def reset(self) -> None:
         """Forget a failed factorisation (the next update factorises from scratch)."""
@@ -337,21 +391,16 @@ class LowRankSolver:
             self.fallbacks += 1
         return self._direct
 
-    def _ksp_solve(self, b: PETSc.Vec, x: PETSc.Vec, rtol: float | None = None, warm: bool = False) -> None:
-        """x = K^{-1} b: one back-substitution, or a Krylov solve to rtol (default self.rtol; FGMRES if
-        CG fails, else the fallback) from x (warm) or from 0."""
-        rtol = self.rtol if rtol is None else rtol
+    def _ksp_solve(self, b: PETSc.Vec, x: PETSc.Vec) -> None:
+        """x = K^{-1} b: one back-substitution (direct, or an iterative update's fallback)."""
         self.solves += 1
-        if self.kind == "iterative" and not self._fallen and self._krylov(self.ksp, b, x, rtol, warm):
-            return
         ksp = self._factorised()
         ksp.solve(b, x)
         self._check(ksp)
 
-    def _krylov(self, ksp: PETSc.KSP, b: PETSc.Vec, x: PETSc.Vec, rtol: float, warm: bool = False) -> bool:
-        """A Krylov solve to rtol (FGMRES if the first method fails), its iterations counted; whether it
-        converged."""
-        ksp.setInitialGuessNonzero(bool(warm))
+    def _krylov(self, ksp: PETSc.KSP, b: PETSc.Vec, x: PETSc.Vec, rtol: float) -> bool:
+        """A Krylov solve to rtol from 0 (FGMRES if the first method fails), its iterations counted;
+        whether it converged."""
         first = self._options["ksp_type"]
         ksp.setTolerances(rtol=rtol)
         for ksp_type in (first, "fgmres"):          # FGMRES: right-preconditioned, true residual norm
@@ -369,26 +418,9 @@ class LowRankSolver:
             ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
         return reason > 0
 
-    def _multi_solve(self, cols: np.ndarray, step: bool = False) -> np.ndarray:
-        """K^{-1} cols for a block of right-hand sides (owned rows): one MUMPS solve phase, or a Krylov
-        solve per column, each to KRYLOV_RTOL but the last one if it is a Newton step's (step: to the
-        forcing term self.rtol; Z = K^{-1} [G | E] must be tight, the small system amplifies its error)."""
+    def _multi_solve(self, cols: np.ndarray) -> np.ndarray:
+        """K^{-1} cols for a block of right-hand sides (owned rows): one MUMPS solve phase."""
         n, k = cols.shape
-        if self.kind == "iterative" and not self._fallen:
-            b, x = self.K.createVecLeft(), self.K.createVecRight()
-            out = np.empty((n, k))
-            guess = self._z_guess if step else None         # Z of the last K for the same columns
-            warm = guess is not None and guess.shape == (n, k - 1)
-            for j in range(k):
-                b.array_w[:] = cols[:, j]
-                if warm and j < k - 1:
-                    x.array_w[:] = guess[:, j]
-                self._ksp_solve(b, x, self.rtol if step and j == k - 1 else KRYLOV_RTOL, warm and j < k - 1)
-                out[:, j] = x.array_r
-            self.solves -= k - 1                # one solve phase, as MUMPS's
-            b.destroy()
-            x.destroy()
-            return out
         if k not in self._dense:
             B = PETSc.Mat().createDense([(n, None), (k, k)], comm=self.comm)
             X = PETSc.Mat().createDense([(n, None), (k, k)], comm=self.comm)
@@ -412,18 +444,10 @@ class LowRankSolver:
         """x = (K + G D G^T)^{-1} b, reduced to the border unknowns if there is a border."""
         border = self.border
         if self._op and not self._fallen:
-            rhs = b
-            if border is not None:
-                if self._work is None:
-                    self._work = b.duplicate()
-                rhs = self._work
-                rhs.array_w[:] = border.embed(b.array_r)
-            self.solves += 1
-            if self._krylov(self._hksp, rhs, x, self.rtol):
-                if border is not None:
-                    x.array_w[:] = border.expand(x.array_r)
+            out = self._op_solve(b.array_r, self.rtol)
+            if out is not None:
+                x.array_w[:] = out
                 return
-            self._factorised()                      # the rest of this update: MUMPS and Woodbury
         if border is None or border.hosts is None:
             self._solve(b, x, border)
             return
@@ -443,7 +467,7 @@ class LowRankSolver:
         m = E.shape[1]
         bf = b.array_r if border is None else b.array_r * ~border.rows
         if self.Z is None:                      # first solve: K^{-1} [G | E | b] in one go
-            Y = self._multi_solve(np.column_stack([self.G, E, bf]), step=True)
+            Y = self._multi_solve(np.column_stack([self.G, E, bf]))
             self._take_z(Y[:, :k + m], E, border)
             y = Y[:, k + m]
         elif border is None:
@@ -468,15 +492,19 @@ class LowRankSolver:
 
     def _take_z(self, Z: np.ndarray, E: np.ndarray, border: Border | None) -> None:
         """Keep Z = K^{-1} [G | E] and the small system's matrix C made from it."""
-        k, m = len(self.c), E.shape[1]
         self.Z = Z
+        self.C = self._small_system(Z, E, border)
+
+    def _small_system(self, Z: np.ndarray, E: np.ndarray, border: Border | None) -> np.ndarray:
+        """The matrix of the small system in (z, w) (module docstring) from Z = K^{-1} [G | E]."""
+        k, m = len(self.c), E.shape[1]
         ZG, ZE = Z[:, :k], Z[:, k:]
         C = np.zeros((m + k, m + k))
         C[:m, :m] = (border.C if m else 0.0) - self._dots(E, ZE)
         C[:m, m:] = self.H - self._dots(E, ZG)
         C[m:, :m] = C[:m, m:].T
         C[m:, m:] = -(np.diag(1.0 / self.c) + self._dots(self.G, ZG))
-        self.C = 0.5 * (C + C.T)
+        return 0.5 * (C + C.T)
 
     def solve_many(self, B: np.ndarray) -> np.ndarray:
         """(K + G D G^T)^{-1} B for a block of right-hand sides (owned rows, one per column).
@@ -487,31 +515,18 @@ class LowRankSolver:
         B = np.asarray(B, dtype=float)
         border = self.border
         if self._op and not self._fallen:
-            out = self._op_solve_many(B if border is None else border.embed(B))
-            if out is not None:
-                return out if border is None else out * ~border.rows[:, None] + border.T @ out[border.hosts]
+            out = np.empty_like(B)
+            for j in range(B.shape[1]):
+                col = self._op_solve(B[:, j], KRYLOV_RTOL)
+                if col is None:
+                    break
+                out[:, j] = col
+            else:
+                return out
         if border is not None and border.hosts is not None:
             Y = self._solve_block(border.embed(B), None)
             return Y * ~border.rows[:, None] + border.T @ Y[border.hosts]
         return self._solve_block(B, border)
-
-    def _op_solve_many(self, B: np.ndarray) -> np.ndarray | None:
-        """Operator mode: H^{-1} B column by column, each to KRYLOV_RTOL; None (and the fallback from
-        now on) if a column's Krylov solve fails."""
-        b, x = self.K.createVecLeft(), self.K.createVecRight()
-        out = np.empty_like(B)
-        self.solves += 1
-        try:
-            for j in range(B.shape[1]):
-                b.array_w[:] = B[:, j]
-                if not self._krylov(self._hksp, b, x, KRYLOV_RTOL):
-                    self._factorised()
-                    return None
-                out[:, j] = x.array_r
-        finally:
-            b.destroy()
-            x.destroy()
-        return out
 
     def _solve_block(self, B: np.ndarray, border: Border | None) -> np.ndarray:
         k = len(self.c)
@@ -546,7 +561,9 @@ class LowRankSolver:
         self.ksp.destroy()
         if self._hksp is not None:
             self._hksp.destroy()
-            self._hksp = None
+            for v in self._bvecs:
+                v.destroy()
+            self._hksp = self._bvecs = None
         if self._direct is not None:
             self._direct.destroy()
             self._direct = None
@@ -588,33 +605,44 @@ class _ApplyPC:
         self.solver.solve(x, y)
 
 
-class _LowRankOperator:
-    """A PETSc python Mat: y = H x = K x + G D G^T x (operator mode of LowRankSolver; G, D = diag(c)
-    of the last update, G with the border's rows if the border is in K)."""
+class _Bordered:
+    """The whole system of an iterative solve as a PETSc python Mat (mult) and its preconditioner (a
+    python PC: apply); see LowRankSolver._operator_mode."""
 
     def __init__(self, solver: LowRankSolver):
         self.solver = solver
 
-    def mult(self, mat, x, y):
+    def mult(self, mat, v, y):
+        """[K x + E z + G s ; E^T x + C z + H s], s = D (G^T x + H^T z)."""
         s = self.solver
-        s.K.mult(x, y)
+        x, z = s._split(v)
+        xin, out = s._bvecs[2], s._bvecs[3]
+        xin.array_w[:] = x
+        s.K.mult(xin, out)
+        yx = out.array_r.copy()
+        yz = np.zeros(len(z))
+        w = s._dots(s.G, x[:, None])[:, 0] + s.H.T @ z if len(s.c) else np.zeros(0)
         if len(s.c):
-            y.array_w[:] += s.G @ (s.c * s._dots(s.G, x.array_r[:, None])[:, 0])
-
-
-class _WoodburyPC:
-    """A PETSc python PC: the Woodbury formula with the multigrid's action B in place of K^{-1},
-
-        P r = B r - B G S^{-1} G^T B r,   S = D^{-1} + G^T B G,
-
-    the exact inverse of B^{-1} + G D G^T: symmetric positive definite when B is (GAMG's V-cycle with
-    as many pre- as post-smoothing steps), and as good a preconditioner of H as B is of K."""
-
-    def __init__(self, solver: LowRankSolver):
-        self.solver = solver
+            w *= s.c
+            yx += s.G @ w
+        if len(z):
+            E = s.border.E
+            yx += E @ z
+            yz = s._dots(E, x[:, None])[:, 0] + s.border.C @ z + s.H @ w
+        s._join(y, yx, yz)
 
     def apply(self, pc, r, y):
+        """The bordered system's inverse with one multigrid cycle B for K^{-1} (module docstring)."""
         s = self.solver
-        s.ksp.getPC().apply(r, y)
-        if len(s.c):
-            y.array_w[:] -= s.BG @ np.linalg.solve(s.S, s._dots(s.G, y.array_r[:, None])[:, 0])
+        rx, rz = s._split(r)
+        k, m = len(s.c), len(rz)
+        y0 = s._cycle(rx)
+        if k + m == 0:
+            s._join(y, y0, rz)
+            return
+        ZB = s.ZB
+        rhs = np.concatenate([rz - (s._dots(s.border.E, y0[:, None])[:, 0] if m else 0.0),
+                              -s._dots(s.G, y0[:, None])[:, 0]])
+        zw = np.linalg.solve(s.CB, rhs)
+        z, w = zw[:m], zw[m:]
+        s._join(y, y0 - ZB[:, k:] @ z - ZB[:, :k] @ w, z)

@@ -287,16 +287,7 @@ class Model(MatrixAssembly):
         near-nullspace of K that algebraic multigrid keeps on its coarse levels."""
         X = self.V.tabulate_dof_coordinates()[: self.n_owned // self.bs]
         centre = self.comm.allreduce(X.sum(axis=0)) / max(self.comm.allreduce(len(X)), 1)
-        modes = rigid_body_modes(X - centre, self.dim, centred=True)
-        if self._hosts is not None:    # the border in K: each rigid body's motion is its q on its hosts
-            u0 = np.zeros(self.n_local)
-            for body, (host, _) in zip(self.rigid, self._hosts):
-                rows = body.dofs.ravel()
-                T = body.modes(u0).reshape(-1, body.m)
-                q = np.linalg.lstsq(T, modes[rows], rcond=None)[0]   # exact: T spans the rigid motions
-                modes[rows] = 0.0
-                modes[host] = q
-        return modes
+        return rigid_body_modes(X - centre, self.dim, centred=True)
 
     def history(self) -> list:
         """Every term's history (friction's anchors and slip states), to take a tried step back."""

@@ -39,7 +39,7 @@ from petsc4py import PETSc
 
 from ..design.spec import ATOL_RELATIVE, ENERGY_LINE_SEARCHES, LINE_SEARCHES as STRATEGIES, force_scale
 from .linesearch import WATCHDOG, LineSearch
-from .linear import KRYLOV_RTOL, LowRankSolver, choose_linear, default_petsc_options, forcing  # noqa: F401 (re-exported)
+from .linear import ETA_MAX, KRYLOV_RTOL, LowRankSolver, choose_linear, default_petsc_options, forcing  # noqa: F401 (re-exported)
 
 log = logging.getLogger("skelfem")
 
@@ -126,7 +126,7 @@ class NewtonSolver(LineSearch):
         self.etol = 1e-15             # Newton decrement -grad Pi . p relative to |Pi| that ends the solve
         self._decrement_converged = False
         self.linear = choose_linear(spec.linear, model)
-        model.embed_border = True      # serial: the rigid border goes into K (MPI: outside it)
+        model.embed_border = self.linear == "direct"    # iterative: the rigid border stays outside K
         self.A = model.create_matrix()
         modes = model.rigid_body_modes() if self.linear == "iterative" else None
         self.lin = LowRankSolver(self.A, model.comm, petsc_options, prefix + "k_", modes)
@@ -151,8 +151,12 @@ class NewtonSolver(LineSearch):
         """Assemble K at x and factorise it with the rank-one parts (what every Newton solve uses)."""
         self.model.jacobian(x, self.A)
         self.lin.update(self.model.low_rank(), self.model.border)
-        if self.lin.kind == "iterative":          # an inexact Newton step (the forcing term)
-            self.lin.rtol = forcing(self._history, self.lin.rtol)
+        if self.lin.kind == "iterative":          # an inexact Newton step (the forcing term) ...
+            eta = forcing(self._history, self.lin.rtol)
+            if self._history and self._history[-1] > 0:   # ... no tighter than the residual test needs
+                target = max(self.atol, self.rtol * self._f0, self._loose * self._round_f0)
+                eta = max(eta, min(ETA_MAX, 0.5 * target / self._history[-1]))
+            self.lin.rtol = eta
 
     def _create_snes(self, prefix: str) -> PETSc.SNES:
         snes = PETSc.SNES().create(self.model.comm)
