@@ -192,7 +192,7 @@ class LowRankSolver:
     """Solves (K + G D G^T) x = b with one factorisation of the sparse K per update."""
 
     def __init__(self, K: PETSc.Mat, comm, options: dict | None = None, prefix: str = "skelfem_k_",
-                 modes: np.ndarray | None = None):
+                 modes: np.ndarray | None = None, deflation=None):
         """modes: the near-nullspace of K (owned rows, one mode per column) for an iterative solve
         (``[solver] linear = "iterative"``); None: a direct factorisation."""
         self.K, self.comm = K, comm
@@ -225,6 +225,9 @@ class LowRankSolver:
         self._bvecs = None              # ... (rhs, solution) of that size, and two n-vectors
         self.ZB = np.zeros((0, 0))      # ... B [G | E], B one multigrid cycle (an approximate K^{-1})
         self.CB = np.zeros((0, 0))      # ... the small system's matrix made from ZB
+        self.deflation = deflation      # iterative: () -> W, modes the multigrid cycle is balanced against
+        self.W = None                   # ... at the last update
+        self.KW, self.WKW = None, None  # ... K W and W^T K W at the last update
 
     def _make_ksp(self, prefix: str, options: dict) -> PETSc.KSP:
         ksp = PETSc.KSP().create(self.comm)
@@ -311,6 +314,14 @@ class LowRankSolver:
             pc.setPythonContext(ctx)
             big = PETSc.Vec().createMPI((n + mine, N + m), comm=self.comm)
             self._bvecs = (big, big.duplicate(), self.K.createVecLeft(), self.K.createVecRight())
+        if self.deflation is not None:
+            self.W = self.deflation()
+            n_global = self.K.getSize()[0]
+            Wm = PETSc.Mat().createDense([(n, n_global), (None, self.W.shape[1])], array=self.W.copy(),
+                                         comm=self.comm)
+            self.KW = self.K.matMult(Wm).getDenseArray().copy()
+            Wm.destroy()
+            self.WKW = np.linalg.inv(self._dots(self.W, self.KW))
         E = self.border.E if m else np.zeros((n, 0))
         cols = np.column_stack([self.G, E])
         ZB = np.empty_like(cols)
@@ -324,8 +335,13 @@ class LowRankSolver:
         rin, out = self._bvecs[2], self._bvecs[3]
         rows = None if self.border is None else self.border.rows
         rin.array_w[:] = r if rows is None else r * ~rows
+        if self.W is not None:          # balanced: y = Q r + (I - Q K) B (I - K Q) r, Q = W (W^T K W)^-1 W^T
+            a = self.WKW @ self._dots(self.W, rin.array_r[:, None])[:, 0]
+            rin.array_w[:] -= self.KW @ a
         self.ksp.getPC().apply(rin, out)
         y = out.array_r.copy()
+        if self.W is not None:
+            y += self.W @ (a - self.WKW @ self._dots(self.KW, y[:, None])[:, 0])
         if rows is not None:
             y[rows] = r[rows]
         return y

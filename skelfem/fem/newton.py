@@ -39,7 +39,7 @@ from petsc4py import PETSc
 
 from ..design.spec import ATOL_RELATIVE, ENERGY_LINE_SEARCHES, LINE_SEARCHES as STRATEGIES, force_scale
 from .linesearch import WATCHDOG, LineSearch
-from .linear import ETA_MAX, KRYLOV_RTOL, LowRankSolver, choose_linear, default_petsc_options, forcing  # noqa: F401 (re-exported)
+from .linear import ETA_MAX, stiff_elastic_bones, KRYLOV_RTOL, LowRankSolver, choose_linear, default_petsc_options, forcing  # noqa: F401 (re-exported)
 
 log = logging.getLogger("skelfem")
 
@@ -129,7 +129,9 @@ class NewtonSolver(LineSearch):
         model.embed_border = self.linear == "direct"    # iterative: the rigid border stays outside K
         self.A = model.create_matrix()
         modes = model.rigid_body_modes() if self.linear == "iterative" else None
-        self.lin = LowRankSolver(self.A, model.comm, petsc_options, prefix + "k_", modes)
+        stiff = stiff_elastic_bones(model.design) if self.linear == "iterative" else []
+        W = (lambda: model.stiff_bone_modes(stiff)) if stiff else None
+        self.lin = LowRankSolver(self.A, model.comm, petsc_options, prefix + "k_", modes, W)
         self.b = model.u.vector.duplicate()
         self.x = model.u.vector.copy()      # SNES iterate; model.u is scratch for evaluations
         self._history: list[float] = []
