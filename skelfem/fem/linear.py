@@ -69,6 +69,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 from petsc4py import PETSc
 
 
@@ -316,12 +317,8 @@ class LowRankSolver:
             self._bvecs = (big, big.duplicate(), self.K.createVecLeft(), self.K.createVecRight())
         if self.deflation is not None:
             self.W = self.deflation()
-            n_global = self.K.getSize()[0]
-            Wm = PETSc.Mat().createDense([(n, n_global), (None, self.W.shape[1])], array=self.W.copy(),
-                                         comm=self.comm)
-            self.KW = self.K.matMult(Wm).getDenseArray().copy()
-            Wm.destroy()
-            self.WKW = np.linalg.inv(self._dots(self.W, self.KW))
+            self.KW = self._sparse_product(self.W)
+            self.WKW = np.linalg.inv(self._sparse_dots(self.W, self.KW))
         E = self.border.E if m else np.zeros((n, 0))
         cols = np.column_stack([self.G, E])
         ZB = np.empty_like(cols)
@@ -336,12 +333,12 @@ class LowRankSolver:
         rows = None if self.border is None else self.border.rows
         rin.array_w[:] = r if rows is None else r * ~rows
         if self.W is not None:          # balanced: y = Q r + (I - Q K) B (I - K Q) r, Q = W (W^T K W)^-1 W^T
-            a = self.WKW @ self._dots(self.W, rin.array_r[:, None])[:, 0]
+            a = self.WKW @ self._sparse_dots(self.W, rin.array_r[:, None])[:, 0]
             rin.array_w[:] -= self.KW @ a
         self.ksp.getPC().apply(rin, out)
         y = out.array_r.copy()
         if self.W is not None:
-            y += self.W @ (a - self.WKW @ self._dots(self.KW, y[:, None])[:, 0])
+            y += self.W @ (a - self.WKW @ self._sparse_dots(self.KW, y[:, None])[:, 0])
         if rows is not None:
             y[rows] = r[rows]
         return y
@@ -450,6 +447,26 @@ class LowRankSolver:
         self._factorised().getPC().getFactorMatrix().matSolve(B, X)
         self.solves += 1
         return X.getDenseArray().copy()
+
+    def _sparse_product(self, W: sp.csr_matrix) -> sp.csr_matrix:
+        """K W for a sparse W (owned rows), one column at a time: sparse again (the rows W touches and
+        their neighbours), so that no dense n x p block is ever held."""
+        x, y = self.K.createVecRight(), self.K.createVecLeft()
+        cols = []
+        W = W.tocsc()
+        for j in range(W.shape[1]):
+            x.array_w[:] = W[:, j].toarray()[:, 0]
+            self.K.mult(x, y)
+            cols.append(sp.csc_matrix(y.array_r[:, None]))
+        x.destroy()
+        y.destroy()
+        return sp.hstack(cols).tocsr()
+
+    def _sparse_dots(self, A, B) -> np.ndarray:
+        """A^T B summed over ranks, A sparse, B sparse or dense: a dense array."""
+        out = A.T @ B
+        out = out.toarray() if hasattr(out, "toarray") else np.asarray(out)
+        return out if self.comm.size == 1 else self.comm.allreduce(out)
 
     def _dots(self, A: np.ndarray, B: np.ndarray) -> np.ndarray:
         """A^T B summed over ranks."""

@@ -30,6 +30,7 @@ place or are built anew, and the Newton matrix is kept while its pattern holds.
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 import ufl
 from dolfinx import cpp as _cpp
 from dolfinx import fem
@@ -290,8 +291,8 @@ class Model(MatrixAssembly):
         centre = self.comm.allreduce(X.sum(axis=0)) / max(self.comm.allreduce(len(X)), 1)
         return rigid_body_modes(X - centre, self.dim, centred=True)
 
-    def stiff_bone_modes(self, names) -> np.ndarray | None:
-        """(owned DOF rows, 3 or 6 per bone) each named elastic bone's rigid motions on its own nodes
+    def stiff_bone_modes(self, names) -> sp.csr_matrix | None:
+        """(owned DOF rows, 3 or 6 per bone), sparse: each named elastic bone's rigid motions on its own nodes
         (zero elsewhere; about the bone's centroid, where its nodes are now): the slow modes of a soft body holding much
         stiffer bones, which the multigrid cycle is balanced against (LowRankSolver). None: no names."""
         from dolfinx import fem as dfem
@@ -301,19 +302,19 @@ class Model(MatrixAssembly):
         tm, V = self.tm, self.V
         X = V.tabulate_dof_coordinates()[: self.n_owned // self.bs, : self.dim] \
             + self.u.x.array[: self.n_owned].reshape(-1, self.bs)[:, : self.dim]   # where the nodes are now
-        cols = []
-        for name in names:
+        blocks = []
+        for j, name in enumerate(names):
             cells = tm.cell_tags.find(tm.tags[bone_tag_name(name)])
             nodes = dfem.locate_dofs_topological(V, self.dim, cells)
             nodes = nodes[nodes < self.n_owned // self.bs]
             count = self.comm.allreduce(len(nodes))
             centre = self.comm.allreduce(X[nodes].sum(axis=0)) / max(count, 1)
             local = rigid_body_modes(X[nodes] - centre, self.dim, centred=True)
-            block = np.zeros((self.n_owned, local.shape[1]))
             rows = (nodes[:, None] * self.bs + np.arange(self.bs)).ravel()
-            block[rows] = local
-            cols.append(block)
-        return np.hstack(cols)
+            k = local.shape[1]
+            blocks.append(sp.coo_matrix((local.ravel(), (np.repeat(rows, k), np.tile(np.arange(k), len(rows))
+                                                         + j * k)), shape=(self.n_owned, len(names) * k)))
+        return sp.csr_matrix(sum(blocks[1:], blocks[0]))
 
     def history(self) -> list:
         """Every term's history (friction's anchors and slip states), to take a tried step back."""

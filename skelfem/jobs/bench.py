@@ -284,6 +284,7 @@ def newton_order(model, solver, scales=(0.03, 0.01, 0.003, 0.001)) -> dict:
     stiffer than the silicone, C in the state norm is so large that the
     asymptotic range of |x - u*| lies near round-off.)
     """
+    from ..fem.linear import KRYLOV_RTOL
     u_star = model.u.vector.copy()
     x, r, p = u_star.duplicate(), u_star.duplicate(), u_star.duplicate()
     r0, r1 = [], []
@@ -295,6 +296,7 @@ def newton_order(model, solver, scales=(0.03, 0.01, 0.003, 0.001)) -> dict:
             model.residual(x, r)
             r0.append(float(r.norm()))
             solver.jacobian(x)
+            solver.lin.rtol = KRYLOV_RTOL           # iterative: an exact step, not an inexact Newton one
             solver.lin.solve(r, p)
             x.axpy(-1.0, p)
             model.residual(x, r)
@@ -377,6 +379,8 @@ def measure(model, solver, steps: int, repeats: int, options: dict) -> dict:
         "ratio_per_repeat": paired,
         "breakdown": breakdown,
         "residual_history": [list(map(float, h)) for h in report.residual_history],
+        "linear_solver": solver.linear,
+        "krylov_per_newton": [int(k) for step in report.linear_iterations for k in step],
         "state_errors": errors[-4:],
         "newton_matrix": timer.result(),
         **fe_timer.result(),
@@ -423,9 +427,19 @@ def bench_size(path, size: float, degree: int | None = None, overrides=(), repea
     row["convergence_orders"] = convergence_orders(row["state_errors"], noise=1e-14 * model.size)
     if row["converged"]:
         row["newton_order"] = newton_order(model, solver)
+    its = row["krylov_per_newton"]
+    row["krylov_mean"] = sum(its) / len(its) if its else None
+    row["peak_kb_per_dof"] = _peak_kb(model.comm) / row["dofs"]
     row = _reduce(model.comm, row)
     session.close()
     return row
+
+
+def _peak_kb(comm) -> float:
+    """The peak resident memory of this process so far (KB), summed over the ranks: what the sizes
+    measured up to now needed at most (each row's own when the sizes go from coarse to fine, as by default)."""
+    import resource
+    return float(comm.allreduce(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss))
 
 
 def _reduce(comm, row: dict) -> dict:
@@ -478,7 +492,8 @@ COLUMNS = (("h", "size", "{:g}"), ("DOFs", "dofs", "{:d}"), ("assembly ms", "ass
            ("refact+solve ms", "refactorization_time", "ms"), ("iteration ms", "iteration_time_median", "ms"),
            ("mean it ms", "iteration_time_mean", "ms"), ("its/solve", "newton_iterations", "{:d}"),
            ("ratio", "ratio", "{:.2f}"), ("K A+F+S ms", None, "newton"), ("nnz FE", "nnz", "{:d}"),
-           ("nnz K", None, "nnz_k"))
+           ("nnz K", None, "nnz_k"), ("Krylov/it", "krylov_mean", "krylov"),
+           ("peak KB/DOF", "peak_kb_per_dof", "{:.2f}"))
 
 
 def _cell(row, key, fmt) -> str:
@@ -489,6 +504,8 @@ def _cell(row, key, fmt) -> str:
         return f"{1e3 * k['assembly_time']:.1f}+{1e3 * k['refactorization_time']:.1f}"
     if fmt == "nnz_k":
         return f"{row['newton_matrix']['nnz']:d}"
+    if fmt == "krylov":
+        return "-" if row[key] is None else f"{row[key]:.1f}"
     return fmt.format(row[key])
 
 

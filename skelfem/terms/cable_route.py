@@ -32,6 +32,17 @@ def _mesh_facets(mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return facets
 
 
+FACET_CACHE_BYTES = 64 * 2**20   # a mesh keeps its facets' corners (for the next edit's cables) up to this size
+
+
+def release_facets(mesh) -> None:
+    """Forget the facet corners via_points cached on a big mesh (5M facets of a 3D mesh hold 0.6 GB:
+    more than the Newton matrix); a small mesh keeps them for the next edit."""
+    facets = getattr(mesh, "_skelfem_facets", None)
+    if facets is not None and sum(a.nbytes for a in facets) > FACET_CACHE_BYTES:
+        del mesh._skelfem_facets
+
+
 def _facet_vertices(mesh) -> np.ndarray:
     tdim = mesh.topology.dim
     mesh.topology.create_connectivity(tdim - 1, 0)

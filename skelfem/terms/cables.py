@@ -43,7 +43,7 @@ from ..mesh.points import DofGather, locate_cells
 from .base import Context, Term
 from .cable_route import (MAX_PER_RADIUS, PER_RADIUS, PIECES, anchor_samples, anchor_weights,  # noqa: F401
                           anchored_interpolation, anchors, default_anchor_radius, differences,
-                          lattice_density, via_points)
+                          lattice_density, release_facets, via_points)
 
 TENSION_FLOOR = 1e-14    # tensions below this times k L0 (a strain of 1e-14) are zero
 ANDERSON_DEPTH = 5     # (F, G(F)) pairs the friction limits' fixed point mixes
@@ -544,4 +544,6 @@ def via_coefficients(ctx: Context, cable: Cable, by_material: dict) -> np.ndarra
     return np.maximum(mu_seg[:-1], mu_seg[1:])
 
 def build(ctx: Context) -> list[Term]:
-    return [CableTerm(ctx, spec) for spec in ctx.design.cables]
+    terms = [CableTerm(ctx, spec) for spec in ctx.design.cables]
+    release_facets(ctx.mesh)
+    return terms

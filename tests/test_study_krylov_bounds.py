@@ -1,0 +1,30 @@
+"""studies/krylov_bounds.py on coarse meshes: every case converges without falling back, the sweeps'
+ratios are their largest mean over their smallest, and a homogeneous body needs fewer Krylov
+iterations than one holding bones 1e4 times stiffer."""
+import json
+
+import pytest
+from _studies import load_study
+
+pytestmark = pytest.mark.slow
+
+
+def test_krylov_bounds_tiny(tmp_path):
+    study = load_study("krylov_bounds")
+    data = study.main(["--sizes", "9", "7", "--contrast-size", "12", "--contrasts", "1", "10000",
+                       "--nus", "0.3", "--out", str(tmp_path / "out"), "--figures", str(tmp_path / "fig")])
+    s = data["sweeps"]
+    assert [len(s[k]) for k in ("refinement", "refinement_rigid", "contrast", "nu")] == [2, 2, 3, 1]
+    for rows in s.values():
+        for r in rows:
+            assert r["status"] == "converged" and r["fallbacks"] == 0, r
+            assert len(r["krylov_per_newton"]) >= r["newton_iterations"] > 0
+            assert r["krylov_mean"] == pytest.approx(sum(r["krylov_per_newton"]) / len(r["krylov_per_newton"]))
+    assert s["refinement"][0]["dofs"] < s["refinement"][1]["dofs"]
+    means = [r["krylov_mean"] for r in s["refinement"]]
+    assert data["ratios"]["refinement"] == pytest.approx(max(means) / min(means))
+    homogeneous, stiff = s["contrast"][0], s["contrast"][1]
+    assert (homogeneous["contrast"], stiff["contrast"]) == (1, 10000)
+    assert homogeneous["krylov_mean"] < stiff["krylov_mean"]
+    assert json.loads((tmp_path / "out" / "krylov_bounds.json").read_text())["sweeps"]["nu"][0]["nu"] == 0.3
+    assert (tmp_path / "fig" / "krylov_bounds.png").stat().st_size > 10_000
