@@ -15,7 +15,7 @@ from petsc4py import PETSc
 from skelfem import Session
 from skelfem.analysis.sensitivity import Linearization
 from skelfem.design import DesignError, load_design
-from skelfem.fem.linear import choose_linear, iterative_petsc_options, near_nullspace, rigid_body_modes
+from skelfem.fem.multigrid import choose_linear, iterative_petsc_options, near_nullspace, rigid_body_modes
 from skelfem.fem.newton import NewtonSolver
 
 RIGID = ["bones.proximal.rigid=true", "bones.middle.rigid=true", "bones.distal.rigid=true"]
@@ -163,12 +163,32 @@ def test_auto_is_direct_in_2d_for_small_3d_designs_and_with_stiff_elastic_bones(
 
         def __init__(self, dim, n, design=rigid):
             self.dim, self.n_owned, self.design = dim, n, design
-    assert choose_linear("auto", Fake(2, 10_000_000)) == "direct"
+    assert choose_linear("auto", Fake(2, 10_000_000, load_design("geometry/finger.toml"))) == "direct"
     assert choose_linear("auto", Fake(3, 50_000)) == "direct"
     assert choose_linear("auto", Fake(3, 2_000_000)) == "iterative"
     assert choose_linear("auto", Fake(3, 2_000_000, elastic)) == "direct"     # PLA 3e4 x the silicone
     assert choose_linear("direct", Fake(3, 2_000_000)) == "direct"
     assert choose_linear("iterative", Fake(2, 100)) == "iterative"
+
+
+def test_the_size_limit_follows_the_planned_solvers_memory_model(monkeypatch):
+    """On 24 GB: about a million DOFs with MUMPS (n^(4/3)), several million with multigrid (n); a
+    design refused with one solver's limit names it; 2D keeps its fixed limit."""
+    from skelfem.design import resources
+    monkeypatch.setattr(resources, "physical_memory", lambda: 24e9)
+    rigid = load_design("geometry/finger3d.toml", RIGID)
+    elastic = load_design("geometry/finger3d.toml")
+    direct, kind = resources.limit(elastic, 2e6)
+    assert kind == "direct" and 0.8e6 < direct < 1.3e6
+    assert resources.peak_bytes(direct, "direct", 1) == pytest.approx(0.8 * 24e9)
+    iterative, kind = resources.limit(rigid, 2e6)
+    assert kind == "iterative" and iterative > 5 * direct
+    assert resources.peak_bytes(iterative, "iterative", 1) == pytest.approx(0.8 * 24e9)
+    assert resources.limit(load_design("geometry/finger.toml"), 1e9) == (resources.MAX_DOFS[2], "direct")
+    big = load_design("geometry/finger3d.toml", ["mesh.size=0.3"])          # ~3M DOFs, stiff PLA bones
+    with pytest.raises(DesignError, match="with the direct solver"):
+        resources.check(big)
+    assert resources.check(load_design("geometry/finger3d.toml", ["mesh.size=0.3"] + RIGID))["dofs"] > 1.5e6
 
 
 @pytest.mark.parametrize("value", ["cg", "", "DIRECT"])

@@ -421,7 +421,7 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
             floor = max(1e-3 * h_design, anchor_spacing(model) or 0.0)
             new = equidistribute(h_cells, eta, target, level.rate, dim, cap, np.minimum(floor, cap))
             dofs = predicted_dofs(model, new)
-            if dofs * 1.05 > resources.MAX_DOFS[dim] and not resources.FORCED:
+            if dofs * 1.05 > resources.limit(base, dofs * 1.05)[0] and not resources.FORCED:
                 stop = f"the next round's finest mesh (about {dofs:.3g} DOFs) would pass the DOF limit"
                 break
             field = size_field(model.mesh, new)

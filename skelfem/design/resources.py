@@ -6,12 +6,19 @@ and 6 V / h^3 tetrahedra in 3D, plus a few cells per outline vertex. The
 number of unknowns per cell is about 1 (2D P1), 4 (2D P2), 0.65 (3D P1) and
 4.3 (3D P2).
 
-The limits are in unknowns (DOFs), what memory and time scale with: MUMPS's
-factors grow like n log n in 2D but like n^(4/3) in 3D. On the machines this
-project runs on (2 cores, 24 GB) we allow 4 million DOFs in 2D (about 4
-million P1 triangles, 1 million P2) and 1 million in 3D (about 1.5 million
-P1 tetrahedra, 230 thousand P2). A design over the limit is refused with
-the estimate in the message; ``--force`` goes ahead anyway.
+The limits are in unknowns (DOFs), what memory and time scale with. In 2D
+the direct solver (MUMPS, factors growing like n log n) is the one used and
+we allow 4 million DOFs (about 4 million P1 triangles, 1 million P2) on the
+machines this project runs on (2 cores, 24 GB). In 3D the limit follows the
+memory model of the linear solver the design will use (``planned_linear``:
+[solver] linear, "auto" as skelfem.fem.multigrid.choose_linear picks it):
+MUMPS's peak grows like n^(4/3) (``DIRECT_BYTES`` n^(4/3), measured 11.3 GB
+at 682k P2 DOFs), multigrid's like n (``ITERATIVE_BYTES`` per DOF at P1 and
+P2, measured up to 1.4M DOFs), each plus ``BASE_BYTES``; the limit is the
+size whose peak fills ``MEMORY_SHARE`` of the machine's physical memory
+(1 million DOFs direct, several million iterative on 24 GB). A design over
+the limit is refused with the estimate in the message; ``--force`` goes
+ahead anyway.
 """
 from __future__ import annotations
 
@@ -20,7 +27,11 @@ import math
 CELLS_PER_H = {2: 2.4, 3: 6.0}                    # cells per h^2 of area / h^3 of volume
 CELLS_PER_VERTEX = {2: 2.0, 3: 4.0}               # outline vertices / primitive corners force cells too
 DOFS_PER_CELL = {(2, 1): 1.0, (2, 2): 4.0, (3, 1): 0.65, (3, 2): 4.3}
-MAX_DOFS = {2: 4_000_000, 3: 1_000_000}
+MAX_DOFS = {2: 4_000_000}               # 2D: the direct solver's limit (3D: memory_limit)
+BASE_BYTES = 0.5e9                        # the interpreter, DOLFINx, PETSc and Gmsh themselves
+DIRECT_BYTES = 188.0                      # 3D MUMPS: peak bytes per DOF^(4/3) (11.3 GB at 682k P2 DOFs)
+ITERATIVE_BYTES = {1: 3.0e3, 2: 4.5e3}   # 3D multigrid: peak bytes per DOF at P1, P2
+MEMORY_SHARE = 0.8                        # of the machine's physical memory, the most one solve may use
 
 FORCED = False          # set by the command line's --force for the whole process
 
@@ -41,6 +52,40 @@ def estimate(design) -> dict:
     return {"cells": cells, "dofs": cells * DOFS_PER_CELL[(dim, design.mesh.degree)]}
 
 
+def physical_memory() -> float:
+    """This machine's physical memory in bytes (24 GB where it cannot be read)."""
+    import os
+    try:
+        return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return 24e9
+
+
+def peak_bytes(dofs: float, linear: str, degree: int) -> float:
+    """The memory model: a 3D solve's peak memory (bytes) with the direct or iterative solver."""
+    if linear == "direct":
+        return BASE_BYTES + DIRECT_BYTES * dofs ** (4.0 / 3.0)
+    return BASE_BYTES + ITERATIVE_BYTES[degree] * dofs
+
+
+def planned_linear(design, dofs: float) -> str:
+    """The linear solver a 3D design of about `dofs` unknowns will use (skelfem.fem.multigrid.choose_linear
+    on the estimate)."""
+    kind = design.solver.linear
+    return auto_linear(design, dofs) if kind == "auto" else kind
+
+
+def limit(design, dofs: float) -> tuple[float, str]:
+    """(the most unknowns this machine solves for the design, the linear solver that limit is for)."""
+    if design.dim == 2:
+        return float(MAX_DOFS[2]), "direct"
+    linear = planned_linear(design, dofs)
+    budget = MEMORY_SHARE * physical_memory() - BASE_BYTES
+    if linear == "direct":
+        return max(budget, 0.0) ** 0.75 / DIRECT_BYTES ** 0.75, linear
+    return max(budget, 0.0) / ITERATIVE_BYTES[design.mesh.degree], linear
+
+
 def _fmt(x: float) -> str:
     if not math.isfinite(x):
         return "more than 1e300"
@@ -58,10 +103,34 @@ def check(design, force: bool | None = None) -> dict:
     est = estimate(design)
     if force is None:
         force = FORCED
-    limit = MAX_DOFS[design.dim]
-    if est["dofs"] > limit and not force:
+    most, linear = limit(design, est["dofs"])
+    if est["dofs"] > most and not force:
+        how = "" if design.dim == 2 else (f" with the {linear} solver, {peak_bytes(most, linear, design.mesh.degree) / 1e9:.0f} GB "
+                                           f"of {physical_memory() / 1e9:.0f}")
         raise DesignError(
             f"{design.source}: mesh.size: {design.mesh.size:g} mm gives about {_fmt(est['cells'])} cells and "
             f"{_fmt(est['dofs'])} unknowns at P{design.mesh.degree}, more than this machine solves "
-            f"({_fmt(limit)} in {design.dim}D); use a larger mesh.size, or --force to try anyway")
+            f"({_fmt(most)} in {design.dim}D{how}); use a larger mesh.size, or --force to try anyway")
     return est
+
+
+AUTO_ITERATIVE_DOFS = 150_000   # "auto": 3D designs with more unknowns than this may solve iteratively ...
+AUTO_MAX_CONTRAST = 100.0       # ... unless an elastic bone is this many times stiffer than its body
+
+
+def stiff_elastic_bones(design) -> list[str]:
+    """The elastic bones more than AUTO_MAX_CONTRAST times stiffer than the stiffest body: "auto" keeps
+    the direct solver for them, and an iterative solve balances its multigrid against their rigid
+    motions (skelfem.fem.linear)."""
+    body = max(float(design.materials[b.material].E) for b in design.bodies)
+    return [b.name for b in design.bones
+            if not b.rigid and float(design.materials[b.material].E) > AUTO_MAX_CONTRAST * body]
+
+
+def auto_linear(design, dofs: float) -> str:
+    """What [solver] linear = "auto" picks for a design of `dofs` unknowns: direct in 2D, for 3D designs
+    up to AUTO_ITERATIVE_DOFS (MUMPS is faster there) and for those with stiff elastic bones;
+    iterative otherwise (skelfem.fem.multigrid.choose_linear on the model, the size limit on the
+    estimate before meshing)."""
+    big = design.dim == 3 and dofs > AUTO_ITERATIVE_DOFS
+    return "iterative" if big and not stiff_elastic_bones(design) else "direct"

@@ -44,7 +44,7 @@ from ..terms import BUILDERS, Context
 from ..terms.elasticity import cell_values_min, min_jacobian_expression
 from .assembly import MatrixAssembly, block_keys
 from .follow import MODEL_KEYS, CannotFollow, PackedCoefficients, raw_value
-from .linear import rigid_body_modes
+from .multigrid import rigid_body_modes
 
 
 

@@ -39,7 +39,9 @@ from petsc4py import PETSc
 
 from ..design.spec import ATOL_RELATIVE, ENERGY_LINE_SEARCHES, LINE_SEARCHES as STRATEGIES, force_scale
 from .linesearch import WATCHDOG, LineSearch
-from .linear import ETA_MAX, stiff_elastic_bones, KRYLOV_RTOL, LowRankSolver, choose_linear, default_petsc_options, forcing  # noqa: F401 (re-exported)
+from ..design.resources import stiff_elastic_bones
+from .linear import LowRankSolver, default_petsc_options  # noqa: F401 (re-exported)
+from .multigrid import ETA_MAX, KRYLOV_RTOL, choose_linear, forcing
 
 log = logging.getLogger("skelfem")
 

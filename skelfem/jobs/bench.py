@@ -284,7 +284,7 @@ def newton_order(model, solver, scales=(0.03, 0.01, 0.003, 0.001)) -> dict:
     stiffer than the silicone, C in the state norm is so large that the
     asymptotic range of |x - u*| lies near round-off.)
     """
-    from ..fem.linear import KRYLOV_RTOL
+    from ..fem.multigrid import KRYLOV_RTOL
     u_star = model.u.vector.copy()
     x, r, p = u_star.duplicate(), u_star.duplicate(), u_star.duplicate()
     r0, r1 = [], []
