@@ -28,6 +28,7 @@ import numpy as np
 from .design.spec import Design, DesignError
 from .result import Result, plain as _plain, result_dict  # noqa: F401 (Result re-exported)
 from .design.parse import changed_keys, flatten, load_design, parse_design
+from .runtime import memory
 
 log = logging.getLogger("skelfem")
 
@@ -118,6 +119,7 @@ class Session:
             tm = mesh_design(self.design, self.comm, size=self.size)
         t1 = time.perf_counter()
         model = Model(self.design, tm)
+        memory.release()            # the build's scratch (facets, patterns) back to the system
         solver = NewtonSolver(model, self.design.solver)
         if destroy_old and self.solver is not None:
             self.solver.destroy()

@@ -622,8 +622,10 @@ def hand_grasp(_: dict) -> Table:
                   "first lost: W (margin three / pads)", "held object moved"], rows, caption, [path])
 
 
-def linear_scaling(_: dict) -> Table:
-    d, path = load_json("linear_scaling/linear_scaling.json", "python studies/linear_scaling.py")
+def linear_scaling(opts: dict) -> Table:
+    folder = opts.get("folder", "linear_scaling")
+    d, path = load_json(f"{folder}/linear_scaling.json", "python studies/linear_scaling.py"
+                        + ("" if folder == "linear_scaling" else f" --out studies/output/{folder} ..."))
     rows = []
     for r in d["rows"]:
         its = r["krylov_per_newton"]
@@ -639,7 +641,26 @@ def linear_scaling(_: dict) -> Table:
                  "and DOLFINx included.", [path])
 
 
-TABLES = {f.__name__: f for f in (linear_scaling, bench, in_hand_roll, slice_check, slice_check_3mf, mpi_speed, editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
+def krylov_bounds(_: dict) -> Table:
+    d, path = load_json("krylov_bounds/krylov_bounds.json", "python studies/krylov_bounds.py")
+    what = {"refinement": "refinement, elastic bones", "refinement_rigid": "refinement, rigid bones",
+            "contrast": "E_bone / E_body", "nu": "nu of the body"}
+    rows = []
+    for sweep, rs in d["sweeps"].items():
+        for r in rs:
+            value = r.get("size", r.get("contrast", r.get("nu")))
+            rows.append([what[sweep], f"h = {r['size']:g}" if "size" in r else str(value),
+                         thousands(r["dofs"]), str(r["newton_iterations"]), num(r["krylov_mean"]),
+                         str(r["krylov_max"]), str(r["fallbacks"]), secs(r["solve_s"]), r["status"]])
+        rows.append([f"**{what[sweep]}**", "largest / smallest mean", "", "", f"**{num(d['ratios'][sweep])}**",
+                     "", "", "", ""])
+    return Table(["sweep", "case", "DOFs", "Newton its", "Krylov its per Newton step (mean)", "max",
+                  "fallbacks", "solve", "status"], rows,
+                 f"{d['design']}: one solve from rest per row, [solver] linear = \"iterative\"; refinement at "
+                 "P1, contrast and Poisson's ratio at P2.", [path])
+
+
+TABLES = {f.__name__: f for f in (linear_scaling, krylov_bounds, bench, in_hand_roll, slice_check, slice_check_3mf, mpi_speed, editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
                                   tol_check, tol_check_adaptive, scatter, adaptive_reach, adaptive_tol_runs,
                                   stability, stability_slender, friction_stability, peer, pull_test, dynamics_checks, grasp, grasp3d, hand_grasp, grasp_bench,
                                   cable_friction, capstan, cable_friction_cost)}
@@ -701,7 +722,7 @@ class StudyTable(SphinxDirective):
     """```{study-table} NAME``` with options given as ``:problem: strip``."""
 
     required_arguments = 1
-    option_spec = {"problem": directives.unchanged}
+    option_spec = {"problem": directives.unchanged, "folder": directives.unchanged}
 
     def run(self):
         name = self.arguments[0]

@@ -264,7 +264,7 @@ class LowRankSolver:
         """(x, z) of a bordered vector, z on every rank."""
         n, a = self.K.getLocalSize()[0], v.array_r
         z = a[n:].copy()
-        if self.comm.size > 1:
+        if self.comm.size > 1 and self.border is not None:
             z = self.comm.bcast(z, root=0)
         return a[:n], z
 

@@ -29,7 +29,7 @@ def forcing(residuals: list[float], last: float) -> float:
 def iterative_petsc_options() -> dict:
     """A fresh dict of PETSc options for CG preconditioned by GAMG (see the module docstring)."""
     return {"ksp_type": "cg", "ksp_norm_type": "unpreconditioned", "ksp_rtol": KRYLOV_RTOL,
-            "ksp_atol": 0.0, "ksp_max_it": 1000,
+            "ksp_atol": 0.0, "ksp_max_it": 500,
             "pc_type": "gamg", "pc_gamg_type": "agg", "pc_gamg_agg_nsmooths": 1,
             "pc_gamg_reuse_interpolation": True, "pc_gamg_threshold": 0.01,
             "mg_levels_ksp_type": "chebyshev", "mg_levels_pc_type": "jacobi",

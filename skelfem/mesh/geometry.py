@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from mpi4py import MPI
 
-from ..runtime import interrupts
+from ..runtime import interrupts, memory
 from ..design.occ import MeshingError, add_polygon, add_solid, ensure_gmsh, forget_array_types, fuse, gmsh_model  # noqa: F401
 
 BODY = "body"
@@ -310,6 +310,7 @@ def _mesh_design(design, comm=MPI.COMM_WORLD, verbose: bool = False, size=None) 
     mesh, cell_tags, _ = gmshio.model_to_mesh(gmsh.model, comm, 0, gdim=dim)
     if comm.rank == 0:
         gmsh.model.remove()
+    memory.release()                # Gmsh's mesh generation: back to the system, not kept for the solve
     return TaggedMesh(mesh, cell_tags, tags)
 
 
