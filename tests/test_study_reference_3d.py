@@ -1,5 +1,5 @@
-"""studies/reference_3d.py at a coarse h (2.5 mm; at 4 mm Gmsh aborts while grading post3d): the accuracy studies' 3D reference by both linear solvers, each
-in its own process, the same tip."""
+"""studies/reference_3d.py at a coarse h (2.5 mm; at 4 mm Gmsh aborts while grading post3d): the
+accuracy studies' 3D reference by both linear solvers, each in its own process, the same tip."""
 import json
 
 import pytest
