@@ -641,6 +641,29 @@ def linear_scaling(opts: dict) -> Table:
                  "and DOLFINx included.", [path])
 
 
+def arm3d_fine(_: dict) -> Table:
+    d, path = load_json("arm3d_fine/arm3d_fine.json", "see docs/performance.md (a 36-minute run)")
+    t = d["timings"]
+    rows = [["DOFs (P1 tetrahedra)", f"{thousands(d['dofs'])} ({thousands(d['cells'])})"],
+            ["wall time (meshing, compile, solve)", f"{secs(d['wall_s'])} ({secs(t['mesh'])}, {secs(t['compile'])}, "
+                                                    f"{secs(t['solve'])})"],
+            ["Newton iterations; Krylov per step (mean)", f"{d['newton_iterations']}; {span(d['krylov_per_newton'], str)} "
+                                                          f"({num(d['krylov_mean'])})"],
+            ["fallbacks to MUMPS", str(d["linear_fallbacks"])],
+            ["peak memory", f"{num(d['peak_gb'])} GB, {num(d['kb_per_dof'])} KB per DOF"],
+            ["tendon tensions (N)", ", ".join(f"{k} {num(v)}" for k, v in d["tensions"].items())]]
+    return Table(["arm3d at h = 0.62 mm, iterative", ""], rows, d["note"] + "; `" + d["command"] + "`", [path])
+
+
+def reference_3d(_: dict) -> Table:
+    d, path = load_json("reference_3d/reference_3d.json", "python studies/reference_3d.py")
+    rows = [[r["solver"], thousands(r["dofs"]) if r["dofs"] else "–", secs(r["wall_s"]), f"{num(r['peak_gb'])} GB",
+             str(r["newton_iterations"]), str(r["fallbacks"]), r["status"]] for r in d["rows"]]
+    return Table(["solver", "DOFs (finest)", "wall time", "peak memory", "Newton its (finest)", "fallbacks", "status"],
+                 rows, f"{d['design']}'s P2 reference at h = {d['h_ref']} (three graded meshes, warm-started), "
+                       "each solver in its own process.", [path])
+
+
 def krylov_bounds(_: dict) -> Table:
     d, path = load_json("krylov_bounds/krylov_bounds.json", "python studies/krylov_bounds.py")
     what = {"refinement": "refinement, elastic bones", "refinement_rigid": "refinement, rigid bones",
@@ -660,7 +683,7 @@ def krylov_bounds(_: dict) -> Table:
                  "P1, contrast and Poisson's ratio at P2.", [path])
 
 
-TABLES = {f.__name__: f for f in (linear_scaling, krylov_bounds, bench, in_hand_roll, slice_check, slice_check_3mf, mpi_speed, editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
+TABLES = {f.__name__: f for f in (linear_scaling, krylov_bounds, arm3d_fine, reference_3d, bench, in_hand_roll, slice_check, slice_check_3mf, mpi_speed, editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
                                   tol_check, tol_check_adaptive, scatter, adaptive_reach, adaptive_tol_runs,
                                   stability, stability_slender, friction_stability, peer, pull_test, dynamics_checks, grasp, grasp3d, hand_grasp, grasp_bench,
                                   cable_friction, capstan, cable_friction_cost)}

@@ -69,9 +69,7 @@ def near_nullspace(K: PETSc.Mat, modes: np.ndarray, comm) -> PETSc.NullSpace:
 
 
 def choose_linear(kind: str, model) -> str:
-    """"direct" or "iterative" for a [solver] linear value: "auto" is direct in 2D, for 3D designs up
-    to AUTO_ITERATIVE_DOFS unknowns (MUMPS is faster there) and for those with stiff elastic bones;
-    iterative otherwise."""
+    """"direct" or "iterative" for a [solver] linear value ("auto": skelfem.design.resources.auto_linear)."""
     if kind != "auto":
         return kind
     return auto_linear(model.design, model.comm.allreduce(model.n_owned))
