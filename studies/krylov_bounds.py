@@ -96,6 +96,7 @@ def figure(data: dict, path: Path) -> None:
     for name, style, label in (("refinement", "o-", "elastic bones"), ("refinement_rigid", "s--", "rigid bones")):
         rows = s[name]
         a.semilogx([r["dofs"] for r in rows], [r["krylov_mean"] for r in rows], style, label=label)
+    a.xaxis.set_minor_formatter(plt.NullFormatter())
     a.set_xlabel("DOFs (P1)")
     a.set_title("refinement")
     a.legend()
