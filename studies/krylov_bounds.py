@@ -130,7 +130,7 @@ def main(argv=None) -> dict:
     p.add_argument("--sizes", type=float, nargs="+", default=[3.0, 2.0, 1.5])
     p.add_argument("--contrast-size", type=float, default=6.0)
     p.add_argument("--contrasts", type=float, nargs="+", default=[1, 10, 100, 1000, 10000, 30000])
-    p.add_argument("--nus", type=float, nargs="+", default=[0.3, 0.4, 0.45, 0.49])
+    p.add_argument("--nus", type=float, nargs="*", default=[0.3, 0.4, 0.45, 0.49])
     p.add_argument("--out", type=Path, default=ROOT / "studies" / "output" / "krylov_bounds")
     p.add_argument("--figures", type=Path, default=ROOT / "studies" / "figures")
     a = p.parse_args(argv)

@@ -1,6 +1,7 @@
-"""studies/krylov_bounds.py on coarse meshes: every case converges without falling back, the sweeps'
-ratios are their largest mean over their smallest, and a homogeneous body needs fewer Krylov
-iterations than one holding bones 1e4 times stiffer."""
+"""studies/krylov_bounds.py on coarse meshes (no Poisson's ratio sweep: the same code as the contrast
+one): every case converges without falling back, the sweeps' ratios are their largest mean over
+their smallest, and a homogeneous body needs fewer Krylov iterations than one holding bones 1e4 times
+stiffer."""
 import json
 
 import pytest
@@ -11,10 +12,10 @@ pytestmark = pytest.mark.slow
 
 def test_krylov_bounds_tiny(tmp_path):
     study = load_study("krylov_bounds")
-    data = study.main(["--sizes", "9", "7", "--contrast-size", "12", "--contrasts", "1", "10000",
-                       "--nus", "0.3", "--out", str(tmp_path / "out"), "--figures", str(tmp_path / "fig")])
+    data = study.main(["--sizes", "10", "8", "--contrast-size", "10", "--contrasts", "1", "10000",
+                       "--nus", "--out", str(tmp_path / "out"), "--figures", str(tmp_path / "fig")])
     s = data["sweeps"]
-    assert [len(s[k]) for k in ("refinement", "refinement_rigid", "contrast", "nu")] == [2, 2, 3, 1]
+    assert [len(s[k]) for k in ("refinement", "refinement_rigid", "contrast", "nu")] == [2, 2, 3, 0]
     for rows in s.values():
         for r in rows:
             assert r["status"] == "converged" and r["fallbacks"] == 0, r
@@ -26,5 +27,5 @@ def test_krylov_bounds_tiny(tmp_path):
     homogeneous, stiff = s["contrast"][0], s["contrast"][1]
     assert (homogeneous["contrast"], stiff["contrast"]) == (1, 10000)
     assert homogeneous["krylov_mean"] < stiff["krylov_mean"]
-    assert json.loads((tmp_path / "out" / "krylov_bounds.json").read_text())["sweeps"]["nu"][0]["nu"] == 0.3
+    assert json.loads((tmp_path / "out" / "krylov_bounds.json").read_text())["ratios"] == data["ratios"]
     assert (tmp_path / "fig" / "krylov_bounds.png").stat().st_size > 10_000
