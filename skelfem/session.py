@@ -119,7 +119,7 @@ class Session:
             tm = mesh_design(self.design, self.comm, size=self.size)
         t1 = time.perf_counter()
         model = Model(self.design, tm)
-        memory.release()            # the build's scratch (facets, patterns) back to the system
+        memory.release(model.num_cells)   # the build's scratch (facets, patterns) back to the system
         solver = NewtonSolver(model, self.design.solver)
         if destroy_old and self.solver is not None:
             self.solver.destroy()

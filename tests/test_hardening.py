@@ -202,7 +202,7 @@ BAD_FILES = [
                                                                                         [0, 10]], "z": [0, 40]}}])),
      "not simple"),
     ("3D mesh.size 1e-3", changed(S3, (("mesh", "size"), 1e-3)), "unknowns at P1, more than this machine solves"),
-    ("3D P2 at 0.3 mm", changed(S3, (("mesh", "size"), 0.3), (("mesh", "degree"), 2)), "mesh.size"),
+    ("3D P2 at 0.1 mm", changed(S3, (("mesh", "size"), 0.1), (("mesh", "degree"), 2)), "mesh.size"),
     ("3D outline in 2D", changed(S3, (("dim",), 2)), "body.outline: missing"),
 ]
 

@@ -310,7 +310,7 @@ def _mesh_design(design, comm=MPI.COMM_WORLD, verbose: bool = False, size=None) 
     mesh, cell_tags, _ = gmshio.model_to_mesh(gmsh.model, comm, 0, gdim=dim)
     if comm.rank == 0:
         gmsh.model.remove()
-    memory.release()                # Gmsh's mesh generation: back to the system, not kept for the solve
+    memory.release(mesh.topology.index_map(dim).size_local)   # Gmsh's meshing: back to the system
     return TaggedMesh(mesh, cell_tags, tags)
 
 
