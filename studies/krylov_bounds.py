@@ -2,7 +2,8 @@
 contrast and Poisson's ratio.
 
     python studies/krylov_bounds.py [--design geometry/arm3d.toml] [--sizes 3 2 1.5]
-                                    [--contrast-size 6] [--contrasts 1 10 100 1000 10000 30000]
+                                    [--contrast-size 6] [--contrast-degree 2]
+                                    [--contrasts 1 10 100 1000 10000 30000]
                                     [--nus 0.3 0.4 0.45 0.49] [--out studies/output/krylov_bounds]
                                     [--figures studies/figures]
 
@@ -12,7 +13,7 @@ against their own rigid motions), in this process:
 
 * refinement: the design as bundled at P1, mesh sizes ``sizes``, its bones
   elastic (as bundled) and rigid;
-* contrast: P2 at ``contrast_size``, every bone material's E set to
+* contrast: P2 (``contrast_degree``) at ``contrast_size``, every bone material's E set to
   ``contrast`` times the body's (1: a homogeneous body), and rigid bones;
 * Poisson's ratio: P2 at ``contrast_size``, the body's nu in ``nus``.
 
@@ -62,7 +63,8 @@ def _ratio(rows: list[dict]) -> float:
 
 
 def run(design: Path = DESIGN, sizes=(3.0, 2.0, 1.5), contrast_size: float = 6.0,
-        contrasts=(1, 10, 100, 1000, 10000, 30000), nus=(0.3, 0.4, 0.45, 0.49), progress=print) -> dict:
+        contrasts=(1, 10, 100, 1000, 10000, 30000), nus=(0.3, 0.4, 0.45, 0.49), progress=print,
+        contrast_degree: int = 2) -> dict:
     bones, body, d = _bones(Path(design))
     rigid = [f"bones.{name}.rigid=true" for name, _ in bones]
     E_body = float(d.materials[body].E)
@@ -77,14 +79,14 @@ def run(design: Path = DESIGN, sizes=(3.0, 2.0, 1.5), contrast_size: float = 6.0
     for h in sizes:
         add("refinement", [f"mesh.size={h}", "mesh.degree=1"], size=h)
         add("refinement_rigid", [f"mesh.size={h}", "mesh.degree=1"] + rigid, size=h)
-    p2 = [f"mesh.size={contrast_size}", "mesh.degree=2"]
+    p2 = [f"mesh.size={contrast_size}", f"mesh.degree={contrast_degree}"]
     for c in contrasts:
         add("contrast", p2 + [f"materials.{m}.E={c * E_body}" for m in sorted({m for _, m in bones})],
             contrast=c)
     add("contrast", p2 + rigid, contrast="rigid")
     for nu in nus:
         add("nu", p2 + [f"materials.{body}.nu={nu}"], nu=nu)
-    return {"design": Path(design).name, "sweeps": sweeps,
+    return {"design": Path(design).name, "sweeps": sweeps, "contrast_degree": contrast_degree,
             "ratios": {name: _ratio(rows) for name, rows in sweeps.items() if rows}}
 
 
@@ -106,12 +108,12 @@ def figure(data: dict, path: Path) -> None:
     rigid = [r for r in s["contrast"] if r["contrast"] == "rigid"]
     if rigid:
         a.axhline(rigid[0]["krylov_mean"], ls="--", color="C1", label="rigid bones")
-    a.set_xlabel("E_bone / E_body (P2)")
+    a.set_xlabel(f"E_bone / E_body (P{data.get('contrast_degree', 2)})")
     a.set_title("stiffness contrast")
     a.legend()
     a = axes[2]
     a.plot([r["nu"] for r in s["nu"]], [r["krylov_mean"] for r in s["nu"]], "o-")
-    a.set_xlabel("Poisson's ratio of the body (P2)")
+    a.set_xlabel(f"Poisson's ratio of the body (P{data.get('contrast_degree', 2)})")
     a.set_title("Poisson's ratio")
     for ax in axes:
         ax.set_ylabel("Krylov iterations per Newton step (mean)")
@@ -130,11 +132,12 @@ def main(argv=None) -> dict:
     p.add_argument("--sizes", type=float, nargs="+", default=[3.0, 2.0, 1.5])
     p.add_argument("--contrast-size", type=float, default=6.0)
     p.add_argument("--contrasts", type=float, nargs="+", default=[1, 10, 100, 1000, 10000, 30000])
+    p.add_argument("--contrast-degree", type=int, choices=(1, 2), default=2)
     p.add_argument("--nus", type=float, nargs="*", default=[0.3, 0.4, 0.45, 0.49])
     p.add_argument("--out", type=Path, default=ROOT / "studies" / "output" / "krylov_bounds")
     p.add_argument("--figures", type=Path, default=ROOT / "studies" / "figures")
     a = p.parse_args(argv)
-    data = run(a.design, a.sizes, a.contrast_size, a.contrasts, a.nus)
+    data = run(a.design, a.sizes, a.contrast_size, a.contrasts, a.nus, contrast_degree=a.contrast_degree)
     a.out.mkdir(parents=True, exist_ok=True)
     (a.out / "krylov_bounds.json").write_text(json.dumps(data, indent=1))
     figure(data, a.figures / "krylov_bounds.png")
