@@ -138,8 +138,7 @@ class LowRankSolver:
         self._dense: dict = {}
         self._work = None               # the embedded right-hand side (Border.hosts)
         self.solves = 0                 # solve phases run (one multi-RHS solve counts once)
-        self._op = False                # iterative: Krylov on the whole system (_Bordered), see _operator_mode
-        self._hksp = None               # ... its KSP on (x, z) vectors: n rows and the border's m
+        self._hksp = None               # iterative: the KSP of the whole system (_operator_mode) on (x, z) vectors: n rows and the border's m
         self._bvecs = None              # ... (rhs, solution) of that size, and two n-vectors
         self.ZB = np.zeros((0, 0))      # ... B [G | E], B one multigrid cycle (an approximate K^{-1})
         self.CB = np.zeros((0, 0))      # ... the small system's matrix made from ZB
@@ -197,8 +196,7 @@ class LowRankSolver:
             self.H = self._dots(border.T, self.G)          # h_i = T^T g_i
             self.G = self.G * ~border.rows[:, None]
         self.Z = None
-        self._op = self.kind == "iterative" and (border is None or border.hosts is None)
-        if self._op:
+        if self.kind == "iterative":            # the border is outside K (Border.hosts is None)
             self._operator_mode()
 
     def _operator_mode(self) -> None:
@@ -393,7 +391,7 @@ class LowRankSolver:
     def solve(self, b: PETSc.Vec, x: PETSc.Vec) -> None:
         """x = (K + G D G^T)^{-1} b, reduced to the border unknowns if there is a border."""
         border = self.border
-        if self._op and not self._fallen:
+        if self.kind == "iterative" and not self._fallen:
             out = self._op_solve(b.array_r, self.rtol)
             if out is not None:
                 x.array_w[:] = out
@@ -464,7 +462,7 @@ class LowRankSolver:
         """
         B = np.asarray(B, dtype=float)
         border = self.border
-        if self._op and not self._fallen:
+        if self.kind == "iterative" and not self._fallen:
             out = np.empty_like(B)
             for j in range(B.shape[1]):
                 col = self._op_solve(B[:, j], KRYLOV_RTOL)

@@ -101,6 +101,7 @@ class Model(MatrixAssembly):
         self._block_cache: dict = {}   # (term, block) -> its map into the matrix (see _term_blocks_at)
         self._csr_cache = None
         self._packs = PackedCoefficients()
+        self._bone_nodes: dict = {}  # stiff elastic bone -> its owned nodes (stiff_bone_modes)
         self.changes: dict = {}      # {key: (value at the last solve, value now)} of live parameters
 
     def _constraints(self, terms=None) -> None:
@@ -304,9 +305,11 @@ class Model(MatrixAssembly):
             + self.u.x.array[: self.n_owned].reshape(-1, self.bs)[:, : self.dim]   # where the nodes are now
         blocks = []
         for j, name in enumerate(names):
-            cells = tm.cell_tags.find(tm.tags[bone_tag_name(name)])
-            nodes = dfem.locate_dofs_topological(V, self.dim, cells)
-            nodes = nodes[nodes < self.n_owned // self.bs]
+            if name not in self._bone_nodes:     # the bone's owned nodes: the same at every Newton step
+                cells = tm.cell_tags.find(tm.tags[bone_tag_name(name)])
+                nodes = dfem.locate_dofs_topological(V, self.dim, cells)
+                self._bone_nodes[name] = nodes[nodes < self.n_owned // self.bs]
+            nodes = self._bone_nodes[name]
             count = self.comm.allreduce(len(nodes))
             centre = self.comm.allreduce(X[nodes].sum(axis=0)) / max(count, 1)
             local = rigid_body_modes(X[nodes] - centre, self.dim, centred=True)
