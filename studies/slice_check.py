@@ -33,7 +33,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "studies" / "output" / "slice_check"
 SKELFEM = str(Path(sys.executable).parent / "skelfem")
-DESIGNS = ("finger", "finger_knuckles", "thumb", "finger_tapered", "gripper", "finger3d", "gripper3d")
+DESIGNS = ("finger", "finger_knuckles", "thumb", "finger_tapered", "gripper", "finger3d", "gripper3d", "arm3d")
 SUPPORT = ";TYPE:Support material"
 
 

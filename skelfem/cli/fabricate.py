@@ -59,7 +59,7 @@ def fabricate(args) -> int:
         m = report["mould"]
         print(f"  mould cavity {m['cavity_volume']:.1f} mm^3 against the body's {m['body_volume']:.1f} mm^3 "
               f"({100 * m['relative_error']:+.2f} %; {100 * m['closed_relative_error']:+.3f} % without the pour "
-              "hole, vents, exits, pins and pegs); every STL closed and oriented")
+              "hole, vents, exits, clamp holes, pins and pegs); every STL closed and oriented")
     return EXIT_OK
 
 

@@ -298,7 +298,9 @@ def read_fabrication(top: Table, dim: int, thickness: float, body) -> Fabricatio
     else:
         axis = 2 - int(np.argmin(extent[::-1]))      # the smallest extent; ties prefer z, then y
         s = Table(t.take("split", "table", {}), "fabrication.split", top.source)
-        point = check_bounded(s, "point", s.take("point", "vector", 0.5 * (lo + hi), dim=3))
+        point = s.take("point", "vector", None, dim=3)        # None: skelfem fabricate chooses it
+        if point is not None:
+            point = check_bounded(s, "point", point)
         normal = s.take("normal", "vector", np.eye(3)[axis], dim=3)
         scale = float(np.abs(normal).max())
         if not scale > 0:

@@ -182,7 +182,8 @@ class FabricationSpec:
     socket_depth: float = 2.0         # sockets in the bones that the pegs enter (half as deep where no room)
     post_diameter: float = 2.0        # guide posts holding a cable's bends in silicone while it is cast
     route_tolerance: float = 0.3      # how far the cast cable may lie from its sketch
-    split_point: np.ndarray | None = None    # the mould's parting plane (2D: the slab's mid-plane)
+    split_point: np.ndarray | None = None    # the mould's parting plane (2D: the slab's mid-plane; 3D: None
+                                             # lets skelfem fabricate choose the fewest undercuts)
     split_normal: np.ndarray | None = None
 
 

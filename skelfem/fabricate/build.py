@@ -101,11 +101,12 @@ def _finish(gmsh, name: str, kind: str, volumes: list[int], plan: Plan, folder: 
 
 
 def build_bone(plan: Plan, bone, folder: Path | None = None) -> Part:
-    """A bone minus its channels, anchor holes and sockets.
+    """A bone with its sheaths (sheaths.py) minus its channels, anchor holes and sockets.
 
-    The removed volume is measured on its own, as the OCC intersection of the
-    fused tools with an un-cut copy of the bone, so that the bone's volume
-    can be checked against (un-cut volume) - (removed volume).
+    The added and removed volumes are measured on their own (the sheaths'
+    volume outside the bone; the OCC intersection of the fused cutting tools
+    with an un-cut copy of the bone and its sheaths), so that the bone's
+    volume can be checked against (un-cut volume) + (added) - (removed).
     """
     import gmsh
 
@@ -116,7 +117,12 @@ def build_bone(plan: Plan, bone, folder: Path | None = None) -> Part:
         occ = gmsh.model.occ
         _, tags = add_design_solids(occ, design, plan.spec.bone_depth or None, bones=[bone.name], body=False)
         solid = [(3, t) for t in tags[bone.name]]
-        tools = [s for tool in plan.bone_tools[bone.name] for s in tool_shapes(occ, tool)]
+        added = 0.0
+        covers = [s for tool in plan.bone_tools[bone.name] if tool.kind == "sheath" for s in tool_shapes(occ, tool)]
+        if covers:
+            solid = clean_solids(occ, occ.fuse(solid, covers)[0])
+            added = total_mass(occ, solid) - plan.bone_volumes[bone.name]
+        tools = [s for tool in plan.bone_tools[bone.name] if tool.kind != "sheath" for s in tool_shapes(occ, tool)]
         removed = 0.0
         if tools:
             copies = occ.copy(tools)
@@ -128,7 +134,8 @@ def build_bone(plan: Plan, bone, folder: Path | None = None) -> Part:
             occ.remove(common, recursive=True)
             solid = clean_solids(occ, occ.cut(solid, tools)[0])
         kinds = [t.kind for t in plan.bone_tools[bone.name]]
-        info = {"uncut_volume": plan.bone_volumes[bone.name], "removed_volume": removed,
+        info = {"uncut_volume": plan.bone_volumes[bone.name], "removed_volume": removed, "sheath_volume": added,
+                "sheaths": kinds.count("sheath"),
                 "channels": kinds.count("channel"), "anchor_holes": kinds.count("anchor"),
                 "sockets": kinds.count("socket")}
         return _finish(gmsh, f"bone_{bone.name}", "bone", _volumes(solid), plan, folder, info)
@@ -160,7 +167,8 @@ def _block(occ, frame: Frame, n0: float, n1: float) -> tuple[int, float]:
 
 def build_half(plan: Plan, side: str, folder: Path | None = None) -> Part:
     """One mould half: its slab of the block minus the body, with pins or pin holes, its pegs and guide
-    posts, the tendon exits, the pry slots and (top) the pour hole and vents."""
+    posts, the tendon exits, the pry slots, the removable rods' holes, the clamp bolts' holes and (top) the
+    pour hole and vents."""
     import gmsh
 
     from ..design.occ import gmsh_model
@@ -179,7 +187,7 @@ def build_half(plan: Plan, side: str, folder: Path | None = None) -> Part:
             half = clean_solids(occ, occ.fuse(half, [s for t in adds for s in tool_shapes(occ, t)])[0])
         mass.append(total_mass(occ, half))
         cuts = [t for t in plan.mould_tools
-                if t.kind in ("exit", "pry") or (side == "top" and t.kind in ("pin_hole", "pour", "vent"))]
+                if t.kind in ("exit", "pry", "rod_hole", "clamp") or (side == "top" and t.kind in ("pin_hole", "pour", "vent"))]
         if cuts:
             half = clean_solids(occ, occ.cut(half, [s for t in cuts for s in tool_shapes(occ, t)])[0])
         mass.append(total_mass(occ, half))

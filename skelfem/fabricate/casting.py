@@ -230,31 +230,108 @@ def ceilings(planner) -> tuple[dict, list[str]]:
     return out, notes
 
 
-def undercuts(planner) -> tuple[dict, list[str]]:
-    """Per half, the body surface area whose mould material is locked in against the half's pull."""
+def _locked(planner, c: float) -> dict:
+    """Per half (parting plane n . x = c): the mask over the body's triangles whose mould material is
+    locked in against the half's pull, with the triangles' centres and areas."""
     f, body = planner.frame, planner.body
     body = Surface(body.points, orient(body.points, body.tris), body.faces)   # outward normals
-    c = body.corners
-    centre = c.mean(axis=1)
-    area = 0.5 * np.linalg.norm(np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), axis=1)
-    normal = body.normals
+    corners = body.corners
+    centre = corners.mean(axis=1)
+    area = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
     eps = 1e-4 * planner.scale
     height = f.local(centre)[:, 2]
-    out, notes = {}, []
+    start = centre + eps * body.normals
+    outside = ~inside(start, body, planner.tol)
+    out = {}
     for side, sign in (("bottom", -1.0), ("top", 1.0)):
-        mine = np.flatnonzero(sign * (height - f.c) > eps)          # this half's side of the parting plane
-        start = centre[mine] + eps * normal[mine]
-        outside = ~inside(start, body, planner.tol)
-        r, t, _ = ray_hits(start, sign * f.n, body.corners, planner.tol)
-        hit = np.zeros(len(mine), bool)
+        mine = sign * (height - c) > eps                # this half's side of the parting plane
+        r, t, _ = ray_hits(start[mine], sign * f.n, body.corners, planner.tol)
+        hit = np.zeros(int(mine.sum()), bool)
         hit[r[t > planner.tol]] = True              # a face looking down, on its own, is locked too
-        locked = outside & hit
-        out[side] = float(area[mine[locked]].sum())
+        locked = np.zeros(len(area), bool)
+        locked[np.flatnonzero(mine)[hit]] = True
+        out[side] = locked & outside
+    return {"mask": out, "centre": centre, "area": area}
+
+
+def least_undercut(planner) -> float:
+    """The parting plane's offset c along n with the least undercut of both halves together.
+
+    Candidates: the middle of the body's extent along n, and the quantiles
+    (10 % to 90 %) of the middles of the body's stretches along n over a grid
+    of the plane (a body of round parts parts best through their axes, where
+    those middles gather). Ties (within 1e-4 of the body's area) go to the
+    candidate nearest the middle."""
+    f = planner.frame
+    sites = planner.grid(f.local(planner.body.points)[:, :2], 400)
+    hits = planner.column(sites, [planner.body])[0]
+    mids = np.concatenate([0.5 * (h[0::2] + h[1::2]) for h in hits if len(h) >= 2 and len(h) % 2 == 0] or
+                          [np.zeros(0)])
+    middle = 0.5 * (f.lo[2] + f.hi[2])
+    candidates = [middle] + (list(np.quantile(mids, np.linspace(0.1, 0.9, 9))) if len(mids) else [])
+    scores = []
+    for c in candidates:
+        lock = _locked(planner, c)
+        scores.append(sum(float(lock["area"][m].sum()) for m in lock["mask"].values()))
+    total = float(_locked(planner, middle)["area"].sum())
+    best = min(scores)
+    good = [c for c, a in zip(candidates, scores) if a <= best + 1e-4 * total]
+    return float(min(good, key=lambda c: abs(c - middle)))
+
+
+def undercuts(planner) -> tuple[dict, list[str]]:
+    """Per half, the body surface area whose mould material is locked in against the half's pull."""
+    lock = _locked(planner, planner.frame.c)
+    out, notes = {}, []
+    for side, locked in lock["mask"].items():
+        out[side] = float(lock["area"][locked].sum())
         if out[side] > 0:
-            where = centre[mine[locked]][np.argmax(area[mine[locked]])]
+            where = lock["centre"][locked][np.argmax(lock["area"][locked])]
             notes.append(f"the {side} half has {out[side]:.3g} mm^2 of undercut (near {_at(where)}): it comes off "
                          "only as far as the silicone bends; another fabrication.split avoids it")
     return out, notes
+
+
+CLAMP_BOLTS = (("M3", 3.4), ("M2.5", 2.9), ("M2", 2.4))     # metric bolts and their clearance holes, mm
+CLAMP_MARGIN = 1.0              # mm of mould wall at least on each side of a clamp hole
+CLAMP_FRACTIONS = (1 / 3, 2 / 3, 1 / 4, 3 / 4, 1 / 6, 5 / 6, 1 / 2)   # along a long side, in order of preference
+
+
+def clamps(planner, avoid: list) -> tuple[list[Tool], list[str]]:
+    """Bolt holes that clamp the halves together: along n through both halves, in the wall beyond the body
+    (the middle of the wall band, wall/2 in from the block's face), two on each of the block's longer
+    sides, a third of the side apart or more. The thickest metric bolt whose clearance hole leaves
+    CLAMP_MARGIN of wall on each side; none (a note: clips or tape) where the wall is too thin. A site
+    whose hole would come within CLAMP_MARGIN of a registration pin, a tendon exit, a pry slot or a rod
+    (their axes projected on the parting plane) is skipped."""
+    f, w = planner.frame, planner.spec.wall
+    bolt = next(((name, d) for name, d in CLAMP_BOLTS if d + 2 * CLAMP_MARGIN <= w), None)
+    if bolt is None:
+        return [], [f"the mould's wall ({w:g} mm) is too thin for clamp bolts (an M2 needs "
+                    f"{CLAMP_BOLTS[-1][1] + 2 * CLAMP_MARGIN:g} mm): hold the halves with clips or tape"]
+    name, d = bolt
+    r = d / 2
+    from .routes import dense
+    blockers = [(f.local(dense(t.points, 0.5))[:, :2], t.radius) for t in avoid]
+    k = int(np.argmax(f.hi[:2] - f.lo[:2]))              # along the longer in-plane axis
+    other = 1 - k
+    tools = []
+    for line in (f.lo[other] + w / 2, f.hi[other] - w / 2):
+        chosen = []
+        for frac in CLAMP_FRACTIONS:
+            site = np.zeros(2)
+            site[k], site[other] = f.lo[k] + frac * (f.hi[k] - f.lo[k]), line
+            if any(abs(frac - c) < 1 / 3 - 1e-9 for c in chosen):
+                continue
+            if any(np.linalg.norm(pts - site, axis=1).min() < r + rad + CLAMP_MARGIN for pts, rad in blockers):
+                continue
+            chosen.append(frac)
+            tools.append(Tool("clamp", f.world([[*site, f.lo[2] - 1.0], [*site, f.hi[2] + 1.0]]), r, side=name))
+            if len(chosen) == 2:
+                break
+    notes = [] if len(tools) == 4 else [f"only {len(tools)} of 4 clamp holes found room (tendon exits, pry "
+                                        "slots and pins are in the way): add clips"]
+    return tools, notes
 
 
 def _at(x) -> str:

@@ -28,6 +28,17 @@ def _plain(x) -> list:
     return [round(float(v), 6) for v in np.ravel(x)]
 
 
+def _rod(t, f) -> dict:
+    """A removable rod: where it enters the block's outside, its direction in, how deep, how thick."""
+    y0, d = f.local(t.points[-1]), f.local(t.points[0] - t.points[-1])
+    d = d / np.linalg.norm(d)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(d > 0, (f.lo - y0) / d, np.where(d < 0, (f.hi - y0) / d, -np.inf))
+    entry = f.world(y0 + float(s.max()) * d)       # back along the rod to the block's face
+    return {"cable": t.cable, "diameter": 2 * t.radius, "entry": _plain(entry), "tip": _plain(t.points[0]),
+            "direction": _plain(f.world(d)), "depth": float(np.linalg.norm(t.points[0] - entry))}
+
+
 def write(plan: Plan, folder: Path, picture_file: bool = True) -> dict:
     """Build every part into folder (STL, STEP), check the STL files as written, and write
     fabrication.json, fabrication.png (the exploded view) and casting.png (the casting sequence); returns
@@ -43,7 +54,8 @@ def write(plan: Plan, folder: Path, picture_file: bool = True) -> dict:
               "fabrication": {k: (_plain(v) if isinstance(v, np.ndarray) else v)
                               for k, v in vars(spec).items() if k not in ("split_point", "split_normal")},
               "parts": {}, "bones": {}, "mould": {}, "checks": {}, "notes": list(plan.notes)}
-    report["fabrication"]["split"] = {"point": _plain(spec.split_point), "normal": _plain(f.n)}
+    report["fabrication"]["split"] = {"point": _plain(f.c * f.n if spec.split_point is None else spec.split_point),
+                                      "normal": _plain(f.n), "chosen": spec.split_point is None}
     if design.dim == 3:
         report["fabrication"].pop("bone_depth")
     stl = {}
@@ -59,10 +71,11 @@ def write(plan: Plan, folder: Path, picture_file: bool = True) -> dict:
     for bone, part in zip(design.bones, parts):
         info = part.info
         uncut = abs(polygons.signed_area(bone.outline)) * spec.bone_depth if design.dim == 2 else info["uncut_volume"]
-        expected = uncut - info["removed_volume"]
+        expected = uncut + info["sheath_volume"] - info["removed_volume"]
         got = stl[part.name]["volume"]
         report["bones"][bone.name] = {
             "file": f"{part.name}.stl", "uncut_volume": uncut, "removed_volume": info["removed_volume"],
+            "sheath_volume": info["sheath_volume"], "sheaths": info["sheaths"],
             "expected_volume": expected, "volume": part.cad_volume, "stl_volume": got,
             "relative_error": (got - expected) / expected, "channels": info["channels"],
             "anchor_holes": info["anchor_holes"], "pegs": info["sockets"],
@@ -91,9 +104,12 @@ def write(plan: Plan, folder: Path, picture_file: bool = True) -> dict:
         "pegs": [{"bone": t.bone, "half": t.side, "tip": _plain(t.points[0]), "diameter": 2 * t.radius}
                  for t in plan.pegs],
         "posts": [{"cable": t.cable, "half": t.side, "tip": _plain(t.points[0]), "diameter": 2 * t.radius}
-                  for t in plan.posts],
+                  for t in plan.posts if t.kind == "post"],
+        "rods": [_rod(t, f) for t in plan.posts if t.kind == "rod"],
         "pry_slots": [{"from": _plain(t.points[0]), "to": _plain(t.points[-1]), "diameter": 2 * t.radius}
-                      for t in plan.mould_tools if t.kind == "pry"]}
+                      for t in plan.mould_tools if t.kind == "pry"],
+        "clamps": [{"at": _plain(t.points[0]), "to": _plain(t.points[-1]), "bolt": t.side, "diameter": 2 * t.radius}
+                   for t in plan.mould_tools if t.kind == "clamp"]}
     report["routes"] = plan.routes
     report["mould"]["flow"] = plan.flow
     checks["stl_closed_and_oriented"] = all(r["oriented"] and r["degenerate"] == 0 and r["parts"] == 1

@@ -56,13 +56,14 @@ class Frame:
 class Tool:
     """A cylinder-swept cut or addition: an axis polyline, its radius, where it extends past its ends."""
 
-    kind: str              # "channel", "anchor", "socket", "peg", "post", "pin", "pin_hole", "pour", "vent", "exit", "pry"
+    kind: str              # "channel", "anchor", "sheath", "socket", "peg", "post", "rod", "rod_hole", "pin",
+    #                        "pin_hole", "pour", "vent", "exit", "pry", "clamp"
     points: np.ndarray     # (k, 3) axis polyline
     radius: float
     bone: str | None = None
     cable: str | None = None
     extend: tuple = (0.0, 0.0)     # lengths the cylinder runs on beyond the first and the last point
-    side: str | None = None        # pegs and posts: the mould half they belong to, "bottom" or "top"
+    side: str | None = None        # pegs and posts: the mould half they belong to, "bottom" or "top"; clamps: the bolt
 
     @property
     def length(self) -> float:

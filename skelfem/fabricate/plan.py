@@ -42,6 +42,7 @@ from .meshing import generate_surface_mesh, triangle_surface
 from .parts import Frame, Plan, Tool, cable_points
 from . import casting
 from .routes import RouteHolder
+from .sheaths import sheath
 from .surfaces import FabricationError, GRAZING, PROBE_CURVATURE, Surface, face_distances, inside, point_triangle_distance, ray_hits
 
 
@@ -72,7 +73,8 @@ class _Planner:
         self.tol = 1e-7 * scale
         self.dim = design.dim
         spec = self.spec
-        self.frame = Frame.from_normal(spec.split_point, spec.split_normal)
+        middle = 0.5 * (body.points.min(axis=0) + body.points.max(axis=0))
+        self.frame = Frame.from_normal(middle if spec.split_point is None else spec.split_point, spec.split_normal)
         self.r_channel, self.r_anchor = spec.channel_diameter / 2, spec.anchor_diameter / 2
         self.r_peg = spec.peg_diameter / 2
         self.r_socket = self.r_peg + spec.clearance
@@ -126,17 +128,23 @@ class _Planner:
             pieces.append({"points": np.vstack([pa, inner, pb]), "start": a, "end": b})
         return pieces
 
-    def check_wall(self, tool: Tool, start: dict, end: dict, key_path: str, key_size: str, what: str) -> None:
+    def check_wall(self, tool: Tool, start: dict, end: dict, key_path: str, key_size: str, what: str,
+                   sheathable: bool = False) -> bool:
         """Every point of the tool's axis at least radius + min_wall from the bone's surface.
 
         Near a crossing the axis is close to the crossed face by construction:
         a point at distance s from the crossing lies s sin(theta) from that
         face, so the face is ignored there while s < (r + min_wall)/sin(theta).
+        A channel that enters at a grazing angle or would open the bone's side
+        returns True when sheathable (it gets a printed sheath: sheaths.py),
+        and is refused otherwise.
         """
         surface = self.bones[tool.bone]
         need = tool.radius + self.wall
         for end_ in (start, end):
             if end_["at"] == "face" and end_["sin"] < GRAZING:
+                if sheathable:
+                    return True
                 angle = math.degrees(math.asin(min(1.0, end_["sin"])))
                 raise FabricationError(key_path, f"{what} meets the surface of bone {tool.bone!r} at "
                                                  f"{where_text(end_['point'])} at a grazing {angle:.0f} degrees "
@@ -151,11 +159,13 @@ class _Planner:
         worst = dist.min(axis=1)
         bad = worst < need - 1e-6 * self.scale
         if not bad.any():
-            return
+            return False
         if need > self.inradius(tool.bone):
             raise FabricationError(key_size, f"{2 * tool.radius:g} mm with min_wall {self.wall:g} mm on each "
                                              f"side does not fit in bone {tool.bone!r} (at most "
                                              f"{2 * max(self.inradius(tool.bone) - self.wall, 0):.3g} mm there)")
+        if sheathable:
+            return True
         i = int(np.argmin(worst))
         raise FabricationError(key_path, f"{what} would open the side of bone {tool.bone!r}: near "
                                          f"{where_text(pts[i])} its axis passes {worst[i]:.2f} mm from the bone's "
@@ -203,19 +213,27 @@ class _Planner:
             if cable.kind == "tendon":
                 spool[cable.name] = self.spool_end(cable, pts, in_bone)
         self.check_depth(tools)
+        sheathed = {}
         for bone, items in tools.items():
-            for tool, a, b in items:
+            for j, (tool, a, b) in enumerate(items):
                 cable = self.design.cable(tool.cable)
                 if tool.kind == "channel":
-                    self.check_wall(tool, a, b, self.cable_key(cable),
-                                    "fabrication.channel_diameter" if cable.kind == "tendon"
-                                    else "fabrication.anchor_diameter", f"the channel of {cable.name!r}")
+                    if self.check_wall(tool, a, b, self.cable_key(cable),
+                                       "fabrication.channel_diameter" if cable.kind == "tendon"
+                                       else "fabrication.anchor_diameter", f"the channel of {cable.name!r}",
+                                       sheathable=True):
+                        sheathed.setdefault(bone, []).append((j, *sheath(self, tool, a, b)))
                 else:
                     self.check_wall(tool, a, b, self.cable_key(cable), "fabrication.anchor_diameter",
                                     f"the anchor hole of {cable.name!r}")
             self.check_apart(bone, [t for t, _, _ in items])
+        out = {bone: [t for t, _, _ in items] for bone, items in tools.items()}
+        for bone, swaps in sheathed.items():
+            for j, cover, channel in swaps:
+                out[bone][j] = channel
+            out[bone] += [cover for _, cover, _ in swaps]
         self.spool = spool
-        return {bone: [t for t, _, _ in items] for bone, items in tools.items()}
+        return out
 
     def anchor(self, bone: str, cable: str, point: np.ndarray):
         """A hole through the bone along the mould's normal, through the ligament's end point."""
@@ -296,6 +314,8 @@ class _Planner:
                                                              f"(it spans {lo[2]:.3g} to {hi[2]:.3g} along the normal)")
         w = self.spec.wall
         f.lo, f.hi = lo - w, hi + w
+        if self.spec.split_point is None:
+            f.c = casting.least_undercut(self)
 
     def column(self, uv: np.ndarray, surfaces: list[Surface]) -> list:
         """For lines along n through the points uv (q, 2) of the plane: the n-coordinates where each
@@ -523,7 +543,11 @@ def plan(design) -> Plan:
     flow["air_under_bones"], more = casting.ceilings(planner)
     flow["undercut"], most = casting.undercuts(planner)
     exits = planner.exits()
-    mould = openings + planner.pins() + exits + planner.pry_slots(exits)
+    rod_holes = [Tool("rod_hole", t.points, t.radius + spec.clearance, cable=t.cable) for t in posts if t.kind == "rod"]
+    mould = openings + planner.pins() + exits + planner.pry_slots(exits) + rod_holes
+    bolts, more_notes = casting.clamps(planner, [t for t in mould if t.kind in ("pin_hole", "exit", "pry", "rod_hole")])
+    mould += bolts
+    notes += more_notes
     p = Plan(design, spec, planner.frame, scale, bone_tools, pegs, mould, body_volume, bone_volumes,
              notes + more + most, body_surface=body, bone_surfaces=bones, posts=posts, routes=routes, flow=flow)
     if planner.shallow:
@@ -531,9 +555,17 @@ def plan(design) -> Plan:
                        f"(half of fabrication.socket_depth: no room for {spec.socket_depth:g} mm)")
     for t in posts:
         if 2 * t.radius < spec.post_diameter - 1e-9:
-            p.notes.append(f"the guide post of cable {t.cable!r} at {where_text(t.points[0])} is only "
-                           f"{2 * t.radius:.2g} mm thick (no room for fabrication.post_diameter): print the mould "
-                           "finely, or move the cable's bend")
+            what = "guide post" if t.kind == "post" else "removable rod"
+            p.notes.append(f"the {what} of cable {t.cable!r} at {where_text(t.points[0])} is only "
+                           f"{2 * t.radius:.2g} mm thick (fabrication.post_diameter finds no room, or holds the bend "
+                           f"further than route_tolerance from its sketch): print the mould finely, or soften the "
+                           "cable's bend")
+    for bone, items in bone_tools.items():
+        for t in items:
+            if t.kind == "sheath":
+                p.notes.append(f"bone {bone!r} carries a printed sheath round the channel of {t.cable!r} from "
+                               f"{where_text(t.points[0])} to {where_text(t.points[-1])}: the channel would open "
+                               "the bone's side; the simulation does not model the sheath")
     unheld = [b.name for b in design.bones if not any(t.bone == b.name for t in pegs)]
     if unheld:
         p.notes.append(f"no peg can reach bone(s) {', '.join(unheld)} along the mould's normal; "

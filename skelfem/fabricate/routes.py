@@ -7,7 +7,8 @@ own ends. Where a sketch bends in silicone nothing holds it, and the cast
 line cuts the corner: on finger.toml the flexor's bend before the distal bone.
 
 So each bend in silicone gets a **guide post**: a cylinder of
-``post_diameter`` (down to 0.3 of it, at least MIN_POST, where the full one finds no room)
+``post_diameter`` (down to 0.3 of it, at least MIN_POST, where the full one finds no room or
+holds a sharp bend too far from its sketch)
 standing on the mould's wall along the mould's normal n (so
 that it pulls out with its half) and reaching past the cable, placed on the
 inner side of the bend. A line of radius r_c pulled round a post of radius
@@ -46,7 +47,7 @@ POST_SCALES = (1.0, 0.75, 0.5, 0.4, 0.3)    # of post_diameter: a post that find
 MIN_POST = 0.6                    # mm: no thinner post (a printed pin this thin breaks off)
 
 
-def _segment_distance(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
+def segment_distance(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
     """Distance of each point (k, 3) to a polyline (m, 3)."""
     a, b = poly[:-1], poly[1:]
     d = b - a
@@ -56,7 +57,7 @@ def _segment_distance(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
     return np.linalg.norm(points[:, None, :] - foot, axis=2).min(axis=1)
 
 
-def _dense(poly: np.ndarray, step: float) -> np.ndarray:
+def dense(poly: np.ndarray, step: float) -> np.ndarray:
     out = [poly[:1]]
     for a, b in zip(poly[:-1], poly[1:]):
         k = max(1, int(math.ceil(np.linalg.norm(b - a) / step)))
@@ -66,8 +67,8 @@ def _dense(poly: np.ndarray, step: float) -> np.ndarray:
 
 def hausdorff(sketch: np.ndarray, cast: np.ndarray, step: float) -> tuple[float, np.ndarray]:
     """(largest distance between the two polylines, both ways; the sketch or cast point where it is)."""
-    s, c = _dense(sketch, step), _dense(cast, step)
-    ds, dc = _segment_distance(s, cast), _segment_distance(c, sketch)
+    s, c = dense(sketch, step), dense(cast, step)
+    ds, dc = segment_distance(s, cast), segment_distance(c, sketch)
     i, j = int(np.argmax(ds)), int(np.argmax(dc))
     return (float(ds[i]), s[i]) if ds[i] >= dc[j] else (float(dc[j]), c[j])
 
@@ -174,8 +175,8 @@ class RouteHolder:
                                        f"(fabrication.route_tolerance {spec.route_tolerance:g} mm): {why}")
             report[cable.name] = {"deviation": dev, "unheld_deviation": dev0, "where_unheld": _plain(where0),
                                   "posts": [{"at": _plain(p[i]), "tip": _plain(t.points[0]), "diameter": 2 * t.radius,
-                                             "angle_deg": math.degrees(bend(p, i)[0]), "half": t.side}
-                                            for i, t in posted.items()]}
+                                             "angle_deg": math.degrees(bend(p, i)[0]), "half": t.side,
+                                             "kind": t.kind} for i, t in posted.items()]}
             posts += posted.values()
         return posts, report
 
@@ -185,22 +186,55 @@ class RouteHolder:
         f = self.frame
         key = f"cables.{cable.name}.path"
         theta, b = bend(p, i)
-        if abs(float(b @ f.n)) > math.sin(MAX_TILT):
-            raise FabricationError(key, f"its bend at {_at(p[i])} turns toward the mould's normal, and a guide post "
-                                        "along the normal cannot hold it (keep bends in silicone across the normal)")
-        b = b - (b @ f.n) * f.n
-        b /= np.linalg.norm(b)
-        for scale in POST_SCALES:
-            r_p = scale * self.r_post
-            if 2 * r_p < MIN_POST:
-                break
-            tool = self.place(cable, p[i] + b * (r_p + r_c) / math.sin(theta / 2), r_p, r_c, pegs)
+        along = abs(float(b @ f.n)) <= math.sin(MAX_TILT)
+        if along:
+            b = b - (b @ f.n) * f.n
+            b /= np.linalg.norm(b)
+        sizes = [k * self.r_post for k in POST_SCALES if 2 * k * self.r_post >= MIN_POST]
+        close = [r for r in sizes if (r + r_c) * (1 / math.sin(theta / 2) - 1) <= self.spec.route_tolerance]
+        for r_p in close or sizes:                  # a post thin enough for the tolerance round a sharp bend
+            axis = p[i] + b * (r_p + r_c) / math.sin(theta / 2)
+            tool = (self.place(cable, axis, r_p, r_c, pegs) if along else None) or self.rod(cable, p, i, axis, r_p,
+                                                                                         r_c, pegs)
             if tool is not None:
                 return tool
-        raise FabricationError(key, f"no guide post can hold its bend at {_at(p[i])}: along the "
-                                    "mould's normal its column meets a bone, a peg or another cable, even "
-                                    f"{MIN_POST:g} mm thin (fabrication.post_diameter {self.spec.post_diameter:g} mm); move "
-                                    "the bend, or put it inside a bone")
+        raise FabricationError(key, f"no guide post can hold its bend at {_at(p[i])}: neither along the "
+                                    "mould's normal nor as a removable rod across the bend is a column clear of "
+                                    f"bones, pegs and other cables, even {MIN_POST:g} mm thin "
+                                    f"(fabrication.post_diameter {self.spec.post_diameter:g} mm); move the bend, or "
+                                    "put it inside a bone")
+
+    def rod(self, cable, p: np.ndarray, i: int, axis: np.ndarray, r_p: float, r_c: float, pegs: list) -> Tool | None:
+        """A removable rod of radius r_p square across the bend's plane through axis, pushed in through a hole
+        in the mould's wall before the pour and pulled out before demoulding (so it may cross the parting
+        plane): from whichever side its column leaves the body once and meets no bone, peg or other cable;
+        None where neither does. Its points run from its tip (past the line) to the block's outside."""
+        f, spec = self.frame, self.spec
+        d1, d2 = p[i - 1] - p[i], p[i + 1] - p[i]
+        across = np.cross(d1, d2)
+        across /= np.linalg.norm(across)
+        reach = r_p + r_c
+        for d in (across, -across):
+            _, t, _ = ray_hits(axis, d, self.body.corners, self.tol)
+            t = t[t > self.tol]
+            if len(t) != 1:
+                continue
+            tip = axis - reach * d
+            if not inside(tip, self.body, self.tol)[0]:
+                continue
+            leave = axis + float(t[0]) * d
+            column = dense(np.array([tip, leave]), 0.2)
+            if self.in_bone(column).any() or (self.bones and min(
+                    float(point_triangle_distance(column, s.corners).min()) for s in self.bones.values())
+                    < r_p + spec.clearance):
+                continue
+            if self.too_near_cables(column, cable.name, r_p) or self.too_near_pegs(column, pegs, r_p):
+                continue
+            y0, dy = f.local(axis), f.local(d)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                out = np.where(dy > 0, (f.hi - y0) / dy, np.where(dy < 0, (f.lo - y0) / dy, np.inf))
+            return Tool("rod", np.array([tip, axis + (float(out.min()) + spec.wall) * d]), r_p, cable=cable.name)
+        return None
 
     def place(self, cable, axis: np.ndarray, r_p: float, r_c: float, pegs: list) -> Tool | None:
         """A post of radius r_p through axis (at the line's height), from the bottom half or else the top
@@ -217,7 +251,7 @@ class RouteHolder:
             tip = axis - reach * d
             if not inside(tip, self.body, self.tol)[0]:
                 continue                              # the tip would leave the body: the other half
-            column = _dense(np.array([tip, root - spec.wall / 2 * d]), 0.2)
+            column = dense(np.array([tip, root - spec.wall / 2 * d]), 0.2)
             if self.in_bone(column).any() or (self.bones and min(
                     float(point_triangle_distance(column, s.corners).min()) for s in self.bones.values())
                     < r_p + spec.clearance):
@@ -232,12 +266,12 @@ class RouteHolder:
             if other.name == name:
                 continue
             r, q = cable_radius(self.spec, other), cable_points(self.design, other)
-            if _segment_distance(column, q).min() < r_p + r + self.spec.min_wall:
+            if segment_distance(column, q).min() < r_p + r + self.spec.min_wall:
                 return True
         return False
 
     def too_near_pegs(self, column: np.ndarray, pegs: list, r_p: float) -> bool:
-        return any(_segment_distance(column, t.points).min() < r_p + t.radius + self.spec.clearance
+        return any(segment_distance(column, t.points).min() < r_p + t.radius + self.spec.clearance
                    for t in pegs)
 
 
