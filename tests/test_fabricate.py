@@ -31,12 +31,43 @@ def test_every_2d_design_is_covered():
 
 
 @pytest.mark.parametrize("name", SEVERAL_BODIES)
-def test_a_design_of_several_bodies_is_refused_in_one_line(name, tmp_path, capsys):
+def test_a_design_of_several_bodies_splits_into_one_design_per_body(name):
+    """Each body with the bones it holds and the cables that start in it (every bundled design names them
+    after their body), each planned on its own: every route held within route_tolerance."""
+    import gmsh  # noqa: F401 - imported on the main thread (it sets a signal handler)
+    from skelfem import fabricate as fab
+    from skelfem.design import load_design
+    design = load_design(GEOMETRY / f"{name}.toml")
+    parts = fab.split_bodies(design)
+    assert [d.body.name for d in parts] == [b.name for b in design.bodies] and len(parts) > 1
+    assert sorted(b.name for d in parts for b in d.bones) == sorted(b.name for b in design.bones)
+    assert sorted(c.name for d in parts for c in d.cables) == sorted(c.name for c in design.cables)
+    for d in parts:
+        assert d.name == f"{design.name}_{d.body.name}" and d.bodies == (d.body,)
+        assert all(b.name.startswith(d.body.name) for b in d.bones), [b.name for b in d.bones]
+        assert all(c.name.startswith(d.body.name) for c in d.cables), [c.name for c in d.cables]
+        plan = fab.plan(d)
+        assert all(r["deviation"] <= plan.spec.route_tolerance for r in plan.routes.values()), plan.routes
+
+
+@pytest.mark.slow
+def test_two_fingers_are_cast_in_a_mould_each(tmp_path):
+    """two_fingers.toml: a folder per body, each a whole one-body fabrication whose mould's cavity is that
+    body (its outline's area times the slab), and a fabrication.json that lists them."""
     out = tmp_path / "fab"
-    assert main(["fabricate", str(GEOMETRY / f"{name}.toml"), "--out", str(out), "-q"]) == 1
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("error: ") and "bodies: fabrication casts one body" in err[0]
-    assert not out.exists()
+    assert main(["fabricate", str(GEOMETRY / "two_fingers.toml"), "--out", str(out), "-q", "--no-picture"]) == 0
+    top = json.loads((out / "fabrication.json").read_text())
+    data = tomllib.loads((GEOMETRY / "two_fingers.toml").read_text())
+    assert top["bodies"] == {b["name"]: f"{b['name']}/fabrication.json" for b in data["bodies"]}
+    assert top["checks"]["passed"]
+    for b in data["bodies"]:
+        report = json.loads((out / top["bodies"][b["name"]]).read_text())
+        assert report["design"] == f"two_fingers_{b['name']}" and report["checks"]["passed"]
+        assert sorted(report["bones"]) == sorted(x["name"] for x in data["bones"] if x["name"].startswith(b["name"]))
+        block = report["mould"]["block"]["volume"]
+        halves = sum(solid_report(out / b["name"] / f"mould_{h}.stl")["volume"] for h in ("bottom", "top"))
+        body = shoelace(np.array(b["outline"], float)) * data["thickness"]
+        assert block - halves - clamp_holes(report) == pytest.approx(body, rel=0.01)
 
 
 @pytest.fixture(scope="module")
