@@ -524,6 +524,8 @@ def test_the_bundled_arm_fabricates(tmp_path):
     for part, item in report["parts"].items():
         s = solid_report(out / item["stl"])
         assert s["edges_not_two"] == s["directed_repeats"] == 0 and s["volume"] > 0, (part, s)
+        count, volume = step_solids(out / item["step"])      # round parts: triangulated finely enough
+        assert count == 1 and volume == pytest.approx(s["volume"], rel=1e-3), (part, count, volume, s["volume"])
     from skelfem.design import load_design
     body = load_design(GEOMETRY / "arm3d.toml").measure          # the union of the body's primitives (OCC)
     block = report["mould"]["block"]["volume"]
