@@ -110,3 +110,26 @@ def test_a_marker_on_a_3d_object_is_accepted_and_follows_it():
     design = parse_design(_design([0.0, -G, 0.0]))
     assert design.objects[0].outline is None and design.objects[0].size == pytest.approx(SIDE * math.sqrt(3))
     assert set(design.markers) == {"on_cube", "corner"}
+
+
+@pytest.mark.slow
+def test_a_stiff_elastic_cube_rests_like_a_rigid_one():
+    """rigid = false in 3D: with E 1e3 times the block's, where the cube rests, its rotation and the contact
+    force are the rigid cube's (gravity ramped over 4 load steps), clear of the block."""
+    out = []
+    for rigid in (True, False):
+        d = _design([0.0, -G, 0.0], solver={"steps": 4})
+        d["objects"][0]["rigid"] = rigid
+        with Session(d) as s:
+            r = s.solve()
+            assert r.converged, r.status
+            contact = s.model.term("contacts", "pieces")
+            assert contact.min_distance(s.model.u.x.array) > 0 and not contact.intersects(s.model.u.x.array)
+            out.append(r.to_dict())
+    a, b = (o["objects"]["cube"] for o in out)
+    assert np.allclose(a["position"], b["position"], atol=1e-5)
+    assert np.allclose(a["rotation"], b["rotation"], atol=1e-6)
+    assert np.allclose(out[0]["contacts"][0]["normal_force"], out[1]["contacts"][0]["normal_force"], rtol=1e-4,
+                       atol=1e-9)
+    assert out[1]["contacts"][0]["normal_force"][1] == pytest.approx(-_weight(), rel=1e-4)
+
