@@ -7,7 +7,8 @@ site parallel to n, the body's top is its last crossing.
 
 - **Pour hole**: among the sites where the body's top is flat enough for
   the hole (a ring of its radius meets the top within a radius of the same
-  height, with body beneath) and clear of the top pegs and posts, those
+  height, with body beneath) and clear of the top pegs and posts and of
+  the removable rods, those
   whose hole's column down to the parting plane meets no bone (the silicone
   falls to the bottom, not onto a bone), then the highest, then the nearest
   the body's middle. If every site's column meets a bone, the best one is
@@ -115,7 +116,10 @@ def high_points(intervals: list, shape: tuple[int, int], tol: float) -> list[lis
 def openings(planner, blockers: list) -> tuple[list[Tool], dict, list[str]]:
     """The pour hole and vents (Tools), the report's ``mould.flow`` entries and notes; see the module doc."""
     spec, f = planner.spec, planner.frame
-    top_tools = np.array([f.local(p.points[0])[:2] for p in blockers if p.side == "top"]).reshape(-1, 2)
+    from .routes import dense
+    top_tools = np.array([f.local(p.points[0])[:2] for p in blockers if p.side == "top"] +    # pegs', posts' tips
+                         [y[:2] for p in blockers if p.kind == "rod" for y in f.local(dense(p.points, 1.0))]
+                         ).reshape(-1, 2)                                # a rod anywhere across the top half
     uv = f.local(planner.body.points)[:, :2]
     sites, shape, h = planner.lattice(uv, 600)
     q = len(sites)
