@@ -438,9 +438,17 @@ class Model(MatrixAssembly):
         return any(term.bounds_steps for term in self.terms)
 
     def max_step(self, x0: np.ndarray, p: np.ndarray) -> float:
-        """Largest alpha in [0, 1] such that every term admits x0 + s p, s <= alpha (agreed over ranks)."""
-        alpha = min([1.0] + [term.max_step(x0, p) for term in self.terms])
-        return float(self.comm.allreduce(alpha, op=MPI.MIN))
+        """Largest alpha in [0, 1] such that every term admits x0 + s p, s <= alpha (agreed over ranks).
+
+        The terms that sweep the trajectory (contact's collision detection) are asked last, on the step
+        the others allow: a free object's first Newton step, which only its tether resists, can be
+        kilometres long, and sweeping that took seconds where the trust region keeps a millimetre."""
+        alpha = min([1.0] + [term.max_step(x0, p) for term in self.terms if not term.sweeps_steps])
+        alpha = float(self.comm.allreduce(alpha, op=MPI.MIN))
+        for term in self.terms:
+            if term.sweeps_steps and alpha > 0.0:
+                alpha *= float(self.comm.allreduce(term.max_step(x0, alpha * p), op=MPI.MIN))
+        return alpha
 
     def step_correction(self, x0: np.ndarray, p: np.ndarray, alpha: float) -> np.ndarray | float:
         """Sum of the terms' corrections to the trial state x0 + alpha p (0 if none)."""

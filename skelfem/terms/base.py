@@ -105,6 +105,9 @@ class Term:
         return None
 
     # -- line search ------------------------------------------------------------------------------
+    sweeps_steps = False   # max_step sweeps the whole trajectory (continuous collision detection): costly
+    #                        for long steps, so Model.max_step asks it last, on the step the others allow
+
     def max_step(self, u0: np.ndarray, p: np.ndarray) -> float:
         """Largest alpha in [0, 1] such that u0 + s p is admissible for s <= alpha."""
         return 1.0

@@ -61,6 +61,7 @@ from .base import Context, Term
 # path near a stick/slip threshold (a 3D cube at its friction limit took 9 s to 5 min to be found "not held").
 # skelfem runs its parallelism as MPI ranks and sweep processes instead.
 ipctk.set_num_threads(1)
+CCD_TOLERANCE = 1e-3    # continuous collision detection brackets the time of first contact to this x dhat
 
 
 def boundary_facets(V) -> tuple[np.ndarray, np.ndarray]:
@@ -153,6 +154,9 @@ class SelfContact(Term):
         faces = [] if self.dim == 2 else [np.asfortranarray(self.facets)]
         self.mesh = ipctk.CollisionMesh(fortran_array(self.X), np.asfortranarray(self.edges), *faces)
         self.barrier = ipctk.BarrierPotential(self.dhat, self.kappa, True)
+        # the time of first contact is bracketed conservatively (never past it) to CCD_TOLERANCE x dhat:
+        # ipctk's default of 1e-6 (mm) took seconds for a face landing flat on a face
+        self.ccd = ipctk.TightInclusionCCD(tolerance=CCD_TOLERANCE * self.dhat)
 
     # -- geometry ------------------------------------------------------------------------
     def boundary_values(self, u: np.ndarray) -> np.ndarray:
@@ -216,6 +220,8 @@ class SelfContact(Term):
     def readout(self, model) -> dict:
         return {self.name: {"min_distance": self.min_distance(model.u.x.array)}}
 
+    sweeps_steps = True
+
     def max_step(self, u0: np.ndarray, p: np.ndarray) -> float:
         """alpha in [0, 1] such that x0 + s p, s in [0, alpha], keeps clear of contact.
 
@@ -224,7 +230,8 @@ class SelfContact(Term):
         """
         y0 = self.positions(u0)
         y1 = y0 + self.boundary_values(p).reshape(-1, self.bs)
-        toi = float(ipctk.compute_collision_free_stepsize(self.mesh, fortran_array(y0), fortran_array(y1)))
+        toi = float(ipctk.compute_collision_free_stepsize(self.mesh, fortran_array(y0), fortran_array(y1),
+                                                          narrow_phase_ccd=self.ccd))
         if self.gather is not None:                          # one step for every rank
             toi = self.comm.allreduce(toi, op=MPI.MIN)
         return toi if toi >= 1.0 else self.approach * toi
