@@ -101,14 +101,10 @@ def test_a_sharp_bend_gets_a_post_thin_enough_for_the_tolerance():
     assert plan.routes["flexor"]["deviation"] <= 0.1
 
 
-def test_pry_slots_cut_both_halves_at_the_parting_line(finger):
-    """Two round slots across the parting plane on the block's long sides, wall/2 deep: a point on a slot's
-    axis is in neither printed half; one a slot's radius and a bit above or below it is in a half."""
+def _halves(out, report):
+    """solid(points (k, 3) in design coordinates, "mould_bottom" | "mould_top") -> is each in that printed half."""
     from skelfem.fabricate import read_stl
     from skelfem.fabricate.surfaces import inside, Surface
-    out, report = finger
-    slots = report["mould"]["pry_slots"]
-    assert len(slots) == 2
     halves = {}
     for half in ("mould_bottom", "mould_top"):
         pts, tris = read_stl(out / f"{half}.stl")
@@ -117,7 +113,20 @@ def test_pry_slots_cut_both_halves_at_the_parting_line(finger):
 
     def solid(x, half):
         s, R, t = halves[half]
-        return bool(inside(np.asarray(x, float) @ R.T + t, s, 1e-9)[0])
+        return inside(np.asarray(x, float) @ R.T + t, s, 1e-9)
+    return solid
+
+
+def test_pry_slots_cut_both_halves_at_the_parting_line(finger):
+    """Two round slots across the parting plane on the block's long sides, wall/2 deep: a point on a slot's
+    axis is in neither printed half; one a slot's radius and a bit above or below it is in a half."""
+    out, report = finger
+    slots = report["mould"]["pry_slots"]
+    assert len(slots) == 2
+    halves = _halves(out, report)
+
+    def solid(x, half):
+        return bool(halves(np.asarray(x, float)[None], half)[0])
 
     for slot in slots:
         a, b, r = np.array(slot["from"]), np.array(slot["to"]), slot["diameter"] / 2
@@ -131,22 +140,12 @@ def test_clamp_bolt_holes_go_through_both_halves_in_the_wall(finger):
     """Four clamp holes along the normal, two on each long side of the block, centred in its wall band: a
     point on a hole's axis is in neither half, points a millimetre round it are in the half at their height;
     the bolt is the thickest whose hole leaves a millimetre of wall (wall 5 mm: M2.5, 2.9 mm)."""
-    from skelfem.fabricate import read_stl
-    from skelfem.fabricate.surfaces import inside, Surface
     out, report = finger
     clamps, wall = report["mould"]["clamps"], report["fabrication"]["wall"]
     assert len(clamps) == 4 and {c["bolt"] for c in clamps} == {"M2.5"} and wall == 5.0
     block = report["mould"]["block"]
     lo, hi = np.array(block["min"]), np.array(block["max"])           # (x, y, z): the frame is the axes here
-    halves = {}
-    for half in ("mould_bottom", "mould_top"):
-        pts, tris = read_stl(out / f"{half}.stl")
-        pose = report["parts"][half]["print"]
-        halves[half] = (Surface(pts, tris, None), np.array(pose["rotation"]), np.array(pose["translation"]))
-
-    def solid(x, half):
-        s, R, t = halves[half]
-        return inside(np.asarray(x, float) @ R.T + t, s, 1e-9)
+    solid = _halves(out, report)
 
     r = clamps[0]["diameter"] / 2
     ring = np.array([[math.cos(a), math.sin(a), 0.0] for a in np.linspace(0, 2 * math.pi, 8, endpoint=False)])

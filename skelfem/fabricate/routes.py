@@ -215,20 +215,8 @@ class RouteHolder:
         across /= np.linalg.norm(across)
         reach = r_p + r_c
         for d in (across, -across):
-            _, t, _ = ray_hits(axis, d, self.body.corners, self.tol)
-            t = t[t > self.tol]
-            if len(t) != 1:
-                continue
-            tip = axis - reach * d
-            if not inside(tip, self.body, self.tol)[0]:
-                continue
-            leave = axis + float(t[0]) * d
-            column = dense(np.array([tip, leave]), 0.2)
-            if self.in_bone(column).any() or (self.bones and min(
-                    float(point_triangle_distance(column, s.corners).min()) for s in self.bones.values())
-                    < r_p + spec.clearance):
-                continue
-            if self.too_near_cables(column, cable.name, r_p) or self.too_near_pegs(column, pegs, r_p):
+            tip, leave = self.clear_column(cable, axis, d, r_p, reach, pegs)
+            if tip is None:
                 continue
             y0, dy = f.local(axis), f.local(d)
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -243,23 +231,30 @@ class RouteHolder:
         reach = r_p + r_c                             # past the line's axis: the line cannot slip off
         for side in (-1.0, 1.0):                      # the bottom half first
             d = side * f.n
-            _, t, _ = ray_hits(axis, d, self.body.corners, self.tol)
-            t = t[t > self.tol]
-            if len(t) != 1:
-                continue                              # leaves the body more than once, or never
-            root = axis + (float(t[0]) + spec.wall / 2) * d
-            tip = axis - reach * d
-            if not inside(tip, self.body, self.tol)[0]:
-                continue                              # the tip would leave the body: the other half
-            column = dense(np.array([tip, root - spec.wall / 2 * d]), 0.2)
-            if self.in_bone(column).any() or (self.bones and min(
-                    float(point_triangle_distance(column, s.corners).min()) for s in self.bones.values())
-                    < r_p + spec.clearance):
-                continue
-            if self.too_near_cables(column, cable.name, r_p) or self.too_near_pegs(column, pegs, r_p):
-                continue
-            return Tool("post", np.array([tip, root]), r_p, cable=cable.name, side="top" if side > 0 else "bottom")
+            tip, leave = self.clear_column(cable, axis, d, r_p, reach, pegs)
+            if tip is not None:
+                return Tool("post", np.array([tip, leave + spec.wall / 2 * d]), r_p, cable=cable.name,
+                            side="top" if side > 0 else "bottom")
         return None
+
+    def clear_column(self, cable, axis: np.ndarray, d: np.ndarray, r_p: float, reach: float, pegs: list):
+        """(tip, where it leaves the body) of a cylinder of radius r_p from reach before axis along d out of
+        the body, or (None, None) where it leaves the body more than once or never, its tip is not in the
+        body (the other side), or it comes near a bone, another cable or a peg."""
+        _, t, _ = ray_hits(axis, d, self.body.corners, self.tol)
+        t = t[t > self.tol]
+        tip = axis - reach * d
+        if len(t) != 1 or not inside(tip, self.body, self.tol)[0]:
+            return None, None
+        leave = axis + float(t[0]) * d
+        column = dense(np.array([tip, leave]), 0.2)
+        if self.in_bone(column).any() or (self.bones and min(
+                float(point_triangle_distance(column, s.corners).min()) for s in self.bones.values())
+                < r_p + self.spec.clearance):
+            return None, None
+        if self.too_near_cables(column, cable.name, r_p) or self.too_near_pegs(column, pegs, r_p):
+            return None, None
+        return tip, leave
 
     def too_near_cables(self, column: np.ndarray, name: str, r_p: float) -> bool:
         for other in self.design.cables:
