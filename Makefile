@@ -38,11 +38,13 @@ export MPLBACKEND := Agg
 demo: setup
 	$(VENV)/bin/skelfem simulate geometry/finger.toml --out results/finger
 
-# The whole suite: two workers for everything but the mpirun tests, then those one at a time (two
-# ranks each use both cores); the slowest tests are listed. test-fast skips the slow tier (the edit loop).
+# The whole suite: two workers for everything but the mpirun tests, then those two at a time (four
+# ranks on two cores: Open MPI's ranks yield when idle, and much of each test is starting Python on
+# both ranks: 186 s one at a time, 144 s two at a time); the slowest tests are listed. test-fast skips
+# the slow tier (the edit loop).
 test: setup
 	$(PY) -m pytest -q -n 2 -m "not mpi" --durations=20
-	$(PY) -m pytest -q -m mpi --durations=10
+	$(PY) -m pytest -q -n 2 -m mpi --durations=10
 
 test-fast: setup
 	$(PY) -m pytest -q -n 2 -m "not slow and not mpi" --durations=10
