@@ -35,7 +35,7 @@ site parallel to n, the body's top is its last crossing.
 from __future__ import annotations
 
 import numpy as np
-from .parts import Tool
+from .parts import Tool, where_text
 from .surfaces import FabricationError, Surface, inside, orient, ray_hits
 
 CEILING = np.cos(np.radians(30.0))       # a face looks down if its normal is this close to -n
@@ -234,28 +234,33 @@ def ceilings(planner) -> tuple[dict, list[str]]:
     return out, notes
 
 
-def _locked(planner, c: float) -> dict:
-    """Per half (parting plane n . x = c): the mask over the body's triangles whose mould material is
-    locked in against the half's pull, with the triangles' centres and areas."""
+def _rays(planner) -> dict:
+    """What the undercut test needs of the body's triangles, whatever the parting plane: centres, areas,
+    heights along n, the ray starts just outside each, and whether those starts are outside the body."""
     f, body = planner.frame, planner.body
     body = Surface(body.points, orient(body.points, body.tris), body.faces)   # outward normals
     corners = body.corners
     centre = corners.mean(axis=1)
     area = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
-    eps = 1e-4 * planner.scale
-    height = f.local(centre)[:, 2]
-    start = centre + eps * body.normals
-    outside = ~inside(start, body, planner.tol)
+    start = centre + 1e-4 * planner.scale * body.normals
+    return {"centre": centre, "area": area, "height": f.local(centre)[:, 2], "start": start,
+            "outside": ~inside(start, body, planner.tol)}
+
+
+def _locked(planner, rays: dict, c: float) -> dict:
+    """Per half (parting plane n . x = c): the mask over the body's triangles whose mould material is
+    locked in against the half's pull."""
+    f, eps = planner.frame, 1e-4 * planner.scale
     out = {}
     for side, sign in (("bottom", -1.0), ("top", 1.0)):
-        mine = sign * (height - c) > eps                # this half's side of the parting plane
-        r, t, _ = ray_hits(start[mine], sign * f.n, body.corners, planner.tol)
+        mine = sign * (rays["height"] - c) > eps        # this half's side of the parting plane
+        r, t, _ = ray_hits(rays["start"][mine], sign * f.n, planner.body.corners, planner.tol)
         hit = np.zeros(int(mine.sum()), bool)
         hit[r[t > planner.tol]] = True              # a face looking down, on its own, is locked too
-        locked = np.zeros(len(area), bool)
+        locked = np.zeros(len(mine), bool)
         locked[np.flatnonzero(mine)[hit]] = True
-        out[side] = locked & outside
-    return {"mask": out, "centre": centre, "area": area}
+        out[side] = locked & rays["outside"]
+    return out
 
 
 def least_undercut(planner) -> float:
@@ -273,25 +278,22 @@ def least_undercut(planner) -> float:
                           [np.zeros(0)])
     middle = 0.5 * (f.lo[2] + f.hi[2])
     candidates = [middle] + (list(np.quantile(mids, np.linspace(0.1, 0.9, 9))) if len(mids) else [])
-    scores = []
-    for c in candidates:
-        lock = _locked(planner, c)
-        scores.append(sum(float(lock["area"][m].sum()) for m in lock["mask"].values()))
-    total = float(_locked(planner, middle)["area"].sum())
+    rays = _rays(planner)
+    scores = [sum(float(rays["area"][m].sum()) for m in _locked(planner, rays, c).values()) for c in candidates]
     best = min(scores)
-    good = [c for c, a in zip(candidates, scores) if a <= best + 1e-4 * total]
+    good = [c for c, a in zip(candidates, scores) if a <= best + 1e-4 * float(rays["area"].sum())]
     return float(min(good, key=lambda c: abs(c - middle)))
 
 
 def undercuts(planner) -> tuple[dict, list[str]]:
     """Per half, the body surface area whose mould material is locked in against the half's pull."""
-    lock = _locked(planner, planner.frame.c)
+    rays = _rays(planner)
     out, notes = {}, []
-    for side, locked in lock["mask"].items():
-        out[side] = float(lock["area"][locked].sum())
+    for side, locked in _locked(planner, rays, planner.frame.c).items():
+        out[side] = float(rays["area"][locked].sum())
         if out[side] > 0:
-            where = lock["centre"][locked][np.argmax(lock["area"][locked])]
-            notes.append(f"the {side} half has {out[side]:.3g} mm^2 of undercut (near {_at(where)}): it comes off "
+            where = rays["centre"][locked][np.argmax(rays["area"][locked])]
+            notes.append(f"the {side} half has {out[side]:.3g} mm^2 of undercut (near {where_text(where)}): it comes off "
                          "only as far as the silicone bends; another fabrication.split avoids it")
     return out, notes
 
@@ -336,7 +338,3 @@ def clamps(planner, avoid: list) -> tuple[list[Tool], list[str]]:
     notes = [] if len(tools) == 4 else [f"only {len(tools)} of 4 clamp holes found room (tendon exits, pry "
                                         "slots and pins are in the way): add clips"]
     return tools, notes
-
-
-def _at(x) -> str:
-    return "(" + ", ".join(f"{v:.3g}" for v in x) + ")"

@@ -30,13 +30,11 @@ def _plain(x) -> list:
 
 def _rod(t, f) -> dict:
     """A removable rod: where it enters the block's outside, its direction in, how deep, how thick."""
-    y0, d = f.local(t.points[-1]), f.local(t.points[0] - t.points[-1])
-    d = d / np.linalg.norm(d)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.where(d > 0, (f.lo - y0) / d, np.where(d < 0, (f.hi - y0) / d, -np.inf))
-    entry = f.world(y0 + float(s.max()) * d)       # back along the rod to the block's face
-    return {"cable": t.cable, "diameter": 2 * t.radius, "entry": _plain(entry), "tip": _plain(t.points[0]),
-            "direction": _plain(f.world(d)), "depth": float(np.linalg.norm(t.points[0] - entry))}
+    tip = t.points[0]
+    out = (t.points[-1] - tip) / np.linalg.norm(t.points[-1] - tip)
+    entry = tip + f.reach(tip, out) * out            # out along the rod from its tip to the block's face
+    return {"cable": t.cable, "diameter": 2 * t.radius, "entry": _plain(entry), "tip": _plain(tip),
+            "direction": _plain(-out), "depth": float(np.linalg.norm(tip - entry))}
 
 
 def write(plan: Plan, folder: Path, picture_file: bool = True) -> dict:

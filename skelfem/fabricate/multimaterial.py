@@ -86,7 +86,8 @@ def _ends_in(plan: Plan, bone: str, point: np.ndarray) -> bool:
 def check_print(plan: Plan) -> None:
     """Every cable's channel through the printed body keeps fabrication.min_wall of body between it and the
     body's surface (its spool exit excepted); raises FabricationError naming the cable and the point."""
-    from .plan import path_samples, where_text
+    from .parts import where_text
+    from .plan import path_samples
     from .surfaces import FabricationError, inside, point_triangle_distance
     design, spec = plan.design, plan.spec
     exits = {t.cable: t.points[0] for t in plan.mould_tools if t.kind == "exit"}

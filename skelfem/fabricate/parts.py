@@ -14,6 +14,11 @@ def cable_points(design, cable) -> np.ndarray:
     return p
 
 
+def where_text(x) -> str:
+    """A point for a message: (x, y, z) to three significant digits."""
+    return "(" + ", ".join(f"{v:.3g}" for v in x) + ")"
+
+
 def cable_radius(spec, cable) -> float:
     """The radius of a cable's channel: channel_diameter for tendons, anchor_diameter for ligaments."""
     return (spec.channel_diameter if cable.kind == "tendon" else spec.anchor_diameter) / 2
@@ -50,6 +55,13 @@ class Frame:
 
     def world(self, y) -> np.ndarray:
         return np.asarray(y, float) @ self.matrix.T
+
+    def reach(self, point, d) -> float:
+        """How far from a point in the block along the unit direction d the block's boundary is."""
+        y0, dy = self.local(point), self.local(d)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(dy > 0, (self.hi - y0) / dy, np.where(dy < 0, (self.lo - y0) / dy, np.inf))
+        return float(t.min())
 
 
 @dataclass

@@ -39,7 +39,7 @@ import math
 
 import numpy as np
 from .meshing import generate_surface_mesh, triangle_surface
-from .parts import Frame, Plan, Tool, cable_points
+from .parts import Frame, Plan, Tool, cable_points, where_text
 from . import casting
 from .routes import RouteHolder
 from .sheaths import sheath
@@ -58,10 +58,6 @@ def path_samples(points: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarra
         out.append(a + f[:, None] * d), arc.append(s0 + f * L)
         s0 += L
     return np.concatenate(out), np.concatenate(arc)
-
-
-def where_text(x) -> str:
-    return "(" + ", ".join(f"{v:.3g}" for v in x) + ")"
 
 
 class _Planner:
@@ -505,15 +501,10 @@ class _Planner:
 
     def exits(self) -> list:
         """A channel through the mould wall where each tendon leaves the body toward its spool."""
-        f = self.frame
         tools = []
         for name, s in self.spool.items():
             d = s["direction"]
-            # distance along d from the point to the block's boundary (a slab test in frame coordinates)
-            y0, dy = f.local(s["origin"]), f.local(d)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                t = np.where(dy > 0, (f.hi - y0) / dy, np.where(dy < 0, (f.lo - y0) / dy, np.inf))
-            tools.append(Tool("exit", np.vstack([s["origin"], s["origin"] + (float(t.min()) + 1.0) * d]),
+            tools.append(Tool("exit", np.vstack([s["origin"], s["origin"] + (self.frame.reach(s["origin"], d) + 1.0) * d]),
                               self.r_channel, cable=name))
         return tools
 

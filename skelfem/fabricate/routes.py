@@ -38,7 +38,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from .parts import Frame, Tool, cable_points, cable_radius
+from .parts import Frame, Tool, cable_points, cable_radius, where_text
 from .surfaces import FabricationError, Surface, inside, point_triangle_distance, ray_hits
 
 MAX_TILT = math.radians(20)       # a bend's inner bisector at most this far out of the plane normal to n
@@ -171,7 +171,7 @@ class RouteHolder:
                 why = (failed[near] if near is not None else "even round a guide post; soften the bend or raise "
                        "fabrication.route_tolerance")
                 raise FabricationError(f"cables.{cable.name}.path",
-                                       f"cast, its line would lie {dev:.2g} mm off its sketch near {_at(where)} "
+                                       f"cast, its line would lie {dev:.2g} mm off its sketch near {where_text(where)} "
                                        f"(fabrication.route_tolerance {spec.route_tolerance:g} mm): {why}")
             report[cable.name] = {"deviation": dev, "unheld_deviation": dev0, "where_unheld": _plain(where0),
                                   "posts": [{"at": _plain(p[i]), "tip": _plain(t.points[0]), "diameter": 2 * t.radius,
@@ -198,7 +198,7 @@ class RouteHolder:
                                                                                          r_c, pegs)
             if tool is not None:
                 return tool
-        raise FabricationError(key, f"no guide post can hold its bend at {_at(p[i])}: neither along the "
+        raise FabricationError(key, f"no guide post can hold its bend at {where_text(p[i])}: neither along the "
                                     "mould's normal nor as a removable rod across the bend is a column clear of "
                                     f"bones, pegs and other cables, even {MIN_POST:g} mm thin "
                                     f"(fabrication.post_diameter {self.spec.post_diameter:g} mm); move the bend, or "
@@ -218,10 +218,7 @@ class RouteHolder:
             tip, leave = self.clear_column(cable, axis, d, r_p, reach, pegs)
             if tip is None:
                 continue
-            y0, dy = f.local(axis), f.local(d)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                out = np.where(dy > 0, (f.hi - y0) / dy, np.where(dy < 0, (f.lo - y0) / dy, np.inf))
-            return Tool("rod", np.array([tip, axis + (float(out.min()) + spec.wall) * d]), r_p, cable=cable.name)
+            return Tool("rod", np.array([tip, axis + (f.reach(axis, d) + spec.wall) * d]), r_p, cable=cable.name)
         return None
 
     def place(self, cable, axis: np.ndarray, r_p: float, r_c: float, pegs: list) -> Tool | None:
@@ -268,10 +265,6 @@ class RouteHolder:
     def too_near_pegs(self, column: np.ndarray, pegs: list, r_p: float) -> bool:
         return any(segment_distance(column, t.points).min() < r_p + t.radius + self.spec.clearance
                    for t in pegs)
-
-
-def _at(x) -> str:
-    return "(" + ", ".join(f"{v:.3g}" for v in x) + ")"
 
 
 def _plain(x) -> list:

@@ -25,15 +25,11 @@ segment ends (a bend of its sketch) before the axis is clear of the bone.
 from __future__ import annotations
 
 import numpy as np
-from .parts import Tool, cable_points, cable_radius
+from .parts import Tool, cable_points, cable_radius, where_text
 from .routes import dense, segment_distance
 from .surfaces import FabricationError, point_triangle_distance
 
 STEP = 0.1        # of the sheath's radius: how finely the way out along the cable is searched
-
-
-def _where(x) -> str:
-    return "(" + ", ".join(f"{v:.3g}" for v in x) + ")"
 
 
 def _outward(cable_pts: np.ndarray, arc: float, sign: float, tol: float) -> tuple[np.ndarray, float]:
@@ -69,8 +65,8 @@ def sheath(planner, tool: Tool, start: dict, end: dict) -> tuple[Tool, Tool]:
         clear = point_triangle_distance(x, surface.corners).min(axis=1) >= need
         if not clear.any():
             raise FabricationError(key, f"its channel runs within {need:g} mm (radius + min_wall) of bone "
-                                        f"{tool.bone!r}'s surface from {_where(end_['point'])} to the end of its "
-                                        f"sketch's segment at {_where(x[-1])}, so no sheath closes it there: "
+                                        f"{tool.bone!r}'s surface from {where_text(end_['point'])} to the end of its "
+                                        f"sketch's segment at {where_text(x[-1])}, so no sheath closes it there: "
                                         "move the cable into the bone or away from it")
         out = end_["point"] + float(t[int(np.argmax(clear))]) * direction
         if which == 0:
@@ -92,7 +88,7 @@ def _check(planner, axis: np.ndarray, need: float, tool: Tool, key: str) -> None
     i = int(np.argmin(body))
     if body[i] < need + spec.min_wall:
         raise FabricationError(key, f"the sheath its channel needs in bone {tool.bone!r} would come within "
-                                    f"{max(body[i] - need, 0):.2g} mm of the body's surface near {_where(x[i])} "
+                                    f"{max(body[i] - need, 0):.2g} mm of the body's surface near {where_text(x[i])} "
                                     f"(fabrication.min_wall {spec.min_wall:g} mm of silicone is needed over it)")
     for name, other in planner.bones.items():
         if name == tool.bone:
@@ -101,11 +97,11 @@ def _check(planner, axis: np.ndarray, need: float, tool: Tool, key: str) -> None
         if d.min() < need + spec.min_wall:
             raise FabricationError(key, f"the sheath its channel needs in bone {tool.bone!r} would come within "
                                         f"{max(float(d.min()) - need, 0):.2g} mm of bone {name!r} near "
-                                        f"{_where(x[int(np.argmin(d))])}")
+                                        f"{where_text(x[int(np.argmin(d))])}")
     for other in planner.design.cables:
         if other.name == tool.cable:
             continue
         d = segment_distance(x, cable_points(planner.design, other))
         if d.min() < need + cable_radius(spec, other):
             raise FabricationError(key, f"the sheath its channel needs in bone {tool.bone!r} would meet cable "
-                                        f"{other.name!r} near {_where(x[int(np.argmin(d))])}")
+                                        f"{other.name!r} near {where_text(x[int(np.argmin(d))])}")
