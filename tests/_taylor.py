@@ -4,8 +4,7 @@ import numpy as np
 
 def hessian_times(model, x, d, A=None):
     """hess Pi(x) d = K d + sum c g (g . d): the sparse matrix and the rank-one parts kept out of it."""
-    A = A if A is not None else model.create_matrix()
-    model.jacobian(x, A)
+    A = model.assemble_jacobian(x, A if A is not None else model.create_matrix())
     Ad = d.duplicate()
     A.mult(d, Ad)
     for c, g in model.low_rank(x):

@@ -224,15 +224,24 @@ def test_sensitivities_are_the_derivatives_of_the_lagged_equilibrium(monkeypatch
     from skelfem.session import Session
     d, _ = channel(np.pi / 2, 0.3, far_in_silicone=True, contraction=2.0, k=5.0)
     d["markers"] = {"far": [60.0, 45.0]}
-    s = Session(d)
-    assert s.solve().status == "converged"
-    c, h = 1.7, 1e-3
-    s.set({"cables.t.contraction": c})
-    r = s.solve()
-    slipping = np.array(r.to_dict()["cables"]["t"]["slipping"])
-    assert r.status == "converged" and 0 < slipping.sum() < len(slipping)
-    lin = Linearization(s.model, s.solver)
-    J = lin.marker_jacobian(0, mode="forward")[:, 0]
+    h = 1e-3
+    # the release whose slipping front has reached the marker but not the far end: where that lies
+    # depends on the mesh's last bits (seen between 1.70 and 1.78 on two machines), so it is looked for
+    for c in np.arange(1.70, 1.901, 0.02):
+        s = Session(d)
+        assert s.solve().status == "converged"
+        s.set({"cables.t.contraction": float(c)})
+        r = s.solve()
+        slipping = np.array(r.to_dict()["cables"]["t"]["slipping"])
+        assert r.status == "converged"
+        lin = Linearization(s.model, s.solver)
+        J = lin.marker_jacobian(0, mode="forward")[:, 0]
+        if 0 < slipping.sum() < len(slipping) and np.linalg.norm(J) > 1e-3:
+            break
+        s.close()
+    else:
+        raise AssertionError("no release between 1.7 and 1.9 leaves the via points partly sticking")
+    c = float(c)
     assert np.allclose(J, lin.marker_jacobian(0)[:, 0], rtol=1e-8)        # adjoint = forward
     cab = s.model.terms_in("cables")[0].cable
     saved = (s.model.u.x.array.copy(), cab.F.copy(), cab.s_hat.copy())
@@ -247,7 +256,7 @@ def test_sensitivities_are_the_derivatives_of_the_lagged_equilibrium(monkeypatch
         assert rr.status == "converged"
         y[k] = np.asarray(rr.marker("far"))
     back = (3 * y[0] - 4 * y[-1] + y[-2]) / (2 * h)             # second-order one-sided, releasing
-    assert np.linalg.norm(J) > 1e-3 and np.linalg.norm(J - back) < 1e-5 * np.linalg.norm(J), (J, back)
+    assert np.linalg.norm(J - back) < 1e-5 * np.linalg.norm(J), (J, back)
     assert np.linalg.norm(y[1] - y[0]) < 1e-3 * h * np.linalg.norm(J)    # pulling: the via points stick
 
 

@@ -3,6 +3,7 @@
 import dataclasses
 
 import numpy as np
+import scipy.sparse as sp
 import pytest
 from dolfinx import fem
 from dolfinx import mesh as dmesh
@@ -113,20 +114,35 @@ def test_model_with_contact_has_consistent_energy_gradient_and_jacobian():
     assert hessian_error(sc, x, d, h=1e-4) < 1e-7
 
 
-def test_pattern_holds_the_boundary_block_and_contact_costs_nothing_when_off():
-    on, off = _model(_slot_design(1)), _model(_slot_design(1, self_contact=False))
+def test_the_pattern_grows_with_the_contacts_and_contact_costs_nothing_when_off():
+    on = _model(_slot_design(1, dhat=0.05, size=0.25))              # at rest the slot's faces are out of reach
+    off = _model(_slot_design(1, self_contact=False, size=0.25))
     assert not off.terms_in("contact") and not any(isinstance(t, SelfContact) for t in off.terms)
     assert not off.bounds_steps and off.max_step(np.zeros(off.n_local), np.ones(off.n_local)) == 1.0
+    contact = _contact(on)
+    nb = len(contact.nodes)
     A_on, A_off = on.create_matrix(), off.create_matrix()
-    nb = len(_contact(on).nodes)
-    assert A_on.getInfo()["nz_used"] >= nb * nb * 4                # dense boundary x boundary block
-    assert A_off.getInfo()["nz_used"] < 0.5 * A_on.getInfo()["nz_used"]
-    # a Jacobian with contacts that change fits the fixed pattern (new entries would raise)
+    assert len(contact._pairs) < 0.25 * nb * nb                    # not the dense boundary x boundary block
+    # as the slot closes, contacts form: the matrix is made anew where they need new pairs, and holds the
+    # same K as a matrix over every boundary pair
     x = on.u.vector.copy()
-    for closing in (0.2, 0.75, 0.85):
+    grew = 0
+    for closing in (0.5, 0.95, 0.97):                               # gaps 0.4, 0.04, 0.024 mm
         x.array[:] = _squeeze(on.V, closing)
         on.apply_bcs(x)
-        on.jacobian(x, A_on)
+        A = on.assemble_jacobian(x, A_on)
+        grew += A is not A_on
+        A_on = A
+        on.jacobian(x, A_on)                                       # held now: new entries would raise
+        pairs, contact._pairs = contact._pairs, np.arange(nb * nb, dtype=np.int64)
+        A_full = on.create_matrix()
+        contact._pairs = pairs
+        on.jacobian(x, A_full)
+        K, K_full = (sp.csr_matrix(M.getValuesCSR()[::-1], shape=M.getSize()) for M in (A_on, A_full))
+        assert abs(K - K_full).max() <= 1e-12 * abs(K_full).max()
+        assert A_on.getInfo()["nz_used"] < 0.5 * A_full.getInfo()["nz_used"]
+    assert grew >= 1
+    assert A_off.getInfo()["nz_used"] < A_on.getInfo()["nz_used"]
 
 
 def test_step_bound_stops_the_faces_before_they_cross():

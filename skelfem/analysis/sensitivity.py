@@ -114,7 +114,7 @@ class Linearization:
         for t in barriers:                      # the exact barrier Hessian, not Newton's PSD projection
             t.project = False
         try:
-            model.jacobian(model.u.vector, solver.A)
+            solver.assemble(model.u.vector)
         finally:
             for t in barriers:
                 t.project = True

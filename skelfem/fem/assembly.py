@@ -14,6 +14,11 @@ from .linear import Border
 
 
 
+class PatternOutgrown(Exception):
+    """A term's Hessian needs entries outside the Newton matrix's pattern (contact pairs that formed):
+    make a new matrix (Model.create_matrix) and assemble again."""
+
+
 def assemble_form(A: PETSc.Mat, form, bcs, coefficients=None) -> None:
     coefficients = _cpp.fem.pack_coefficients(form) if coefficients is None else coefficients
     _cpp.fem.petsc.assemble_matrix(A, form, _cpp.fem.pack_constants(form), coefficients, bcs)
@@ -233,6 +238,11 @@ class MatrixAssembly:
     def _add_term_blocks(self, A: PETSc.Mat, u: np.ndarray) -> None:
         """A += the terms' sparse Hessian blocks, duplicates summed; the CSR layout is kept while it holds."""
         blocks, values = self._term_blocks_at(u)
+        grown = [t for t in self.terms if getattr(t, "outgrown", False)]
+        if grown:                  # their pattern grew to hold these blocks: the matrix must be made anew
+            for t in grown:
+                t.outgrown = False
+            raise PatternOutgrown(", ".join(f"{t.section}.{t.name}" for t in grown))
         if not blocks:
             return
         cache = self._csr_cache
@@ -252,6 +262,17 @@ class MatrixAssembly:
         _, slot, n, urows, indptr, indices = cache
         data = np.bincount(slot, weights=np.concatenate(values), minlength=n)
         A.setValuesIJV(indptr, indices, data, addv=PETSc.InsertMode.ADD_VALUES, rowmap=urows)
+
+    def assemble_jacobian(self, x: PETSc.Vec, A: PETSc.Mat) -> PETSc.Mat:
+        """K at x into A, or into a new matrix when a term's pattern grew (PatternOutgrown); returns the
+        matrix that holds K (the caller destroys A when it is not that one)."""
+        try:
+            self.jacobian(x, A)
+            return A
+        except PatternOutgrown:
+            B = self.create_matrix()
+            self.jacobian(x, B)
+            return B
 
     def jacobian(self, x: PETSc.Vec, A: PETSc.Mat) -> None:
         """K = hess Pi without the rank-one parts, Dirichlet rows and columns replaced by the identity."""

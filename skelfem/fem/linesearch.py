@@ -246,3 +246,14 @@ class LineSearch:
             y.set(0.0)
         return ok
 
+
+def resolve_strategy(design) -> str:
+    """What line_search = "auto" means for a design: "curved" for bodies without bones, else "energy".
+
+    The exact bone rotation (Elasticity.step_correction) keeps stiff bones
+    robust under the monotone energy line search; a geodesic acceleration
+    through a stiff bone is dominated by its stiffness and does not help, and
+    relaxed steps cost bony designs iterations. Soft bodies without bones
+    are the ones that crawl under the monotone search.
+    """
+    return "energy" if getattr(design, "bones", None) else "curved"

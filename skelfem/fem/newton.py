@@ -38,7 +38,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from ..design.spec import ATOL_RELATIVE, ENERGY_LINE_SEARCHES, LINE_SEARCHES as STRATEGIES, force_scale
-from .linesearch import WATCHDOG, LineSearch
+from .linesearch import WATCHDOG, LineSearch, resolve_strategy
 from ..design.resources import stiff_elastic_bones
 from .linear import LowRankSolver, default_petsc_options  # noqa: F401 (re-exported)
 from .multigrid import ETA_MAX, KRYLOV_RTOL, choose_linear, forcing
@@ -51,17 +51,6 @@ MAX_CONTACT_EVENTS = 100   # solves stopped where contacts formed (Model.contact
 MAX_FAILED_ROUNDS = 3  # re-solves in a row that fail although their lags changed: no equilibrium near
 LAG_LOOSE = 1e-2       # a re-solve whose lags will change again stops at this times its own first |R|
 
-
-def resolve_strategy(design) -> str:
-    """What line_search = "auto" means for a design: "curved" for bodies without bones, else "energy".
-
-    The exact bone rotation (Elasticity.step_correction) keeps stiff bones
-    robust under the monotone energy line search; a geodesic acceleration
-    through a stiff bone is dominated by its stiffness and does not help, and
-    relaxed steps cost bony designs iterations. Soft bodies without bones
-    are the ones that crawl under the monotone search.
-    """
-    return "energy" if getattr(design, "bones", None) else "curved"
 
 _REASONS = {
     PETSc.SNES.ConvergedReason.DIVERGED_MAX_IT: "max_iterations",
@@ -130,6 +119,7 @@ class NewtonSolver(LineSearch):
         self.linear = choose_linear(spec.linear, model)
         model.embed_border = self.linear == "direct"    # iterative: the rigid border stays outside K
         self.A = model.create_matrix()
+        self._retired: list[PETSc.Mat] = []    # Newton matrices replaced (new_matrix), not yet destroyed
         modes = model.rigid_body_modes() if self.linear == "iterative" else None
         stiff = stiff_elastic_bones(model.design) if self.linear == "iterative" else []
         W = (lambda: model.stiff_bone_modes(stiff)) if stiff else None
@@ -151,9 +141,15 @@ class NewtonSolver(LineSearch):
         self.snes = self._create_snes(prefix)
 
     # -- SNES set-up -------------------------------------------------------------------
+    def assemble(self, x: PETSc.Vec) -> None:
+        """K at x into self.A; into a new matrix if a term's pattern grew (contacts that formed)."""
+        A = self.model.assemble_jacobian(x, self.A)
+        if A is not self.A:
+            self.new_matrix(A)
+
     def jacobian(self, x: PETSc.Vec) -> None:
         """Assemble K at x and factorise it with the rank-one parts (what every Newton solve uses)."""
-        self.model.jacobian(x, self.A)
+        self.assemble(x)
         self.lin.update(self.model.low_rank(), self.model.border)
         if self.lin.kind == "iterative":          # an inexact Newton step (the forcing term) ...
             eta = forcing(self._history, self.lin.rtol)
@@ -189,13 +185,18 @@ class NewtonSolver(LineSearch):
         self.lin.as_pc(ksp.getPC())
         return snes
 
-    def new_matrix(self) -> None:
-        """A new Newton matrix from the model (its terms' pattern grew: Model.refresh)."""
-        A = self.model.create_matrix()
+    def new_matrix(self, A: PETSc.Mat | None = None) -> None:
+        """A new Newton matrix (default: the model's; its terms' pattern grew). The old one is destroyed
+        before the next SNES solve: SNES may hold it until the evaluation that replaced it ends."""
+        A = self.model.create_matrix() if A is None else A
         self.snes.setJacobian(lambda s, x, A_, P: self.jacobian(x), A)
-        self.A.destroy()
+        self._retired.append(self.A)
         self.A = self.lin.K = A
         self.lin.reset()
+
+    def _retire(self) -> None:
+        while self._retired:
+            self._retired.pop().destroy()
 
     def forget(self) -> None:
         """Drop what was computed for the model before it changed (Model.refresh): factorisation, trials."""
@@ -204,6 +205,7 @@ class NewtonSolver(LineSearch):
         self._watch, self._watch_allowed = None, True
 
     def destroy(self) -> None:
+        self._retire()
         self.snes.destroy()
         self.lin.destroy()
         for v in (self.A, self.b, self.x):
@@ -252,6 +254,7 @@ class NewtonSolver(LineSearch):
         self.model.apply_bcs(self.x)
         if not self.model.admissible(self.x):
             return False, "inverted_elements", 0
+        self._retire()
         try:
             self.snes.solve(None, self.x)
         except np.linalg.LinAlgError as exc:     # a singular Newton matrix: this attempt failed
@@ -316,6 +319,7 @@ class NewtonSolver(LineSearch):
         """One SNES solve from self.x (no lag update); the model's state follows it. Status
         "contact_event": it stopped where a contact formed that friction does not hold yet."""
         self._event = False
+        self._retire()
         try:
             self.snes.solve(None, self.x)
         except np.linalg.LinAlgError as exc:

@@ -36,8 +36,18 @@ CLAMP) for Newton, and `project=False` gives the exact one (FD tests,
 sensitivities). The projection keeps Newton's directions descent ones while
 contacts come and go, at the price of a linearly converging tail once the
 faces touch; the exact Hessian converges quadratically there but may
-wander before. Contact pairs change between iterations, so the matrix
-pattern holds the whole boundary-node x boundary-node block.
+wander before.
+
+Contact pairs change between iterations, and the matrix pattern must hold
+every node pair a collision couples. It holds the pairs that can couple
+soon, not the whole boundary x boundary block (which in 3D made every
+factorisation dense): every facet's own nodes, and the boundary nodes
+within reach of each other (a collision's nodes lie within dhat plus two
+edge lengths of each other). When a Hessian needs a pair outside (the
+pieces moved on, or friction's lagged anchors), the term adds it with the
+pairs within reach where the nodes are now and says so (``outgrown``);
+the Newton solver then makes a new matrix and assembles again
+(``PatternOutgrown``). The pattern only grows.
 
 Under MPI every rank holds the whole boundary polygon (global node numbers,
 gathered once; the positions through a DofGather at each call) and computes
@@ -52,6 +62,7 @@ import scipy.sparse as sp
 from dolfinx import fem as dolfinx_fem
 from dolfinx import mesh as dmesh
 from mpi4py import MPI
+from scipy.spatial import cKDTree
 
 from ..mesh.geometry import body_tag_name, object_tag_name
 from .base import Context, Term
@@ -62,6 +73,7 @@ from .base import Context, Term
 # skelfem runs its parallelism as MPI ranks and sweep processes instead.
 ipctk.set_num_threads(1)
 CCD_TOLERANCE = 1e-3    # continuous collision detection brackets the time of first contact to this x dhat
+PATTERN_REACH = 2.0     # the matrix pattern holds node pairs that may collide after moving this x dhat more
 
 
 def boundary_facets(V) -> tuple[np.ndarray, np.ndarray]:
@@ -157,6 +169,39 @@ class SelfContact(Term):
         # the time of first contact is bracketed conservatively (never past it) to CCD_TOLERANCE x dhat:
         # ipctk's default of 1e-6 (mm) took seconds for a face landing flat on a face
         self.ccd = ipctk.TightInclusionCCD(tolerance=CCD_TOLERANCE * self.dhat)
+        self.outgrown = False       # a Hessian needed node pairs the pattern had not (see the module note)
+        self._pairs = None          # the node pairs the pattern holds (on first use: _near_pairs at rest)
+
+    # -- the matrix pattern ----------------------------------------------------------------------
+    def can_couple(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Whether boundary nodes a and b (indices into self.nodes) may meet in a collision."""
+        return np.ones(len(a), dtype=bool)
+
+    def _near_pairs(self, y: np.ndarray) -> np.ndarray:
+        """Sorted keys i * n + j (indices into self.nodes, both orders, i = j too) of the node pairs a
+        collision may couple before the nodes move a further PATTERN_REACH x dhat: each facet's own
+        nodes, and those closer than dhat plus two of the longest edges plus that reach."""
+        n = len(self.nodes)
+        f = self.facets
+        i, j = np.repeat(f, f.shape[1], axis=1).ravel(), np.tile(f, f.shape[1]).ravel()
+        longest = float(np.linalg.norm(y[self.edges[:, 0]] - y[self.edges[:, 1]], axis=1).max(initial=0.0))
+        close = cKDTree(y).query_pairs((1 + PATTERN_REACH) * self.dhat + 2 * longest, output_type="ndarray")
+        close = close[self.can_couple(close[:, 0], close[:, 1])]
+        keys = np.concatenate([i.astype(np.int64) * n + j, close[:, 0].astype(np.int64) * n + close[:, 1],
+                               close[:, 1].astype(np.int64) * n + close[:, 0]])
+        return np.unique(keys)
+
+    def require(self, u: np.ndarray, H: sp.coo_matrix) -> None:
+        """Make the pattern hold a Hessian block over self.dofs; if it did not, grow it by H's node pairs
+        and those within reach at u, and mark the term ``outgrown`` (the matrix must be made anew)."""
+        n = len(self.nodes)
+        if self._pairs is None:
+            self._pairs = self._near_pairs(self.X)
+        keys = np.unique(H.row.astype(np.int64) // self.bs * n + H.col // self.bs)
+        at = np.minimum(np.searchsorted(self._pairs, keys), max(len(self._pairs) - 1, 0))
+        if len(keys) and (not len(self._pairs) or not np.array_equal(self._pairs[at], keys)):
+            self._pairs = np.union1d(self._pairs, np.union1d(keys, self._near_pairs(self.positions(u))))
+            self.outgrown = True
 
     # -- geometry ------------------------------------------------------------------------
     def boundary_values(self, u: np.ndarray) -> np.ndarray:
@@ -211,11 +256,17 @@ class SelfContact(Term):
         method = ipctk.PSDProjectionMethod.CLAMP if self.project else ipctk.PSDProjectionMethod.NONE
         H = sp.coo_matrix(self.barrier.hessian(c, self.mesh, fortran_array(y), method))
         H.sum_duplicates()
+        self.require(u, H)
         return [(self.dofs, self.t * H)]
 
     def pattern(self) -> list:
-        """Node blocks the Hessian may fill: every boundary node with every other."""
-        return [(self.nodes, self.nodes)]
+        """Node blocks the Hessian may fill: one (node, the nodes it may couple with) per boundary node
+        (see the module note)."""
+        if self._pairs is None:
+            self._pairs = self._near_pairs(self.X)
+        rows, cols = np.divmod(self._pairs, len(self.nodes))
+        starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]]) if len(rows) else np.zeros(0, int)
+        return [(self.nodes[rows[k]:rows[k] + 1], self.nodes[c]) for k, c in zip(starts, np.split(cols, starts[1:]))]
 
     def readout(self, model) -> dict:
         return {self.name: {"min_distance": self.min_distance(model.u.x.array)}}

@@ -337,6 +337,7 @@ class ObjectFriction(Term):
         cols = np.repeat(pos[:, None, :], pos.shape[1], axis=1)
         n = len(self.c.dofs)
         H = sp.coo_matrix((values.ravel(), (rows.ravel(), cols.ravel())), shape=(n, n))
+        self.c.require(u, H)             # an anchor lagged from an earlier state may couple new pairs
         return [(self.c.dofs, H)]
 
     def pattern(self) -> list:

@@ -238,18 +238,9 @@ class PieceContact(SelfContact):
         self.label = piece_labels(ctx, self.nodes)
         self.mesh.can_collide = ipctk.make_vertex_patches_filter(self.label)
 
-    def pattern(self) -> list:
-        """Node blocks the Hessian may fill: each piece's boundary nodes with every other piece's (the
-        barrier only acts between different pieces), and each object's boundary nodes with each other
-        (an edge's two ends). Not the whole boundary x boundary block: the body's boundary nodes never
-        couple with each other here, and a dense block over them makes every factorisation dense."""
-        out = []
-        for k in range(len(self.pieces)):
-            mine = self.label == k
-            out.append((self.nodes[mine], self.nodes[~mine]))
-            if k >= self.bodies:
-                out.append((self.nodes[mine], self.nodes[mine]))
-        return out
+    def can_couple(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """The barrier acts between different pieces only (the body's own boundary never meets itself)."""
+        return self.label[a] != self.label[b]
 
     def nodal_forces(self, model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(positions (n, dim), barrier forces (n, dim) N, friction forces (n, dim) N) on every boundary node
