@@ -14,7 +14,9 @@ minimises it within the bounds; it stops once every target is within tol
 evaluations. ``method="gauss-newton"`` instead solves the bounded
 least-squares problem with scipy's trust-region reflective method on the
 Jacobian of the residuals from the forward (tangent) sensitivities. The best evaluation found is returned, with reached = false if
-a target is still further than tol.
+a target is still further than tol. Through friction the gradient is
+approximate (``gradient = "friction held"``, see skelfem.analysis.adjoint);
+the errors are those of exact forward runs.
 """
 from __future__ import annotations
 
@@ -54,6 +56,7 @@ class OptimizeResult:
     time: float = 0.0
     history: list = field(default_factory=list)     # (objective, max error) per evaluation
     upper: np.ndarray | None = None
+    gradient: str = "exact"         # "friction held": approximate through friction (skelfem.analysis.adjoint)
 
     @property
     def error(self) -> float:
@@ -214,4 +217,4 @@ def _result(session, names, knot_times, best, tol, status, iterations, counts, h
     return OptimizeResult(names, knot_times, U, best["positions"], best["errors"], reached,
                           "reached" if reached else status, float(best["J"]), iterations,
                           counts["forward"], counts["adjoint"], counts["failed"], time.perf_counter() - t0,
-                          history, ub)
+                          history, ub, "friction held" if session.model.path_dependent else "exact")

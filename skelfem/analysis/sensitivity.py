@@ -94,10 +94,12 @@ class Linearization:
 
     Uses the NewtonSolver that produced x*: its matrix, its MUMPS analysis
     and its Woodbury solver. The object describes one x*: build a new one
-    after the next solve.
+    after the next solve. hold_lags: friction's lagged normal forces and
+    tangents are held at their converged values (J = H: the derivative of
+    the lagged problem, not of the equilibrium through its lags).
     """
 
-    def __init__(self, model, solver):
+    def __init__(self, model, solver, hold_lags: bool = False):
         if abs(model.factor - 1.0) > 1e-14:
             raise ValueError("sensitivities need the contractions fully applied "
                              f"(load factor {model.factor:g}, not 1)")
@@ -107,7 +109,8 @@ class Linearization:
         self.kinked = [i for i, t in enumerate(self.tendons)
                        if not t.cable.friction and abs(stretch(t, u)) <= KINK * t.cable.L0]
         self._g = [self._masked_g(t) for t in self.tendons]
-        self.lagged = [t for t in model.terms if t.lags() is not None]     # friction's N, edge tangents
+        # friction's N, edge tangents; hold_lags: held at their converged values (J = H, symmetric)
+        self.lagged = [] if hold_lags else [t for t in model.terms if t.lags() is not None]
         if self.lagged and model.comm.size > 1:
             raise ValueError("sensitivities through friction contacts run on one MPI process")
         barriers = [t for t in model.terms if isinstance(t, SelfContact) and t.project]

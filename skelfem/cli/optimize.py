@@ -132,6 +132,7 @@ def optimize_dict(design, marker, targets, res, timings: dict, method: str = "lb
         "max_contraction": {n: float(u) for n, u in zip(res.names, res.upper)},
         "objective": res.objective, "iterations": res.iterations, "forward_runs": res.forward_runs,
         "adjoint_sweeps": res.adjoint_sweeps, "failed_runs": res.failed_runs, "method": method,
+        "gradient": res.gradient,
         "history": [{"objective": j, "error": e} for j, e in res.history],
         "dynamics": {"dt": design.dynamics.dt, "duration": design.dynamics.duration,
                      "integrator": design.dynamics.integrator},
