@@ -88,7 +88,8 @@ def grasp(mu: float, ratios, contraction: float = 3.0, size: float | None = None
                 lost = True
                 continue
             entry.update(held=bool(r.converged), mu_min=W / N0, margin=mu * N0 / W,
-                         normal_magnitude=c.get("normal_magnitude"), friction_force=c.get("friction_force"),
+                         normal_magnitude=c.get("normal_magnitude"), normal_force=c.get("normal_force"),
+                         friction_force=c.get("friction_force"),
                          sticking=c.get("sticking"), min_distance=c.get("min_distance"),
                          ball_displacement=d.get("objects", {}).get("ball", {}).get("displacement"))
             out["weighings"].append(entry)
