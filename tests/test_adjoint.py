@@ -25,6 +25,21 @@ def flick(integrator="bdf2", size=4.0, dt=0.01, duration=0.08, damping=None):
 TARGETS = [TimedTarget("tip", 0.08, np.array([12.0, 36.0])), TimedTarget("tip", 0.035, np.array([6.0, 39.0]))]
 
 
+def central_differences(s, d, targets, eps=1e-4) -> np.ndarray:
+    """dJ/d(flexor's knot values) by central differences of whole runs (the session left at the last)."""
+    base = np.array(d["cables"][0]["schedule"], float)
+    fd = np.zeros(len(base))
+    for k in range(len(base)):
+        values = []
+        for sign in (1.0, -1.0):
+            sched = base.copy()
+            sched[k, 1] += sign * eps
+            s.set({"cables.flexor.schedule": sched.tolist()})
+            values.append(schedule_gradient(s, targets).value)
+        fd[k] = (values[0] - values[1]) / (2 * eps)
+    return fd
+
+
 def test_knot_weights_are_the_interpolation():
     times = np.array([0.0, 0.03, 0.06])
     for t in (0.0, 0.01, 0.03, 0.05, 0.06, 0.2):
@@ -40,17 +55,7 @@ def test_adjoint_gradient_matches_central_differences(integrator, damping):
     with Session(d) as s:
         r = schedule_gradient(s, TARGETS)
         assert r.report.cuts == 0
-        base = np.array(d["cables"][0]["schedule"], float)
-        fd = np.zeros(len(base))
-        eps = 1e-4
-        for k in range(len(base)):
-            values = []
-            for sign in (1.0, -1.0):
-                sched = base.copy()
-                sched[k, 1] += sign * eps
-                s.set({"cables.flexor.schedule": sched.tolist()})
-                values.append(schedule_gradient(s, TARGETS).value)
-            fd[k] = (values[0] - values[1]) / (2 * eps)
+        fd = central_differences(s, d, TARGETS)
     g = r.gradient["flexor"]
     rel = np.abs(fd - g).max() / np.abs(fd).max()
     assert rel < 1e-5, (g, fd, rel)                      # measured: 6e-8 (Euler), 8e-8 (BDF2, mass damping)
@@ -230,22 +235,13 @@ def test_through_a_frictional_wall_the_gradient_holds_friction_and_optimize_stil
         assert r.approximate and r.report.converged
         wall = {k: v for t in s.model.terms_in("grounds") for k, v in t.readout(s.model).get("wall", {}).items()}
         assert np.linalg.norm(wall["friction_force"]) > 0.01, wall                     # the side rubs on it
-        base = np.array(d["cables"][0]["schedule"], float)
-        fd, eps = np.zeros(len(base)), 1e-4
-        for k in range(len(base)):
-            values = []
-            for sign in (1.0, -1.0):
-                sched = base.copy()
-                sched[k, 1] += sign * eps
-                s.set({"cables.flexor.schedule": sched.tolist()})
-                values.append(schedule_gradient(s, targets).value)
-            fd[k] = (values[0] - values[1]) / (2 * eps)
+        fd = central_differences(s, d, targets)
         g = r.gradient["flexor"]
         assert np.abs(fd - g).max() < 0.1 * np.abs(fd).max(), (g, fd)
         assert g @ fd > 0.95 * np.linalg.norm(g) * np.linalg.norm(fd)          # a descent direction
         s.set({"cables.flexor.schedule": [[0.0, 0.3], [0.04, 1.8], [0.08, 2.4]]})
         goal = schedule_gradient(s, [TimedTarget("tip", 0.08, np.zeros(2))]).positions[0]
-        s.set({"cables.flexor.schedule": base.tolist()})
+        s.set({"cables.flexor.schedule": d["cables"][0]["schedule"]})
         res = optimize_schedules(s, "tip", [(0.08, goal)], knots=3, tol=0.05, max_evaluations=40)
     assert res.gradient == "friction held"
     assert res.reached and res.error < 0.05, (res.status, res.error)

@@ -170,3 +170,14 @@ def test_bodies_objects_and_their_friction_agree_across_ranks(tmp_path, mpirun, 
     serial = _simulate(mpirun, path, tmp_path / "s", 1, *sets)
     assert serial["contacts"] and serial["converged"]
     _agree_contacts(serial, _simulate(mpirun, path, tmp_path / "p", 2, *sets))
+    # solution.xdmf's contact fields: the same forces at the same nodes (matched by position)
+    import meshio
+    fields = []
+    for run in ("s", "p"):
+        m = meshio.read(tmp_path / run / "solution.xdmf")
+        order = np.lexsort(np.round(m.points, 9).T[::-1])
+        fields.append({k: np.asarray(m.point_data[k])[order] for k in ("contact_force", "contact_traction")})
+    scale = max(np.abs(fields[0]["contact_force"]).max(), 1e-12)
+    assert scale > 0 and np.abs(fields[0]["contact_force"] - fields[1]["contact_force"]).max() < 1e-6 * scale
+    t = np.abs(fields[0]["contact_traction"]).max()
+    assert np.abs(fields[0]["contact_traction"] - fields[1]["contact_traction"]).max() < 1e-6 * t

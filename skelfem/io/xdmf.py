@@ -6,6 +6,8 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+from mpi4py import MPI
+
 from .files import atomic_write
 
 
@@ -28,13 +30,14 @@ def vertex_displacements(model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def contact_forces(model) -> tuple[np.ndarray, np.ndarray] | None:
-    """Serial, where pieces (bodies, objects) can touch: (force (n, dim) N, traction (n, dim) MPa) at
-    every node of the P1 geometry: the barrier's and friction's force the other pieces exert on it, and
+    """Where pieces (bodies, objects) can touch: (force (n, dim) N, traction (n, dim) MPa) at every node
+    of the (local) P1 geometry: the barrier's and friction's force the other pieces exert on it, and
     that force over the node's share of the boundary (2D: half its edges' lengths times the thickness;
     3D: a third of its triangles' areas). A P2 edge midpoint's force and share go half to each end of
-    its edge; None without such contact."""
+    its edge; None without such contact. Collective: under MPI every rank has the whole boundary's
+    forces (global node numbers) and keeps its own geometry nodes'."""
     pieces = next((t for t in model.terms_in("contacts") if hasattr(t, "nodal_forces")), None)
-    if pieces is None or model.comm.size > 1:
+    if pieces is None:
         return None
     _, normal, friction = pieces.nodal_forces(model)
     f = normal + friction
@@ -48,17 +51,29 @@ def contact_forces(model) -> tuple[np.ndarray, np.ndarray] | None:
     tdim = mesh.topology.dim
     geo = mesh.geometry.dofmap.array.reshape(-1, tdim + 1)
     dofs = V.dofmap.list.array.reshape(len(geo), -1)[:, :tdim + 1]
-    geom_of_node = np.full(V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts, -1, np.int64)
+    imap = V.dofmap.index_map
+    geom_of_node = np.full(imap.size_local + imap.num_ghosts, -1, np.int64)
     geom_of_node[dofs.ravel()] = geo.ravel()
-    where = geom_of_node[pieces.nodes]                      # -1: a P2 midpoint
-    mid = where < 0
+    if model.comm.size == 1:
+        where = geom_of_node[pieces.nodes]                  # -1: a P2 midpoint
+        mid = where < 0
+    else:                                                   # -1 also: a node this rank does not have
+        glob = imap.local_to_global(np.arange(len(geom_of_node), dtype=np.int32)).astype(np.int64)
+        at = np.minimum(np.searchsorted(pieces.nodes, glob), len(pieces.nodes) - 1)
+        hit = pieces.nodes[at] == glob
+        where = np.full(len(pieces.nodes), -1, np.int64)
+        where[at[hit]] = geom_of_node[hit]
+        vertex = np.zeros(len(pieces.nodes), np.int8)
+        vertex[at[hit]] = geom_of_node[hit] >= 0
+        model.comm.Allreduce(MPI.IN_PLACE, vertex, op=MPI.MAX)
+        mid = vertex == 0
     if mid.any():                                           # its two edges lead to the two ends
         a, b = edges[:, 0], edges[:, 1]
         for s, t in ((a, b), (b, a)):
             m = mid[s] & ~mid[t]
             np.add.at(f, t[m], 0.5 * f[s[m]])
             np.add.at(w, t[m], 0.5 * w[s[m]])
-    keep = ~mid
+    keep = ~mid & (where >= 0)
     force = np.zeros((len(mesh.geometry.x), dim))
     share = np.zeros(len(force))
     np.add.at(force, where[keep], f[keep])
@@ -98,7 +113,7 @@ def marker_positions(model) -> dict:
 
 def object_states(model) -> list[dict]:
     """Per free object: its name and outline moved by its rigid motion, and the contact forces on its
-    boundary nodes from the other pieces (positions, barrier and friction forces, N; serial). Then,
+    boundary nodes from the other pieces (positions, barrier and friction forces, N; collective). Then,
     without an outline, every body but the first that something touches, with the forces on it."""
     objects = model.terms_in("objects")
     pieces = next((t for t in model.terms_in("contacts") if hasattr(t, "nodal_forces")), None)
@@ -154,11 +169,11 @@ def snapshot(model, to=(0,)) -> Snapshot | None:
     cells, regions = cells[:n_cells], cell_regions(model)
     cables = cable_states(model)
     markers = marker_positions(model)
-    objects = object_states(model) if comm.size == 1 else []
+    objects = object_states(model)
     contacts = contact_forces(model)
     if comm.size > 1:
         orig = np.asarray(model.mesh.geometry.input_global_indices, dtype=np.int64)
-        parts = comm.gather((orig, x, u, orig[cells], regions), root=0)
+        parts = comm.gather((orig, x, u, orig[cells], regions, contacts), root=0)
         if comm.rank == 0:
             orig_all = np.concatenate([p[0] for p in parts])
             numbers, first = np.unique(orig_all, return_index=True)
@@ -166,6 +181,8 @@ def snapshot(model, to=(0,)) -> Snapshot | None:
             u = np.concatenate([p[2] for p in parts])[first]
             cells = np.searchsorted(numbers, np.concatenate([p[3] for p in parts]))
             regions = np.concatenate([p[4] for p in parts])
+            if contacts is not None:        # a node a rank has only as a ghost carries its whole force too
+                contacts = tuple(np.concatenate([p[5][k] for p in parts])[first] for k in range(2))
     snap = Snapshot(x=x, u=u, cells=cells, regions=regions, cables=cables, markers=markers, objects=objects,
                     contact_forces=contacts,
                     body_tag=soft_tags(model.tm.tags)[0],
