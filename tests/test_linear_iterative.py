@@ -91,7 +91,11 @@ def test_dynamics_through_krylov_solves_follow_the_direct_ones():
             assert r.converged, r.status
             out[kind] = r.to_dict()
     d, it = out["direct"], out["iterative"]
-    assert it["linear_solver"] == "iterative" and it["linear_fallbacks"] == 0
+    assert it["linear_solver"] == "iterative"
+    # a Newton step whose CG stalls (an iterate far from equilibrium, its tangent indefinite: on some
+    # machines' round-off one of step 2's 26 does) falls back to MUMPS, and says so
+    capped = sum(k >= 500 for step in it["linear_iterations"] for k in step)
+    assert it["linear_fallbacks"] == capped <= 1
     assert d["dynamics"]["steps"] == it["dynamics"]["steps"] == 3       # the same steps, no cut
     (xd, fd), (xi, fi) = _quantities(d), _quantities(it)
     assert np.abs(xd - xi).max() <= 1e-8 * np.abs(xd).max()
