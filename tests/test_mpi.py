@@ -177,7 +177,7 @@ def test_bodies_objects_and_their_friction_agree_across_ranks(tmp_path, mpirun, 
         m = meshio.read(tmp_path / run / "solution.xdmf")
         order = np.lexsort(np.round(m.points, 9).T[::-1])
         fields.append({k: np.asarray(m.point_data[k])[order] for k in ("contact_force", "contact_traction")})
-    scale = max(np.abs(fields[0]["contact_force"]).max(), 1e-12)
-    assert scale > 0 and np.abs(fields[0]["contact_force"] - fields[1]["contact_force"]).max() < 1e-6 * scale
-    t = np.abs(fields[0]["contact_traction"]).max()
-    assert np.abs(fields[0]["contact_traction"] - fields[1]["contact_traction"]).max() < 1e-6 * t
+    for key in ("contact_force", "contact_traction"):
+        scale = np.abs(fields[0][key]).max()
+        assert scale > 0 or case == "ground", key            # the box touches the floor only: no such force
+        assert np.abs(fields[0][key] - fields[1][key]).max() <= 1e-6 * scale, key
