@@ -35,8 +35,10 @@ lagged normal forces and tangents and its stick anchors held at each step's
 converged values (``Linearization(hold_lags=True)``), and the anchors'
 dependence on earlier steps is not followed: the gradient is approximate
 (``GradientResult.approximate``; 5 % from central differences on a strip
-whose side slides on a wall with mu = 0.5 or 2, exact with mu = 0). The
-forward runs that measure the targets are exact.
+whose side slides on a wall with mu = 0.5 or 2, exact with mu = 0, but 20
+times too small for a box that rides on the strip held by sticking
+contacts, whose motion is all in the anchors). The forward runs that
+measure the targets are exact.
 
 The objective here is the tracking of markers at given times,
 J = sum_i |y_m(t_i) - y'_i|^2, y_m(t) linear between the two stored states
