@@ -168,11 +168,12 @@ def test_drag_ik_target_reaches_it(page, editor, figures, picture):
     assert np.linalg.norm(target - goal) < 1.5 * pixel               # the pointer landed on the goal (to a pixel)
     # a pixel is about the IK tolerance (1e-3 of the finger): the target is reachable if it lies on the curve
     off = min(_segment_distance(target, curve[0], curve[1]), _segment_distance(target, curve[1], curve[2]))
-    assert info["error"] == pytest.approx(off, abs=0.3 * info["tol"])  # IK found the closest pose
-    if off < 0.5 * info["tol"]:
-        assert info["reached"] and info["error"] < info["tol"]
+    assert info["error"] >= off - 0.3 * info["tol"]                  # never closer than the curve allows
+    if off < 0.5 * info["tol"]:          # reachable: IK stops once within tol (how far inside depends on
+        assert info["reached"] and info["error"] < info["tol"]        # the drag's warm starts, i.e. on load)
         assert np.linalg.norm(page.tip() - target) < info["tol"]
-    else:
+    else:                                # unreachable: IK found the closest pose
+        assert info["error"] == pytest.approx(off, abs=0.3 * info["tol"])
         assert not info["reached"]
     status = page.js("document.getElementById('ik-status').textContent")
     assert status.startswith("reached:" if info["reached"] else "unreachable:")
