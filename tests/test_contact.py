@@ -122,7 +122,7 @@ def test_the_pattern_grows_with_the_contacts_and_contact_costs_nothing_when_off(
     contact = _contact(on)
     nb = len(contact.nodes)
     A_on, A_off = on.create_matrix(), off.create_matrix()
-    assert len(contact._pairs) < 0.25 * nb * nb                    # not the dense boundary x boundary block
+    assert len(contact.pairs()) < 0.25 * nb * nb                    # not the dense boundary x boundary block
     # as the slot closes, contacts form: the matrix is made anew where they need new pairs, and holds the
     # same K as a matrix over every boundary pair
     x = on.u.vector.copy()

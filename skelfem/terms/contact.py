@@ -194,14 +194,18 @@ class SelfContact(Term):
     def require(self, u: np.ndarray, H: sp.coo_matrix) -> None:
         """Make the pattern hold a Hessian block over self.dofs; if it did not, grow it by H's node pairs
         and those within reach at u, and mark the term ``outgrown`` (the matrix must be made anew)."""
-        n = len(self.nodes)
+        n, pairs = len(self.nodes), self.pairs()
+        keys = np.unique(H.row.astype(np.int64) // self.bs * n + H.col // self.bs)
+        at = np.minimum(np.searchsorted(pairs, keys), max(len(pairs) - 1, 0))
+        if len(keys) and (not len(pairs) or not np.array_equal(pairs[at], keys)):
+            self._pairs = np.union1d(pairs, np.union1d(keys, self._near_pairs(self.positions(u))))
+            self.outgrown = True
+
+    def pairs(self) -> np.ndarray:
+        """The node pairs the pattern holds (keys as _near_pairs'; at first, those near at rest)."""
         if self._pairs is None:
             self._pairs = self._near_pairs(self.X)
-        keys = np.unique(H.row.astype(np.int64) // self.bs * n + H.col // self.bs)
-        at = np.minimum(np.searchsorted(self._pairs, keys), max(len(self._pairs) - 1, 0))
-        if len(keys) and (not len(self._pairs) or not np.array_equal(self._pairs[at], keys)):
-            self._pairs = np.union1d(self._pairs, np.union1d(keys, self._near_pairs(self.positions(u))))
-            self.outgrown = True
+        return self._pairs
 
     # -- geometry ------------------------------------------------------------------------
     def boundary_values(self, u: np.ndarray) -> np.ndarray:
@@ -262,9 +266,7 @@ class SelfContact(Term):
     def pattern(self) -> list:
         """Node blocks the Hessian may fill: one (node, the nodes it may couple with) per boundary node
         (see the module note)."""
-        if self._pairs is None:
-            self._pairs = self._near_pairs(self.X)
-        rows, cols = np.divmod(self._pairs, len(self.nodes))
+        rows, cols = np.divmod(self.pairs(), len(self.nodes))
         starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]]) if len(rows) else np.zeros(0, int)
         return [(self.nodes[rows[k]:rows[k] + 1], self.nodes[c]) for k, c in zip(starts, np.split(cols, starts[1:]))]
 
