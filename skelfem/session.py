@@ -31,6 +31,7 @@ from .design.parse import changed_keys, flatten, load_design, parse_design
 from .runtime import memory
 
 log = logging.getLogger("skelfem")
+CARRY_CHUNK = 20_000      # new nodes located in the old mesh at a time when an edit carries the solution over
 
 
 def _toml(value) -> str:
@@ -284,14 +285,18 @@ class Session:
         from .mesh.points import interpolation_matrix, locate_cells
         model = self.model
         X = model.V.tabulate_dof_coordinates()[:, :model.dim]
-        cells = locate_cells(old_model.mesh, X)
-        inside = cells >= 0
         u = np.empty((len(X), model.bs))
-        if inside.any():
-            S = interpolation_matrix(old_model.V, X[inside], cells[inside])
-            u[inside] = (S @ old_model.u.x.array).reshape(-1, model.bs)
-        if (~inside).any():
-            u[~inside] = u_old[cKDTree(X_old).query(X[~inside])[1]]
+        tree = None
+        for lo in range(0, len(X), CARRY_CHUNK):    # in chunks: the search's scratch stays small
+            Xc, uc = X[lo:lo + CARRY_CHUNK], u[lo:lo + CARRY_CHUNK]
+            cells = locate_cells(old_model.mesh, Xc)
+            inside = cells >= 0
+            if inside.any():
+                S = interpolation_matrix(old_model.V, Xc[inside], cells[inside])
+                uc[inside] = (S @ old_model.u.x.array).reshape(-1, model.bs)
+            if (~inside).any():
+                tree = cKDTree(X_old) if tree is None else tree
+                uc[~inside] = u_old[tree.query(Xc[~inside])[1]]
         model.u.x.array[:] = u.ravel()
         model.set_factor(1.0)
         model.carry_over(model.u.vector)

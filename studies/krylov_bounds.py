@@ -20,9 +20,13 @@ against their own rigid motions), in this process:
 Read from each result: DOFs, Newton iterations, the Krylov iterations of
 each Newton step (their mean and maximum), fallbacks to MUMPS and the solve's
 wall time. An inexact Newton step is solved only as far as its forcing term
-asks, so a step's iterations depend on where it is on the path; the mean
-over a solve's steps is what is compared. ``ratio`` of a sweep is its largest
-mean over its smallest. run(**params) returns the rows; main(argv) also
+asks, and its multigrid may be an earlier step's (lagged), so a step's
+iterations depend on where it is on the path and on the steps before it.
+Each case therefore also solves its last Newton step's tangent once more,
+with a multigrid made afresh, to FRESH_RTOL from a seeded random right-hand
+side (``krylov_fresh``): the multigrid's own quality at a fixed tolerance.
+``ratios`` of a sweep is its largest mean over its smallest,
+``fresh_ratios`` the same of ``krylov_fresh``. run(**params) returns the rows; main(argv) also
 writes krylov_bounds.json into out and krylov_bounds.png into figures.
 """
 from __future__ import annotations
@@ -34,6 +38,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 DESIGN = ROOT / "geometry" / "arm3d.toml"
+FRESH_RTOL = 1e-8       # the fixed-tolerance solve of the converged tangent (LowRankSolver.fresh_iterations)
 
 
 def _bones(design: Path) -> list[tuple[str, str]]:
@@ -50,15 +55,16 @@ def case(design: Path, overrides: list[str]) -> dict:
         r = s.solve()
         wall = time.perf_counter() - t0
         d = r.to_dict()
+        fresh = s.solver.lin.fresh_iterations(FRESH_RTOL) if r.converged else None
     its = [k for step in d.get("linear_iterations", []) for k in step]
     return {"overrides": overrides, "dofs": d["dofs"], "status": d["status"],
             "newton_iterations": d["newton_iterations"], "krylov_per_newton": its,
             "krylov_mean": sum(its) / max(len(its), 1), "krylov_max": max(its, default=0),
-            "fallbacks": d.get("linear_fallbacks", 0), "solve_s": wall}
+            "fallbacks": d.get("linear_fallbacks", 0), "solve_s": wall, "krylov_fresh": fresh}
 
 
-def _ratio(rows: list[dict]) -> float:
-    means = [r["krylov_mean"] for r in rows if r["status"] == "converged"]
+def _ratio(rows: list[dict], key: str = "krylov_mean") -> float:
+    means = [r[key] for r in rows if r["status"] == "converged" and r.get(key) is not None]
     return max(means) / min(means) if means and min(means) > 0 else float("inf")
 
 
@@ -87,7 +93,9 @@ def run(design: Path = DESIGN, sizes=(3.0, 2.0, 1.5), contrast_size: float = 6.0
     for nu in nus:
         add("nu", p2 + [f"materials.{body}.nu={nu}"], nu=nu)
     return {"design": Path(design).name, "sweeps": sweeps, "contrast_degree": contrast_degree,
-            "ratios": {name: _ratio(rows) for name, rows in sweeps.items() if rows}}
+            "ratios": {name: _ratio(rows) for name, rows in sweeps.items() if rows},
+            "fresh_ratios": {name: _ratio(rows, "krylov_fresh") for name, rows in sweeps.items() if rows},
+            "fresh_rtol": FRESH_RTOL}
 
 
 def figure(data: dict, path: Path) -> None:

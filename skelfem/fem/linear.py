@@ -46,7 +46,8 @@ hosts), and x = x_f + T z: one factorisation and no extra right-hand sides.
 **Iterative solves** (``[solver] linear = "iterative"``): K is not factorised
 but preconditioned by algebraic multigrid (PETSc GAMG, smoothed aggregation,
 Chebyshev-Jacobi smoothing) with the rigid-body modes of the node
-coordinates as its near-nullspace (3 in 2D, 6 in 3D). The border stays
+coordinates as its near-nullspace (3 in 2D, 6 in 3D); at P2 GAMG works on
+the P1 Galerkin matrix under one P2 smoothing level (multigrid.Coarse). The border stays
 outside K (its rows are identity rows: multigrid sees the soft body only),
 and one Krylov solve (conjugate gradients) takes the whole system above at
 once: its unknowns are (x, z), z on the first rank; its operator applies K,
@@ -72,18 +73,8 @@ import numpy as np
 import scipy.sparse as sp
 from petsc4py import PETSc
 
-from .multigrid import KRYLOV_RTOL, REBUILD_RATIO, iterative_petsc_options, near_nullspace
-
-
-def default_petsc_options() -> dict:
-    """A fresh dict of PETSc options for the factorisation of K.
-
-    Every K here is symmetric (UFL Hessian, cable curvature and contact
-    blocks, Dirichlet rows and columns replaced symmetrically), so MUMPS's
-    LDL^T (PETSc "cholesky", indefinite-safe) replaces LU: about 20 % less
-    per factorisation with the same iterates.
-    """
-    return {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "mumps"}
+from .multigrid import (KRYLOV_RTOL, REBUILD_RATIO, Coarse, default_petsc_options, iterative_petsc_options,
+                        near_nullspace, options_held, two_level_petsc_options)
 
 
 @dataclass
@@ -110,19 +101,22 @@ class LowRankSolver:
     """Solves (K + G D G^T) x = b with one factorisation of the sparse K per update."""
 
     def __init__(self, K: PETSc.Mat, comm, options: dict | None = None, prefix: str = "skelfem_k_",
-                 modes: np.ndarray | None = None, deflation=None):
+                 modes: np.ndarray | None = None, deflation=None, coarse: Coarse | None = None):
         """modes: the near-nullspace of K (owned rows, one mode per column) for an iterative solve
-        (``[solver] linear = "iterative"``); None: a direct factorisation."""
+        (``[solver] linear = "iterative"``); None: a direct factorisation. coarse: iterative solves
+        by two-level p-multigrid on that coarse level (multigrid.Coarse) instead of GAMG on K."""
         self.K, self.comm = K, comm
         self.kind = "direct" if modes is None else "iterative"
         self.prefix = prefix
         self._nullspace = None
-        base = default_petsc_options() if modes is None else iterative_petsc_options()
+        self.coarse = coarse if modes is not None else None
+        base = default_petsc_options() if modes is None else \
+            iterative_petsc_options() if self.coarse is None else two_level_petsc_options()
         self._options = {**base, **(options or {})}
         if modes is not None:
             self._nullspace = near_nullspace(K, modes, comm)
             K.setNearNullSpace(self._nullspace)
-        self.ksp = self._make_ksp(prefix, self._options)
+        self.ksp = self._make_ksp(prefix, self._options, self.coarse)
         self._direct = None             # iterative: the fallback factorisation, made when first needed
         self._fallen = False            # iterative: this update's solves use the fallback
         self.fallbacks = 0              # updates whose Krylov solves failed and fell back to MUMPS
@@ -146,11 +140,13 @@ class LowRankSolver:
         self.W = None                   # ... at the last update
         self.KW, self.WKW = None, None  # ... K W and W^T K W at the last update
 
-    def _make_ksp(self, prefix: str, options: dict) -> PETSc.KSP:
+    def _make_ksp(self, prefix: str, options: dict, coarse: Coarse | None = None) -> PETSc.KSP:
         ksp = PETSc.KSP().create(self.comm)
         ksp.setOptionsPrefix(prefix)
         ksp.setOperators(self.K)
-        with _options(prefix, options):
+        if coarse is not None:
+            coarse.attach(ksp.getPC(), self.K)
+        with options_held(prefix, options):
             ksp.setFromOptions()
             ksp.getPC().setFromOptions()
         return ksp
@@ -165,13 +161,15 @@ class LowRankSolver:
         rebuild = rate is None or self._fresh_rate is None or self._fallen \
             or rate > REBUILD_RATIO * self._fresh_rate
         self.ksp.getPC().setReusePreconditioner(not rebuild)
+        if rebuild and self.coarse is not None:
+            self.coarse.refresh(self.K)
         self._rebuilt = rebuild
         self._its_since, self._decades_since = 0, 0.0
 
     def _set_up(self) -> None:
         """KSPSetUp with the options in PETSc's database: multigrid reads its levels' options
         (mg_levels_*) when it makes them, at the first set-up."""
-        with _options(self.prefix, self._options):
+        with options_held(self.prefix, self._options):
             self.ksp.setUp()
 
     def update(self, parts: list[tuple[float, PETSc.Vec]], border: Border | None = None) -> None:
@@ -242,6 +240,20 @@ class LowRankSolver:
         self.ZB = ZB
         self.CB = self._small_system(ZB, E, self.border)
 
+    def fresh_iterations(self, rtol: float = 1e-8, seed: int = 0) -> int | None:
+        """Krylov iterations of one solve to rtol of a seeded random right-hand side, with K and the
+        rank-one parts as they are and the multigrid made afresh: the multigrid's own quality, apart
+        from the forcing terms and lagging of Newton's inexact steps (iterative only; None: it failed)."""
+        self.ksp.destroy()
+        self.ksp = self._make_ksp(self.prefix, self._options, self.coarse)
+        self._set_up()
+        self._rebuilt, self._fresh_rate, self._its_since, self._decades_since = True, None, 0, 0.0
+        self._operator_mode()
+        b = np.random.default_rng(seed + self.comm.rank).standard_normal(self.K.getLocalSize()[0])
+        self.krylov.append(0)
+        out, its = self._op_solve(b, rtol), self.krylov.pop()
+        return None if out is None else its
+
     def _cycle(self, r: np.ndarray) -> np.ndarray:
         """B r: one multigrid cycle of K (the border's slaved rows, identity rows of K, passed through)."""
         rin, out = self._bvecs[2], self._bvecs[3]
@@ -290,10 +302,15 @@ class LowRankSolver:
 
     def reset(self) -> None:
         """Forget a failed factorisation (the next update factorises from scratch)."""
-        self.ksp.reset()
-        self.ksp.setOperators(self.K)
-        with _options(self.prefix, self._options):
-            self.ksp.setFromOptions()
+        self._rebuilt, self._fresh_rate = False, None
+        if self.coarse is not None:              # its coarse matrix is K's Galerkin product
+            self.ksp.destroy()
+            self.ksp = self._make_ksp(self.prefix, self._options, self.coarse)
+        else:
+            self.ksp.reset()
+            self.ksp.setOperators(self.K)
+            with options_held(self.prefix, self._options):
+                self.ksp.setFromOptions()
         if self._direct is not None:
             self._direct.destroy()
             self._direct, self._fallen = None, False
@@ -518,6 +535,8 @@ class LowRankSolver:
         if self._nullspace is not None:
             self._nullspace.destroy()
             self._nullspace = None
+        if self.coarse is not None:
+            self.coarse.destroy()
         for B, X in self._dense.values():
             B.destroy()
             X.destroy()
@@ -526,21 +545,6 @@ class LowRankSolver:
             self._work.destroy()
             self._work = None
 
-
-class _options:
-    """PETSc's options database holds {prefix + key: value} inside the with block only (a later solver
-    with the same prefix must not inherit them)."""
-
-    def __init__(self, prefix: str, options: dict):
-        self.prefix, self.options, self.db = prefix, options, PETSc.Options()
-
-    def __enter__(self):
-        for key, value in self.options.items():
-            self.db[f"{self.prefix}{key}"] = value
-
-    def __exit__(self, *exc):
-        for key in self.options:
-            self.db.delValue(f"{self.prefix}{key}")
 
 
 class _ApplyPC:

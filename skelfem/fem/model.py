@@ -44,7 +44,7 @@ from ..terms import BUILDERS, Context
 from ..terms.elasticity import cell_values_min, min_jacobian_expression
 from .assembly import MatrixAssembly, block_keys
 from .follow import MODEL_KEYS, CannotFollow, PackedCoefficients, raw_value
-from .multigrid import rigid_body_modes
+from .multigrid import Coarse, rigid_body_modes
 
 
 
@@ -291,6 +291,10 @@ class Model(MatrixAssembly):
             + self.u.x.array[: self.n_owned].reshape(-1, self.bs)[:, : self.dim]   # where the nodes are now
         centre = self.comm.allreduce(X.sum(axis=0)) / max(self.comm.allreduce(len(X)), 1)
         return rigid_body_modes(X - centre, self.dim, centred=True)
+
+    def coarse_space(self) -> Coarse | None:
+        """The P1 level of two-level multigrid for a P2 Newton matrix (multigrid.Coarse); None at P1."""
+        return Coarse.of(self.V) if int(self.design.mesh.degree) >= 2 else None
 
     def stiff_bone_modes(self, names) -> sp.csr_matrix | None:
         """(owned DOF rows, 3 or 6 per bone), sparse: each named elastic bone's rigid motions on its own nodes

@@ -123,7 +123,8 @@ class NewtonSolver(LineSearch):
         modes = model.rigid_body_modes() if self.linear == "iterative" else None
         stiff = stiff_elastic_bones(model.design) if self.linear == "iterative" else []
         W = (lambda: model.stiff_bone_modes(stiff)) if stiff else None
-        self.lin = LowRankSolver(self.A, model.comm, petsc_options, prefix + "k_", modes, W)
+        self.lin = LowRankSolver(self.A, model.comm, petsc_options, prefix + "k_", modes, W,
+                                 model.coarse_space() if modes is not None else None)
         self.b = model.u.vector.duplicate()
         self.x = model.u.vector.copy()      # SNES iterate; model.u is scratch for evaluations
         self._history: list[float] = []
