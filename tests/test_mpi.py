@@ -53,13 +53,13 @@ def test_arm3d_two_ranks_match_serial(tmp_path, mpirun, picture):
     picture(tmp_path / "p" / "deformed.png", 600, 600)
 
 
-@pytest.mark.parametrize("rigid", [False, True], ids=["elastic", "rigid"])
-def test_iterative_solves_agree_across_ranks(tmp_path, mpirun, rigid):
+@pytest.mark.parametrize("rigid, degree", [(False, 1), (True, 1), (False, 2)], ids=["elastic", "rigid", "elastic-P2"])
+def test_iterative_solves_agree_across_ranks(tmp_path, mpirun, rigid, degree):
     """[solver] linear = "iterative" on arm3d (four PLA bones, elastic or rigid: the border's unknowns
-    on the first rank; taut tendons): 2 ranks and serial reach the same equilibrium (multigrid
-    aggregates differently per partition, so the Krylov and even the Newton iteration counts may
-    differ; the answers must not)."""
-    sets = ["mesh.size=9", "solver.linear=iterative", "solver.rtol=1e-11"]
+    on the first rank; taut tendons; at P2 two-level p-multigrid, its P1 interpolation distributed):
+    2 ranks and serial reach the same equilibrium (multigrid aggregates differently per partition,
+    so the Krylov and even the Newton iteration counts may differ; the answers must not)."""
+    sets = ["mesh.size=9", "solver.linear=iterative", "solver.rtol=1e-11", f"mesh.degree={degree}"]
     if rigid:
         sets += [f"bones.{b}.rigid=true" for b in ("humerus", "radius", "ulna", "hand")]
     serial = _simulate(mpirun, ROOT / "geometry" / "arm3d.toml", tmp_path / "s", 1, *sets)

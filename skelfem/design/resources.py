@@ -31,7 +31,7 @@ MAX_DOFS = {2: 4_000_000}               # 2D: the direct solver's limit (3D: mem
 BASE_BYTES = 0.5e9                        # the interpreter, DOLFINx, PETSc and Gmsh themselves
 DIRECT_BYTES = 188.0                      # 3D MUMPS: peak bytes per DOF^(4/3) (11.3 GB at 682k P2 DOFs)
 ITERATIVE_BYTES = {1: 4.7e3, 2: 3.0e3}   # 3D multigrid: peak bytes per DOF at P1 (4.66 KB measured on arm3d at
-#                                           1.43M DOFs), P2 (2.5 KB on post3d's 682k reference, rounded up)
+#                                           1.43M DOFs), P2 (2.8 KB on post3d's 682k reference, rounded up)
 MEMORY_SHARE = 0.8                        # of the machine's physical memory, the most one solve may use
 
 FORCED = False          # set by the command line's --force for the whole process

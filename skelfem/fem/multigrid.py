@@ -15,15 +15,18 @@ ETA_MAX = 0.01            # the loosest forcing term of an inexact Newton step
 REBUILD_RATIO = 2.0       # a lagged multigrid is rebuilt when it needs this many times the iterations
 
 
-def forcing(residuals: list[float], last: float) -> float:
+def forcing(residuals: list[float], last: float, target: float = 0.0) -> float:
     """Eisenstat and Walker's second forcing term for Newton step k: eta = 0.9 (|F_k| / |F_k-1|)^2,
     safeguarded (not below 0.9 last^2 while that is above 0.1) and kept in [KRYLOV_RTOL, ETA_MAX]:
-    loose while Newton is far from the solution, as tight as a direct solve near it."""
+    loose while Newton is far from the solution, as tight as a direct solve near it, and no tighter
+    than the residual test (|F| <= target) needs, 0.5 target / |F_k|."""
     if len(residuals) < 2 or residuals[-2] <= 0.0:
         return ETA_MAX
     eta = 0.9 * (residuals[-1] / residuals[-2]) ** 2
     if 0.9 * last ** 2 > 0.1:
         eta = max(eta, 0.9 * last ** 2)
+    if residuals[-1] > 0.0:
+        eta = max(eta, min(ETA_MAX, 0.5 * target / residuals[-1]))
     return float(min(max(eta, KRYLOV_RTOL), ETA_MAX))
 
 

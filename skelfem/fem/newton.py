@@ -41,7 +41,7 @@ from ..design.spec import ATOL_RELATIVE, ENERGY_LINE_SEARCHES, LINE_SEARCHES as 
 from .linesearch import WATCHDOG, LineSearch, resolve_strategy
 from ..design.resources import stiff_elastic_bones
 from .linear import LowRankSolver, default_petsc_options  # noqa: F401 (re-exported)
-from .multigrid import ETA_MAX, KRYLOV_RTOL, choose_linear, forcing
+from .multigrid import KRYLOV_RTOL, choose_linear, forcing
 
 log = logging.getLogger("skelfem")
 
@@ -152,12 +152,9 @@ class NewtonSolver(LineSearch):
         """Assemble K at x and factorise it with the rank-one parts (what every Newton solve uses)."""
         self.assemble(x)
         self.lin.update(self.model.low_rank(), self.model.border)
-        if self.lin.kind == "iterative":          # an inexact Newton step (the forcing term) ...
-            eta = forcing(self._history, self.lin.rtol)
-            if self._history and self._history[-1] > 0:   # ... no tighter than the residual test needs
-                target = max(self.atol, self.rtol * self._f0, self._loose * self._round_f0)
-                eta = max(eta, min(ETA_MAX, 0.5 * target / self._history[-1]))
-            self.lin.rtol = eta
+        if self.lin.kind == "iterative":          # an inexact Newton step (the forcing term)
+            target = max(self.atol, self.rtol * self._f0, self._loose * self._round_f0)
+            self.lin.rtol = forcing(self._history, self.lin.rtol, target)
 
     def _create_snes(self, prefix: str) -> PETSc.SNES:
         snes = PETSc.SNES().create(self.model.comm)
