@@ -43,7 +43,7 @@ def run(size: float = 0.62, ranks: int = 1, out: Path | None = None, progress=pr
     folder = out / "run"
     shutil.rmtree(folder, ignore_errors=True)
     sets = [f"mesh.size={size}", "solver.linear=iterative"]
-    args = ["simulate", str(ROOT / "geometry" / "arm3d.toml"), "--force", "--no-picture", "-q", "--out", str(folder)]
+    args = ["simulate", "geometry/arm3d.toml", "--force", "--no-picture", "-q", "--out", str(folder)]   # cwd: ROOT
     for s in sets:
         args += ["--set", s]
     cmd = [sys.executable, "-c", CHILD] + args

@@ -642,7 +642,7 @@ def linear_scaling(opts: dict) -> Table:
 
 
 def arm3d_fine(_: dict) -> Table:
-    d, path = load_json("arm3d_fine/arm3d_fine.json", "see docs/performance.md (a 36-minute run)")
+    d, path = load_json("arm3d_fine/arm3d_fine.json", "python studies/arm3d_fine.py")
     t = d["timings"]
     rows = [["DOFs (P1 tetrahedra)", f"{thousands(d['dofs'])} ({thousands(d['cells'])})"],
             ["wall time (meshing, compile, solve)", f"{secs(d['wall_s'])} ({secs(t['mesh'])}, {secs(t['compile'])}, "
@@ -652,7 +652,9 @@ def arm3d_fine(_: dict) -> Table:
             ["fallbacks to MUMPS", str(d["linear_fallbacks"])],
             ["peak memory", f"{num(d['peak_gb'])} GB, {num(d['kb_per_dof'])} KB per DOF"],
             ["tendon tensions (N)", ", ".join(f"{k} {num(v)}" for k, v in d["tensions"].items())]]
-    return Table(["arm3d at h = 0.62 mm, iterative", ""], rows, d["note"] + "; `" + d["command"] + "`", [path])
+    note = d.get("note") or f"one run on {d.get('ranks', 1)} rank(s), peak memory summed over them"
+    return Table([f"arm3d at h = {d.get('size', 0.62)} mm, iterative", ""], rows, note + "; `" + d["command"] + "`",
+                 [path])
 
 
 def reference_3d(_: dict) -> Table:
