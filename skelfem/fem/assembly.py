@@ -336,7 +336,9 @@ class MatrixAssembly:
             j += body.m
         n_global = self.V.dofmap.index_map.size_global * self.bs
         B = PETSc.Mat().createDense([(self.n_owned, n_global), (None, m)], array=T, comm=self.comm)
-        KT = A.matMult(B).getDenseArray().copy()            # K T, one sparse-dense product
+        KB = A.matMult(B)                                    # K T, one sparse-dense product
+        KT = KB.getDenseArray().copy()
+        KB.destroy()                # not left to the garbage collector: it leaked K T and T per call
         B.destroy()
         if getattr(self, "_aside", None) is not None:        # the terms' entries kept out of A (serial)
             KT += self._aside @ T
