@@ -79,6 +79,23 @@ def test_edit_carries_the_solution_over():
     assert r.converged and r.newton_iterations < cold.newton_iterations
 
 
+def test_the_carried_over_solution_does_not_depend_on_the_chunk_size(monkeypatch):
+    """An edit locates the new nodes in the old mesh CARRY_CHUNK at a time: chunks of 7 nodes and one
+    chunk of all give the same start on the new mesh."""
+    import skelfem.session as session
+    starts = []
+    for chunk in (7, 10**9):
+        monkeypatch.setattr(session, "CARRY_CHUNK", chunk)
+        with Session(FINGER, ["mesh.size=3"]) as s:
+            s.solve()
+            d = s.design.raw
+            d["bones"][0]["outline"][0][0] += 0.5
+            s.edit(d)
+            starts.append(s.model.u.x.array.copy())
+    assert len(starts[0]) > 100 * 7 and np.abs(starts[0]).max() > 0.1
+    assert np.array_equal(starts[0], starts[1])
+
+
 @pytest.mark.parametrize("delta", [1.0, -1.0])
 def test_warm_set_takes_the_euler_predictor_and_few_newton_iterations(delta):
     """A 1 mm contraction change either way: the predictor du/dp dp, then <= 5 Newton iterations.

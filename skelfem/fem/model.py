@@ -44,7 +44,7 @@ from ..terms import BUILDERS, Context
 from ..terms.elasticity import cell_values_min, min_jacobian_expression
 from .assembly import MatrixAssembly, block_keys
 from .follow import MODEL_KEYS, CannotFollow, PackedCoefficients, raw_value
-from .multigrid import Coarse, rigid_body_modes
+from .multigrid import Coarse, owned_rigid_body_modes, rigid_body_modes
 
 
 
@@ -289,8 +289,7 @@ class Model(MatrixAssembly):
         near-nullspace of K that algebraic multigrid keeps on its coarse levels."""
         X = self.V.tabulate_dof_coordinates()[: self.n_owned // self.bs, : self.dim] \
             + self.u.x.array[: self.n_owned].reshape(-1, self.bs)[:, : self.dim]   # where the nodes are now
-        centre = self.comm.allreduce(X.sum(axis=0)) / max(self.comm.allreduce(len(X)), 1)
-        return rigid_body_modes(X - centre, self.dim, centred=True)
+        return owned_rigid_body_modes(X, self.dim, self.comm)
 
     def coarse_space(self) -> Coarse | None:
         """The P1 level of two-level multigrid for a P2 Newton matrix (multigrid.Coarse); None at P1 and
