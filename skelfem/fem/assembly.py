@@ -306,6 +306,7 @@ class MatrixAssembly:
         u = self.sync(x)
         A.zeroEntries()
         assemble_form(A, self.jacobian_form, self.bcs, self._packs(self.jacobian_form))   # adds; so do the terms
+        self._packs.clear()
         self._add_term_blocks(A, u)
         A.assemblyBegin(PETSc.Mat.AssemblyType.FLUSH)
         A.assemblyEnd(PETSc.Mat.AssemblyType.FLUSH)

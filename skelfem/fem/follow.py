@@ -51,3 +51,8 @@ class PackedCoefficients:
         if held is None or not all(np.array_equal(a, b) for a, b in zip(arrays, held[0])):
             held = self.packs[key] = ([a.copy() for a in arrays], _cpp.fem.pack_coefficients(form))
         return held[1]
+
+    def clear(self) -> None:
+        """Forget every pack (after the Jacobian: the next evaluation is at a new state, and meanwhile
+        the memory serves the preconditioner's set-up)."""
+        self.packs.clear()

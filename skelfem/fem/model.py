@@ -38,8 +38,8 @@ from dolfinx.fem import petsc as fem_petsc
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from ..mesh.points import global_dof_numbers
-from ..runtime import jitcache
+from ..mesh.points import global_dof_numbers, release_cell_tree
+from ..runtime import jitcache, memory
 from ..terms import BUILDERS, Context
 from ..terms.elasticity import cell_values_min, min_jacobian_expression
 from .assembly import MatrixAssembly, block_keys
@@ -53,6 +53,7 @@ class Model(MatrixAssembly):
 
     def __init__(self, design, tagged_mesh, builders=None):
         jitcache.install()             # FFCx's compiled modules looked up once per process (idempotent)
+        memory.allow_mmap()            # big blocks back to the system when freed, whatever MPI_Init set (idempotent)
         self.design, self.tm = design, tagged_mesh
         mesh = self.mesh = tagged_mesh.mesh
         self.comm = mesh.comm
@@ -74,6 +75,7 @@ class Model(MatrixAssembly):
         self._built = [(build, build(self.ctx)) for build in (builders or BUILDERS)]   # who built which terms
         self.terms = [term for _, terms in self._built for term in terms]
         self.ctx.finalise()
+        release_cell_tree(mesh)       # a big mesh's cell tree: made again if a later build needs it
         self.global_dofs = global_dof_numbers(V).astype(PETSc.IntType)   # local -> global, unrolled
         self._constraints()
         self.border = None            # the linear solver's Border at the last jacobian (rigid bodies)
