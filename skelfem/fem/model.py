@@ -53,7 +53,6 @@ class Model(MatrixAssembly):
 
     def __init__(self, design, tagged_mesh, builders=None):
         jitcache.install()             # FFCx's compiled modules looked up once per process (idempotent)
-        memory.allow_mmap()            # big blocks back to the system when freed, whatever MPI_Init set (idempotent)
         self.design, self.tm = design, tagged_mesh
         mesh = self.mesh = tagged_mesh.mesh
         self.comm = mesh.comm
@@ -66,6 +65,7 @@ class Model(MatrixAssembly):
         self.n_local = (imap.size_local + imap.num_ghosts) * self.bs
         self.n_owned = imap.size_local * self.bs
         self.num_cells = mesh.topology.index_map(mesh.topology.dim).size_local
+        memory.allow_mmap(8 * self.n_local)   # matrices back to the system when freed, whatever MPI_Init set
         self.factor = 0.0
         x = mesh.geometry.x[:, :self.dim]
         self.size = float(self.comm.allreduce(np.linalg.norm(x.max(axis=0) - x.min(axis=0)) if len(x) else 0.0,
