@@ -238,7 +238,7 @@ def test_auto_is_direct_in_2d_and_for_small_3d_designs():
 
 
 def test_the_size_limit_follows_the_planned_solvers_memory_model(monkeypatch):
-    """On 24 GB: about a million DOFs with MUMPS (n^(4/3)), four million with multigrid (n); a
+    """On 24 GB: about a million DOFs with MUMPS (n^(4/3)), nearly five million with multigrid (n); a
     design refused with one solver's limit names it; 2D keeps its fixed limit."""
     from skelfem.design import resources
     monkeypatch.setattr(resources, "physical_memory", lambda: 24e9)

@@ -33,7 +33,7 @@ class PackedCoefficients:
     accepted trial's energy, then the residual and the Jacobian there), so
     one packing serves all three; the Jacobian's assembly then forgets it
     (``clear``), since the next evaluation is at a new state and the pack
-    (0.4 KB per DOF of a 3D P1 mesh) would sit beside the multigrid's
+    (0.2 KB per DOF of a 3D P1 mesh) would sit beside the multigrid's
     set-up. A pack is reused only while every
     coefficient array equals, entry by entry, the one it was packed from;
     forms whose coefficients or integrals differ get their own pack.
