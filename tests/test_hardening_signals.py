@@ -340,3 +340,14 @@ def test_an_interrupted_gmsh_call_is_left_behind_and_gmsh_refused_after_it(tmp_p
     took = float(lines[0].split()[2])
     assert took < 0.6 and lines[0].endswith("abandoned Gmsh"), lines
     assert lines[1] == "refused: Gmsh is still inside an interrupted call in this process: start a new one"
+
+
+@pytest.mark.parametrize("delay", [0.3, 0.36, 0.42, 0.48, 0.54, 0.6, 0.66])
+def test_a_signal_during_start_up_is_one_line_and_130(tmp_path, delay):
+    """Interrupted while the command line imports itself (MPI_Init, DOLFINx importing Gmsh, which sets
+    SIGINT's default action): it was a traceback with status 1, or the process killed outright (-2)."""
+    proc = _start(SIMULATE + ["--out", str(tmp_path / "out")], tmp_path)
+    time.sleep(delay)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    _check_interrupted(proc.returncode, err, signal.SIGINT)

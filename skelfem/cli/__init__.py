@@ -14,3 +14,28 @@ _os.environ["PETSC_OPTIONS"] = (_os.environ.get("PETSC_OPTIONS", "") + " -no_sig
 from ..runtime import interrupts as _interrupts  # noqa: E402
 
 _interrupts.install()
+
+
+def _start_up() -> None:
+    """Import the command line (DOLFINx, matplotlib and MPI_Init among it): a signal meanwhile ends the
+    process with one ``error: interrupted`` line and 130 / 143, never a traceback. Gmsh is imported
+    first with the signals blocked: its import sets SIGINT's default action, and DOLFINx imports it
+    on the way, which let a Ctrl-C half a second into a run kill the process outright (status -2).
+    A signal that came meanwhile is let through after it."""
+    import sys
+    try:
+        with _interrupts.held():
+            try:
+                import gmsh  # noqa: F401
+            except ImportError:
+                pass
+            from mpi4py import MPI  # noqa: F401
+        from . import main  # noqa: F401
+    except _interrupts.Interrupted as exc:
+        sys.stdout.flush()
+        sys.stderr.write("error: interrupted\n")
+        sys.stderr.flush()
+        _os._exit(exc.code)
+
+
+_start_up()
