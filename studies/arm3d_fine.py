@@ -81,8 +81,9 @@ def main(argv=None) -> dict:
     print(f"{data['dofs']} DOFs on {data['ranks']} rank(s): {data['status']}, {data['wall_s']:.0f} s, "
           f"{data['peak_gb']:.2f} GB ({data['kb_per_dof']:.2f} KB per DOF), {data['newton_iterations']} Newton, "
           f"Krylov mean {data['krylov_mean']:.1f}")
+    from skelfem.io.files import write_json
     a.out.mkdir(parents=True, exist_ok=True)
-    (a.out / "arm3d_fine.json").write_text(json.dumps(data, indent=1))
+    write_json(a.out / "arm3d_fine.json", data)
     return data
 
 

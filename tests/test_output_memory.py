@@ -82,3 +82,22 @@ def test_a_big_mesh_drops_its_cell_tree_once_the_model_is_built(monkeypatch):
     monkeypatch.setattr(points, "TREE_CELLS", 10**9)
     with Session(strip(size=3.0)) as s:
         assert hasattr(s.model.mesh, "_skelfem_cell_tree")
+
+
+def test_the_jacobian_leaves_no_packed_coefficients_behind():
+    """The pack serves the energy, residual and Jacobian at one state, then goes (it would sit beside the
+    multigrid's set-up); the next evaluation packs again and gives the same residual."""
+    from _designs import strip
+    from skelfem.session import Session
+    with Session(strip(size=3.0)) as s:
+        m = s.model
+        x = m.u.vector.copy()
+        b0, b1 = x.duplicate(), x.duplicate()
+        m.residual(x, b0)
+        assert m._packs.packs
+        A = m.create_matrix()
+        m.jacobian(x, A)
+        assert not m._packs.packs
+        m.residual(x, b1)
+        assert np.array_equal(b0.array, b1.array)
+        A.destroy()

@@ -11,12 +11,13 @@ so it is done after big meshes only (``BIG_CELLS``). Elsewhere (another C
 library) it does nothing.
 
 Open MPI's initialisation (``MPI_Init``, run when mpi4py or petsc4py is
-imported) turns glibc's mmap of big blocks off (``mallopt(M_MMAP_MAX, 0)``,
-for the memory registration of network cards). Then every big block (K,
-the multigrid's levels, the packed coefficients) comes from the one heap,
-and the pieces freed between blocks still alive stay resident: arm3d at
-1.43M DOFs peaked at 6.38 GB (4.7 KB per DOF). ``allow_mmap(vector_bytes)`` maps blocks of at least MMAP_VECTORS
-vectors again (at least MMAP_BYTES) and trims the heap's top (TRIM_BYTES):
+imported) turns glibc's mapping of big blocks off (an 80 MB array made
+after it comes from the heap; one made before it is mapped on its own).
+Then every big block (K, the multigrid's levels, the packed coefficients)
+comes from the one heap, and the pieces freed between blocks still alive
+stay resident: arm3d at 1.43M DOFs peaked at 6.38 GB (4.7 KB per DOF).
+``allow_mmap(vector_bytes)`` maps blocks of at least MMAP_VECTORS vectors
+again (at least MMAP_BYTES) and trims the heap's top (TRIM_BYTES):
 the matrices and packs are mapped on their own and unmapped when freed,
 while a solve's vector-sized scratch, made and freed at every Krylov
 iteration, stays in the heap. (Mapping everything from 1 MB up cut the
