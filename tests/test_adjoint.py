@@ -221,27 +221,80 @@ def test_optimize_follows_timed_targets_from_a_csv(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_through_a_frictional_wall_the_gradient_holds_friction_and_optimize_still_reaches_a_target():
-    """The strip's side slides up a wall with mu = 0.5 (ground friction, anchored stick): the adjoint holds
-    friction's normal forces and anchors (GradientResult.approximate; measured 5.5 % from central
-    differences, exact without friction), and optimize, steered by it, reaches a target that a known
-    schedule reaches: its errors come from exact forward runs."""
+def test_through_a_frictional_wall_the_gradient_is_exact_and_optimize_reaches_a_target():
+    """The strip's side slides up a wall with mu = 0.5 (ground friction, anchored stick): the gradient
+    follows friction's anchors and lagged normal forces through the steps (measured 5e-6 from central
+    differences; 5.5 % with friction held at each step), and optimize reaches a target that a known
+    schedule reaches."""
     from skelfem.analysis.optimize import optimize_schedules
-    d = flick("bdf2")
-    d["grounds"] = [{"name": "wall", "point": [9.5, 0], "normal": [-1, 0], "stiffness": 10.0, "friction": 0.5}]
+    d = rubbing_wall()
     targets = [TimedTarget("tip", 0.08, np.array([8.0, 37.0]))]
     with Session(d) as s:
         r = schedule_gradient(s, targets)
-        assert r.approximate and r.report.converged
+        assert not r.approximate and r.report.converged
         wall = {k: v for t in s.model.terms_in("grounds") for k, v in t.readout(s.model).get("wall", {}).items()}
         assert np.linalg.norm(wall["friction_force"]) > 0.01, wall                     # the side rubs on it
         fd = central_differences(s, d, targets)
         g = r.gradient["flexor"]
-        assert np.abs(fd - g).max() < 0.1 * np.abs(fd).max(), (g, fd)
-        assert g @ fd > 0.95 * np.linalg.norm(g) * np.linalg.norm(fd)          # a descent direction
+        assert np.abs(fd - g).max() < 2e-5 * np.abs(fd).max(), (g, fd)
         s.set({"cables.flexor.schedule": [[0.0, 0.3], [0.04, 1.8], [0.08, 2.4]]})
         goal = schedule_gradient(s, [TimedTarget("tip", 0.08, np.zeros(2))]).positions[0]
         s.set({"cables.flexor.schedule": d["cables"][0]["schedule"]})
         res = optimize_schedules(s, "tip", [(0.08, goal)], knots=3, tol=0.05, max_evaluations=40)
-    assert res.gradient == "friction held"
+    assert res.gradient == "exact"
     assert res.reached and res.error < 0.05, (res.status, res.error)
+
+
+def riding_box(rigid: bool, mu: float = 0.8) -> dict:
+    """A 6 x 3 mm box dropped 0.3 mm onto the top of the flicking strip (dhat 0.2 mm): it lands in the
+    first step and rides on the tip, held there by friction (about half of its normal force sticking at
+    the end)."""
+    d = flick("bdf2")
+    d["materials"]["pla"] = {"E": 5.0, "nu": 0.3, "density": 1250.0}
+    d["objects"] = [{"name": "box", "outline": [[1, 40.3], [7, 40.3], [7, 43.3], [1, 43.3]], "material": "pla",
+                     "rigid": rigid}]
+    d["gravity"] = {"acceleration": [0, -9.81]}
+    d["contact"] = {"dhat": 0.2, "friction": mu}
+    d["markers"]["b"] = [4.0, 42.0]
+    return d
+
+
+BOX_TARGETS = [TimedTarget("b", 0.08, np.array([8.0, 40.0])), TimedTarget("b", 0.04, np.array([3.0, 41.0]))]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("rigid", [False, True])
+def test_a_box_carried_by_sticking_friction_has_the_exact_gradient(rigid):
+    """A marker on a box that rides on the strip, carried by friction: its motion is all in the stick
+    anchors and the lagged normal forces, which the gradient follows through the steps (the contact
+    forms during the first step, anchored where it was at its start). Measured 1e-7 from central
+    differences, rigid or elastic; holding friction at each step instead was 13 % off (elastic)."""
+    d = riding_box(rigid)
+    with Session(d) as s:
+        r = schedule_gradient(s, BOX_TARGETS)
+        assert not r.approximate and r.report.converged
+        pair = s.model.term("contacts", "friction").readout(s.model)["body|box"]
+        assert 0.2 < pair["sticking"] < 1.0, pair                  # held partly by sticking, partly slipping
+        assert np.linalg.norm(r.positions[0] - [4.0, 42.0]) > 5.0     # carried far from where it was put
+        fd = central_differences(s, d, BOX_TARGETS)
+    g = r.gradient["flexor"]
+    assert np.abs(fd - g).max() < 1e-5 * np.abs(fd).max(), (g, fd)
+
+
+def rubbing_wall() -> dict:
+    d = flick("bdf2")
+    d["grounds"] = [{"name": "wall", "point": [9.5, 0], "normal": [-1, 0], "stiffness": 10.0, "friction": 0.5}]
+    return d
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("design", [riding_box, rubbing_wall])
+def test_a_second_run_in_time_starts_from_no_friction_history(design):
+    """Runs in time start from rest, friction's anchors and slips too: the same run twice in one session
+    gives the same states to the solver's tolerance (the second once began with the first's anchors:
+    the box 0.14 %, the wall's strip 7e-6 apart)."""
+    from skelfem.fem.dynamics import Dynamics
+    with Session(design(True) if design is riding_box else design()) as s:
+        first = Dynamics(s.model, s.solver, s.design).run(store=True)
+        second = Dynamics(s.model, s.solver, s.design).run(store=True)
+    assert np.abs(first.states[-1] - second.states[-1]).max() <= 1e-8 * np.abs(first.states[-1]).max()

@@ -15,7 +15,8 @@ from dolfinx import fem
 from skelfem import Session
 from skelfem.terms import BUILDERS
 from skelfem.terms.friction import GroundFriction
-from skelfem.terms.object_friction import ObjectFriction, closest_on_facets
+from skelfem.terms.facets import closest_on_facets
+from skelfem.terms.object_friction import ObjectFriction
 
 from _designs import strip
 

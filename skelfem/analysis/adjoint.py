@@ -30,15 +30,29 @@ memory N x DOFs. Dirichlet rows carry no adjoint (pinned DOFs do not depend
 on the schedules). Stiffness damping (b > 0) is not differentiated (its
 tangent at x_n would need third derivatives of psi): ValueError.
 
-Friction (contacts, grounds, cable channels) is differentiated with its
-lagged normal forces and tangents and its stick anchors held at each step's
-converged values (``Linearization(hold_lags=True)``), and the anchors'
-dependence on earlier steps is not followed: the gradient is approximate
-(``GradientResult.approximate``; 5 % from central differences on a strip
-whose side slides on a wall with mu = 0.5 or 2, exact with mu = 0, but 20
-times too small for a box that rides on the strip held by sticking
-contacts, whose motion is all in the anchors). The forward runs that
-measure the targets are exact.
+Friction at contacts and grounds makes a step's residual depend on the
+stick anchors a_n it starts from (the history, skelfem.terms.friction) and
+on its lagged normal forces and tangents, which sit at their fixed point
+N = N(x_{n+1}). Both are followed exactly, in forward (tangent) mode: with
+J_{n+1} = H_{n+1} + C_{n+1} the Jacobian through the lags
+(skelfem.analysis.sensitivity.Linearization, hold_lags=False) and
+a^_n = A(a_n, x_n) the anchors the step uses (a contact formed during the
+step is anchored where it was at x_n, ``Term.stick_anchors_in_step``),
+
+    J_{n+1} x'_{n+1} = (the right-hand side below) - dR_n/da a'^_n,
+    a'_{n+1} = d/de B(x_{n+1} + e x'_{n+1}, a^_n + e a'^_n)
+
+with B the return map (``Term.stick_anchors_after``: slipping anchors move to eps
+behind their node). The derivatives through the anchors are central
+differences along each tangent, a step well inside the stick zone eps
+(``Term.stick_anchor_step``), on the branch of the forward run (which nodes stick
+or slip; the step sequence). The gradient is then 2 (dr/du)^T r, one
+tangent per knot: ``schedule_gradient`` takes this path with friction.
+Cable friction (whose history has no anchors here) and runs on several
+MPI processes keep the held friction of the reverse sweep: the gradient is
+then approximate (``GradientResult.approximate``; 5 % from central
+differences on a strip whose side slides on a wall with mu = 0.5), and the
+forward runs that measure the targets stay exact.
 
 The objective here is the tracking of markers at given times,
 J = sum_i |y_m(t_i) - y'_i|^2, y_m(t) linear between the two stored states
@@ -68,7 +82,7 @@ class GradientResult:
     gradient: dict                        # {tendon name: dJ/du at its knots (array)}
     positions: list                       # achieved marker positions at the targets' times
     report: object = None                 # the forward DynamicsReport
-    approximate: bool = False             # friction held (see the module note): not the exact gradient
+    approximate: bool = False             # friction held (cable friction, MPI): not the exact gradient
     forward_time: float = 0.0
     adjoint_time: float = 0.0
     extra: dict = field(default_factory=dict)
@@ -104,6 +118,15 @@ def schedule_gradient(session, targets: list[TimedTarget]) -> GradientResult:
     if not rep.converged:
         raise RuntimeError(f"{design.name}: the forward run failed ({rep.status}) at t = {rep.t_end:g} s")
     t1 = time.perf_counter()
+    if model.path_dependent and follows_anchors(model):       # friction: tangents through the anchors
+        r, J, columns = schedule_sensitivities(session, targets, report=rep)
+        grad = {}
+        for j, name in enumerate(columns):
+            tendon = name.split(".")[1]
+            grad[tendon] = np.append(grad.get(tendon, np.zeros(0)), 2.0 * J[:, j] @ r)
+        d = model.dim
+        positions = [r[i * d:(i + 1) * d] + np.asarray(tt.target, float) for i, tt in enumerate(targets)]
+        return GradientResult(float(r @ r), grad, positions, rep, False, t1 - t0, time.perf_counter() - t1)
     inertia = model.term("dynamics")
     markers = model.term("markers")
     names = list(markers.names)
@@ -133,6 +156,7 @@ def schedule_gradient(session, targets: list[TimedTarget]) -> GradientResult:
     scheduled = {t.name: design.cable(t.name).schedule for t in tendons if design.cable(t.name).schedule is not None}
     grad = {name: np.zeros(len(s)) for name, s in scheduled.items()}
     M = inertia.mass_matrix()
+    vel = velocities(rep)
     lam_vec = model.u.vector.duplicate()
     Mlam = model.u.vector.duplicate()
     fixed = model.fixed
@@ -144,7 +168,7 @@ def schedule_gradient(session, targets: list[TimedTarget]) -> GradientResult:
             model.u.x.array[:] = states[n + 1]
             model.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
             dyn.set_time(t_next)
-            inertia.set_coefficients(h, a0)
+            set_step(inertia, rep, n, vel)
             lin = Linearization(model, solver, hold_lags=True)
             try:
                 # v_{n+1} = (a0 x_{n+1} + a1 x_n + a2 x_{n-1}) / h
@@ -180,6 +204,102 @@ def schedule_gradient(session, targets: list[TimedTarget]) -> GradientResult:
         lam_vec.destroy()
         Mlam.destroy()
     return GradientResult(value, grad, positions, rep, model.path_dependent, t1 - t0, time.perf_counter() - t1)
+
+
+def velocities(rep) -> list:
+    """v_n of every stored state (v_0 = 0: a run starts at rest), from the steps' BDF formula."""
+    v = [np.zeros_like(rep.states[0])]
+    for n, (_, h, (a0, a1, a2)) in enumerate(rep.steps):
+        x_m = rep.states[n - 1] if (a2 != 0.0 and n >= 1) else 0.0
+        v.append((a0 * rep.states[n + 1] + a1 * rep.states[n] + a2 * x_m) / h)
+    return v
+
+
+def set_step(inertia, rep, n: int, vel: list) -> None:
+    """The inertia term as it was in step n (x~, x*, coefficients): the Hessian of a rigid body holds the
+    full gradient on its nodes, inertia's force included."""
+    _, h, alpha = rep.steps[n]
+    back = n >= 1 and alpha[2] != 0.0
+    inertia.set_step(h, alpha, rep.states[n], rep.states[n - 1] if back else 0.0, vel[n],
+                     vel[n - 1] if back else 0.0)
+
+
+def follows_anchors(model) -> bool:
+    """Whether derivatives through time can follow the run's friction exactly: every active history is
+    stick anchors (contacts, grounds; not cable friction), on one MPI process."""
+    held = [t for t in model.terms if getattr(t, "active", True) and t.history() is not None]
+    return model.comm.size == 1 and all(t.stick_anchors() is not None for t in held)
+
+
+class AnchorTangents:
+    """a' per column of the terms with anchors through a run (schedule_sensitivities)."""
+
+    def __init__(self, model, columns: int):
+        self.model = model
+        self.terms = [t for t in model.terms if t.stick_anchors() is not None]
+        self.after = [np.zeros((len(t.stick_anchors()), columns)) for t in self.terms]   # a'_n (after end_step)
+        self.used = [a.copy() for a in self.after]                                 # a'^_n (in the step)
+
+    @staticmethod
+    def _step(term, da: np.ndarray, dx: np.ndarray) -> float:
+        """e of the central differences along (da, dx): every change well inside the stick zone."""
+        s_a, s_x = term.stick_anchor_step()
+        na, nx = float(np.abs(da).max(initial=0.0)), float(np.abs(dx).max(initial=0.0))
+        return min(s_a / na if na > 0 else np.inf, s_x / nx if nx > 0 else np.inf)
+
+    def in_step(self, x_start: np.ndarray, dx_start: np.ndarray) -> None:
+        """a'^_n = dA(a_n, x_n)[a'_n, x'_n] (x'_n: local arrays, one column each)."""
+        for k, t in enumerate(self.terms):
+            base = t.stick_anchors()
+            for p in range(self.used[k].shape[1]):
+                da, dx = self.after[k][:, p], dx_start[:, p]
+                e = self._step(t, da, dx)
+                if not np.isfinite(e):
+                    self.used[k][:, p] = 0.0
+                    continue
+                plus = t.stick_anchors_in_step(base + e * da, x_start + e * dx)
+                minus = t.stick_anchors_in_step(base - e * da, x_start - e * dx)
+                self.used[k][:, p] = (plus - minus) / (2 * e)
+
+    def residual(self, p: int, n: int) -> np.ndarray:
+        """dR/da a'^_n of column p (owned entries, zero on Dirichlet rows)."""
+        out = np.zeros(n)
+        for k, t in enumerate(self.terms):
+            da = self.used[k][:, p]
+            e = self._step(t, da, np.zeros(0))
+            if not np.isfinite(e):
+                continue
+            base = t.stick_anchors()
+            try:
+                for sign in (1.0, -1.0):
+                    t.set_stick_anchors(base + sign * e * da)
+                    got = t.gradient(self.model.u.x.array)
+                    if got is not None:
+                        keep = got[0] < n
+                        np.add.at(out, got[0][keep], sign * np.asarray(got[1])[keep] / (2 * e))
+            finally:
+                t.set_stick_anchors(base)
+        out[self.model.fixed[:n]] = 0.0
+        return out
+
+    def after_step(self, x: np.ndarray, dx: np.ndarray) -> None:
+        """a'_{n+1} = dB(x_{n+1}, a^_n)[x'_{n+1}, a'^_n] (x, dx: local arrays; dx one column each)."""
+        for k, t in enumerate(self.terms):
+            base = t.stick_anchors()
+            for p in range(self.used[k].shape[1]):
+                da = self.used[k][:, p]
+                e = self._step(t, da, dx[:, p])
+                if not np.isfinite(e):
+                    self.after[k][:, p] = 0.0
+                    continue
+                got = []
+                try:
+                    for sign in (1.0, -1.0):
+                        t.set_stick_anchors(base + sign * e * da)
+                        got.append(t.stick_anchors_after(x + sign * e * dx[:, p]))
+                finally:
+                    t.set_stick_anchors(base)
+                self.after[k][:, p] = (got[0] - got[1]) / (2 * e)
 
 
 def _on_local(model, term, values: np.ndarray) -> np.ndarray:
@@ -250,9 +370,13 @@ def schedule_sensitivities(session, targets: list[TimedTarget], report=None) -> 
     xs = [np.zeros((n_owned, P)), np.zeros((n_owned, P))]        # x'_n, x'_{n-1}
     vs = [np.zeros((n_owned, P)), np.zeros((n_owned, P))]
     M = inertia.mass_matrix()
+    vel = velocities(rep)
     vec, out = model.u.vector.duplicate(), model.u.vector.duplicate()
     fixed = model.fixed[:n_owned]
     a_mass = spec.damping_mass
+    through = model.path_dependent and follows_anchors(model)       # friction: its anchors followed exactly
+    saved = model.history() if through else None
+    anchors = AnchorTangents(model, P) if through else None
 
     def record(n, xdot):
         for i, w in need.get(n, []):
@@ -271,9 +395,13 @@ def schedule_sensitivities(session, targets: list[TimedTarget], report=None) -> 
             model.u.x.array[:] = rep.states[n + 1]
             model.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
             dyn.set_time(t_next)
-            inertia.set_coefficients(h, a0)
-            lin = Linearization(model, solver, hold_lags=True)
+            set_step(inertia, rep, n, vel)
+            if through:
+                model.set_history(rep.histories[n])                # the step's converged anchors and lags
+            lin = Linearization(model, solver, hold_lags=not through)
             try:
+                if through:
+                    anchors.in_step(rep.states[n], xs[0])
                 c_i = a0 * a0 / (h * h)
                 D = c_i + a_mass * a0 / h
                 hist = D * (a1 * xs[0] + a2 * xs[1]) / a0 + c_i * h * (a1 * vs[0] + a2 * vs[1]) / a0 ** 2
@@ -284,12 +412,16 @@ def schedule_sensitivities(session, targets: list[TimedTarget], report=None) -> 
                     b = -out.array_r.copy()
                     c = [j for j, term in enumerate(lin.tendons) if term.name == name][0]
                     b -= knot_weights(dict(scheduled)[name][:, 0], t_next)[k] * lin.dR_du[c].array_r
+                    if through:
+                        b -= anchors.residual(p, n_owned)
                     b[fixed] = 0.0
                     vec.array_w[:] = b
                     sol = lin.solve(vec)
                     xdot[:, p] = sol.array_r
                     sol.destroy()
                 vdot = (a0 * xdot + a1 * xs[0] + a2 * xs[1]) / h
+                if through:
+                    anchors.after_step(rep.states[n + 1], xdot)
                 xs, vs = [xdot, xs[0]], [vdot, vs[0]]
             finally:
                 lin.destroy()
@@ -299,6 +431,8 @@ def schedule_sensitivities(session, targets: list[TimedTarget], report=None) -> 
         dyn.set_time(rep.t_end)
         model.u.x.array[:] = rep.states[-1]
         model.sync(model.u.vector)
+        if through:
+            model.set_history(saved)
         vec.destroy()
         out.destroy()
     return r, J, [f"cables.{n}.schedule[{k}]" for n, k in columns]

@@ -7,16 +7,19 @@ bounded by 0 <= u_ck <= upper_c. The objective is
     J(u) = sum_i |y(t_i) - y'_i|^2 + rho sum_c sum_k (u_c,k+1 - u_c,k)^2,
 
 the first part from a forward run, its gradient from the discrete adjoint
-(skelfem.analysis.adjoint: one forward run and one reverse sweep per evaluation), the
+(skelfem.analysis.adjoint: one forward run and one reverse sweep per evaluation;
+through friction, one tangent sweep of every knot together), the
 smoothness regulariser rho (mm^2 per mm^2) in closed form. scipy's L-BFGS-B
 minimises it within the bounds; it stops once every target is within tol
 (default 1e-3 x finger length), or when L-BFGS-B converges or runs out of
 evaluations. ``method="gauss-newton"`` instead solves the bounded
 least-squares problem with scipy's trust-region reflective method on the
 Jacobian of the residuals from the forward (tangent) sensitivities. The best evaluation found is returned, with reached = false if
-a target is still further than tol. Through friction the gradient is
-approximate (``gradient = "friction held"``, see skelfem.analysis.adjoint);
-the errors are those of exact forward runs.
+a target is still further than tol. Through contact and ground friction
+the gradient is exact on the forward run's branch; through cable friction,
+or on several MPI processes, it holds friction at each step
+(``gradient = "friction held"``, see skelfem.analysis.adjoint); the errors
+are those of exact forward runs.
 """
 from __future__ import annotations
 
@@ -217,4 +220,10 @@ def _result(session, names, knot_times, best, tol, status, iterations, counts, h
     return OptimizeResult(names, knot_times, U, best["positions"], best["errors"], reached,
                           "reached" if reached else status, float(best["J"]), iterations,
                           counts["forward"], counts["adjoint"], counts["failed"], time.perf_counter() - t0,
-                          history, ub, "friction held" if session.model.path_dependent else "exact")
+                          history, ub, _gradient_kind(session.model))
+
+
+def _gradient_kind(model) -> str:
+    """"exact", or "friction held" where the gradient holds friction at each step (cable friction, MPI)."""
+    from .adjoint import follows_anchors
+    return "friction held" if model.path_dependent and not follows_anchors(model) else "exact"

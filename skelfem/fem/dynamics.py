@@ -102,6 +102,7 @@ class DynamicsReport:
     trajectory: Decimated = field(default_factory=lambda: Decimated(KEEP_ROWS))
     states: list = field(default_factory=list)        # with store=True: x_n (local arrays), t = 0 included
     steps: list = field(default_factory=list)         # with store=True: (t_{n+1}, h, alphas) per accepted step
+    histories: list = field(default_factory=list)     # with store=True and friction: model.history() converged
 
 
 def _snap(t: float, dt: float) -> float:
@@ -172,6 +173,7 @@ class Dynamics:
         model.to_rest()
         model.apply_bcs(model.u.vector)
         inertia.start(model.u.x.array, damping=(spec.damping_mass, spec.damping_stiffness))
+        path_dependent = model.path_dependent
         if store:
             rep.states.append(model.u.x.array.copy())
         try:
@@ -200,6 +202,8 @@ class Dynamics:
                     if store:
                         rep.states.append(model.u.x.array.copy())
                         rep.steps.append((t_next, h_try, inertia.alpha))
+                        if path_dependent:                  # the step's anchors and lags (exact adjoint)
+                            rep.histories.append(model.history())
                     model.end_step()
                     committed = model.history()
                     t = t_next

@@ -193,6 +193,9 @@ class Term:
             setattr(self, k, copy.deepcopy(v))
 
     # -- lagged quantities, for exact sensitivities (skelfem.analysis.sensitivity) ----------------
+    lag_step = 1e-8    # the step of the differences of lags_at, times the model's size (below a ground's
+    #                    penetration, where N(u) has a kink)
+
     def lags(self):
         """A copy of the lagged quantities that follow the state (friction's normal forces N, an
         edge's tangent), or None: nothing lagged. At a converged state they are their own fixed
@@ -207,6 +210,33 @@ class Term:
         (which nodes stick, slip, broke away; the anchors), without relaxation: what makes the lagged
         Jacobian exact, J v = H v + d/de gradient(u; lags_at(u + e v))."""
         return None
+
+    # -- stick anchors through time, for exact derivatives of runs (skelfem.analysis.adjoint) ---------
+    def stick_anchors(self):
+        """The continuous part of the history that the present state's residual uses (friction's
+        stick anchors a, a flat float array), or None. A term with a history but no anchors (cable
+        friction) makes derivatives through time approximate."""
+        return None
+
+    def set_stick_anchors(self, a) -> None:
+        """Put back anchors returned by stick_anchors() (or perturbed ones)."""
+
+    def stick_anchor_step(self) -> tuple[float, float]:
+        """(a change of an anchor entry, a change of a displacement in mm), both small against the stick
+        zone eps: the steps of the central differences through the anchors (every node stays on its
+        branch)."""
+        return 1.0, 1.0
+
+    def stick_anchors_in_step(self, a_start, u_start):
+        """The anchors a converged step uses, from the anchors a_start it began with and the state
+        u_start it began from (a contact that formed during the step is anchored where it was at
+        u_start); the term holds the converged step's history."""
+        return a_start
+
+    def stick_anchors_after(self, u):
+        """The anchors the return map (end_step) would give at state u from the present anchors, with
+        the lagged quantities at lags_at(u), on the present branch; changes nothing."""
+        return self.stick_anchors()
 
 
 def touched(changed: set, *prefixes: str) -> bool:

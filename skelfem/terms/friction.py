@@ -243,10 +243,18 @@ class GroundFriction(Term):
         if self._ready:
             u = self.ctx.u.x.array
             if not self.ctx.comm.allreduce(bool(np.any(u)), op=MPI.LOR):
-                self.anchor = self.X @ self.T
-                self.N[:], self.run[:], self.sliding[:] = 0.0, 0.0, False
+                self.rest()
             self.trial = self.sliding.copy()
             self.fresh = self._touching(u)
+
+    def rest(self) -> None:
+        """No history: every node anchored at its rest place, none slipped (a run in time from rest)."""
+        if self._ready:
+            self.anchor = self.X @ self.T
+            self.N, self.run, self.sliding = np.zeros(len(self.nodes)), np.zeros(len(self.nodes)), \
+                np.zeros(len(self.nodes), bool)
+            self.trial = self.sliding.copy()
+            self.fresh = self._touching(self.ctx.u.x.array)
 
     def update_lag(self, model) -> bool:
         """Lagged normal forces (and breakaways past mu_s) to the state u; True if a re-solve is needed."""
@@ -280,6 +288,32 @@ class GroundFriction(Term):
     def lags_at(self, u: np.ndarray):
         return self.normal_forces(u)
 
+    def _return_map(self, u: np.ndarray):
+        """(anchors after the step, slipping nodes, r) at u: a node that slipped gets its anchor eps
+        behind it, sticking nodes keep theirs, nodes off the plane take their current place."""
+        s = self.positions(u) @ self.T
+        d = s - self.anchor
+        r = np.linalg.norm(d, axis=1)
+        F = self._strength()
+        slip = (F > 0.0) & (r > self.eps * (1 + 1e-12))
+        if not self.anchored:
+            return s.copy(), slip, r
+        keep = np.where(slip, self.eps / np.where(slip, r, 1.0), 1.0)         # |d| -> eps on slipping nodes
+        anchor = np.where(slip[:, None], s - keep[:, None] * d, self.anchor)
+        return np.where((F > 0.0)[:, None], anchor, s), slip, r
+
+    def stick_anchors(self):
+        return self.anchor.ravel().copy() if (self.active and self._ready) else None
+
+    def set_stick_anchors(self, a) -> None:
+        self.anchor = np.asarray(a, float).reshape(self.anchor.shape).copy()
+
+    def stick_anchor_step(self) -> tuple[float, float]:
+        return 1e-3 * self.eps, 1e-3 * self.eps
+
+    def stick_anchors_after(self, u):
+        return self._return_map(u)[0].ravel()
+
     def end_step(self, model) -> None:
         """Return map: a node that slipped keeps its anchor eps behind it; sticking nodes keep theirs,
         nodes off the plane take their current place."""
@@ -287,17 +321,7 @@ class GroundFriction(Term):
             return
         u = model.u.x.array
         self._report = self._measure(u)
-        s = self.positions(u) @ self.T
-        d = s - self.anchor
-        r = np.linalg.norm(d, axis=1)
-        F = self._strength()
-        slip = (F > 0.0) & (r > self.eps * (1 + 1e-12))
-        if self.anchored:
-            keep = np.where(slip, self.eps / np.where(slip, r, 1.0), 1.0)     # |d| -> eps on slipping nodes
-            self.anchor = np.where(slip[:, None], s - keep[:, None] * d, self.anchor)
-            self.anchor = np.where((F > 0.0)[:, None], self.anchor, s)
-        else:
-            self.anchor = s.copy()
+        self.anchor, slip, r = self._return_map(u)
         self.run = np.where(slip, self.run + np.maximum(r - self.eps, 0.0), 0.0)
         self.sliding = self.run > self.dc
         self.trial = self.sliding.copy()

@@ -193,10 +193,17 @@ class Inertia(Term):
         if not self.active:
             raise RuntimeError("prepare() before start()")
         order = min(self.order, len(self.x))
-        a0, a1, a2 = bdf_coefficients(order, h / self.h_last if order == 2 else 1.0)
-        self._alpha, self.h = (a0, a1, a2), float(h)
-        x_n, v_n = self.x[0], self.vel[0]
+        alpha = bdf_coefficients(order, h / self.h_last if order == 2 else 1.0)
         x_m, v_m = (self.x[1], self.vel[1]) if order == 2 else (0.0, 0.0)
+        return self.set_step(h, alpha, self.x[0], x_m, self.vel[0], v_m)
+
+    def set_step(self, h: float, alpha, x_n, x_m, v_n, v_m) -> np.ndarray:
+        """x~, x* and the coefficients of a step of size h with BDF coefficients alpha, from the state and
+        velocity before it and one step further back (x_m, v_m; unused where alpha_2 = 0); returns x~.
+        The adjoint sets each stored step back this way: a rigid body's Hessian holds the full gradient
+        on its nodes, the inertia force M (x - x~) / (beta h^2) included."""
+        a0, a1, a2 = alpha
+        self._alpha, self.h = (a0, a1, a2), float(h)
         star = -(a1 * x_n + a2 * x_m) / a0
         tilde = star - h * (a1 * v_n + a2 * v_m) / a0 ** 2
         self.u_star.x.array[:] = star

@@ -60,52 +60,7 @@ from mpi4py import MPI
 
 from .base import Term
 from .contact import barrier_stiffness, fortran_array
-
-
-def tangents(y: np.ndarray, facets: np.ndarray) -> np.ndarray:
-    """(n, dim, dim - 1) orthonormal tangent bases of facets (rows of vertex indices into y): 2D, the
-    edge's unit direction; 3D, the first edge's direction and the in-plane normal to it."""
-    t1 = y[facets[:, 1]] - y[facets[:, 0]]
-    t1 = t1 / np.linalg.norm(t1, axis=1)[:, None]
-    if facets.shape[1] == 2:
-        return t1[:, :, None]
-    n = np.cross(t1, y[facets[:, 2]] - y[facets[:, 0]])
-    t2 = np.cross(n / np.linalg.norm(n, axis=1)[:, None], t1)
-    return np.stack([t1, t2], axis=2)
-
-
-def closest_on_facets(P: np.ndarray, y: np.ndarray, facets: np.ndarray) -> np.ndarray:
-    """Barycentric coordinates (n, dim) of the points of facets (n, dim) closest to points P (n, dim).
-
-    2D: the clipped parameter along the edge. 3D: the point of the triangle
-    closest to P (its projection if inside, else the closest of its edges)."""
-    a, b = y[facets[:, 0]], y[facets[:, 1]]
-    if facets.shape[1] == 2:
-        ab = b - a
-        s = np.clip(np.einsum("nk,nk->n", P - a, ab) / np.einsum("nk,nk->n", ab, ab), 0.0, 1.0)
-        return np.column_stack([1.0 - s, s])
-    c = y[facets[:, 2]]
-    e1, e2, q = b - a, c - a, P - a                      # solve the 2x2 normal equations for the plane
-    d11, d12, d22 = (np.einsum("nk,nk->n", u, v) for u, v in ((e1, e1), (e1, e2), (e2, e2)))
-    q1, q2 = np.einsum("nk,nk->n", q, e1), np.einsum("nk,nk->n", q, e2)
-    det = d11 * d22 - d12 ** 2
-    v = (d22 * q1 - d12 * q2) / det
-    w = (d11 * q2 - d12 * q1) / det
-    best = np.column_stack([1.0 - v - w, v, w])
-    inside = (best >= 0.0).all(axis=1)
-    if inside.all():
-        return best
-    dist = np.where(inside, np.linalg.norm(P - np.einsum("nj,njk->nk", best, y[facets]), axis=1), np.inf)
-    for i, j in ((0, 1), (1, 2), (0, 2)):                 # outside: the closest point of the three edges
-        pa, pb = y[facets[:, i]], y[facets[:, j]]
-        ab = pb - pa
-        s = np.clip(np.einsum("nk,nk->n", P - pa, ab) / np.einsum("nk,nk->n", ab, ab), 0.0, 1.0)
-        dd = np.linalg.norm(P - pa - s[:, None] * ab, axis=1)
-        better = ~inside & (dd < dist)
-        bary = np.zeros((len(P), 3))
-        bary[:, i], bary[:, j] = 1.0 - s, s
-        best[better], dist[better] = bary[better], dd[better]
-    return best
+from .facets import closest_facet, closest_on_facets, tangents
 
 
 class ObjectFriction(Term):
@@ -117,8 +72,9 @@ class ObjectFriction(Term):
     breakaway = 1e-4        # D_c, as a fraction of the body's size
     candidates = 16         # 3D: facets of each other piece tried per vertex (nearest by centroid)
     tie_break = 1e-3        # facets ranked by distance + this x its part along the facet (see _closest)
+    lag_step = 1e-7         # the barrier's N(u) is smooth: a larger step than a ground's, less round-off
     history_fields = ("facet", "b", "T", "N", "fresh", "sliding", "trial", "run", "_report", "_relax",
-                      "_lag_change", "_N_step", "_y0")
+                      "_lag_change", "_N_step", "_y0", "_start_facet")
 
     def __init__(self, ctx, contact, objects):
         design = ctx.design
@@ -154,6 +110,7 @@ class ObjectFriction(Term):
         w = np.zeros(len(X))
         np.add.at(w, facets.ravel(), np.repeat(measure / dim, dim))
         self.w = w
+        self._facet_size = float(np.linalg.norm(edges, axis=-1).max(initial=1.0))   # the longest facet edge
         self.k_fresh = barrier_stiffness(design) * self.t / self.eps      # stuck within eps: N/mm per mm
         n = len(self.body_vertices)
         self.facet = np.full(n, -1)                          # anchor facet (row of facets), -1: none
@@ -168,6 +125,7 @@ class ObjectFriction(Term):
         self._relax, self._lag_change = 1.0, None        # the lag's relaxation (update_lag)
         self._N_step = self.N.copy()                         # N at the last accepted step
         self._y0 = contact.X.copy()                          # vertex positions at the step's start
+        self._start_facet = self.facet.copy()                 # the anchors the step started with
 
     @property
     def active(self) -> bool:
@@ -175,59 +133,8 @@ class ObjectFriction(Term):
 
     # -- geometry -------------------------------------------------------------------------------
     def _closest(self, P: np.ndarray, piece: np.ndarray):
-        """For points P (n, dim) of pieces `piece`: (facet, barycentric coordinates, distance) of the
-        closest facet of another piece. 2D: every edge is tried; 3D: the `candidates` facets of each other
-        piece whose centroids lie nearest. Facets that share the closest point (a vertex facing another
-        piece's corner) are told apart by the part of the offset along the facet, added with weight
-        `tie_break`: the facet the point faces across its normal wins. (By distance alone the choice
-        among them was round-off: a side edge whose tangent points at the vertex made its friction act
-        along the normal, 6 % of a stacked box's weight.)"""
-        y, F = self._y, self.facets
-        if self.bs == 2:
-            a, b = y[F[:, 0]], y[F[:, 1]]
-            ab = b - a
-            s = np.clip(np.einsum("nek,ek->ne", P[:, None, :] - a[None], ab) / np.einsum("ek,ek->e", ab, ab), 0, 1)
-            q = a[None] + s[..., None] * ab[None]
-            dist = np.linalg.norm(P[:, None, :] - q, axis=2)
-            normal = np.column_stack([-ab[:, 1], ab[:, 0]]) / np.linalg.norm(ab, axis=1)[:, None]
-            across = np.abs(np.einsum("nek,ek->ne", P[:, None, :] - q, normal))
-            rank = dist + self.tie_break * (dist - across)
-            rank[piece[:, None] == self.facet_piece[None, :]] = np.inf
-            j = np.argmin(rank, axis=1)
-            k = np.arange(len(P))
-            return j, np.column_stack([1.0 - s[k, j], s[k, j]]), dist[k, j]
-        from scipy.spatial import cKDTree
-        centroid = y[F].mean(axis=1)
-        best_j = np.full(len(P), -1)
-        best_b = np.zeros((len(P), 3))
-        best_d = np.full(len(P), np.inf)          # the rank (distance and tie-break) of the best so far
-        best_r = np.full(len(P), np.inf)          # its distance
-        for q in np.unique(self.facet_piece):
-            mine = np.flatnonzero(self.facet_piece == q)
-            who = np.flatnonzero(piece != q)
-            if not len(who):
-                continue
-            k = min(self.candidates, len(mine))
-            _, near = cKDTree(centroid[mine]).query(P[who], k=k)
-            cand = mine[np.asarray(near).reshape(len(who), k)]                 # (n, k) facets
-            pts = np.repeat(P[who], k, axis=0)
-            tri = y[F[cand.ravel()]]
-            bary = closest_on_facets(pts, y, F[cand.ravel()])
-            off = pts - np.einsum("nj,njk->nk", bary, tri)
-            n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-            across = np.abs(np.einsum("nk,nk->n", off, n)) / np.linalg.norm(n, axis=1)
-            dd = np.linalg.norm(off, axis=1)
-            d = dd.reshape(len(who), k)
-            rank = (dd + self.tie_break * (dd - across)).reshape(len(who), k)
-            pick = np.argmin(rank, axis=1)
-            rows = np.arange(len(who))
-            better = rank[rows, pick] < best_d[who]
-            w = who[better]
-            best_j[w] = cand[rows, pick][better]
-            best_b[w] = bary.reshape(len(who), k, 3)[rows, pick][better]
-            best_d[w] = rank[rows, pick][better]
-            best_r[w] = d[rows, pick][better]
-        return best_j, best_b, best_r
+        """closest_facet among the facets of the other pieces, at the positions self._y."""
+        return closest_facet(P, piece, self._y, self.facets, self.facet_piece, self.candidates, self.tie_break)
 
     def _anchor_new(self, y: np.ndarray, which: np.ndarray | None = None, start: np.ndarray | None = None) -> None:
         """Anchor the unanchored vertices (of which, default all) within dhat of another piece's facet:
@@ -406,14 +313,27 @@ class ObjectFriction(Term):
         """A new attempt at a step starts from the committed states; a ramp from rest (u = 0) from none."""
         if self.active:
             if not self.c.comm.allreduce(bool(np.any(self.u_fn.x.array)), op=MPI.LOR):
-                self.facet[:], self.N[:], self.run[:], self.sliding[:] = -1, 0.0, 0.0, False
-                self._N_step = self.N.copy()
+                self.rest()
             self.N = self._N_step.copy()          # a failed attempt's lagged N is forgotten
             self.trial = self.sliding.copy()
             self._relax, self._lag_change = 1.0, None
             self._y0 = self.c.positions(self.u_fn.x.array)
             self._anchor_new(self._y0)
             self.fresh = self.facet >= 0
+            self._start_facet = self.facet.copy()
+
+    def rest(self) -> None:
+        """No history (a run in time from rest): no anchors, slips or lagged forces; the vertices within
+        dhat of another piece at rest are anchored there."""
+        if self.active:
+            self.facet[:], self.N[:], self.run[:], self.sliding[:] = -1, 0.0, 0.0, False
+            self._N_step = self.N.copy()
+            self.trial = self.sliding.copy()
+            self._relax, self._lag_change = 1.0, None
+            self._y0 = self.c.positions(self.u_fn.x.array)
+            self._anchor_new(self._y0)
+            self.fresh = self.facet >= 0
+            self._start_facet = self.facet.copy()
 
     def contact_event(self, u: np.ndarray) -> bool:
         """Anchor the vertices the barrier presses at u that have no anchor yet (a contact formed during
@@ -495,27 +415,74 @@ class ObjectFriction(Term):
             T[on] = tangents(y, self.facets[self.facet[on]])
         return self._normal_forces(y), T
 
+    def _slide(self, y: np.ndarray, T: np.ndarray):
+        """The return map of the anchored vertices that slipped, at positions y with tangent bases T:
+        (vertices, their new anchor facets and barycentric coordinates, |d|). Each anchor slides to eps
+        behind its vertex, re-projected onto the other piece's boundary (onto the next facet past a
+        facet's end)."""
+        self._y = y
+        on = np.flatnonzero(self.facet >= 0)
+        d = np.einsum("nka,nk->na", T[on], y[self.body_vertices[on]] - self._anchor_points(y, on))
+        r = np.linalg.norm(d, axis=1)
+        slip = (self._mu()[on] * self.N[on] > 0) & (r > self.eps * (1 + 1e-12))
+        idx, r = on[slip], r[slip]
+        if not len(idx):
+            return idx, idx, np.zeros((0, self.bs)), r
+        back = ((r - self.eps) / r)[:, None] * d[slip]                     # (n, dim - 1)
+        P = self._anchor_points(y, idx) + np.einsum("nka,na->nk", T[idx], back)
+        j, b_new, _ = self._closest(P, self.vertex_piece[idx])
+        return idx, j, b_new, r
+
+    # -- anchors through time (skelfem.analysis.adjoint): the barycentric coordinates b ---------------
+    def stick_anchors(self):
+        return self.b.ravel().copy() if self.active else None
+
+    def set_stick_anchors(self, a) -> None:
+        self.b = np.asarray(a, float).reshape(self.b.shape).copy()
+
+    def stick_anchor_step(self) -> tuple[float, float]:
+        return 1e-3 * self.eps / self._facet_size, 1e-3 * self.eps
+
+    def stick_anchors_in_step(self, a_start, u_start):
+        """Vertices anchored during the step (contact_event, update_lag) sit where they were, relative to
+        their facet, at u_start; the others keep a_start."""
+        b = np.asarray(a_start, float).reshape(self.b.shape).copy()
+        new = np.flatnonzero((self.facet >= 0) & (self._start_facet < 0))
+        if len(new):
+            y0 = self.c.positions(u_start)
+            b[new] = closest_on_facets(y0[self.body_vertices[new]], y0, self.facets[self.facet[new]])
+        return b.ravel()
+
+    def stick_anchors_after(self, u):
+        """end_step's anchors at u: slipping vertices slide (tangents at u, as lags_at), unanchored ones
+        within dhat are anchored where they are."""
+        y = self.c.positions(u)
+        T = self.T.copy()
+        on = self.facet >= 0
+        if on.any():
+            T[on] = tangents(y, self.facets[self.facet[on]])
+        b = self.b.copy()
+        idx, _, b_new, _ = self._slide(y, T)
+        b[idx] = b_new
+        free = np.flatnonzero(self.facet < 0)
+        if len(free) and len(self.facets):
+            _, b_free, dist = self._closest(y[self.body_vertices[free]], self.vertex_piece[free])
+            near = dist <= self.c.dhat
+            b[free[near]] = b_free[near]
+        return b.ravel()
+
     def end_step(self, model) -> None:
         if not self.active:
             return
         u = model.u.x.array
         self._report = self._measure(u)
         y = self.c.positions(u)
-        self._y = y
-        on, d = self._slip(y)
-        F = self._mu()[on] * self.N[on]
-        slip = (F > 0) & (np.linalg.norm(d, axis=1) > self.eps * (1 + 1e-12))
-        # slide the anchors of slipping nodes to eps behind them (re-projected onto the object's boundary)
-        idx = on[slip]
+        idx, j, b_new, r = self._slide(y, self.T)
         if len(idx):
-            P = self._anchor_points(y, idx)
-            r = np.linalg.norm(d[slip], axis=1)
-            back = ((r - self.eps) / r)[:, None] * d[slip]                # (n, dim - 1)
-            j, b_new, _ = self._closest(P + np.einsum("nka,na->nk", self.T[idx], back), self.vertex_piece[idx])
             self.facet[idx], self.b[idx] = j, b_new
             self.T[idx] = tangents(y, self.facets[j])
         run = np.zeros(len(self.N))
-        run[idx] = self.run[idx] + np.linalg.norm(d[slip], axis=1) - self.eps
+        run[idx] = self.run[idx] + r - self.eps
         self.run = run
         self.sliding = self.run > self.dc
         # nodes that left the barrier's reach lose their anchor; new ones are anchored where they are
@@ -527,6 +494,7 @@ class ObjectFriction(Term):
             self.run[gone], self.sliding[gone] = 0.0, False
         self._anchor_new(y)
         self._y0 = y
+        self._start_facet = self.facet.copy()
         self.trial = self.sliding.copy()
         self.fresh = self.facet >= 0
         self._N_step = self.N.copy()
