@@ -32,6 +32,7 @@ TOL_FRACTION = 1e-3        # default tolerance: this fraction of the finger leng
 UPPER_FRACTION = 0.25      # default upper bound of a contraction: this fraction of the tendon's length
 DEFAULT_SMOOTH = 1e-6      # rho
 START_FRACTION = 0.1       # Gauss-Newton's start: this fraction of each upper bound
+FAILED_FACTOR = 10.0       # L-BFGS-B: a failed forward run's J is this times the worst J seen
 
 
 class _Reached(Exception):
@@ -128,10 +129,13 @@ def optimize_schedules(session, marker: str, targets, knots: int = 4, upper: dic
         U = schedules(x)
         try:
             r = schedule_gradient(session, timed)
-        except RuntimeError:                             # a forward run failed: a wall for L-BFGS-B
+        except RuntimeError:                             # a forward run failed: a wall for L-BFGS-B, ...
             counts["failed"] += 1
             counts["forward"] += 1
-            return 1e30, np.zeros_like(x)
+            # ... FAILED_FACTOR times the worst J seen: its line search interpolates back to a step part way
+            # (1e30 sent it back to the start, where it stopped)
+            seen = [h[0] for h in history]
+            return (FAILED_FACTOR * max(seen) if seen else 1e30), np.zeros_like(x)
         counts["forward"] += 1
         counts["adjoint"] += 1
         reg = smooth * float(np.sum((U @ D.T) ** 2))

@@ -223,7 +223,7 @@ class Dynamics:
                 model.u.x.array[:] = x_n
                 model.set_history(committed)
                 model.sync(model.u.vector)
-                if cuts_in_row > MAX_CUTS:
+                if cuts_in_row > MAX_CUTS or h_try / 2.0 < dt / 2.0 ** MAX_CUTS:   # never below dt / 2^MAX_CUTS
                     rep.status = step.status
                     break
                 h = h_try / 2.0
