@@ -231,3 +231,13 @@ def test_ik_through_the_grippers_sticking_grasp_matches_central_differences():
         (pair,) = r.contacts
         assert pair["sticking"] == 1.0
         assert _ik_errors(s, "box_centre", 1e-4) < 1e-5
+
+
+def test_the_exact_solve_returns_its_start_when_it_already_solves_the_system():
+    """A right-hand side along which the coupling vanishes is solved by GMRES's start: SciPy 1.10's GMRES
+    returned NaN from there (seen on a 3D cube carried in time)."""
+    from skelfem.analysis.sensitivity import _gmres
+    b = np.array([1.0, -2.0, 3.0])
+    assert np.array_equal(_gmres(lambda v: v, b, 1e-12, restart=3, maxiter=5, what="test"), b)
+    y = _gmres(lambda v: v + np.array([0.0, 0.0, 0.5]) * v, b, 1e-12, restart=3, maxiter=5, what="test")
+    assert np.allclose(y, [1.0, -2.0, 2.0])

@@ -385,6 +385,8 @@ def _gmres(matvec, rhs: np.ndarray, tol: float, restart: int, maxiter: int, what
     n = len(rhs)
     A = LinearOperator((n, n), matvec=lambda v: matvec(np.asarray(v).ravel()), dtype=float)
     atol = tol * max(float(np.linalg.norm(rhs)), 1e-300)
+    if float(np.linalg.norm(A.matvec(rhs) - rhs)) <= atol:     # the start solves it (no coupling along it):
+        return rhs                                            # SciPy 1.10's GMRES returns NaN from there
     try:
         y, info = gmres(A, rhs, x0=rhs, rtol=0.0, atol=atol, restart=restart, maxiter=maxiter)
     except TypeError:                                 # SciPy < 1.12 calls rtol tol
