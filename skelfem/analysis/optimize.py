@@ -23,10 +23,13 @@ are those of exact forward runs.
 """
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
+
+log = logging.getLogger("skelfem")
 
 TOL_FRACTION = 1e-3        # default tolerance: this fraction of the finger length
 UPPER_FRACTION = 0.25      # default upper bound of a contraction: this fraction of the tendon's length
@@ -106,6 +109,7 @@ def optimize_schedules(session, marker: str, targets, knots: int = 4, upper: dic
     timed = [TimedTarget(marker, float(t), np.asarray(p, float)) for t, p in targets]
     tol = TOL_FRACTION * body_extent(model) if tol is None else float(tol)
     m, K = len(names), knots
+    from_rest = start is None and method == "lbfgsb"
     if start is None:
         # from rest for L-BFGS-B; Gauss-Newton starts inside the box: at u = 0 the tendons go slack
         # during the motion and the (taut-branch) linearisation misleads it
@@ -203,8 +207,23 @@ def optimize_schedules(session, marker: str, targets, knots: int = 4, upper: dic
     def count(_):
         its[0] += 1
 
+    first: dict = {}
+
+    def objective(x):
+        """evaluate, but the start's evaluation (made below) is not spent twice."""
+        got = first.pop(x.tobytes(), None)
+        return got if got is not None else evaluate(x)
+
     try:
-        res = minimize(evaluate, x0, jac=True, method="L-BFGS-B", bounds=[(0.0, u) for u in np.repeat(ub, K)],
+        if from_rest:
+            J0, g0 = evaluate(x0)
+            if np.any(g0):
+                first[x0.tobytes()] = (J0, g0)
+            else:                    # every tendon slack through the run (a body sagging under gravity): no
+                x0 = np.repeat(START_FRACTION * ub, K)   # direction from rest; start inside the box instead
+                log.info("optimize: no gradient from rest (tendons slack); starting at %g of each bound",
+                         START_FRACTION)
+        res = minimize(objective, x0, jac=True, method="L-BFGS-B", bounds=[(0.0, u) for u in np.repeat(ub, K)],
                        callback=count, options={"maxfun": max_evaluations, "maxiter": max_evaluations,
                                                 "ftol": 1e-15, "gtol": 1e-12})
         status = "converged" if res.success else ("max_evaluations" if res.status == 1 else "line_search_failed")
