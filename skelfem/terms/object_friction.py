@@ -314,13 +314,8 @@ class ObjectFriction(Term):
         if self.active:
             if not self.c.comm.allreduce(bool(np.any(self.u_fn.x.array)), op=MPI.LOR):
                 self.rest()
-            self.N = self._N_step.copy()          # a failed attempt's lagged N is forgotten
-            self.trial = self.sliding.copy()
-            self._relax, self._lag_change = 1.0, None
-            self._y0 = self.c.positions(self.u_fn.x.array)
-            self._anchor_new(self._y0)
-            self.fresh = self.facet >= 0
-            self._start_facet = self.facet.copy()
+            else:
+                self._begin_step()
 
     def rest(self) -> None:
         """No history (a run in time from rest): no anchors, slips or lagged forces; the vertices within
@@ -328,12 +323,18 @@ class ObjectFriction(Term):
         if self.active:
             self.facet[:], self.N[:], self.run[:], self.sliding[:] = -1, 0.0, 0.0, False
             self._N_step = self.N.copy()
-            self.trial = self.sliding.copy()
-            self._relax, self._lag_change = 1.0, None
-            self._y0 = self.c.positions(self.u_fn.x.array)
-            self._anchor_new(self._y0)
-            self.fresh = self.facet >= 0
-            self._start_facet = self.facet.copy()
+            self._begin_step()
+
+    def _begin_step(self) -> None:
+        """The start of an attempt at a step: the committed states (a failed attempt's lagged N is
+        forgotten), and the vertices within dhat of another piece anchored where they are."""
+        self.N = self._N_step.copy()
+        self.trial = self.sliding.copy()
+        self._relax, self._lag_change = 1.0, None
+        self._y0 = self.c.positions(self.u_fn.x.array)
+        self._anchor_new(self._y0)
+        self.fresh = self.facet >= 0
+        self._start_facet = self.facet.copy()
 
     def contact_event(self, u: np.ndarray) -> bool:
         """Anchor the vertices the barrier presses at u that have no anchor yet (a contact formed during
