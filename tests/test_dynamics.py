@@ -228,6 +228,32 @@ def test_failed_steps_are_cut_and_never_accepted():
     assert np.allclose(times[1:], accepted)
 
 
+def test_a_step_is_never_halved_below_dt_over_2_to_the_max_cuts():
+    """Every other attempt fails (and a success is never easy enough to let h grow back): h halves at each
+    failure although no two fail in a row. The run stops once a step would fall below dt / 2^MAX_CUTS,
+    with the failed step's status; before, it crept on with ever smaller steps (a thrown box: minutes)."""
+    from skelfem.fem.dynamics import EASY_ITERATIONS, MAX_CUTS, Dynamics
+    from skelfem.fem.newton import SolveReport
+    d = _flick()
+    calls = []
+    with Session(d) as s:
+        real = s.solver.newton
+
+        def flaky():
+            calls.append(1)
+            assert len(calls) < 4 * MAX_CUTS, "the step kept halving"
+            if len(calls) % 2:
+                return SolveReport(False, "diverged", EASY_ITERATIONS + 1)
+            rep = real()
+            rep.newton_iterations = max(rep.newton_iterations, EASY_ITERATIONS + 1)
+            return rep
+        s.solver.newton = flaky
+        rep = Dynamics(s.model, s.solver, s.design).run()
+    assert not rep.converged and rep.status == "diverged"
+    dts = [a["dt"] for a in rep.attempts]
+    assert min(dts) == pytest.approx(0.01 / 2 ** MAX_CUTS) and rep.cuts == MAX_CUTS + 1
+
+
 def test_a_run_that_cannot_step_stops_with_exit_2_and_keeps_its_trajectory(tmp_path, capsys):
     d = _flick()
     d["solver"] = {"max_iterations": 1}

@@ -119,11 +119,13 @@ def schedule_gradient(session, targets: list[TimedTarget]) -> GradientResult:
         raise RuntimeError(f"{design.name}: the forward run failed ({rep.status}) at t = {rep.t_end:g} s")
     t1 = time.perf_counter()
     if model.path_dependent and follows_anchors(model):       # friction: tangents through the anchors
-        r, J, columns = schedule_sensitivities(session, targets, report=rep)
-        grad = {}
-        for j, name in enumerate(columns):
-            tendon = name.split(".")[1]
-            grad[tendon] = np.append(grad.get(tendon, np.zeros(0)), 2.0 * J[:, j] @ r)
+        r, J, _ = schedule_sensitivities(session, targets, report=rep)
+        grad, j = {}, 0
+        for t in model.actuators():              # the columns: each scheduled tendon's knots, in design order
+            knots = design.cable(t.name).schedule
+            if knots is not None:
+                grad[t.name] = 2.0 * J[:, j:j + len(knots)].T @ r
+                j += len(knots)
         d = model.dim
         positions = [r[i * d:(i + 1) * d] + np.asarray(tt.target, float) for i, tt in enumerate(targets)]
         return GradientResult(float(r @ r), grad, positions, rep, False, t1 - t0, time.perf_counter() - t1)
@@ -156,7 +158,6 @@ def schedule_gradient(session, targets: list[TimedTarget]) -> GradientResult:
     scheduled = {t.name: design.cable(t.name).schedule for t in tendons if design.cable(t.name).schedule is not None}
     grad = {name: np.zeros(len(s)) for name, s in scheduled.items()}
     M = inertia.mass_matrix()
-    vel = velocities(rep)
     lam_vec = model.u.vector.duplicate()
     Mlam = model.u.vector.duplicate()
     fixed = model.fixed
@@ -168,7 +169,7 @@ def schedule_gradient(session, targets: list[TimedTarget]) -> GradientResult:
             model.u.x.array[:] = states[n + 1]
             model.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
             dyn.set_time(t_next)
-            set_step(inertia, rep, n, vel)
+            set_step(inertia, rep, n)
             lin = Linearization(model, solver, hold_lags=True)
             try:
                 # v_{n+1} = (a0 x_{n+1} + a1 x_n + a2 x_{n-1}) / h
@@ -206,22 +207,21 @@ def schedule_gradient(session, targets: list[TimedTarget]) -> GradientResult:
     return GradientResult(value, grad, positions, rep, model.path_dependent, t1 - t0, time.perf_counter() - t1)
 
 
-def velocities(rep) -> list:
-    """v_n of every stored state (v_0 = 0: a run starts at rest), from the steps' BDF formula."""
-    v = [np.zeros_like(rep.states[0])]
-    for n, (_, h, (a0, a1, a2)) in enumerate(rep.steps):
-        x_m = rep.states[n - 1] if (a2 != 0.0 and n >= 1) else 0.0
-        v.append((a0 * rep.states[n + 1] + a1 * rep.states[n] + a2 * x_m) / h)
-    return v
+def velocity(rep, n: int):
+    """v_n of stored state n from step n - 1's BDF formula (v_0 = 0: a run starts at rest)."""
+    if n == 0:
+        return 0.0
+    _, h, (a0, a1, a2) = rep.steps[n - 1]
+    return (a0 * rep.states[n] + a1 * rep.states[n - 1] + (a2 * rep.states[n - 2] if a2 != 0.0 else 0.0)) / h
 
 
-def set_step(inertia, rep, n: int, vel: list) -> None:
+def set_step(inertia, rep, n: int) -> None:
     """The inertia term as it was in step n (x~, x*, coefficients): the Hessian of a rigid body holds the
     full gradient on its nodes, inertia's force included."""
     _, h, alpha = rep.steps[n]
-    back = n >= 1 and alpha[2] != 0.0
-    inertia.set_step(h, alpha, rep.states[n], rep.states[n - 1] if back else 0.0, vel[n],
-                     vel[n - 1] if back else 0.0)
+    back = alpha[2] != 0.0                   # BDF2: x_{n-1}, v_{n-1} too (never in the first step)
+    inertia.set_step(h, alpha, rep.states[n], rep.states[n - 1] if back else 0.0, velocity(rep, n),
+                     velocity(rep, n - 1) if back else 0.0)
 
 
 def follows_anchors(model) -> bool:
@@ -241,65 +241,54 @@ class AnchorTangents:
         self.used = [a.copy() for a in self.after]                                 # a'^_n (in the step)
 
     @staticmethod
-    def _step(term, da: np.ndarray, dx: np.ndarray) -> float:
-        """e of the central differences along (da, dx): every change well inside the stick zone."""
+    def _central(term, da: np.ndarray, dx: np.ndarray, f):
+        """(f(term, a + e da, e dx) - f(term, a - e da, -e dx)) / 2e, a the term's anchors, e such that
+        every change stays well inside the stick zone (0 where there is no direction); anchors put back."""
         s_a, s_x = term.stick_anchor_step()
         na, nx = float(np.abs(da).max(initial=0.0)), float(np.abs(dx).max(initial=0.0))
-        return min(s_a / na if na > 0 else np.inf, s_x / nx if nx > 0 else np.inf)
+        e = min(s_a / na if na > 0 else np.inf, s_x / nx if nx > 0 else np.inf)
+        if not np.isfinite(e):
+            return 0.0
+        base, got = term.stick_anchors(), []
+        try:
+            for sign in (1.0, -1.0):
+                got.append(f(term, base + sign * e * da, sign * e * dx))
+        finally:
+            term.set_stick_anchors(base)
+        return (got[0] - got[1]) / (2 * e)
 
     def in_step(self, x_start: np.ndarray, dx_start: np.ndarray) -> None:
         """a'^_n = dA(a_n, x_n)[a'_n, x'_n] (x'_n: local arrays, one column each)."""
+        def used(t, a, ex):
+            return t.stick_anchors_in_step(a, x_start + ex)
         for k, t in enumerate(self.terms):
-            base = t.stick_anchors()
             for p in range(self.used[k].shape[1]):
-                da, dx = self.after[k][:, p], dx_start[:, p]
-                e = self._step(t, da, dx)
-                if not np.isfinite(e):
-                    self.used[k][:, p] = 0.0
-                    continue
-                plus = t.stick_anchors_in_step(base + e * da, x_start + e * dx)
-                minus = t.stick_anchors_in_step(base - e * da, x_start - e * dx)
-                self.used[k][:, p] = (plus - minus) / (2 * e)
+                self.used[k][:, p] = self._central(t, self.after[k][:, p], dx_start[:, p], used)
 
     def residual(self, p: int, n: int) -> np.ndarray:
-        """dR/da a'^_n of column p (owned entries, zero on Dirichlet rows)."""
+        """dR/da a'^_n of column p (local entries, zero on Dirichlet rows; one process)."""
+        u = self.model.u.x.array
+
+        def gradient(t, a, _):
+            t.set_stick_anchors(a)
+            g, got = np.zeros(n), t.gradient(u)
+            if got is not None:
+                np.add.at(g, got[0], np.asarray(got[1]))
+            return g
         out = np.zeros(n)
         for k, t in enumerate(self.terms):
-            da = self.used[k][:, p]
-            e = self._step(t, da, np.zeros(0))
-            if not np.isfinite(e):
-                continue
-            base = t.stick_anchors()
-            try:
-                for sign in (1.0, -1.0):
-                    t.set_stick_anchors(base + sign * e * da)
-                    got = t.gradient(self.model.u.x.array)
-                    if got is not None:
-                        keep = got[0] < n
-                        np.add.at(out, got[0][keep], sign * np.asarray(got[1])[keep] / (2 * e))
-            finally:
-                t.set_stick_anchors(base)
+            out += self._central(t, self.used[k][:, p], np.zeros(0), gradient)
         out[self.model.fixed[:n]] = 0.0
         return out
 
     def after_step(self, x: np.ndarray, dx: np.ndarray) -> None:
         """a'_{n+1} = dB(x_{n+1}, a^_n)[x'_{n+1}, a'^_n] (x, dx: local arrays; dx one column each)."""
+        def after(t, a, ex):
+            t.set_stick_anchors(a)
+            return t.stick_anchors_after(x + ex)
         for k, t in enumerate(self.terms):
-            base = t.stick_anchors()
             for p in range(self.used[k].shape[1]):
-                da = self.used[k][:, p]
-                e = self._step(t, da, dx[:, p])
-                if not np.isfinite(e):
-                    self.after[k][:, p] = 0.0
-                    continue
-                got = []
-                try:
-                    for sign in (1.0, -1.0):
-                        t.set_stick_anchors(base + sign * e * da)
-                        got.append(t.stick_anchors_after(x + sign * e * dx[:, p]))
-                finally:
-                    t.set_stick_anchors(base)
-                self.after[k][:, p] = (got[0] - got[1]) / (2 * e)
+                self.after[k][:, p] = self._central(t, self.used[k][:, p], dx[:, p], after)
 
 
 def _on_local(model, term, values: np.ndarray) -> np.ndarray:
@@ -370,7 +359,6 @@ def schedule_sensitivities(session, targets: list[TimedTarget], report=None) -> 
     xs = [np.zeros((n_owned, P)), np.zeros((n_owned, P))]        # x'_n, x'_{n-1}
     vs = [np.zeros((n_owned, P)), np.zeros((n_owned, P))]
     M = inertia.mass_matrix()
-    vel = velocities(rep)
     vec, out = model.u.vector.duplicate(), model.u.vector.duplicate()
     fixed = model.fixed[:n_owned]
     a_mass = spec.damping_mass
@@ -395,7 +383,7 @@ def schedule_sensitivities(session, targets: list[TimedTarget], report=None) -> 
             model.u.x.array[:] = rep.states[n + 1]
             model.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
             dyn.set_time(t_next)
-            set_step(inertia, rep, n, vel)
+            set_step(inertia, rep, n)
             if through:
                 model.set_history(rep.histories[n])                # the step's converged anchors and lags
             lin = Linearization(model, solver, hold_lags=not through)
