@@ -9,7 +9,7 @@ from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 from petsc4py import PETSc
 
-from .linear import Border
+from .lowrank import Border
 
 
 

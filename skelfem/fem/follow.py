@@ -52,6 +52,8 @@ class PackedCoefficients:
         arrays = [c.x.array for c in form.coefficients]
         held = self.packs.get(key)
         if held is None or not all(np.array_equal(a, b) for a, b in zip(arrays, held[0])):
+            held = self.packs.pop(key, None)     # the stale pack freed before the new one is made:
+            del held                             # never two packs of a form alive at once
             held = self.packs[key] = ([a.copy() for a in arrays], _cpp.fem.pack_coefficients(form))
         return held[1]
 

@@ -67,34 +67,13 @@ never silent).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import scipy.sparse as sp
 from petsc4py import PETSc
 
+from .lowrank import Border, columns, dense
 from .multigrid import (KRYLOV_RTOL, REBUILD_RATIO, Coarse, default_petsc_options, iterative_petsc_options,
                         near_nullspace, options_held, two_level_petsc_options)
-
-
-@dataclass
-class Border:
-    """Border unknowns z of a linear solve (see the module docstring); arrays on owned rows."""
-    T: np.ndarray        # (n, m): the slaved rows' values per unit z (zero elsewhere)
-    rows: np.ndarray     # (n,) bool: the slaved rows (identity rows and columns of K)
-    E: np.ndarray        # (n, m): K_full T on the other rows (zero on slaved and Dirichlet rows)
-    C: np.ndarray        # (m, m): the reduced block T^T K T (+ second-order terms), same on every rank
-    hosts: np.ndarray | None = None   # (m,): slaved rows of K that hold z (E and C already in K), serial
-
-    def embed(self, v: np.ndarray) -> np.ndarray:
-        """(v_f, T^T v on the hosts) of a full vector v (or of the columns of a block)."""
-        out = v * (~self.rows if v.ndim == 1 else ~self.rows[:, None])
-        out[self.hosts] = self.T.T @ v
-        return out
-
-    def expand(self, y: np.ndarray) -> np.ndarray:
-        """x = y_f + T z of a solution y of the embedded system, z = y on the hosts."""
-        return y * ~self.rows + self.T @ y[self.hosts]
 
 
 class LowRankSolver:
@@ -103,8 +82,9 @@ class LowRankSolver:
     def __init__(self, K: PETSc.Mat, comm, options: dict | None = None, prefix: str = "skelfem_k_",
                  modes: np.ndarray | None = None, deflation=None, coarse: Coarse | None = None):
         """modes: the near-nullspace of K (owned rows, one mode per column) for an iterative solve
-        (``[solver] linear = "iterative"``); None: a direct factorisation. coarse: iterative solves
-        by two-level p-multigrid on that coarse level (multigrid.Coarse) instead of GAMG on K."""
+        (``[solver] linear = "iterative"``), or a function giving it where the nodes are now (a rebuilt
+        multigrid follows the body); None: a direct factorisation. coarse: iterative solves by
+        two-level p-multigrid on that coarse level (multigrid.Coarse) instead of GAMG on K."""
         self.K, self.comm = K, comm
         self.kind = "direct" if modes is None else "iterative"
         self.prefix = prefix
@@ -113,8 +93,9 @@ class LowRankSolver:
         base = default_petsc_options() if modes is None else \
             iterative_petsc_options() if self.coarse is None else two_level_petsc_options()
         self._options = {**base, **(options or {})}
+        self._modes = modes
         if modes is not None:
-            self._nullspace = near_nullspace(K, modes, comm)
+            self._nullspace = near_nullspace(K, modes() if callable(modes) else modes, comm)
             K.setNearNullSpace(self._nullspace)
         self.ksp = self._make_ksp(prefix, self._options, self.coarse)
         self._direct = None             # iterative: the fallback factorisation, made when first needed
@@ -152,19 +133,36 @@ class LowRankSolver:
         return ksp
 
     def _lag_preconditioner(self) -> None:
-        """Keep the multigrid of an earlier K while it works: rebuild it (the Galerkin products, most
-        of a set-up's cost) only when the last update's solves took more than REBUILD_RATIO times the
-        iterations per decade of residual of the update right after the last rebuild, or fell back."""
+        """Keep the multigrid of an earlier K while it works: rebuild it only when the last update's
+        solves took more than REBUILD_RATIO times the iterations per decade of residual of the update
+        right after the last rebuild, or fell back. A rebuild follows the body (_remake) when the
+        near-nullspace is given as a function of where the nodes are; otherwise it keeps the
+        prolongators and makes the Galerkin products anew."""
         rate = self._its_since / self._decades_since if self._decades_since > 0 else None
         if self._rebuilt:
             self._fresh_rate = rate
         rebuild = rate is None or self._fresh_rate is None or self._fallen \
             or rate > REBUILD_RATIO * self._fresh_rate
-        self.ksp.getPC().setReusePreconditioner(not rebuild)
-        if rebuild and self.coarse is not None:
-            self.coarse.refresh(self.K)
+        if rebuild and callable(self._modes):
+            self._remake()
+        else:
+            self.ksp.getPC().setReusePreconditioner(not rebuild)
+            if rebuild and self.coarse is not None:
+                self.coarse.refresh(self.K)
         self._rebuilt = rebuild
         self._its_since, self._decades_since = 0, 0.0
+
+    def _remake(self) -> None:
+        """A multigrid made from scratch (set up at the next _set_up): the rigid-body modes where the
+        nodes are now and new aggregates and prolongators. Modes of the undeformed body no longer span
+        a bent body's slow motions: on arm3d at its solution CG took 66 iterations to 1e-2 with the
+        first multigrid's modes, 10 with modes made there (19k DOFs). The old hierarchy goes first."""
+        self.ksp.destroy()
+        if callable(self._modes):
+            self._nullspace.destroy()
+            self._nullspace = near_nullspace(self.K, self._modes(), self.comm)
+            self.K.setNearNullSpace(self._nullspace)
+        self.ksp = self._make_ksp(self.prefix, self._options, self.coarse)
 
     def _set_up(self) -> None:
         """KSPSetUp with the options in PETSc's database: multigrid reads its levels' options
@@ -172,9 +170,11 @@ class LowRankSolver:
         with options_held(self.prefix, self._options):
             self.ksp.setUp()
 
-    def update(self, parts: list[tuple[float, PETSc.Vec]], border: Border | None = None) -> None:
-        """Factorise K (as it is now; iterative: make its multigrid) and take the rank-one parts
-        [(c_i, g_i)], c_i > 0, and a border."""
+    def update(self, parts, border: Border | None = None) -> None:
+        """Factorise K (as it is now; iterative: make its multigrid) and take the rank-one parts, c_i > 0,
+        as [(c_i, g_i)] (PETSc vectors) or (c, G) with G sparse (Model.low_rank_columns), and a border.
+        Iterative solves keep G sparse (a cable's g touches a few cells); direct ones dense."""
+        self.G = self.ZB = None                 # the last update's blocks freed before new ones are made
         self.ksp.setOperators(self.K)
         if self.kind == "iterative":
             self._lag_preconditioner()
@@ -183,16 +183,17 @@ class LowRankSolver:
         self._fallen = False
         if self.kind == "iterative":
             self.krylov.append(0)
-        self.c = np.array([c for c, _ in parts], dtype=float)
-        n = self.K.getLocalSize()[0]
-        self.G = np.column_stack([g.array_r for _, g in parts]) if parts else np.zeros((n, 0))
+        self.c, G = columns(parts, self.K.getLocalSize()[0])
         self.border = border
         self.H = np.zeros((0, len(self.c)))
-        if border is not None and border.hosts is not None:
-            self.G = border.embed(self.G)                   # (g_f, h_i on the hosts)
-        elif border is not None:
-            self.H = self._dots(border.T, self.G)          # h_i = T^T g_i
-            self.G = self.G * ~border.rows[:, None]
+        if self.kind == "direct":
+            G = G.toarray()
+            if border is not None and border.hosts is not None:
+                G = border.embed(G)                         # (g_f, h_i on the hosts)
+        if border is not None and border.hosts is None:
+            self.H = self._dots(border.T, G)                 # h_i = T^T g_i
+            G = sp.diags((~border.rows).astype(float)) @ G if sp.issparse(G) else G * ~border.rows[:, None]
+        self.G = G
         self.Z = None
         if self.kind == "iterative":            # the border is outside K (Border.hosts is None)
             self._operator_mode()
@@ -233,10 +234,10 @@ class LowRankSolver:
             self.KW = self._sparse_product(self.W)
             self.WKW = np.linalg.inv(self._sparse_dots(self.W, self.KW))
         E = self.border.E if m else np.zeros((n, 0))
-        cols = np.column_stack([self.G, E])
-        ZB = np.empty_like(cols)
-        for j in range(cols.shape[1]):
-            ZB[:, j] = self._cycle(cols[:, j])
+        k = len(self.c)
+        ZB = np.empty((n, k + m))
+        for j in range(k + m):
+            ZB[:, j] = self._cycle(self.G[:, [j]].toarray()[:, 0] if j < k else E[:, j - k])
         self.ZB = ZB
         self.CB = self._small_system(ZB, E, self.border)
 
@@ -244,8 +245,7 @@ class LowRankSolver:
         """Krylov iterations of one solve to rtol of a seeded random right-hand side, with K and the
         rank-one parts as they are and the multigrid made afresh: the multigrid's own quality, apart
         from the forcing terms and lagging of Newton's inexact steps (iterative only; None: it failed)."""
-        self.ksp.destroy()
-        self.ksp = self._make_ksp(self.prefix, self._options, self.coarse)
+        self._remake()
         self._set_up()
         self._rebuilt, self._fresh_rate, self._its_since, self._decades_since = True, None, 0, 0.0
         self._operator_mode()
@@ -428,11 +428,11 @@ class LowRankSolver:
         if k == 0 and border is None:
             self._ksp_solve(b, x)
             return
-        E = border.E if border is not None else np.zeros((len(self.G), 0))
+        E = border.E if border is not None else np.zeros((self.G.shape[0], 0))
         m = E.shape[1]
         bf = b.array_r if border is None else b.array_r * ~border.rows
         if self.Z is None:                      # first solve: K^{-1} [G | E | b] in one go
-            Y = self._multi_solve(np.column_stack([self.G, E, bf]))
+            Y = self._multi_solve(np.column_stack([dense(self.G), E, bf]))
             self._take_z(Y[:, :k + m], E, border)
             y = Y[:, k + m]
         elif border is None:
@@ -501,7 +501,7 @@ class LowRankSolver:
             return self._multi_solve(B)
         Bf = B if border is None else B * ~border.rows[:, None]
         if self.Z is None:
-            Y = self._multi_solve(np.column_stack([self.G, E, Bf]))
+            Y = self._multi_solve(np.column_stack([dense(self.G), E, Bf]))
             self._take_z(Y[:, :k + m], E, border)
             Y = Y[:, k + m:]
         else:

@@ -41,7 +41,7 @@ from petsc4py import PETSc
 from ..mesh.points import global_dof_numbers, release_cell_tree
 from ..runtime import jitcache, memory
 from ..terms import BUILDERS, Context
-from ..terms.elasticity import cell_values_min, min_jacobian_expression
+from ..terms.elasticity import cell_value_chunks, cell_values_min, min_jacobian_expression
 from .assembly import MatrixAssembly, block_keys
 from .follow import MODEL_KEYS, CannotFollow, PackedCoefficients, raw_value
 from .multigrid import Coarse, owned_rigid_body_modes, rigid_body_modes
@@ -297,7 +297,7 @@ class Model(MatrixAssembly):
         """The P1 level of two-level multigrid for a P2 Newton matrix (multigrid.Coarse); None at P1 and
         with rigid bodies (their border outside K made the inexact Newton crawl at 1 % per step late in
         a solve of arm3d at P2 with the two-level cycle; GAMG on the P2 matrix converges there)."""
-        return Coarse.of(self.V) if int(self.design.mesh.degree) >= 2 and not self.rigid else None
+        return Coarse.of(self.V, self.u) if int(self.design.mesh.degree) >= 2 and not self.rigid else None
 
     def stiff_bone_modes(self, names) -> sp.csr_matrix | None:
         """(owned DOF rows, 3 or 6 per bone), sparse: each named elastic bone's rigid motions on its own nodes
@@ -387,8 +387,7 @@ class Model(MatrixAssembly):
         """max |grad v| over the mesh (exact for P1 and P2 fields; reduced over ranks)."""
         v.copy(self._w.vector)
         self._w.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-        cells = np.arange(self.num_cells, dtype=np.int32)
-        local = float(self._grad_w.eval(cells).max()) if self.num_cells else 0.0
+        local = max((float(v.max()) for v in cell_value_chunks(self._grad_w, self.num_cells)), default=0.0)
         return self.comm.allreduce(local, op=MPI.MAX)
 
     def untangle(self, x: PETSc.Vec, sweeps: int = 20) -> int:
@@ -405,10 +404,9 @@ class Model(MatrixAssembly):
         bones; the state elsewhere stays as it was. Returns the sweeps made
         (0: x was admissible).
         """
-        cells = np.arange(self.num_cells, dtype=np.int32)
-
         def inverted() -> np.ndarray:
-            bad = self.detF.eval(cells).min(axis=1) <= 0.0 if self.num_cells else np.zeros(0, bool)
+            bad = np.concatenate([v.min(axis=1) <= 0.0 for v in cell_value_chunks(self.detF, self.num_cells)]
+                                 or [np.zeros(0, bool)])
             return bad if self.comm.allreduce(bool(bad.any()), op=MPI.LOR) else None
 
         self.sync(x)
@@ -528,23 +526,44 @@ class Model(MatrixAssembly):
     def low_rank(self, x: PETSc.Vec | None = None) -> list[tuple[float, PETSc.Vec]]:
         """The rank-one parts c g g^T of hess Pi as (c, g) with g a PETSc vector, zero on Dirichlet DOFs.
 
-        The same list (same length, same order) on every rank.
+        The same list (same length, same order) on every rank. A Newton step takes low_rank_columns.
         """
-        u = self.u.x.array if x is None else self.sync(x)
-        parts = [(term, c, dofs, g) for term in self.terms for c, dofs, g in term.low_rank(u)]
-        while len(self._vectors) < len(parts):
+        c, G = self.low_rank_columns(x)
+        while len(self._vectors) < len(c):
             self._vectors.append(self.u.vector.duplicate())
         out = []
-        for (term, c, dofs, g), vec in zip(parts, self._vectors):
-            g = np.asarray(g, float) * self._free(term, dofs)
+        for j, vec in enumerate(self._vectors[:len(c)]):
             vec.set(0.0)
-            if term.gather is None:
-                pos = np.flatnonzero(np.asarray(dofs) < self.n_owned)
-                vec.array_w[np.asarray(dofs)[pos]] = g[pos]
-            else:
-                vec.array_w[term.gather.local] = g[term.gather.pos]
-            out.append((float(c), vec))
+            col = G[:, j]
+            vec.array_w[col.indices] = col.data
+            out.append((float(c[j]), vec))
         return out
+
+    def low_rank_columns(self, x: PETSc.Vec | None = None) -> tuple[np.ndarray, sp.csc_matrix]:
+        """The rank-one parts of hess Pi as (c, G): the c_i and a sparse G (owned rows, one column g_i per
+        part, zero on Dirichlet DOFs). A cable's g touches only its via points' cells: no vector of the
+        mesh's size is made per part (arm3d has 17 parts)."""
+        u = self.u.x.array if x is None else self.sync(x)
+        c, rows, cols, vals = [], [], [], []
+        for term in self.terms:
+            for ci, dofs, g in term.low_rank(u):
+                g = np.asarray(g, float) * self._free(term, dofs)
+                if term.gather is None:
+                    dofs = np.asarray(dofs)
+                    pos = np.flatnonzero(dofs < self.n_owned)
+                    r, v = dofs[pos], g[pos]
+                else:
+                    r, v = term.gather.local, g[term.gather.pos]
+                rows.append(r)
+                vals.append(v)
+                cols.append(np.full(len(r), len(c)))
+                c.append(float(ci))
+        if not c:
+            return np.zeros(0), sp.csc_matrix((self.n_owned, 0))
+        G = sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(self.n_owned, len(c)))
+        G.sum_duplicates()
+        return np.array(c), G
 
     # -- read-outs -------------------------------------------------------------------------------
     def readouts(self) -> dict:

@@ -120,7 +120,7 @@ class NewtonSolver(LineSearch):
         model.embed_border = self.linear == "direct"    # iterative: the rigid border stays outside K
         self.A = model.create_matrix()
         self._retired: list[PETSc.Mat] = []    # Newton matrices replaced (new_matrix), not yet destroyed
-        modes = model.rigid_body_modes() if self.linear == "iterative" else None
+        modes = model.rigid_body_modes if self.linear == "iterative" else None   # where the nodes are now
         stiff = stiff_elastic_bones(model.design) if self.linear == "iterative" else []
         W = (lambda: model.stiff_bone_modes(stiff)) if stiff else None
         self.lin = LowRankSolver(self.A, model.comm, petsc_options, prefix + "k_", modes, W,
@@ -151,7 +151,7 @@ class NewtonSolver(LineSearch):
     def jacobian(self, x: PETSc.Vec) -> None:
         """Assemble K at x and factorise it with the rank-one parts (what every Newton solve uses)."""
         self.assemble(x)
-        self.lin.update(self.model.low_rank(), self.model.border)
+        self.lin.update(self.model.low_rank_columns(), self.model.border)
         if self.lin.kind == "iterative":          # an inexact Newton step (the forcing term)
             target = max(self.atol, self.rtol * self._f0, self._loose * self._round_f0)
             self.lin.rtol = forcing(self._history, self.lin.rtol, target)

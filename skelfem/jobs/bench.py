@@ -219,7 +219,7 @@ class NewtonTimer(LinearTimer):
 
         def assemble():
             model.jacobian(x, solver.A)
-            self.parts = model.low_rank(x)
+            self.parts = model.low_rank_columns(x)
         super().__init__(assemble, solver.A, None)
         self.solver, self.model = solver, model
 

@@ -91,9 +91,18 @@ def min_jacobian_expression(u):
     return fem.Expression(ufl.det(deformation_gradient(u)), W.element.interpolation_points())
 
 
+EVAL_CELLS = 1 << 16     # cells per evaluation of an Expression: its packed coefficients (u per cell, 0.1 KB
+#                          a cell of a 3D P1 mesh) stay a few MB instead of the whole mesh's at once
+
+
+def cell_value_chunks(expr, num_cells: int):
+    """expr evaluated at the local cells, EVAL_CELLS at a time: (cells, points) arrays in cell order."""
+    for start in range(0, num_cells, EVAL_CELLS):
+        yield expr.eval(np.arange(start, min(start + EVAL_CELLS, num_cells), dtype=np.int32))
+
+
 def cell_values_min(expr, num_cells: int) -> float:
-    cells = np.arange(num_cells, dtype=np.int32)
-    return float(expr.eval(cells).min()) if num_cells else np.inf
+    return min((float(v.min()) for v in cell_value_chunks(expr, num_cells)), default=np.inf)
 
 
 class Elasticity(Term):
