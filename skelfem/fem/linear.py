@@ -60,7 +60,7 @@ tighter than the residual test needs); every other solve (sensitivities,
 adjoints) is to ``KRYLOV_RTOL``. The multigrid is built at the first update
 and kept at later ones (``_lag_preconditioner``) until its iterations per
 decade of residual exceed REBUILD_RATIO times a fresh one's. A Krylov solve
-that fails (an indefinite K breaks CG; a stall) is retried with FGMRES, then
+that fails (an indefinite K breaks CG; a stall) is retried with GMRES, then
 the update falls back to a MUMPS factorisation and the formulas above for
 the rest of its solves, counted in ``fallbacks`` (reported in result.json,
 never silent).
@@ -73,7 +73,7 @@ from petsc4py import PETSc
 
 from .lowrank import Border, columns, dense
 from .multigrid import (KRYLOV_RTOL, REBUILD_RATIO, Coarse, default_petsc_options, iterative_petsc_options,
-                        near_nullspace, options_held, two_level_petsc_options)
+                        near_nullspace, options_held, set_krylov_type, two_level_petsc_options)
 
 
 class LowRankSolver:
@@ -344,13 +344,13 @@ class LowRankSolver:
         self._check(ksp)
 
     def _krylov(self, ksp: PETSc.KSP, b: PETSc.Vec, x: PETSc.Vec, rtol: float) -> bool:
-        """A Krylov solve to rtol from 0 (FGMRES if the first method fails), its iterations counted;
+        """A Krylov solve to rtol from 0 (GMRES if the first method fails), its iterations counted;
         whether it converged."""
         first = self._options["ksp_type"]
         ksp.setTolerances(rtol=rtol)
-        for ksp_type in (first, "fgmres"):          # FGMRES: right-preconditioned, true residual norm
+        for ksp_type in (first, "gmres"):
             if ksp.getType() != ksp_type:
-                ksp.setType(ksp_type)
+                set_krylov_type(ksp, ksp_type)
             ksp.solve(b, x)
             self.krylov[-1] += ksp.getIterationNumber()
             reason = ksp.getConvergedReason()
@@ -359,8 +359,7 @@ class LowRankSolver:
                 self._decades_since += -np.log10(rtol)
                 break
         if ksp.getType() != first:
-            ksp.setType(first)
-            ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
+            set_krylov_type(ksp, first)
         return reason > 0
 
     def _multi_solve(self, cols: np.ndarray) -> np.ndarray:

@@ -11,6 +11,7 @@ from ..design.resources import auto_linear
 
 KRYLOV_RTOL = 1e-12       # |r| / |b| of a tight iterative solve (sensitivities to 1e-8 behind a 1e4 condition)
 
+GMRES_RESTART = 20        # the fallback GMRES's restart (its vectors: restart + 1, each the size of a solution)
 ETA_MAX = 0.01            # the loosest forcing term of an inexact Newton step
 REBUILD_RATIO = 2.0       # a lagged multigrid is rebuilt when it needs this many times the iterations
 
@@ -28,6 +29,18 @@ def forcing(residuals: list[float], last: float, target: float = 0.0) -> float:
     if residuals[-1] > 0.0:
         eta = max(eta, min(ETA_MAX, 0.5 * target / residuals[-1]))
     return float(min(max(eta, KRYLOV_RTOL), ETA_MAX))
+
+
+def set_krylov_type(ksp: PETSc.KSP, ksp_type: str) -> None:
+    """CG (left-preconditioned) or the fallback GMRES: right-preconditioned (the preconditioner is one
+    fixed linear cycle, so no flexible variant is needed), restarted after GMRES_RESTART iterations
+    (FGMRES(30) kept 61 vectors: 0.49 KB per DOF above the level, the peak of arm3d at 1.43M DOFs);
+    both stop on the true residual."""
+    ksp.setType(ksp_type)
+    ksp.setPCSide(PETSc.PC.Side.RIGHT if ksp_type == "gmres" else PETSc.PC.Side.LEFT)
+    if ksp_type == "gmres":
+        ksp.setGMRESRestart(GMRES_RESTART)
+    ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
 
 
 def default_petsc_options() -> dict:
