@@ -71,7 +71,7 @@ import numpy as np
 import scipy.sparse as sp
 from petsc4py import PETSc
 
-from .lowrank import Border, columns, dense
+from .lowrank import Border, columns, dense, sparse_dots, sparse_product
 from .multigrid import (KRYLOV_RTOL, REBUILD_RATIO, Coarse, default_petsc_options, iterative_petsc_options,
                         near_nullspace, options_held, set_krylov_type, two_level_petsc_options)
 
@@ -231,15 +231,26 @@ class LowRankSolver:
             self._bvecs = (big, big.duplicate(), self.K.createVecLeft(), self.K.createVecRight())
         if self.deflation is not None:
             self.W = self.deflation()
-            self.KW = self._sparse_product(self.W)
-            self.WKW = np.linalg.inv(self._sparse_dots(self.W, self.KW))
-        E = self.border.E if m else np.zeros((n, 0))
+            self.KW = sparse_product(self.K, self.W)
+            self.WKW = np.linalg.inv(sparse_dots(self.W, self.KW, self.comm))
+        self._blocks()
+
+    def _blocks(self) -> None:
+        """ZB = B [G | E] (k + m multigrid cycles) and the small system's matrix CB made from it."""
+        m = 0 if self.border is None else self.border.E.shape[1]
+        E = self.border.E if m else np.zeros((self.G.shape[0], 0))
         k = len(self.c)
-        ZB = np.empty((n, k + m))
+        ZB = np.empty((self.G.shape[0], k + m))
         for j in range(k + m):
             ZB[:, j] = self._cycle(self.G[:, [j]].toarray()[:, 0] if j < k else E[:, j - k])
         self.ZB = ZB
         self.CB = self._small_system(ZB, E, self.border)
+
+    def forget_blocks(self) -> None:
+        """Free ZB until a solve needs it again (made anew then): a Newton step's line search and the next
+        assembly, whose coefficient packs are the peak of a big 3D run, go without it (arm3d's 17
+        cable parts: 0.14 KB per DOF)."""
+        self.ZB = None
 
     def fresh_iterations(self, rtol: float = 1e-8, seed: int = 0) -> int | None:
         """Krylov iterations of one solve to rtol of a seeded random right-hand side, with K and the
@@ -260,12 +271,12 @@ class LowRankSolver:
         rows = None if self.border is None else self.border.rows
         rin.array_w[:] = r if rows is None else r * ~rows
         if self.W is not None:          # balanced: y = Q r + (I - Q K) B (I - K Q) r, Q = W (W^T K W)^-1 W^T
-            a = self.WKW @ self._sparse_dots(self.W, rin.array_r[:, None])[:, 0]
+            a = self.WKW @ sparse_dots(self.W, rin.array_r[:, None], self.comm)[:, 0]
             rin.array_w[:] -= self.KW @ a
         self.ksp.getPC().apply(rin, out)
         y = out.array_r.copy()
         if self.W is not None:
-            y += self.W @ (a - self.WKW @ self._sparse_dots(self.KW, y[:, None])[:, 0])
+            y += self.W @ (a - self.WKW @ sparse_dots(self.KW, y[:, None], self.comm)[:, 0])
         if rows is not None:
             y[rows] = r[rows]
         return y
@@ -289,6 +300,8 @@ class LowRankSolver:
         fallback from then on)."""
         rhs, sol = self._bvecs[:2]
         border = self.border
+        if self.ZB is None:
+            self._blocks()
         if border is None:
             self._join(rhs, b, np.zeros(0))
         else:
@@ -378,26 +391,6 @@ class LowRankSolver:
         self._factorised().getPC().getFactorMatrix().matSolve(B, X)
         self.solves += 1
         return X.getDenseArray().copy()
-
-    def _sparse_product(self, W: sp.csr_matrix) -> sp.csr_matrix:
-        """K W for a sparse W (owned rows), one column at a time: sparse again (the rows W touches and
-        their neighbours), so that no dense n x p block is ever held."""
-        x, y = self.K.createVecRight(), self.K.createVecLeft()
-        cols = []
-        W = W.tocsc()
-        for j in range(W.shape[1]):
-            x.array_w[:] = W[:, j].toarray()[:, 0]
-            self.K.mult(x, y)
-            cols.append(sp.csc_matrix(y.array_r[:, None]))
-        x.destroy()
-        y.destroy()
-        return sp.hstack(cols).tocsr()
-
-    def _sparse_dots(self, A, B) -> np.ndarray:
-        """A^T B summed over ranks, A sparse, B sparse or dense: a dense array."""
-        out = A.T @ B
-        out = out.toarray() if hasattr(out, "toarray") else np.asarray(out)
-        return out if self.comm.size == 1 else self.comm.allreduce(out)
 
     def _dots(self, A: np.ndarray, B: np.ndarray) -> np.ndarray:
         """A^T B summed over ranks."""

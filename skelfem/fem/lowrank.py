@@ -1,5 +1,6 @@
 """What a Newton step's linear solve takes besides K: the rank-one parts c_i g_i g_i^T of the cables
-(as c and a sparse G, one column per part) and the border of rigid bones (skelfem.fem.linear)."""
+(as c and a sparse G, one column per part), the border of rigid bones, and the sparse products of the
+deflation blocks (skelfem.fem.linear)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -40,3 +41,25 @@ def columns(parts, n: int) -> tuple[np.ndarray, sp.csc_matrix]:
 def dense(G) -> np.ndarray:
     """G as a dense array (a fallback factorisation's right-hand sides)."""
     return G.toarray() if sp.issparse(G) else G
+
+
+def sparse_product(K, W: sp.spmatrix) -> sp.csr_matrix:
+    """K W for a PETSc matrix K and a sparse W (owned rows), one column at a time: sparse again (the
+    rows W touches and their neighbours), so that no dense n x p block is ever held."""
+    x, y = K.createVecRight(), K.createVecLeft()
+    cols = []
+    W = W.tocsc()
+    for j in range(W.shape[1]):
+        x.array_w[:] = W[:, [j]].toarray()[:, 0]
+        K.mult(x, y)
+        cols.append(sp.csc_matrix(y.array_r[:, None]))
+    x.destroy()
+    y.destroy()
+    return sp.hstack(cols).tocsr()
+
+
+def sparse_dots(A, B, comm) -> np.ndarray:
+    """A^T B summed over ranks, A sparse, B sparse or dense: a dense array."""
+    out = A.T @ B
+    out = out.toarray() if hasattr(out, "toarray") else np.asarray(out)
+    return out if comm.size == 1 else comm.allreduce(out)
