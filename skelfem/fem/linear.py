@@ -130,6 +130,8 @@ class LowRankSolver:
         with options_held(prefix, options):
             ksp.setFromOptions()
             ksp.getPC().setFromOptions()
+        if self.kind == "iterative":          # only its preconditioner is applied: no Krylov work vectors
+            ksp.setType("preonly")
         return ksp
 
     def _lag_preconditioner(self) -> None:

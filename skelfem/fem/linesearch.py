@@ -27,8 +27,7 @@ class LineSearch:
         """SNES pre-check: scale the step -y so that x - y is admissible and lowers Pi
         (or, with the watchdog, take the full step and check the energy a few iterations later)."""
         model = self.model
-        if self.lin.kind == "iterative":
-            self.lin.forget_blocks()                # the step is solved; trials and packs need the room
+        self.lin.forget_blocks()                    # the step is solved; trials and packs need the room
         p = -y.array_r.copy()                       # Newton direction (SNES steps x - y)
         r = self.b.array_r.copy()                   # grad Pi at x, set by SNES
         x0 = x.array_r.copy()

@@ -1,9 +1,7 @@
 """Static equilibrium: PETSc SNES Newton on grad Pi = 0, with load stepping.
 
-Newton's direction p solves H p = -grad Pi with H = K + sum c g g^T: the
-sparse matrix K factorised (MUMPS LDL^T, the matrix pattern fixed so the
-symbolic factorisation is reused) and the rank-one parts of taut cables
-added by the Woodbury formula (skelfem.fem.linear), through a PETSc python PC.
+Newton's direction p solves H p = -grad Pi with H = K + sum c g g^T (K factorised by MUMPS or
+preconditioned by multigrid, the cables' rank-one parts apart: skelfem.fem.linear), via a python PC.
 The default line search ("energy") runs in SNES's pre-check: it starts from
 the model's admissible step alpha_max = model.max_step(x, p) <= 1 (e.g. the
 collision-free step of self-contact) and backtracks until the trial state is admissible (det F > 0
@@ -156,10 +154,15 @@ class NewtonSolver(LineSearch):
             target = max(self.atol, self.rtol * self._f0, self._loose * self._round_f0)
             self.lin.rtol = forcing(self._history, self.lin.rtol, target)
 
+    def _residual(self, x: PETSc.Vec, b: PETSc.Vec) -> None:
+        """SNES's function; the step's solve is done: the solver's blocks make room for the pack."""
+        self.lin.forget_blocks()
+        self.model.residual(x, b)
+
     def _create_snes(self, prefix: str) -> PETSc.SNES:
         snes = PETSc.SNES().create(self.model.comm)
         snes.setOptionsPrefix(prefix)
-        snes.setFunction(lambda s, x, b: self.model.residual(x, b), self.b)
+        snes.setFunction(lambda s, x, b: self._residual(x, b), self.b)
         snes.setJacobian(lambda s, x, A, P: self.jacobian(x), self.A)
         options = {}
         if self.strategy == "trust_region":
