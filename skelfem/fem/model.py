@@ -297,7 +297,7 @@ class Model(MatrixAssembly):
         """The P1 level of two-level multigrid for a P2 Newton matrix (multigrid.Coarse); None at P1 and
         with rigid bodies (their border outside K made the inexact Newton crawl at 1 % per step late in
         a solve of arm3d at P2 with the two-level cycle; GAMG on the P2 matrix converges there)."""
-        return Coarse.of(self.V, self.u) if int(self.design.mesh.degree) >= 2 and not self.rigid else None
+        return Coarse.of(self.V) if int(self.design.mesh.degree) >= 2 and not self.rigid else None
 
     def stiff_bone_modes(self, names) -> sp.csr_matrix | None:
         """(owned DOF rows, 3 or 6 per bone), sparse: each named elastic bone's rigid motions on its own nodes

@@ -83,39 +83,29 @@ class Coarse:
     eighth of K's unknowns, so its hierarchy is made for a fraction of the price of one on K,
     while one Chebyshev-Jacobi smoothing of K takes the P2 part."""
 
-    def __init__(self, P: PETSc.Mat, modes, comm):
-        """modes: the P1 nodes' rigid-body modes (owned rows), or a function giving them where the
-        nodes are now (each attach then follows the body)."""
+    def __init__(self, P: PETSc.Mat, modes: np.ndarray, comm):
         self.P, self.modes, self.comm = P, modes, comm
         self.Ac = None
         self._nullspace = None
 
     @classmethod
-    def of(cls, V, u=None) -> "Coarse":
-        """The P1 level of a vector P2 space V (its rigid-body modes about the nodes' centroid; with u,
-        a displacement Function on V, where the nodes are moved to by u at each attach)."""
+    def of(cls, V) -> "Coarse":
+        """The P1 level of a vector P2 space V (its rigid-body modes about the nodes' centroid)."""
         import dolfinx.cpp.fem.petsc as cpp_petsc
         from dolfinx import fem
-        from scipy.spatial import cKDTree
         mesh = V.mesh
-        dim, comm = mesh.geometry.dim, mesh.comm
+        dim = mesh.geometry.dim
         V1 = fem.VectorFunctionSpace(mesh, ("Lagrange", 1))
         P = cpp_petsc.interpolation_matrix(V1._cpp_object, V._cpp_object)
         P.assemble()
         X = V1.tabulate_dof_coordinates()[: V1.dofmap.index_map.size_local, :dim]
-        if u is None:
-            return cls(P, owned_rigid_body_modes(X, dim, comm), comm)
-        vertex = cKDTree(V.tabulate_dof_coordinates()[:, :dim]).query(X)[1]   # V's local node at each P1 node
-        bs = V.dofmap.index_map_bs
-        return cls(P, lambda: owned_rigid_body_modes(X + u.x.array.reshape(-1, bs)[vertex, :dim], dim, comm),
-                   comm)
+        return cls(P, owned_rigid_body_modes(X, dim, mesh.comm), mesh.comm)
 
     def attach(self, pc: PETSc.PC, K: PETSc.Mat) -> None:
         """Make pc the two-level multigrid of K (A_c made anew from K's pattern)."""
         self.destroy_coarse()
         self.Ac = K.PtAP(self.P)
-        modes = self.modes() if callable(self.modes) else self.modes
-        self._nullspace = near_nullspace(self.Ac, modes, self.comm)
+        self._nullspace = near_nullspace(self.Ac, self.modes, self.comm)
         self.Ac.setNearNullSpace(self._nullspace)
         pc.setType(PETSc.PC.Type.MG)
         pc.setMGLevels(2)
