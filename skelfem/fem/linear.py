@@ -137,15 +137,16 @@ class LowRankSolver:
     def _lag_preconditioner(self) -> None:
         """Keep the multigrid of an earlier K while it works: rebuild it only when the last update's
         solves took more than REBUILD_RATIO times the iterations per decade of residual of the update
-        right after the last rebuild, or fell back. A rebuild follows the body (_remake) when the
-        near-nullspace is given as a function of where the nodes are; otherwise it keeps the
-        prolongators and makes the Galerkin products anew."""
+        right after the last rebuild, or fell back. A rebuild of GAMG on K follows the body (_remake)
+        when the near-nullspace is given as a function of where the nodes are; otherwise (and for the
+        two-level cycle, whose P1 level keeps the first modes) it keeps the prolongators and makes the
+        Galerkin products anew."""
         rate = self._its_since / self._decades_since if self._decades_since > 0 else None
         if self._rebuilt:
             self._fresh_rate = rate
         rebuild = rate is None or self._fresh_rate is None or self._fallen \
             or rate > REBUILD_RATIO * self._fresh_rate
-        if rebuild and callable(self._modes):
+        if rebuild and callable(self._modes) and self.coarse is None:    # GAMG on K: it uses the modes
             self._remake()
         else:
             self.ksp.getPC().setReusePreconditioner(not rebuild)
