@@ -162,7 +162,8 @@ class LowRankSolver:
         first multigrid's modes, 10 with modes made there (19k DOFs). The old hierarchy goes first."""
         self.ksp.destroy()
         if callable(self._modes):
-            self._nullspace.destroy()
+            if self._nullspace is not None:
+                self._nullspace.destroy()
             self._nullspace = near_nullspace(self.K, self._modes(), self.comm)
             self.K.setNearNullSpace(self._nullspace)
         self.ksp = self._make_ksp(self.prefix, self._options, self.coarse)
@@ -172,6 +173,10 @@ class LowRankSolver:
         (mg_levels_*) when it makes them, at the first set-up."""
         with options_held(self.prefix, self._options):
             self.ksp.setUp()
+        if callable(self._modes) and self.coarse is None and self._nullspace is not None:
+            self.K.setNearNullSpace(PETSc.NullSpace().create(vectors=[], comm=self.comm))
+            self._nullspace.destroy()           # GAMG has made its prolongators; the next _remake makes
+            self._nullspace = None              # modes anew (6 solution-sized vectors less meanwhile)
 
     def update(self, parts, border: Border | None = None) -> None:
         """Factorise K (as it is now; iterative: make its multigrid) and take the rank-one parts, c_i > 0,

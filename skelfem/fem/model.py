@@ -515,9 +515,11 @@ class Model(MatrixAssembly):
             b.array_w[:] = r
 
     def full_gradient(self) -> np.ndarray:
-        """grad Pi at the current state, owned entries, Dirichlet rows included."""
+        """grad Pi at the current state, owned entries, Dirichlet rows included (read-outs: the
+        coefficient pack is not kept for a next evaluation, since results are written after)."""
         b = self.u.vector.duplicate()
         self.gradient(self.u.vector, b)
+        self._packs.clear()
         out = b.array_r.copy()
         b.destroy()
         return out
