@@ -324,9 +324,8 @@ class LowRankSolver:
     def reset(self) -> None:
         """Forget a failed factorisation (the next update factorises from scratch)."""
         self._rebuilt, self._fresh_rate = False, None
-        if self.coarse is not None:              # its coarse matrix is K's Galerkin product
-            self.ksp.destroy()
-            self.ksp = self._make_ksp(self.prefix, self._options, self.coarse)
+        if self.kind == "iterative":             # a multigrid of K as it is now (a new K: its modes too)
+            self._remake()
         else:
             self.ksp.reset()
             self.ksp.setOperators(self.K)
