@@ -79,6 +79,26 @@ def test_edit_carries_the_solution_over():
     assert r.converged and r.newton_iterations < cold.newton_iterations
 
 
+def test_a_re_meshing_edit_frees_the_old_solver_before_it_builds_the_new_model(monkeypatch):
+    """The old Newton matrix and its multigrid or factorisation beside the new model were the peak of a 3D
+    ladder's last level; the old model stays until the solution is carried over."""
+    from skelfem.fem.model import Model
+    with Session(FINGER, ["mesh.size=4"]) as s:
+        s.solve()
+        old, build = s.solver, Model.__init__
+        old_matrix_alive = []
+
+        def spy(self, *args, **kwargs):
+            old_matrix_alive.append(old.A.handle != 0)
+            build(self, *args, **kwargs)
+        monkeypatch.setattr(Model, "__init__", spy)
+        d = s.design.raw
+        d["bones"][0]["outline"][0][0] += 0.5
+        assert s.edit(d) == "re-meshed"
+        r = s.solve()
+    assert old_matrix_alive == [False] and r.converged and r.newton_iterations <= 4
+
+
 def test_the_carried_over_solution_does_not_depend_on_the_chunk_size(monkeypatch):
     """An edit locates the new nodes in the old mesh CARRY_CHUNK at a time: chunks of 7 nodes and one
     chunk of all give the same start on the new mesh."""
