@@ -82,6 +82,7 @@ def result_dict(design, model, report, timings: dict) -> dict:
     if res["linear_solver"] == "iterative":      # Krylov iterations per Newton step, and MUMPS fallbacks
         res["linear_iterations"] = [[int(k) for k in step] for step in getattr(report, "linear_iterations", [])]
         res["linear_fallbacks"] = int(getattr(report, "linear_fallbacks", 0))
+        res["linear_loose_steps"] = int(getattr(report, "linear_loose_steps", 0))
     readouts = model.readouts() if converged else {}
     for section in STANDARD_SECTIONS:
         res[section] = readouts.pop(section, {}) if converged else None

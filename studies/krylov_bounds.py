@@ -18,16 +18,18 @@ against their own rigid motions), in this process:
 * Poisson's ratio: P2 at ``contrast_size``, the body's nu in ``nus``.
 
 Read from each result: DOFs, Newton iterations, the Krylov iterations of
-each Newton step (their mean and maximum), fallbacks to MUMPS and the solve's
-wall time. An inexact Newton step is solved only as far as its forcing term
-asks, and its multigrid may be an earlier step's (lagged), so a step's
-iterations depend on where it is on the path and on the steps before it.
-Each case therefore also solves its last Newton step's tangent once more,
-with a multigrid made afresh, to FRESH_RTOL from a seeded random right-hand
-side (``krylov_fresh``): the multigrid's own quality at a fixed tolerance.
+each Newton step (their mean and maximum), fallbacks to MUMPS, steps taken
+from a stalled Krylov solve (loose_steps) and the solve's wall time. An
+inexact Newton step is solved only as far as its forcing term asks, and its
+multigrid may be an earlier step's (lagged), so a step's iterations depend
+on where it is on the path and on the steps before it. Each case therefore
+also solves its last Newton step's tangent once more, with a multigrid made
+afresh, to FRESH_RTOL from a seeded random right-hand side
+(``krylov_fresh``): the multigrid's own quality at a fixed tolerance.
 ``ratios`` of a sweep is its largest mean over its smallest,
-``fresh_ratios`` the same of ``krylov_fresh``. run(**params) returns the rows; main(argv) also
-writes krylov_bounds.json into out and krylov_bounds.png into figures.
+``fresh_ratios`` the same of ``krylov_fresh``. run(**params) returns the
+rows; main(argv) also writes krylov_bounds.json into out and
+krylov_bounds.png into figures.
 """
 from __future__ import annotations
 
@@ -60,7 +62,8 @@ def case(design: Path, overrides: list[str]) -> dict:
     return {"overrides": overrides, "dofs": d["dofs"], "status": d["status"],
             "newton_iterations": d["newton_iterations"], "krylov_per_newton": its,
             "krylov_mean": sum(its) / max(len(its), 1), "krylov_max": max(its, default=0),
-            "fallbacks": d.get("linear_fallbacks", 0), "solve_s": wall, "krylov_fresh": fresh}
+            "fallbacks": d.get("linear_fallbacks", 0), "loose_steps": d.get("linear_loose_steps", 0),
+            "solve_s": wall, "krylov_fresh": fresh}
 
 
 def _ratio(rows: list[dict], key: str = "krylov_mean") -> float:

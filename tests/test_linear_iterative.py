@@ -296,3 +296,45 @@ def test_an_indefinite_k_is_solved_by_gmres_without_falling_back():
     assert lin.fallbacks == 0 and lin.krylov[-1] > 0
     assert lin._hksp.getType() == "cg" and lin._hksp.getPCSide() == PETSc.PC.Side.LEFT
     lin.destroy()
+
+
+def _indefinite_solve(monkeypatch, rtol: float, direct_limit: float = np.inf, max_it: int = 500):
+    """The indefinite K above with a Newton step's GMRES cut to one restart of 8 (a stall at |r| / |b| =
+    0.055) and every Krylov solve to max_it iterations: (solver, x, |r| / |b|)."""
+    from skelfem.fem import linear, multigrid
+    monkeypatch.setattr(multigrid, "GMRES_RESTART", 8)
+    monkeypatch.setattr(linear, "GMRES_CYCLES", 1)
+    K, b, modes = _elastic_block(length=8.0, n=2)
+    K.shift(-0.02 * K.getDiagonal().array_r.mean())
+    lin = LowRankSolver(K, MPI.COMM_WORLD, {"ksp_max_it": max_it}, modes=modes)
+    lin.direct_limit = direct_limit
+    lin.update([])
+    lin.rtol = rtol
+    x, r = b.duplicate(), b.duplicate()
+    lin.solve(b, x)
+    K.mult(x, r)
+    r.axpy(-1.0, b)
+    return lin, x, r.norm() / b.norm()
+
+
+def test_a_newton_step_whose_krylov_solve_stalls_is_taken_if_it_cut_the_residual_tenfold(monkeypatch):
+    """Inexact Newton needs |r| < |b| only: a stalled GMRES's best x is the step (counted), not a
+    MUMPS factorisation (arm3d P2 at nu 0.45: 500 GMRES iterations stuck at 1.2e-2, then MUMPS)."""
+    lin, x, rel = _indefinite_solve(monkeypatch, rtol=1e-8)
+    assert 1e-8 < rel <= 0.1 and lin.loose_steps == 1 and lin.fallbacks == 0
+    assert lin.krylov[-1] <= 2 + 8 and lin._hksp.getType() == "cg"
+    assert lin._hksp.getTolerances()[3] == 500                     # CG's own limit is back
+    lin.destroy()
+
+
+def test_a_tight_solve_that_stalls_falls_back_to_mumps_only_where_mumps_fits(monkeypatch):
+    """Sensitivities need their tight solve: GMRES gets all ksp_max_it iterations, then MUMPS takes over,
+    unless K is beyond its memory model, where the solve fails with the reason (no machine-filling
+    factorisation)."""
+    from skelfem.fem.multigrid import KRYLOV_RTOL
+    lin, x, rel = _indefinite_solve(monkeypatch, rtol=KRYLOV_RTOL, max_it=40)
+    assert rel <= 1e-10 and lin.fallbacks == 1 and lin.loose_steps == 0
+    assert lin.krylov[-1] > 2 + 8                       # GMRES had all 40 iterations, not a Newton step's 8
+    lin.destroy()
+    with pytest.raises(np.linalg.LinAlgError, match="MUMPS cannot take over: .* DOFs, its memory model fits 100"):
+        _indefinite_solve(monkeypatch, rtol=KRYLOV_RTOL, direct_limit=100, max_it=10)

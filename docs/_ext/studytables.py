@@ -677,13 +677,14 @@ def krylov_bounds(_: dict) -> Table:
             fresh = r.get("krylov_fresh")
             rows.append([what[sweep], f"h = {r['size']:g}" if "size" in r else str(value),
                          thousands(r["dofs"]), str(r["newton_iterations"]), num(r["krylov_mean"]),
-                         str(r["krylov_max"]), "–" if fresh is None else str(fresh), str(r["fallbacks"]),
-                         secs(r["solve_s"]), r["status"]])
+                         str(r["krylov_max"]), "–" if fresh is None else str(fresh),
+                         f"{r['fallbacks']} / {r.get('loose_steps', 0)}", secs(r["solve_s"]), r["status"]])
         fresh_ratio = d.get("fresh_ratios", {}).get(sweep)
         rows.append([f"**{what[sweep]}**", "largest / smallest", "", "", f"**{num(d['ratios'][sweep])}**",
                      "", "–" if fresh_ratio is None else f"**{num(fresh_ratio)}**", "", "", ""])
     return Table(["sweep", "case", "DOFs", "Newton its", "Krylov its per Newton step (mean)", "max",
-                  f"converged tangent to {d.get('fresh_rtol', 1e-8):g}, fresh multigrid", "fallbacks", "solve",
+                  f"converged tangent to {d.get('fresh_rtol', 1e-8):g}, fresh multigrid",
+                  "fallbacks / loose steps", "solve",
                   "status"], rows,
                  f"{d['design']}: one solve from rest per row, [solver] linear = \"iterative\"; refinement at "
                  "P1, contrast and Poisson's ratio at P2.", [path])

@@ -76,14 +76,19 @@ def planned_linear(design, dofs: float) -> str:
     return auto_linear(design, dofs) if kind == "auto" else kind
 
 
+def direct_limit(dim: int) -> float:
+    """The most unknowns the direct solver (MUMPS) solves on this machine."""
+    if dim == 2:
+        return float(MAX_DOFS[2])
+    return max(MEMORY_SHARE * physical_memory() - BASE_BYTES, 0.0) ** 0.75 / DIRECT_BYTES ** 0.75
+
+
 def limit(design, dofs: float) -> tuple[float, str]:
     """(the most unknowns this machine solves for the design, the linear solver that limit is for)."""
-    if design.dim == 2:
-        return float(MAX_DOFS[2]), "direct"
-    linear = planned_linear(design, dofs)
-    budget = MEMORY_SHARE * physical_memory() - BASE_BYTES
+    linear = "direct" if design.dim == 2 else planned_linear(design, dofs)
     if linear == "direct":
-        return max(budget, 0.0) ** 0.75 / DIRECT_BYTES ** 0.75, linear
+        return direct_limit(design.dim), linear
+    budget = MEMORY_SHARE * physical_memory() - BASE_BYTES
     return max(budget, 0.0) / ITERATIVE_BYTES[design.mesh.degree], linear
 
 

@@ -88,6 +88,7 @@ class DynamicsReport:
     linear_solver: str = "direct"        # as SolveReport's
     linear_iterations: Decimated = field(default_factory=lambda: Decimated(KEEP_HISTORY))   # per time step
     linear_fallbacks: int = 0
+    linear_loose_steps: int = 0
     residual_history: Decimated = field(default_factory=lambda: Decimated(KEEP_HISTORY))
     attempts: Decimated = field(default_factory=lambda: Decimated(KEEP_HISTORY))
     energy: float = float("nan")         # potential energy Pi at the last accepted state
@@ -231,7 +232,8 @@ class Dynamics:
                 rep.converged, rep.status = True, "converged"
             rep.t_end = t
             rep.linear_solver = solver.lin.kind
-            rep.linear_fallbacks, solver.lin.fallbacks = solver.lin.fallbacks, 0
+            rep.linear_fallbacks, rep.linear_loose_steps = solver.lin.fallbacks, solver.lin.loose_steps
+            solver.lin.fallbacks = solver.lin.loose_steps = 0
         finally:
             self.set_time(rep.t_end)
             inertia.stop()

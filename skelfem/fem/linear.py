@@ -60,10 +60,11 @@ tighter than the residual test needs); every other solve (sensitivities,
 adjoints) is to ``KRYLOV_RTOL``. The multigrid is built at the first update
 and kept at later ones (``_lag_preconditioner``) until its iterations per
 decade of residual exceed REBUILD_RATIO times a fresh one's. A Krylov solve
-that fails (an indefinite K breaks CG; a stall) is retried with GMRES, then
-the update falls back to a MUMPS factorisation and the formulas above for
-the rest of its solves, counted in ``fallbacks`` (reported in result.json,
-never silent).
+that fails (an indefinite K breaks CG; a stall) is retried with GMRES; a
+Newton step's that still fails is taken if it reduced the residual tenfold
+(``loose_steps``), else the update falls back to a MUMPS factorisation and
+the formulas above for the rest of its solves, counted in ``fallbacks``
+(both in result.json, never silent), where MUMPS fits (``direct_limit``).
 """
 from __future__ import annotations
 
@@ -72,8 +73,9 @@ import scipy.sparse as sp
 from petsc4py import PETSc
 
 from .lowrank import Border, columns, dense, sparse_dots, sparse_product
-from .multigrid import (KRYLOV_RTOL, REBUILD_RATIO, Coarse, default_petsc_options, iterative_petsc_options,
-                        near_nullspace, options_held, set_krylov_type, two_level_petsc_options)
+from .multigrid import (GMRES_CYCLES, KRYLOV_RTOL, LOOSE_STEP, REBUILD_RATIO, Coarse, default_petsc_options,
+                        iterative_petsc_options, krylov_solve, near_nullspace, options_held,
+                        two_level_petsc_options)
 
 
 class LowRankSolver:
@@ -101,6 +103,8 @@ class LowRankSolver:
         self._direct = None             # iterative: the fallback factorisation, made when first needed
         self._fallen = False            # iterative: this update's solves use the fallback
         self.fallbacks = 0              # updates whose Krylov solves failed and fell back to MUMPS
+        self.direct_limit = np.inf      # ... unless K has more rows than MUMPS fits (a failed Newton step)
+        self.loose_steps = 0            # Newton steps taken from a stalled Krylov solve (see _krylov)
         self.krylov = []                # iterative: Krylov iterations since each update (one entry per update)
         self._its_since, self._decades_since = 0, 0.0   # iterative: since the last update, for ...
         self._fresh_rate = None         # ... the iterations per decade of residual of a fresh multigrid
@@ -303,9 +307,9 @@ class LowRankSolver:
         if len(a) > n:
             a[n:] = z
 
-    def _op_solve(self, b: np.ndarray, rtol: float) -> np.ndarray | None:
-        """x = H^{-1} b (owned rows) by one Krylov solve on the bordered system; None if it fails (the
-        fallback from then on)."""
+    def _op_solve(self, b: np.ndarray, rtol: float, loose: bool = False) -> np.ndarray | None:
+        """x = H^{-1} b (owned rows) by one Krylov solve on the bordered system (see _krylov); None if
+        it fails (the fallback from then on)."""
         rhs, sol = self._bvecs[:2]
         border = self.border
         if self.ZB is None:
@@ -315,7 +319,7 @@ class LowRankSolver:
         else:
             self._join(rhs, b * ~border.rows, self._dots(border.T, b[:, None])[:, 0])
         self.solves += 1
-        if not self._krylov(self._hksp, rhs, sol, rtol):
+        if not self._krylov(self._hksp, rhs, sol, rtol, loose):
             self._factorised()
             return None
         x, z = self._split(sol)
@@ -349,6 +353,10 @@ class LowRankSolver:
         if self._direct is None:
             self._direct = self._make_ksp(self.prefix + "direct_", default_petsc_options())
         if not self._fallen:
+            if self.K.getSize()[0] > self.direct_limit:
+                raise np.linalg.LinAlgError(f"the Krylov solve failed, and MUMPS cannot take over: "
+                                            f"{self.K.getSize()[0]} DOFs, its memory model fits "
+                                            f"{self.direct_limit:.0f} on this machine")
             self._direct.setOperators(self.K)
             self._direct.setUp()
             self._check(self._direct)
@@ -363,24 +371,17 @@ class LowRankSolver:
         ksp.solve(b, x)
         self._check(ksp)
 
-    def _krylov(self, ksp: PETSc.KSP, b: PETSc.Vec, x: PETSc.Vec, rtol: float) -> bool:
-        """A Krylov solve to rtol from 0 (GMRES if the first method fails), its iterations counted;
-        whether it converged."""
-        first = self._options["ksp_type"]
-        ksp.setTolerances(rtol=rtol)
-        for ksp_type in (first, "gmres"):
-            if ksp.getType() != ksp_type:
-                set_krylov_type(ksp, ksp_type)
-            ksp.solve(b, x)
-            self.krylov[-1] += ksp.getIterationNumber()
-            reason = ksp.getConvergedReason()
-            if reason > 0:
-                self._its_since += ksp.getIterationNumber()
-                self._decades_since += -np.log10(rtol)
-                break
-        if ksp.getType() != first:
-            set_krylov_type(ksp, first)
-        return reason > 0
+    def _krylov(self, ksp: PETSc.KSP, b: PETSc.Vec, x: PETSc.Vec, rtol: float, loose: bool = False) -> bool:
+        """A Krylov solve (multigrid.krylov_solve), its iterations counted; whether x is taken: converged,
+        or (loose: a Newton step, which needs |r| < |b| only) stalled at |r| / |b| <= LOOSE_STEP."""
+        its, reached = krylov_solve(ksp, b, x, rtol, self._options["ksp_type"], GMRES_CYCLES if loose else None)
+        self.krylov[-1] += its
+        taken = reached <= rtol or (loose and reached <= LOOSE_STEP)
+        if taken:
+            self._its_since += its
+            self._decades_since += -np.log10(max(reached, rtol))
+            self.loose_steps += reached > rtol
+        return taken
 
     def _multi_solve(self, cols: np.ndarray) -> np.ndarray:
         """K^{-1} cols for a block of right-hand sides (owned rows): one MUMPS solve phase."""
@@ -408,7 +409,7 @@ class LowRankSolver:
         """x = (K + G D G^T)^{-1} b, reduced to the border unknowns if there is a border."""
         border = self.border
         if self.kind == "iterative" and not self._fallen:
-            out = self._op_solve(b.array_r, self.rtol)
+            out = self._op_solve(b.array_r, self.rtol, loose=self.rtol > KRYLOV_RTOL)
             if out is not None:
                 x.array_w[:] = out
                 return

@@ -12,6 +12,9 @@ from ..design.resources import auto_linear
 KRYLOV_RTOL = 1e-12       # |r| / |b| of a tight iterative solve (sensitivities to 1e-8 behind a 1e4 condition)
 
 GMRES_RESTART = 20        # the fallback GMRES's restart (its vectors: restart + 1, each the size of a solution)
+GMRES_CYCLES = 5          # ... and a Newton step's restarts before it is judged stalled (arm3d P2 at nu 0.45:
+#                           restarts after the first left |r| / |b| at 1.2e-2 for 480 iterations)
+LOOSE_STEP = 0.1          # ... and then taken if |r| / |b| got this low (a tight solve keeps ksp_max_it)
 ETA_MAX = 0.01            # the loosest forcing term of an inexact Newton step
 REBUILD_RATIO = 2.0       # a lagged multigrid is rebuilt when it needs this many times the iterations
 
@@ -41,6 +44,33 @@ def set_krylov_type(ksp: PETSc.KSP, ksp_type: str) -> None:
     if ksp_type == "gmres":
         ksp.setGMRESRestart(GMRES_RESTART)
     ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
+
+
+def krylov_solve(ksp: PETSc.KSP, b: PETSc.Vec, x: PETSc.Vec, rtol: float, first: str,
+                 cycles: int | None = None) -> tuple[int, float]:
+    """x from a Krylov solve to |r| / |b| <= rtol from 0: `first` (CG), and if it fails (an indefinite K
+    breaks CG) GMRES, for at most `cycles` restarts if given. (iterations, the |r| / |b| of x: at most
+    rtol if it converged, inf if CG failed and GMRES diverged); ksp is left with `first`."""
+    its, reached, max_it = 0, np.inf, ksp.getTolerances()[3]
+    ksp.setTolerances(rtol=rtol)
+    for ksp_type in dict.fromkeys((first, "gmres")):
+        if ksp.getType() != ksp_type:
+            set_krylov_type(ksp, ksp_type)
+        if ksp_type != first and cycles is not None:
+            ksp.setTolerances(max_it=min(max_it, cycles * GMRES_RESTART))
+        ksp.solve(b, x)
+        its += ksp.getIterationNumber()
+        reason = ksp.getConvergedReason()
+        if reason > 0:
+            reached = rtol
+            break
+        if ksp_type == "gmres" and reason == PETSc.KSP.ConvergedReason.DIVERGED_MAX_IT:
+            bnorm = b.norm()        # GMRES minimises the true residual: x is its best
+            reached = ksp.getResidualNorm() / bnorm if bnorm > 0.0 else np.inf
+    if ksp.getType() != first:
+        set_krylov_type(ksp, first)
+    ksp.setTolerances(max_it=max_it)
+    return its, reached
 
 
 def default_petsc_options() -> dict:

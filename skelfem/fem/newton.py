@@ -37,7 +37,7 @@ from petsc4py import PETSc
 
 from ..design.spec import ATOL_RELATIVE, ENERGY_LINE_SEARCHES, LINE_SEARCHES as STRATEGIES, force_scale
 from .linesearch import WATCHDOG, LineSearch, resolve_strategy
-from ..design.resources import stiff_elastic_bones
+from ..design.resources import direct_limit, stiff_elastic_bones
 from .linear import LowRankSolver, default_petsc_options  # noqa: F401 (re-exported)
 from .multigrid import KRYLOV_RTOL, choose_linear, forcing
 
@@ -84,6 +84,7 @@ class SolveReport:
     linear_iterations: list = field(default_factory=list)  # iterative: Krylov iterations per Newton step,
     #                                                       one list per load step
     linear_fallbacks: int = 0                               # iterative: Newton steps solved by MUMPS instead
+    linear_loose_steps: int = 0                             # ... taken from a stalled Krylov solve
 
 
 class NewtonSolver(LineSearch):
@@ -123,6 +124,7 @@ class NewtonSolver(LineSearch):
         W = (lambda: model.stiff_bone_modes(stiff)) if stiff else None
         self.lin = LowRankSolver(self.A, model.comm, petsc_options, prefix + "k_", modes, W,
                                  model.coarse_space() if modes is not None else None)
+        self.lin.direct_limit = direct_limit(model.dim)     # a fallback MUMPS beyond it: the step fails
         self.b = model.u.vector.duplicate()
         self.x = model.u.vector.copy()      # SNES iterate; model.u is scratch for evaluations
         self._history: list[float] = []
@@ -169,8 +171,7 @@ class NewtonSolver(LineSearch):
             snes.setType("newtontr")
         else:
             snes.setType("newtonls")
-            options = {"snes_linesearch_type": "bt" if self.strategy == "residual" else "basic",
-                       **options}
+            options = {"snes_linesearch_type": "bt" if self.strategy == "residual" else "basic", **options}
             if self.energy_search:
                 snes.setLineSearchPreCheck(self._energy_line_search)
         opts = PETSc.Options()
@@ -383,8 +384,7 @@ class NewtonSolver(LineSearch):
                 report.residual_history.append(self._history)
                 report.linear_iterations.append(self.lin.take_krylov())
                 log.info("load step %d: factor %.4g, %d Newton iterations, |R| %.2e -> %.2e",
-                         report.load_steps, target, its,
-                         self._history[0] if self._history else 0.0,
+                         report.load_steps, target, its, self._history[0] if self._history else 0.0,
                          self._history[-1] if self._history else 0.0)
                 model.end_step()
                 committed = model.history()
@@ -436,7 +436,8 @@ class NewtonSolver(LineSearch):
         rest = self.lin.take_krylov()                  # a failed attempt's, not followed by a step
         if rest:
             report.linear_iterations.append(rest)
-        report.linear_fallbacks, self.lin.fallbacks = self.lin.fallbacks, 0
+        report.linear_fallbacks, report.linear_loose_steps = self.lin.fallbacks, self.lin.loose_steps
+        self.lin.fallbacks = self.lin.loose_steps = 0
         report.energy = model.energy(model.u.vector)
         report.min_jacobian = model.min_jacobian(model.u.vector)
         report.time = time.perf_counter() - t0
