@@ -530,6 +530,19 @@ def test_json_is_strict(tmp_path):
 
 
 # -- internal errors and interrupts, injected ---------------------------------------------------------
+def test_a_linear_solve_that_fails_outside_newton_is_exit_2_not_an_internal_error(sandbox, monkeypatch):
+    """E.g. a sensitivity's Krylov solve that failed on a mesh beyond MUMPS's memory model."""
+    import numpy as np
+    import skelfem.cli.main as cli
+
+    def stalled(args):
+        raise np.linalg.LinAlgError("the Krylov solve failed, and MUMPS cannot take over")
+    monkeypatch.setattr(cli, "simulate", stalled)
+    design = sandbox.write("strip.toml", S2)
+    line = sandbox.refused("simulate", design, "-q", code=2, match="linear solve failed: the Krylov solve failed")
+    assert "internal error" not in line
+
+
 def test_internal_error_is_exit_3_with_and_without_v(sandbox, monkeypatch):
     import skelfem.cli.main as cli
 

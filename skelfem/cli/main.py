@@ -12,7 +12,7 @@ import argparse
 import os
 import sys
 from pathlib import Path
-from .common import EXIT_INPUT, EXIT_INTERNAL, InputError, print_error, common_arguments, error, setup_logging
+from .common import EXIT_INPUT, EXIT_INTERNAL, EXIT_SOLVE, InputError, print_error, common_arguments, error, setup_logging
 from .fabricate import fabricate
 from .simulate import simulate
 from . import bench, calibrate, control, edit, optimize, sweep
@@ -105,10 +105,15 @@ def _import_gmsh() -> None:
 
 
 def _internal(exc: BaseException, verbosity: int) -> tuple[int, str, bool]:
-    """A bug, not bad input: one line, and the traceback with -v (an interrupt that surfaced as it: 128+N)."""
+    """A bug, not bad input: one line, and the traceback with -v (an interrupt that surfaced as it: 128+N;
+    a linear solve that failed outside Newton's, e.g. a sensitivity's: the solver's failure, exit 2)."""
+    import numpy as np
+
     from ..runtime.interrupts import received
     if received() is not None:            # an interrupt that surfaced as another error
         return 128 + received(), "interrupted", False
+    if isinstance(exc, np.linalg.LinAlgError):
+        return EXIT_SOLVE, f"linear solve failed: {exc}", False
     if verbosity >= 2:
         import traceback
         traceback.print_exc()
