@@ -30,7 +30,7 @@ DOFS_PER_CELL = {(2, 1): 1.0, (2, 2): 4.0, (3, 1): 0.65, (3, 2): 4.3}
 MAX_DOFS = {2: 4_000_000}               # 2D: the direct solver's limit (3D: memory_limit)
 BASE_BYTES = 0.5e9                        # the interpreter, DOLFINx, PETSc and Gmsh themselves
 DIRECT_BYTES = 188.0                      # 3D MUMPS: peak bytes per DOF^(4/3) (11.3 GB at 682k P2 DOFs, the most seen)
-ITERATIVE_BYTES = {1: 2.9e3, 2: 3.0e3}   # 3D multigrid: peak bytes per DOF at P1 (2.76 KiB = 2.83 KB measured on
+ITERATIVE_BYTES = {1: 2.9e3, 2: 3.0e3}   # 3D multigrid: peak bytes per DOF at P1 (2.74 KiB = 2.81 KB measured on
 #                                           arm3d at 1.43M DOFs), P2 (2.3 KiB on post3d's 682k reference), rounded up
 MEMORY_SHARE = 0.8                        # of the machine's physical memory, the most one solve may use
 
