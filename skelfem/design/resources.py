@@ -76,11 +76,14 @@ def planned_linear(design, dofs: float) -> str:
     return auto_linear(design, dofs) if kind == "auto" else kind
 
 
+def _budget() -> float:
+    """The bytes one solve may use beyond BASE_BYTES on this machine."""
+    return max(MEMORY_SHARE * physical_memory() - BASE_BYTES, 0.0)
+
+
 def direct_limit(dim: int) -> float:
     """The most unknowns the direct solver (MUMPS) solves on this machine."""
-    if dim == 2:
-        return float(MAX_DOFS[2])
-    return max(MEMORY_SHARE * physical_memory() - BASE_BYTES, 0.0) ** 0.75 / DIRECT_BYTES ** 0.75
+    return float(MAX_DOFS[2]) if dim == 2 else _budget() ** 0.75 / DIRECT_BYTES ** 0.75
 
 
 def limit(design, dofs: float) -> tuple[float, str]:
@@ -88,8 +91,7 @@ def limit(design, dofs: float) -> tuple[float, str]:
     linear = "direct" if design.dim == 2 else planned_linear(design, dofs)
     if linear == "direct":
         return direct_limit(design.dim), linear
-    budget = MEMORY_SHARE * physical_memory() - BASE_BYTES
-    return max(budget, 0.0) / ITERATIVE_BYTES[design.mesh.degree], linear
+    return _budget() / ITERATIVE_BYTES[design.mesh.degree], linear
 
 
 def _fmt(x: float) -> str:
