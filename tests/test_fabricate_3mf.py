@@ -148,3 +148,31 @@ def test_the_folder_holds_one_complete_result_when_the_format_changes(tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["fabrication.json", "thumb.3mf"]
     assert main(["fabricate", design, "--out", str(out), "-q", "--no-picture"]) == 0
     assert not (out / "thumb.3mf").exists() and (out / "mould_top.stl").exists()
+
+
+def _without_cables(tmp_path: Path) -> Path:
+    """finger_soft.toml without its tendon: a body and nothing else."""
+    text = (GEOMETRY / "finger_soft.toml").read_text()
+    path = tmp_path / "plain.toml"
+    path.write_text(text[:text.index("[[cables]]")] + text[text.index("[[pins]]"):])
+    return path
+
+
+@pytest.mark.parametrize("which", ["no_cables", pytest.param("finger_soft", marks=pytest.mark.slow)])
+def test_a_design_without_bones_prints_its_body_alone(which, tmp_path):
+    """Without bones (finger_soft), and without cables too, the 3MF holds the body alone: no boolean
+    with an empty list of tools, one volume on extruder 1, closed, its volume the body's less its channels."""
+    design = GEOMETRY / "finger_soft.toml" if which == "finger_soft" else _without_cables(tmp_path)
+    out = tmp_path / "print"
+    assert main(["fabricate", str(design), "--format", "3mf", "--out", str(out), "-q", "--no-picture"]) == 0
+    report = json.loads((out / "fabrication.json").read_text())
+    v, t, volumes, bases = parse_3mf(out / "finger_soft.3mf")
+    assert [(vol["name"], vol["extruder"]) for vol in volumes] == [("body", "1")] and len(bases) == 1
+    assert volumes[0]["first"] == 0 and volumes[0]["last"] == len(t) - 1 and np.all(t[:, 3] == 0)
+    volume, bad = closed_volume(v, t[:, :3])
+    assert bad == 0
+    c = report["checks"]["complement"]
+    assert report["checks"]["passed"] and list(report["parts"]) == ["body"]
+    assert volume == pytest.approx(c["body_volume"] - c["channels_volume"], rel=0.01)
+    assert (c["channels_volume"] > 0) == (which == "finger_soft")
+    assert v[:, 2].min() == pytest.approx(0.0, abs=1e-9)

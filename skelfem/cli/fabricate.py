@@ -106,6 +106,7 @@ def _printed(args, design, report: dict, out: Path, t0: float) -> int:
         for name, part in report["parts"].items():
             print(f"  {name:24s} {part['volume']:10.1f} mm^3  extruder {part['extruder']}  ({part['material']})")
         c = checks["complement"]
-        print(f"  body and bones fill the body with its channels open to {abs(c['relative_error']):.1g} "
+        fill = "body and bones fill" if len(report["parts"]) > 1 else "the printed body fills"
+        print(f"  {fill} the body with its channels open to {abs(c['relative_error']):.1g} "
               f"(channels {c['channels_volume']:.1f} mm^3); lying on its {report['print']['down']} face")
     return EXIT_OK

@@ -64,6 +64,14 @@ def clean_solids(occ, out) -> list:
     return [v for v in vols if v not in empty]
 
 
+def cut_solids(occ, objects: list, tools: list) -> list:
+    """The volumes of objects minus tools (clean_solids), the objects themselves when there is nothing to cut:
+    OpenCASCADE refuses a boolean with an empty list of tools (a design without bones or cables)."""
+    if not tools:
+        return clean_solids(occ, list(objects))
+    return clean_solids(occ, occ.cut(objects, tools)[0])
+
+
 def write_step(gmsh, path: Path) -> None:
     """gmsh.write, whose failures (a full disk: a plain Exception) become the OSError of the file."""
     import errno
@@ -198,8 +206,7 @@ def build_half(plan: Plan, side: str, folder: Path | None = None) -> Part:
         mass.append(total_mass(occ, half))
         cuts = [t for t in plan.mould_tools
                 if t.kind in ("exit", "pry", "rod_hole", "clamp") or (side == "top" and t.kind in ("pin_hole", "pour", "vent"))]
-        if cuts:
-            half = clean_solids(occ, occ.cut(half, [s for t in cuts for s in tool_shapes(occ, t)])[0])
+        half = cut_solids(occ, half, [s for t in cuts for s in tool_shapes(occ, t)])
         mass.append(total_mass(occ, half))
         info = {"block_volume": block, "pegs": sum(t.side == side for t in plan.pegs),
                 "added_volume": mass[1] - mass[0], "cut_volume": mass[1] - mass[2]}

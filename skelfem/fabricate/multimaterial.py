@@ -35,7 +35,7 @@ from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
-from .build import clean_solids, tool_shapes, total_mass
+from .build import cut_solids, tool_shapes, total_mass
 from .meshing import generate_surface_mesh, triangle_surface
 from .orientation import PrintPose, best_pose
 from .parts import Plan, Tool, cable_points, cable_radius
@@ -134,11 +134,11 @@ def build_print(plan: Plan) -> tuple[list[PrintedPart], PrintPose, dict]:
 
         def channels():
             return [s for t in tools for s in tool_shapes(occ, t)]
-        body_open = clean_solids(occ, occ.cut([(3, t) for t in body], channels())[0])   # the body, channels open
+        body_open = cut_solids(occ, [(3, t) for t in body], channels())   # the body, channels open
         open_volume = total_mass(occ, body_open)
         every_bone = [(3, t) for tags in bones.values() for t in tags]
-        printed_body = clean_solids(occ, occ.cut(body_open, occ.copy(every_bone))[0])
-        printed_bones = {name: clean_solids(occ, occ.cut([(3, t) for t in tags], channels())[0])
+        printed_body = cut_solids(occ, body_open, occ.copy(every_bone) if every_bone else [])
+        printed_bones = {name: cut_solids(occ, [(3, t) for t in tags], channels())
                          for name, tags in bones.items()}
         occ.synchronize()
         volumes = {"body": printed_body, **{f"bone_{n}": v for n, v in printed_bones.items()}}
