@@ -17,6 +17,8 @@ import re
 import tomllib
 from pathlib import Path
 
+from ..design.text import is_text
+
 MAX_NAME = 100
 
 
@@ -104,7 +106,11 @@ def target(folder: Path, own: Path, name: str | None) -> Path:
     if name is None:
         path = Path(own)
     else:
-        if not isinstance(name, str) or not name or len(name.encode()) > MAX_NAME:
+        if not isinstance(name, str) or not name:
+            raise SaveError(f"name: must be a file name of 1 to {MAX_NAME} bytes")
+        if not is_text(name):
+            raise SaveError(f"name: {name!r}: must be valid UTF-8 text (it holds a lone surrogate)")
+        if len(name.encode()) > MAX_NAME:
             raise SaveError(f"name: must be a file name of 1 to {MAX_NAME} bytes")
         if "/" in name or "\\" in name or name in (".", "..") or name.startswith(".") \
                 or re.search(r"[\x00-\x1f\x7f]", name):
