@@ -27,7 +27,7 @@ import numpy as np
 
 from .design.spec import Design, DesignError
 from .result import Result, plain as _plain, result_dict  # noqa: F401 (Result re-exported)
-from .design.parse import changed_keys, flatten, load_design, parse_design
+from .design.parse import changed_keys, flatten, live_value, load_design, parse_design
 from .runtime import memory
 
 log = logging.getLogger("skelfem")
@@ -38,8 +38,9 @@ def _toml(value) -> str:
     """A Python value as TOML text (floats at full precision)."""
     if isinstance(value, bool):
         return "true" if value else "false"
-    if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, str):      # a TOML basic string: control characters as \uXXXX escapes
+        return '"' + "".join(f"\\u{ord(c):04x}" if ord(c) < 0x20 or ord(c) == 0x7f else
+                             "\\\\" if c == "\\" else '\\"' if c == '"' else c for c in value) + '"'
     if isinstance(value, (int, np.integer)):
         return str(int(value))
     if isinstance(value, (float, np.floating)):
@@ -48,7 +49,7 @@ def _toml(value) -> str:
     if isinstance(value, (list, tuple, np.ndarray)):
         return "[" + ", ".join(_toml(v) for v in (value.tolist() if isinstance(value, np.ndarray) else value)) + "]"
     if isinstance(value, dict):
-        return "{" + ", ".join(f"{k} = {_toml(v)}" for k, v in value.items()) + "}"
+        return "{" + ", ".join(f"{_toml(str(k))} = {_toml(v)}" for k, v in value.items()) + "}"
     raise DesignError(f"cannot use {value!r} as a design value")
 
 
@@ -151,16 +152,32 @@ class Session:
         has it already (the editor does): it is not parsed again.
         """
         if design is None:
-            overrides = [f"{key}={_toml(value)}" for key, value in changes.items()]
-            design = parse_design(self.design.raw, self.design.source, overrides)
+            design = parse_design(self.design.raw, self.design.source, self._overrides(changes))
         live = self.model.parameters()
-        if not all(key in live or self._run_setting(key, design) for key in changes):
+        values = {key: live_value(design.raw, key, live[key]) if key in live else None for key in changes}
+        if not all(values[key] is not None or self._run_setting(key, design) for key in changes):
             self.edit(design)
             return
-        for key, value in changes.items():
-            if key in live:
+        for key, value in values.items():
+            if value is not None:
                 self.model.set_parameter(key, value)
         self.design = design
+
+    def _overrides(self, changes: dict) -> list:
+        """``KEY=VALUE`` strings of changes; a key that is no dotted name or a value TOML cannot hold is a
+        DesignError naming it."""
+        source, out = self.design.source, []
+        if not isinstance(changes, dict):
+            raise DesignError(f"{source}: the changes must be a dict of --set keys and values, "
+                              f"got {type(changes).__name__}")
+        for key, value in changes.items():
+            if not isinstance(key, str) or not key.strip() or "=" in key:
+                raise DesignError(f"{source}: {key!r}: a --set key is a dotted name (cables.flexor.contraction)")
+            try:
+                out.append(f"{key}={_toml(value)}")
+            except DesignError as exc:
+                raise DesignError(f"{source}: {key}: {exc}") from None
+        return out
 
     def _run_setting(self, key: str, design) -> bool:
         """Whether key only changes how a run steps (dt, schedules...), not the compiled model."""
@@ -230,11 +247,14 @@ class Session:
 
     def _same_mesh(self, design, morph: bool) -> np.ndarray | None:
         """Node coordinates of the current mesh fit for design (see edit), or None to re-mesh."""
+        from .mesh.geometry import region_names
         from .mesh.morph import Morph, same_polygons
         meshed = self._meshed
         if (self.comm.size != 1 or design.dim != 2 or self.model is None
                 or float(design.mesh.size) != float(meshed.mesh.size)
                 or int(design.mesh.degree) != int(self.design.mesh.degree)):
+            return None
+        if region_names(design) != region_names(meshed):   # the mesh's regions are tagged by name
             return None
         if not morph:                   # the polygons as meshed, or a new mesh (no Morph needed to tell)
             if not same_polygons(design, meshed):
@@ -325,7 +345,13 @@ class Session:
         timings = dict(self.timings, solve=time.perf_counter() - t0)
         timings["total"] = sum(timings.values())
         self.timings = {"mesh": 0.0, "compile": 0.0}          # paid once per mesh
-        return Result(result_dict(self.design, self.model, report, timings), report, self._state())
+        data = result_dict(self.design, self.model, report, timings)
+        warnings = list(dict.fromkeys(note for term in self.model.terms for note in term.take_notes()))
+        if warnings:                         # e.g. friction switched on at a loaded state
+            for note in warnings:
+                log.warning("%s: %s", self.design.name, note)
+            data["warnings"] = warnings
+        return Result(data, report, self._state())
 
     @_exclusive
     def run_in_time(self, on_step=None, progress=None) -> Result:

@@ -189,29 +189,19 @@ def _pairs(contact, materials: dict, default: Coulomb) -> dict:
     return out
 
 
-def _objects(top, dim: int, materials: dict, bodies: tuple, read_solids) -> tuple:
-    entries = top.data.pop("objects", None)
-    if entries is None:
+def _objects(top, dim: int, materials: dict, bodies: tuple, read_solids, named_entries) -> tuple:
+    tables = named_entries(top, "objects")
+    if not tables:
         return ()
-    Table = type(top)
-    if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
-        top.fail("objects", "must be an array of tables ([[...]])")
     if dim == 2:
         loops = polygons.loops_of(bodies)
         tol = 1e-9 * max(float(np.ptp(np.vstack([b.outline for b in bodies]), axis=0).max()), 1.0)
     else:
         lo, hi = primitives_box([p for b in bodies for p in b.solids])
         tol = 1e-9 * max(float(np.ptp([lo, hi], axis=0).max()), 1.0)
-    out, seen = [], set()
-    for i, e in enumerate(entries):
-        name = e.get("name")
-        t = Table(e, f"objects.{name if isinstance(name, str) and name else i}", top.source)
-        name = t.take("name", "str")
-        if not name or "." in name or "=" in name:
-            t.fail("name", "must be a non-empty name without '.' or '='")
-        if name in seen:
-            t.fail("name", f"duplicate name {name!r} in objects")
-        seen.add(name)
+    out = []
+    for t in tables:
+        name = t.where.split(".", 1)[1]
         if dim == 2:
             if t.has("solids"):
                 t.fail("solids", "is for dim = 3 (a 2D object is its outline)")
@@ -251,10 +241,12 @@ def _objects(top, dim: int, materials: dict, bodies: tuple, read_solids) -> tupl
     return tuple(out)
 
 
-def take(top, dim: int, materials: dict, bodies: tuple, read_solids) -> tuple[FrictionSpec, tuple]:
+def take(top, dim: int, materials: dict, bodies: tuple, read_solids, named_entries) -> tuple[FrictionSpec, tuple]:
     """Read (and remove from top's tables) [[objects]] and the friction keys of [contact] and [[grounds]].
-    read_solids(table, dim, tol): a 3D object's `solids`, read as the body's (skelfem.design.shapes)."""
-    objects = _objects(top, dim, materials, bodies, read_solids)
+    read_solids(table, dim, tol): a 3D object's `solids`, read as the body's (skelfem.design.shapes);
+    named_entries(top, section): the entries of a named list, as every [[section]] is read
+    (skelfem.design.shapes)."""
+    objects = _objects(top, dim, materials, bodies, read_solids, named_entries)
     contact = _stripped(top, "contact", "table")
     default = Coulomb()
     if contact is not None:

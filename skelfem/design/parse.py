@@ -14,14 +14,15 @@ import copy
 import tomllib
 from pathlib import Path
 
+import numpy as np
+
 
 from . import polygons
 from .objects import take as take_objects
 from .sections import check_bodies_held, check_body_scale, read_cables, read_contact, read_dynamics, check_energy_line_search, read_fabrication, read_gravity, read_grounds, read_loads, read_markers, read_pins, read_solver, read_tractions
-from .shapes import read_body, read_bones, read_materials, read_solids
+from .shapes import named_entries, read_body, read_bones, read_materials, read_solids
 from .spec import Design, DesignError, FORMAT, MeshSpec, SECTIONS_BY_NAME, force_scale
 from .table import Table, plain_name, positive, apply_override
-from .text import check_text
 
 
 # -- entry points -----------------------------------------------------------------------------------------
@@ -33,11 +34,8 @@ def used_materials(bodies, bones) -> tuple:
 def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     """Validate a design given as parsed TOML (a dict); overrides are ``KEY=VALUE`` strings."""
     data = copy.deepcopy(data)
-    check_text(data, source)
     for assignment in overrides:
         apply_override(data, assignment, source)
-    if overrides:
-        check_text(data, source)
     top = Table(data, "", source)
     fmt = top.take("format", "int")
     if fmt != FORMAT:
@@ -68,7 +66,7 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     pins = read_pins(top, dim)
     check_bodies_held(str(source), bodies, pins, tol)
     loads = read_loads(top, dim, region)
-    friction, objects = take_objects(top, dim, materials, bodies, read_solids)   # [[objects]], friction keys
+    friction, objects = take_objects(top, dim, materials, bodies, read_solids, named_entries)   # [[objects]], friction keys
     grounds = read_grounds(top, dim, bodies, tol)
     contact = read_contact(top, dim)
     markers = read_markers(top, dim, region, objects)
@@ -184,3 +182,35 @@ def changed_keys(old: dict, new: dict) -> set:
     """The keys whose values differ between two flattened designs (present in one only included)."""
     missing = object()
     return {k for k in old.keys() | new.keys() if old.get(k, missing) != new.get(k, missing)}
+
+
+def raw_value(raw: dict, key: str):
+    """The value of a dotted design key (named entries by name) in a design's raw dict; KeyError if none."""
+    node = raw
+    for part in key.split("."):
+        if isinstance(node, list):
+            node = next((e for e in node if isinstance(e, dict) and e.get("name") == part), None)
+            if node is None:
+                raise KeyError(key)
+        elif isinstance(node, dict):
+            node = node[part]
+        else:
+            raise KeyError(key)
+    return node
+
+
+def live_value(raw: dict, key: str, held):
+    """The value of key in raw if it has the form of held, a live parameter's value (a number, or a vector of
+    its shape); None if raw has no such key or holds another form (a table of coefficients by material
+    where the parameter is one coefficient): such a change is not live."""
+    try:
+        value = raw_value(raw, key)
+    except KeyError:
+        return None
+    if isinstance(value, (bool, str, dict)):
+        return None
+    try:
+        given, shape = np.asarray(value, dtype=float), np.shape(held)
+    except (TypeError, ValueError, OverflowError):
+        return None
+    return value if given.shape == shape and np.all(np.isfinite(given)) else None

@@ -22,7 +22,8 @@ LINE_SEARCHES = ("auto", "energy", "curved", "residual", "none", "trust_region")
 ENERGY_LINE_SEARCHES = ("energy", "curved")   # line searches on Pi: the only ones rigid bones and self-contact allow
 INTEGRATORS = ("euler", "bdf2")
 MAX_TIME_STEPS = 1_000_000   # duration / dt: a cap against runaway runs
-SECTIONS_BY_NAME = ("bones", "cables", "pins", "loads", "grounds", "tractions")
+# every [[...]] array of tables of the design contract: its entries are named, --set and flattened by name
+SECTIONS_BY_NAME = ("bodies", "bones", "cables", "pins", "loads", "grounds", "tractions", "objects")
 PRIMITIVES = ("box", "cylinder", "sphere", "extrude")
 LINEAR_SOLVERS = ("auto", "direct", "iterative")
 

@@ -14,17 +14,6 @@ class CannotFollow(Exception):
     """An ingredient with a UFL energy would have to be built anew (Model.refresh)."""
 
 
-def raw_value(raw: dict, key: str):
-    """The value of a dotted design key (named entries by name) in a design's raw dict."""
-    node = raw
-    for part in key.split("."):
-        if isinstance(node, list):
-            node = next(e for e in node if isinstance(e, dict) and e.get("name") == part)
-        else:
-            node = node[part]
-    return node
-
-
 class PackedCoefficients:
     """Packed coefficients of the compiled forms, shared while the coefficients are unchanged.
 

@@ -43,7 +43,8 @@ from ..runtime import jitcache, memory
 from ..terms import BUILDERS, Context
 from ..terms.elasticity import cell_value_chunks, cell_values_min, min_jacobian_expression
 from .assembly import MatrixAssembly, block_keys
-from .follow import MODEL_KEYS, CannotFollow, PackedCoefficients, raw_value
+from ..design.parse import live_value
+from .follow import MODEL_KEYS, CannotFollow, PackedCoefficients
 from .multigrid import Coarse, owned_rigid_body_modes, rigid_body_modes
 
 
@@ -146,11 +147,10 @@ class Model(MatrixAssembly):
         if self.comm.size != 1 or any(k.split(".", 1)[0] in MODEL_KEYS for k in changed):
             return None
         values = {}
-        for key in changed & live.keys():
-            try:
-                values[key] = raw_value(design.raw, key)
-            except (KeyError, StopIteration, TypeError):      # dropped for its default: build anew
-                pass
+        for key in changed & live.keys():       # dropped for its default, or in another form: build anew
+            value = live_value(design.raw, key, live[key])
+            if value is not None:
+                values[key] = value
         structural = changed - values.keys()
         ctx = Context(design, self.tm, self.V, self.u, self.ctx.thickness)
         old_design, self.ctx.design = self.ctx.design, design      # kept terms read the new design

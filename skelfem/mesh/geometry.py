@@ -40,6 +40,13 @@ def object_tag_name(name: str) -> str:
     return f"object:{name}"
 
 
+def region_names(design) -> tuple:
+    """The names of the mesh's cell regions for design, in order: its bodies, bones and objects. A mesh
+    serves another design only if these are the same (a renamed bone has no region of its own)."""
+    return tuple(body_tag_names(design)) + tuple(bone_tag_name(b.name) for b in design.bones) \
+        + tuple(object_tag_name(o.name) for o in design.objects)
+
+
 @dataclass
 class TaggedMesh:
     """A DOLFINx mesh with its cell tags and the names of the tags."""

@@ -178,6 +178,11 @@ class Term:
         """Back to rest: forget every history (a cable's slips through its via points); the model's
         u is being set to 0 for a solve from rest."""
 
+    def take_notes(self) -> list:
+        """Warnings for the next result (a history started at a state the solver did not reach with this
+        term as it is now: friction switched on at a loaded state), each once; [] if none."""
+        return []
+
     # -- history, to try a step and take it back (Soft IK's trial solves) ------------------------
     history_fields: tuple = ()   # attributes that hold the term's history (friction's anchors, slip states)
 

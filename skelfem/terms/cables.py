@@ -180,6 +180,20 @@ class Cable:
         self.slipping = np.abs(lam) > 1e-9 * self.L0
         self._version, self._mixing = self._version + 1, []
 
+    def slide_freely(self, u: np.ndarray, L: float) -> None:
+        """The history of a cable that has slid freely to u: every segment stretched by its share of the
+        one tension k (length - L) (the anchors s_hat the limit mu -> 0 of friction would hold), no
+        friction limit yet. Friction switched on at a state reached without it starts from here, so the
+        state holds (it is an equilibrium with friction too) and a later step with friction is the
+        limit of one with a vanishing coefficient before it."""
+        self.reset_slip()
+        _, norm, _, _, _ = self._state(u, L)
+        b = self.k * (float(norm.sum()) - L) * self.compliances()
+        s = (self.L0 - L) + np.cumsum(norm - self.seg0 - b)       # s_1 .. s_m: s_m = 0 up to round-off
+        self.s_hat[1:-1] = s[:-1]
+        self.s_prev = self.s_hat.copy()
+        self._version += 1
+
     @classmethod
     def build(cls, V, spec, anchors: dict | None = None) -> "Cable":
         """The cable through its via points; anchors = {sketch vertex index: radius} makes that vertex
@@ -438,7 +452,10 @@ class CableTerm(Term):
         self.actuated = spec.kind == "tendon"
         self.disks = [(np.asarray(spec.path[k], dtype=float), r) for k, r in self.anchors.items()]   # (centre, r)
         self.gather = self.cable.gather
+        self.u = ctx.u                 # the model's displacement: where friction switched on live starts
         self.factor = 0.0
+        self.unknown_history = True    # built on a state it did not see: set at the first set_factor
+        self.notes: dict = {}          # take_notes: {key: warning} for the next result
         self.by_material = dict(getattr(spec, "friction_by_material", ()))
         if self.by_material:
             self.cable.mu_via = via_coefficients(ctx, self.cable, self.by_material)
@@ -451,9 +468,33 @@ class CableTerm(Term):
         return self.cable.rest_length(self.factor)
 
     def set_factor(self, a: float) -> None:
+        """The load factor; the first one after this term was built on a state it did not reach (an edit's
+        carried-over state) gives the friction history of that state: none at rest, else that of a cable
+        that slid freely there (Cable.slide_freely), not one that stuck since rest."""
         self.factor = float(a)
+        if self.unknown_history:
+            self.unknown_history = False
+            if self.cable.friction and np.any(self.cable.values(self.u.x.array)):
+                self._slid_freely()
+
+    def _slid_freely(self) -> None:
+        """Friction's history from the present state, as if the cable had slid freely to it (the state holds);
+        noted for the next result when the state is a loaded one."""
+        u = self.u.x.array
+        self.cable.slide_freely(u, self.rest_length)
+        if np.any(self.cable.values(u)):
+            self.notes[f"cables.{self.name}.friction"] = (
+                f"cables.{self.name}.friction: its history starts at a loaded state (friction switched on "
+                "there, or the cable built anew by an edit), as if the cable had slid freely to it; friction "
+                "depends on the load path: the same loads with friction from rest give another state (solve "
+                "from rest for that)")
+
+    def take_notes(self) -> list:
+        notes, self.notes = list(self.notes.values()), {}
+        return notes
 
     def rest(self) -> None:
+        self.unknown_history, self.notes = False, {}
         self.cable.reset_slip()
 
     def update_lag(self, model) -> bool:
@@ -505,7 +546,10 @@ class CableTerm(Term):
         elif which == "friction":             # one coefficient for the whole cable from now on
             if not float(value) >= 0.0:
                 raise ValueError(f"cables.{self.name}.friction: must be >= 0, got {value!r}")
+            sliding = not self.cable.friction
             self.cable.mu, self.cable.mu_via, self.by_material = float(value), None, {}
+            if sliding and self.cable.friction:       # switched on: from where the cable slid freely to
+                self._slid_freely()
         else:
             setattr(self.cable, which, float(value))
 

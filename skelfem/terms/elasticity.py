@@ -48,14 +48,26 @@ def psi(F, mu, lam):
     return mu / 2 * (ufl.tr(F.T * F) - d) - mu * ufl.ln(J) + lam / 2 * ufl.ln(J) ** 2
 
 
+def region_materials(design) -> tuple:
+    """((region tag name, material), ...) of the regions that strain: the bodies, the bones (a rigid bone's
+    as the others: its cells are left out by the measure) and the elastic objects. What the material
+    fields and the measure were made from: a term built on it follows an edit that keeps it."""
+    return tuple((body_tag_name(b), b.material) for b in design.bodies) \
+        + tuple((bone_tag_name(b.name), b.material) for b in design.bones) \
+        + tuple((object_tag_name(o.name), o.material) for o in design.objects if not o.rigid)
+
+
+def region_layout(design) -> tuple:
+    """region_materials with which bones are rigid: everything the compiled elastic form depends on,
+    whichever design key (bodies.NAME.material, objects.NAME.rigid, ...) changed it."""
+    return region_materials(design), tuple(b.name for b in design.bones if b.rigid)
+
+
 def region_cells(ctx: Context, design) -> dict:
     """{material name: local cells} over the bodies, the bones and the elastic objects."""
     tm = ctx.tagged
     out: dict = {}
-    regions = [(body_tag_name(b), b.material) for b in design.bodies] \
-        + [(bone_tag_name(b.name), b.material) for b in design.bones] \
-        + [(object_tag_name(o.name), o.material) for o in design.objects if not o.rigid]
-    for tag_name, material in regions:
+    for tag_name, material in region_materials(design):
         cells = tm.cell_tags.find(tm.tags[tag_name])
         out[material] = np.concatenate([out.get(material, np.zeros(0, np.int32)), cells])
     return out
@@ -115,6 +127,7 @@ class Elasticity(Term):
         design = ctx.design
         self.materials = {name: [m.E, m.nu] for name, m in design.materials.items()}
         self.cells = region_cells(ctx, design)
+        self.layout = region_layout(design)
         Q = fem.FunctionSpace(ctx.mesh, ("DG", 0))
         self.mu, self.lam = fem.Function(Q, name="mu"), fem.Function(Q, name="lam")
         self._update_fields()
@@ -142,10 +155,9 @@ class Elasticity(Term):
         return self._scale[1]
 
     def follow(self, ctx: Context, changed: set) -> bool:
-        """Same materials and regions (the mesh's tags): keep the fields; drop the bones' node positions."""
-        if touched(changed, "materials", "body.material") or any(
-                k.split(".", 1)[0] in ("bones", "objects", "bodies") and k.rsplit(".", 1)[1] in ("material", "rigid")
-                for k in changed):
+        """The same regions, materials and rigid bones (compared as built, whatever keys changed them), and
+        no other change of [materials]: keep the fields; drop the bones' node positions."""
+        if touched(changed, "materials") or region_layout(ctx.design) != self.layout:
             return False
         self._groups = self._fit = self._corr = None
         return True

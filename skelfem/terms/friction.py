@@ -124,6 +124,7 @@ class GroundFriction(Term):
         self.t = float(ctx.thickness.value)
         self.T = tangent_basis(self.normal)
         self._ready = False
+        self._notes: dict = {}     # take_notes: {key: warning} for the next result
         self._report = None        # read-out at the last accepted step
         self.nodal = None          # (nodes, friction force on the plane, slipping, N) at the last accepted step
         if self.active:
@@ -140,7 +141,15 @@ class GroundFriction(Term):
         bs = ctx.bs
         self.dofs = (self.nodes[:, None] * bs + np.arange(bs)).astype(np.int32)
         self.X = ctx.V.tabulate_dof_coordinates()[self.nodes, :ctx.dim]
-        self.anchor = self.X @ self.T                                # stick anchors s_i (tangential)
+        u = ctx.u.x.array
+        self.anchor = self.positions(u) @ self.T     # stick anchors s_i (tangential): where the nodes are (at
+        #                                              rest, or where friction switched on live found them)
+        if ctx.comm.allreduce(bool(np.any(u)), op=MPI.LOR):
+            self._notes[f"grounds.{self.name}.friction"] = (
+                f"grounds.{self.name}.friction: its history starts at a loaded state (friction switched on "
+                "there, or the ground built anew by an edit), as if the body had slid freely to it; friction "
+                "depends on the load path: the same loads with friction from rest give another state (solve "
+                "from rest for that)")
         x = ctx.mesh.geometry.x[:, :ctx.dim]
         parts = ctx.comm.allgather((x.max(axis=0), x.min(axis=0)) if len(x) else None)
         size = np.linalg.norm(np.max([p[0] for p in parts if p is not None], axis=0)
@@ -153,6 +162,7 @@ class GroundFriction(Term):
         self.N = np.zeros(len(self.nodes))                            # lagged normal forces
         self.fresh = self._touching(self.ctx.u.x.array)                # stuck in a step's first solve
         self._ready = True
+        self._unknown_history = not ctx.comm.allreduce(bool(np.any(u)), op=MPI.LOR)   # built at u = 0
 
     @property
     def active(self) -> bool:
@@ -237,19 +247,30 @@ class GroundFriction(Term):
         return [(self.nodes[i:i + 1], self.nodes[i:i + 1]) for i in range(len(self.nodes))]
 
     # -- lag and history ---------------------------------------------------------------------------
+    def take_notes(self) -> list:
+        notes, self._notes = list(self._notes.values()), {}
+        return notes
+
     def set_factor(self, a: float) -> None:
         """A new attempt at a step starts from the committed slip states; a ramp from rest (u = 0
-        everywhere) from no history at all."""
+        everywhere) from no history at all; the first attempt after this term was built on a state it did
+        not reach (an edit's carried-over state) from that state: every node anchored where it is."""
         if self._ready:
             u = self.ctx.u.x.array
             if not self.ctx.comm.allreduce(bool(np.any(u)), op=MPI.LOR):
                 self.rest()
+            elif self._unknown_history:
+                self._unknown_history = False
+                self._ready = False
+                self._setup()
             self.trial = self.sliding.copy()
             self.fresh = self._touching(u)
 
     def rest(self) -> None:
         """No history: every node anchored at its rest place, none slipped (a run in time from rest)."""
+        self._notes = {}
         if self._ready:
+            self._unknown_history = False
             self.anchor = self.X @ self.T
             self.N, self.run, self.sliding = np.zeros(len(self.nodes)), np.zeros(len(self.nodes)), \
                 np.zeros(len(self.nodes), bool)

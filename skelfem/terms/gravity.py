@@ -18,7 +18,7 @@ from dolfinx import fem
 from mpi4py import MPI
 
 from .base import Context, Term, constant, touched
-from .elasticity import region_cells
+from .elasticity import region_cells, region_materials
 
 KG_PER_M3_TIMES_M_PER_S2 = 1e-9     # N/mm^3
 
@@ -31,6 +31,7 @@ class Gravity(Term):
         design = ctx.design
         self.g = np.asarray(design.gravity, dtype=float).copy()
         self.cells = region_cells(ctx, design)
+        self.regions = region_materials(design)
         self.density = {n: float(design.materials[n].density) for n in self.cells}
         self.rho = fem.Function(fem.FunctionSpace(ctx.mesh, ("DG", 0)), name="density")
         self._update_density()
@@ -46,9 +47,9 @@ class Gravity(Term):
         return -KG_PER_M3_TIMES_M_PER_S2 * ctx.thickness * self.rho * ufl.dot(self._ga, ctx.u) * ufl.dx
 
     def follow(self, ctx: Context, changed: set) -> bool:
-        """The same regions' materials (densities and the acceleration are live)."""
-        return not (touched(changed, "gravity", "materials", "body.material")
-                    or any(k.startswith("bones.") and k.endswith(".material") for k in changed))
+        """The same regions' materials, compared as built whatever keys changed them (densities and the
+        acceleration are live)."""
+        return not touched(changed, "gravity", "materials") and region_materials(ctx.design) == self.regions
 
     def set_factor(self, a: float) -> None:
         self.factor = float(a)
