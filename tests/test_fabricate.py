@@ -533,6 +533,14 @@ def test_the_bundled_arm_fabricates(tmp_path):
     halves = sum(solid_report(out / f"mould_{h}.stl")["volume"] for h in ("bottom", "top"))
     assert block - halves - clamp_holes(report) == pytest.approx(body, rel=0.01)
     assert report["checks"]["routes_held"]
+    # every part prints flat on a face; the radius and the ulna, tilted in the design, on an end cap (or a
+    # larger face), not on its rim
+    assert all(item["print"]["bed_area"] > 0 for item in report["parts"].values()), report["parts"]
+    for bone in ("radius", "ulna"):
+        entry = report["parts"][f"bone_{bone}"]["print"]
+        assert entry["bed_area"] >= 0.99 * math.pi * 3.5 ** 2, (bone, entry)
+        _, points = read_stl(out / f"bone_{bone}.stl")
+        assert abs(points[:, 2].min()) < 1e-6
 
 
 def test_a_grazing_channel_gets_a_sheath():
