@@ -307,3 +307,127 @@ def test_3d_design_recovery():
         s.set({"materials.ecoflex.E": 0.2})
         cal = calibrate(s, data, ["materials.ecoflex.E"])
     assert cal.converged and cal.values[0] == pytest.approx(0.1, rel=1e-6)
+
+
+# -- log-parameters, identifiability from the structure, a fit that moves ---------------------------
+BONES = GEOMETRY / "finger_bones.toml"      # one tendon, silicone and PLA bones: three stiffnesses
+SCALED = ["materials.ecoflex.E", "materials.pla.E", "cables.flexor.stiffness"]
+
+
+@pytest.fixture(scope="module")
+def bones():
+    with Session(BONES, ["mesh.size=4.0"]) as s:
+        yield s
+
+
+def _from(session, keys, start, **kw):
+    """calibrate with keys started at start (the session gets its values back)."""
+    true = {k: session.model.parameters()[k] for k in keys}
+    try:
+        session.set(dict(zip(keys, start)))
+        return calibrate(session, **kw, fit=keys)
+    finally:
+        session.set(true)
+
+
+@pytest.mark.slow
+def test_an_exact_invariance_is_one_group_from_any_start(bones):
+    """Contraction-driven, positions only: scaling every stiffness together moves no marker."""
+    data = synthesize(bones, {"cables.flexor.contraction": [2.0, 4.0, 6.0, 8.0]}, TIP)
+    true = np.array([bones.model.parameters()[k] for k in SCALED])
+    for factors in ([1.0, 1.0, 1.0], [2.0, 0.5, 1.0], [100.0, 1.0, 1.0], [1.0, 1.0, 0.01]):
+        cal = _from(bones, SCALED, true * factors, data=data, sigma={"markers.*": 0.05})
+        assert cal.unidentifiable == [SCALED], (factors, cal.unidentifiable)
+        assert cal.groups_end == [SCALED] and not any(cal.identified), factors
+        ways = " ".join(cal.identify_with[0])
+        assert "cables.flexor.tension" in ways and "known load or mass" in ways
+        out = cal.to_dict()
+        assert all(out["parameters"][k]["std"] is None and not out["parameters"][k]["identified"] for k in SCALED)
+        # the fit still matches the markers: only the scale is unknown
+        assert cal.cost < 1e-3 * max(cal.history[0], 1e-12) or cal.cost < 1e-6, (factors, cal.history)
+
+
+def test_a_single_stiffness_fit_moves_off_its_start(bones):
+    """The tendon's stiffness alone from positions, started 25x too stiff: 6 iterations reach the truth
+    (a linear-parameter step overshot to the lower bound and stalled there)."""
+    key = "cables.flexor.stiffness"
+    true = bones.model.parameters()[key]
+    try:
+        bones.set({key: 4.0})
+        data = synthesize(bones, {"cables.flexor.contraction": [2.0, 4.0, 6.0, 8.0]}, TIP)
+    finally:
+        bones.set({key: true})
+    cal = _from(bones, [key], [100.0], data=data, sigma={"markers.*": 0.05}, max_iterations=6)
+    assert cal.converged and cal.cost <= 0.1 * cal.history[0], cal.history
+    assert cal.values[0] == pytest.approx(4.0, rel=1e-4) and cal.identified == [True]
+
+
+def test_intervals_of_positive_parameters_are_positive(finger, finger_data):
+    """Noisy tip positions, four rows: the ligaments' linear interval would reach below zero."""
+    rng = np.random.default_rng(3)
+    data = {k: (np.asarray(v) + rng.normal(0, 0.2, len(v)) if k.startswith("markers") else v)
+            for k, v in finger_data.items()}
+    keys = ["materials.ecoflex.E", "cables.flexor.stiffness", "cables.lig*.stiffness"]
+    cal = calibrate(finger, data, keys, sigma={"markers.*": 0.2, "cables.flexor.tension": 0.05})
+    assert cal.converged and np.all(np.isfinite(cal.std))
+    assert np.all(cal.ci95[:, 0] > 0), cal.ci95
+    assert np.allclose(cal.ci95[:, 0] * cal.factor, cal.values) and np.allclose(cal.values * cal.factor,
+                                                                                   cal.ci95[:, 1])
+    linear_low = cal.values - 1.959963984540054 * cal.std
+    assert linear_low[2] < 0, linear_low                     # the interval a linear fit would report
+    wide = cal.factor ** 2 > 10.0
+    assert wide[2] and [not w for w in wide] == cal.identified
+    assert "more than a decade" in cal.reasons[2]
+
+
+def test_multiple_starts_keep_the_lowest_misfit(finger, finger_data):
+    cal = calibrate(finger, finger_data, ["materials.ecoflex.E"], starts=3, seed=1)
+    assert len(cal.starts) == 3 and sum(s["best"] for s in cal.starts) == 1
+    assert cal.cost == min(s["cost"] for s in cal.starts)
+    assert cal.values[0] == pytest.approx(0.1, rel=1e-6)
+    starts = [s["initial"]["materials.ecoflex.E"] for s in cal.starts]
+    assert starts[0] == pytest.approx(0.1) and all(0.01 <= e <= 1.0 for e in starts) and len(set(starts)) == 3
+
+
+def test_null_groups_do_not_depend_on_the_rotation_of_the_null_space():
+    from skelfem.analysis.calibrate import _null_groups, _rref
+    rng = np.random.default_rng(0)
+    # columns: a, b, c scale together (their sum is zero), d does nothing, e is seen
+    a, b, e = rng.standard_normal((3, 20))
+    A = np.column_stack([a, b, -(a + b), np.zeros(20), e])
+    groups, basis, _ = _null_groups(A, 1e-6)
+    assert groups == [[0, 1, 2], [3]] and np.allclose(A @ basis.T, 0.0, atol=1e-9)
+    Q = np.linalg.qr(rng.standard_normal((2, 2)))[0]          # another basis of the same null space
+    assert np.allclose(_rref(Q @ basis), basis)
+
+
+@pytest.mark.parametrize("data, fit, kw, message", [
+    ("markers.tip.x\n1_000\n2\n", ["materials.ecoflex.E"], {}, "'1_000' is not a number"),
+    ("markers.tip.x\n\u0661\u0662\n2\n", ["materials.ecoflex.E"], {}, "is not a number"),
+    ("markers.tip.x\n1\n2\n", ["materials.ecoflex.E"], {"sigma": ["markers.*=1e-200"]}, "within 1e-09 and 1e+09"),
+    ("markers.tip.x\n1\n2\n", ["cables.flexor.stiffness"], {"bounds": ["cables.flexor.stiffness=-100,100"]},
+     "lower bound > 0"),
+    ("markers.tip.x\n1\n2\n", ["materials.ecoflex.nu"], {"bounds": ["materials.ecoflex.nu=0.3,0.7"]},
+     "0.7 is not a valid value (materials.ecoflex.nu: must lie in (-1, 0.5)"),
+    ("markers.tip.x\n1\n2\n", ["materials.ecoflex.nu"], {"bounds": ["materials.ecoflex.nu=-1.5,0.49"]},
+     "-1.5 is not a valid value"),
+    ("markers.tip.x\n1\n2\n", ["materials.ecoflex.E"], {"bounds": ["materials.ecoflex.E=0x1,1"]}, "not a number"),
+])
+def test_bounds_sigma_and_numbers_are_checked_before_meshing(data, fit, kw, message):
+    import re
+    with pytest.raises(DataError, match=re.escape(message)) as err:
+        prepare_data(load_design(FINGER), data, fit, **kw)
+    assert "\n" not in str(err.value)
+
+
+def test_a_failed_sensitivity_solve_is_a_solve_error(finger, finger_data, monkeypatch):
+    """E.g. GMRES through friction that does not converge: a reason naming the row, not an internal error."""
+    from skelfem.analysis.sensitivity import Linearization
+    from skelfem.fem.newton import SolveError
+
+    def stalled(self, B):
+        raise RuntimeError("sensitivity through friction: GMRES did not converge (|r| 0.1)")
+    monkeypatch.setattr(Linearization, "solve_many", stalled)
+    with pytest.raises(SolveError, match="at the start: row 1: the equilibrium converged but its sensitivity "
+                                         "solve failed .*GMRES did not converge"):
+        calibrate(finger, finger_data, ["materials.ecoflex.E"])

@@ -46,11 +46,18 @@ BAD = [
     (HEADER + ROWS, ["--fit", "mesh.size"], "'mesh.size' is not a live parameter"),
     (HEADER + ROWS, ["--bounds", "materials.ecoflex.E=0.5,1"], "excludes the start 0.1"),
     (HEADER + ROWS, ["--holdout", "1.5"], "--holdout 1.5"),
+    (HEADER + ROWS, ["--bounds", "cables.flexor.stiffness=-100,100"], "needs a lower bound > 0"),
+    (HEADER + ROWS, ["--fit", "materials.ecoflex.nu", "--bounds", "materials.ecoflex.nu=-0.5,0.6"],
+     "0.6 is not a valid value (materials.ecoflex.nu: must lie in (-1, 0.5)"),
+    (HEADER + ROWS, ["--sigma", "markers.*=1e-200"], "must lie within 1e-09 and 1e+09 times that"),
+    (HEADER + ROWS.replace("97.65964934214473", "97_659"), [], "'97_659' is not a number"),
+    (HEADER + ROWS, ["--starts", "0"], "--starts 0"),
 ]
 
 
 @pytest.mark.parametrize("text, extra, message", BAD,
-                         ids=["unknown column", "non-numeric", "too few rows", "not live", "bounds", "holdout"])
+                         ids=["unknown column", "non-numeric", "too few rows", "not live", "bounds", "holdout",
+                              "negative stiffness bound", "nu bound", "tiny sigma", "underscore", "starts"])
 def test_bad_input_one_line_nothing_written_no_meshing(tmp_path, capsys, monkeypatch, text, extra, message):
     import skelfem.jobs.run as run
 
@@ -109,4 +116,39 @@ def test_a_row_that_does_not_converge_exits_2_and_writes_nothing(tmp_path, capsy
                  "--data", str(data), "--fit", "materials.ecoflex.E", "--out", str(tmp_path / "cal"), "-q"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "row 1: the equilibrium did not converge" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data.csv"]
+
+
+def test_a_fit_that_does_not_converge_exits_2_with_a_partial_result(tmp_path, capsys):
+    data = tmp_path / "data.csv"
+    data.write_text(HEADER + ROWS)
+    out = tmp_path / "cal"
+    out.mkdir()
+    (out / "calibrated.toml").write_text("# an earlier run's\n")           # replaced, not left beside it
+    code = main(["calibrate", str(FINGER), "--set", "mesh.size=4.0", "--set", "materials.ecoflex.E=0.3",
+                 "--data", str(data), "--fit", "materials.ecoflex.E", "--max-iterations", "1",
+                 "--out", str(out), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "did not converge (max_iterations)" in err[0], err
+    assert sorted(p.name for p in out.iterdir()) == ["calibration.json", "fit.csv", "fit.png", "parameters.png",
+                                                     "partial.toml", "residuals.png"]
+    res = json.loads((out / "calibration.json").read_text())
+    assert res["converged"] is False and res["iterations"] == 1
+    assert res["cost_history"][-1] < res["cost_history"][0]                  # its best state, not the start
+    partial = tomllib.loads((out / "partial.toml").read_text())
+    assert partial["materials"]["ecoflex"]["E"] == pytest.approx(res["parameters"]["materials.ecoflex.E"]["value"])
+
+
+def test_a_failed_sensitivity_solve_exits_2_and_writes_nothing(tmp_path, capsys, monkeypatch):
+    from skelfem.analysis.sensitivity import Linearization
+
+    def stalled(self, B):
+        raise RuntimeError("sensitivity through friction: GMRES did not converge (|r| 0.1)")
+    monkeypatch.setattr(Linearization, "solve_many", stalled)
+    data = tmp_path / "data.csv"
+    data.write_text(HEADER + ROWS)
+    code = main(["calibrate", str(FINGER), "--set", "mesh.size=4.0", "--data", str(data),
+                 "--fit", "materials.ecoflex.E", "--out", str(tmp_path / "cal"), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "sensitivity solve failed" in err[0] and "GMRES" in err[0], err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data.csv"]

@@ -28,6 +28,7 @@ import csv
 import fnmatch
 import io
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -37,8 +38,15 @@ MAX_BYTES = 20_000_000      # a larger CSV is refused (a calibration needs rows,
 MAX_ROWS = 100_000
 AXES = "xyz"
 EXPERIMENT = "experiment"
-POSITIVE = ("E", "stiffness", "density")      # parameter names kept > 0 by default
+# positive quantities: fitted in log theta (intervals exp(log theta +- q s), always positive) when they start > 0;
+# kept >= 0 when they start at 0 (then fitted linearly)
+POSITIVE = ("E", "stiffness", "density", "pretension", "friction", "friction_static")
+LOG_RANGE = 1e6               # a positive quantity's default box: its start / LOG_RANGE to its start * LOG_RANGE
 NU_BOUNDS = (-0.999, 0.4999)
+SIGMA_RANGE = 1e9             # a sigma within [1/SIGMA_RANGE, SIGMA_RANGE] x its column's largest |value|
+# a number in a CSV cell, a sigma or a bound: ASCII digits, one optional sign, point and exponent (no "1_000",
+# no other scripts' digits, no "nan" or "inf"; a bound may say inf or -inf in words)
+NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
 
 
 class DataError(ValueError):
@@ -143,10 +151,32 @@ class Parameter:
         if not self.targets:
             self.targets = [(self.base, self.component)]
 
+    log: bool = False          # a positive quantity: fitted in log(value)
+
     @property
     def scale(self) -> float:
         """The size the optimiser measures steps in."""
         return abs(self.initial) if self.initial != 0.0 else 1.0
+
+    # the optimiser's coordinate z, 0 at the start: log(value / start) for a positive quantity,
+    # (value - start) / scale for the others
+    def to_z(self, value):
+        if self.log:
+            return np.log(np.asarray(value, float) / self.initial)
+        return (np.asarray(value, float) - self.initial) / self.scale
+
+    def from_z(self, z):
+        if self.log:
+            return self.initial * np.exp(z)
+        return self.initial + np.asarray(z, float) * self.scale
+
+    def dvalue_dz(self, value):
+        """d value / d z at value: the value itself in log coordinates, the scale otherwise."""
+        return value if self.log else self.scale
+
+    def z_bounds(self) -> tuple[float, float]:
+        with np.errstate(divide="ignore"):
+            return float(self.to_z(self.lower)), float(self.to_z(self.upper))
 
 
 @dataclass
@@ -220,12 +250,13 @@ def read_table(source, max_bytes: int | None = None) -> tuple[list, list]:
 
 
 def _number(text: str, where: str, allow_empty: bool) -> float:
+    """A finite number in the strict grammar NUMBER (what float() takes beyond it, e.g. '1_000', is refused)."""
     if text == "" and allow_empty:
         return math.nan
-    try:
-        v = float(text)
-    except ValueError:
-        raise DataError(f"{where}: {text!r} is not a number") from None
+    if not NUMBER.fullmatch(text):
+        raise DataError(f"{where}: {text!r} is not a number (digits 0-9 with an optional sign, point "
+                        "and exponent, e.g. -1.5e3)")
+    v = float(text)
     if not math.isfinite(v):
         raise DataError(f"{where}: {text!r} is not a finite number")
     return v
@@ -335,16 +366,25 @@ def prepare_data(design, data, fit, sigma=None, bounds=None, holdout: float = 0.
         offset = key in conds
         initial = 0.0 if offset else live[targets_of[key][0]]
         last = targets_of[key][0].rsplit(".", 1)[-1]
+        positive = not offset and last in POSITIVE
+        log = positive and initial > 0
         lo, hi = -math.inf, math.inf
-        if not offset and last in POSITIVE:
-            lo = 1e-6 * abs(initial) if initial > 0 else lo
+        if log:
+            lo, hi = initial / LOG_RANGE, initial * LOG_RANGE
+        elif positive:
+            lo = 0.0
         if not offset and last == "nu":
             lo, hi = NU_BOUNDS
         if key in bounds:
             lo, hi = _bounds(key, bounds[key])
+            if log and not lo > 0:
+                raise DataError(f"bounds: {key}={lo:g},{hi:g}: a positive quantity (fitted in log) needs a "
+                                "lower bound > 0")
             if not lo <= initial <= hi:
                 raise DataError(f"bounds: {key}={lo:g},{hi:g} excludes the start {initial:g}")
-        params.append(Parameter(key, base, comp, float(initial), float(lo), float(hi), offset, targets))
+            if not offset:
+                _check_bound_values(design, key, targets, lo, hi, vector_keys)
+        params.append(Parameter(key, base, comp, float(initial), float(lo), float(hi), offset, targets, log))
 
     # weights
     sig = np.ones(len(names))
@@ -356,6 +396,11 @@ def prepare_data(design, data, fit, sigma=None, bounds=None, holdout: float = 0.
         hit = [j for j, c in enumerate(names) if fnmatch.fnmatchcase(c, pattern)]
         if not hit:
             raise DataError(f"sigma {pattern}: names no measurement column (have: {', '.join(names)})")
+        for j in hit:               # against the data's scale: the weighted residuals stay far from overflow
+            scale = _column_scale(values[:, j])
+            if not scale / SIGMA_RANGE <= v <= scale * SIGMA_RANGE:
+                raise DataError(f"sigma {pattern}={text}: column {names[j]!r} has values up to {scale:g}; a sigma "
+                                f"must lie within {1 / SIGMA_RANGE:g} and {SIGMA_RANGE:g} times that")
         sig[hit], given[hit] = v, True
 
     # hold-out rows
@@ -382,10 +427,43 @@ def _bounds(key: str, value) -> tuple[float, float]:
         lo, hi = (_number(p.strip(), f"bounds {key}", False) if p.strip() not in ("-inf", "inf")
                   else float(p) for p in parts)
     else:
-        lo, hi = (float(v) for v in value)
+        try:
+            lo, hi = (float(v) for v in value)
+        except (TypeError, ValueError):
+            raise DataError(f"bounds: {key}: expected (LO, HI), got {value!r}") from None
+        if math.isnan(lo) or math.isnan(hi):
+            raise DataError(f"bounds: {key}: NaN is not a bound")
     if not lo < hi:
         raise DataError(f"bounds: {key}: lower {lo:g} is not below upper {hi:g}")
     return lo, hi
+
+
+def _check_bound_values(design, key: str, targets, lo: float, hi: float, vector_keys: dict) -> None:
+    """Each finite end of a box must be a value the design accepts for every key it sets (E > 0, nu in
+    (-1, 0.5), a stiffness > 0, ...): the design's own checks decide, before any meshing."""
+    from ..design.parse import parse_design
+    from ..design.spec import DesignError
+    for end in (lo, hi):
+        if not math.isfinite(end):
+            continue
+        for base, comp in targets:
+            if comp is None:
+                text = repr(float(end))
+            else:
+                vec = [float(v) for v in vector_keys[base]]
+                vec[comp] = float(end)
+                text = "[" + ", ".join(repr(v) for v in vec) + "]"
+            try:
+                parse_design(design.raw, design.source, [f"{base}={text}"])
+            except DesignError as exc:
+                why = str(exc).split(": ", 1)[-1]
+                raise DataError(f"bounds: {key}={lo:g},{hi:g}: {end:g} is not a valid value ({why})") from None
+
+
+def _column_scale(values: np.ndarray) -> float:
+    """A measurement column's largest |value| (1 in its unit when it holds only zeros or nothing)."""
+    v = np.abs(values[np.isfinite(values)])
+    return float(v.max()) if len(v) and v.max() > 0 else 1.0
 
 
 # -- the outcome -------------------------------------------------------------------------------------
@@ -395,12 +473,12 @@ class Calibration:
     keys: list
     initial: np.ndarray
     values: np.ndarray
-    std: np.ndarray                   # inf for a parameter in an unidentifiable group
-    ci95: np.ndarray                  # (m, 2)
+    std: np.ndarray                   # inf for a parameter in an unidentifiable group (first order for log ones)
+    ci95: np.ndarray                  # (m, 2); a positive quantity's: value /÷ factor, always > 0
     covariance: np.ndarray
     correlation: np.ndarray
-    singular_values: np.ndarray       # of the weighted Jacobian in scaled parameters
-    unidentifiable: list              # [[key, ...], ...]
+    singular_values: np.ndarray       # of the weighted Jacobian in the fit's coordinates (log for positive ones)
+    unidentifiable: list              # [[key, ...], ...]: directions unseen at the start or at the estimate
     iterations: int
     converged: bool
     status: str
@@ -417,23 +495,38 @@ class Calibration:
     newton_iterations: int = 0
     time: float = 0.0
     timings: dict = field(default_factory=dict)
+    factor: np.ndarray | None = None  # (m,) the 95 % interval as value x/÷ factor (NaN: a linear parameter)
+    identified: list = field(default_factory=list)    # (m,) bool
+    reasons: list = field(default_factory=list)       # (m,) why not identified ("" if it is)
+    groups_start: list = field(default_factory=list)  # unidentifiable groups at the start, at the estimate
+    groups_end: list = field(default_factory=list)
+    identify_with: list = field(default_factory=list)  # per unidentifiable group: measurements that would fix it
+    starts: list = field(default_factory=list)        # per start: its values, cost, iterations, converged
 
     def to_dict(self) -> dict:
         params = {}
+        factor = self.factor if self.factor is not None else np.full(len(self.keys), math.nan)
         for i, k in enumerate(self.keys):
-            ident = math.isfinite(self.std[i])
+            finite = math.isfinite(self.std[i])
+            log = bool(self.data.parameters[i].log)
             params[k] = {"value": float(self.values[i]), "initial": float(self.initial[i]),
-                         "std": float(self.std[i]) if ident else None,
-                         "ci95": [float(v) for v in self.ci95[i]] if ident else None,
-                         "offset": k in self.offsets}
+                         "std": float(self.std[i]) if finite else None,
+                         "ci95": [float(v) for v in self.ci95[i]] if finite else None,
+                         "factor95": float(factor[i]) if finite and log else None,
+                         "log": log, "offset": k in self.offsets,
+                         "identified": bool(self.identified[i]) if self.identified else finite,
+                         "reason": self.reasons[i] if self.reasons else ""}
         return {
             "parameters": params,
             "correlation": {"keys": list(self.keys), "matrix": [[float(v) if math.isfinite(v) else None
                                                                 for v in row] for row in self.correlation]},
             "unidentifiable": self.unidentifiable,
+            "unidentifiable_at_start": self.groups_start, "unidentifiable_at_end": self.groups_end,
+            "identify_with": [{"group": g, "measurements": w} for g, w in zip(self.unidentifiable, self.identify_with)],
             "singular_values": [float(v) for v in self.singular_values],
             "iterations": int(self.iterations), "converged": bool(self.converged), "status": self.status,
             "cost": float(self.cost), "cost_history": [float(c) for c in self.history],
+            "starts": self.starts,
             "residual_rms": {c: v for c, v in self.rms.items()},
             "holdout": self.holdout,
             "variance_factor": float(self.s2),

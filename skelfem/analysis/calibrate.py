@@ -1,10 +1,10 @@
-"""Calibration: fit live parameters of a design to measured states (bounded Gauss-Newton / LM).
+"""Calibration: fit live parameters of a design to measured states (bounded trust-region Gauss-Newton).
 
     from skelfem import Session, calibrate
     with Session("geometry/finger.toml") as s:
         cal = calibrate(s, "geometry/finger_calibration.csv", fit=["materials.ecoflex.E"],
                         sigma={"markers.*": 0.1})
-        print(cal.values, cal.std, cal.unidentifiable)
+        print(cal.values, cal.ci95, cal.unidentifiable, cal.identify_with)
 
 The data contract (columns, experiments, offsets) is in :mod:`skelfem.analysis.caldata`.
 
@@ -13,51 +13,36 @@ equilibrium x*_i(p) of that row's conditions), d_ij the data and sigma_j the
 column's standard deviation, r_ij = (y_ij - d_ij) / sigma_j over the measured
 cells of the fitted rows, and the misfit is f(p) = 1/2 |r|^2.
 
-Sensitivities (exact up to round-off). At a converged row, R(x*, p) = 0, so
+Sensitivities: exact up to round-off, forward mode (skelfem.analysis.calrows).
 
-    dx*/dp = -H^{-1} dR/dp,      H = dR/dx at x* (factorised once per row: Linearization).
+Coordinates. A positive quantity (E, a stiffness, a density, a pretension or
+friction coefficient that starts > 0) is fitted in z = log(p / p0), the others
+in z = (p - p0) / s (s = |p0|, 1 if p0 = 0): in log coordinates a stiffness
+cannot step below zero, its box is a plain interval, and J_z = p dy/dp is
+scale-free (the same for every start along a scaling).
 
-dR/dp is obtained for any live parameter by perturbing it and re-assembling the
-residual at fixed x*: where R is linear in p (E, cable, spring and ground
-stiffness, density, gravity, loads, tractions, a taut tendon's contraction or
-pretension) a one-sided difference (one assembly per parameter, R(x*, p)
-shared) is exact to round-off; otherwise (nu, a ground's point, a pin's move)
-a central difference, with error h^2/6 d3R/dp3
-(nu: lambda = E nu / ((1 + nu)(1 - 2 nu)) gives a relative error of about
-(h / (1 - 2 nu))^2, 2e-7 at nu = 0.45 with h = 1e-4 nu). The step is 1e-4 of
-the parameter, not smaller: the stiff bones' internal forces nearly cancel at
-equilibrium, and with h = 1e-6 their round-off, amplified by H^-1 along the
-soft modes, put 1.5 % into dx*/dE of PLA bones (E = 3000 MPa against 0.1).
-A ground's point is the exception (1e-7 of it): the one-sided contact penalty
-has a kink where a node's gap changes sign, and a plane moved by 1e-4 of its
-position (0.01 mm) switched a node of a pushed fingertip (a J entry of 148
-instead of -1.06). A parameter that moves a fixed pin (its ``move``) changes
-the prescribed values g: the residual is taken at x* with the pinned DOFs at
-g(p +- h), so that dR/dp holds the coupling K_fD dg/dp that H's eliminated
-columns leave out, and dx*/dp = -H^-1 dR/dp + dg/dp. A measurement may also
-depend on p directly (a tension k (l - L), a reaction), so the read-outs are
-differenced along the joint path (x* + t dx*/dp, p + t): markers are linear in
-x, the rest smooth, so the central difference has the same h^2 error.
+Step. scipy's least_squares, method 'trf' (a trust-region reflective
+Gauss-Newton: a step that meets a bound moves along it) with the exact
+Jacobian. Every trial solves every row, each from the same row's last accepted
+equilibrium (the first pass: from the previous row of its load path; a path's
+first row from rest), so a row stays on its branch; a trial whose row fails
+shrinks the trust region. It stops when least_squares' tolerances are met or
+the next Gauss-Newton step is below 1e-3 of every standard deviation; after
+max_iterations it returns its best state with converged False. Several
+starts (`starts`): the design's values and others drawn within a decade of
+them; the lowest misfit wins.
 
-Forward mode: one right-hand side per parameter and row, all of a row's
-solved in one MUMPS solve phase (Linearization.solve_many). Adjoint mode would
-need one per measurement column and row, and each read-out's gradient dy/dx
-as a vector, which the terms do not expose (they expose read-outs); forward
-mode gets the whole Jacobian the Gauss-Newton step needs from directional
-differences of the read-outs, and a block solve costs little next to the
-row's Newton solve and factorisation (studies/calibration.py --bench-only:
-2 -> 20 parameters).
-
-Step. In scaled parameters z = p / s (s = |p0|, 1 if p0 = 0) the LM step solves
-min |r + J D|^2 + mu |D|^2 within the bounds (scipy's lsq_linear), accepted if
-f decreases, mu by Nielsen's rule. Every trial solves every row, each from the
-same row's last accepted equilibrium (the first pass: from the previous row of
-its load path; a path's first row from rest), so a row stays on its branch.
-
-Uncertainty. Cov(p) = s2 (J^T J)^+ (J weighted): s2 = 1 when every column's
-sigma is given, else the reduced chi-square |r|^2 / (n - m). Groups of
-parameters the data cannot separate are read from the singular vectors of the
-weighted, scaled Jacobian whose singular values fall below rcond x the largest.
+Uncertainty. Cov(z) = s2 (J_z^T J_z)^+ (J weighted): s2 = 1 when every
+column's sigma is given, else the reduced chi-square |r|^2 / (n - m). A
+positive quantity's 95 % interval is exp(log p +- q s_z), i.e. p x/÷ factor
+(always > 0); a linear one's p +- q s. Unidentifiable groups are read from the
+null space of J_z (singular values below rcond x the largest) in reduced row
+echelon form, at the start and at the estimate (scale-free, and independent
+of how the SVD turns a null space of more than one dimension); a positive
+quantity whose interval spans more than a decade is not identified either.
+For each group, the measurement columns the design offers but the data lack
+are probed (one more pass): those whose derivative along the group's
+direction is not zero would identify it.
 """
 from __future__ import annotations
 
@@ -66,280 +51,22 @@ import math
 import time
 
 import numpy as np
-from petsc4py import PETSc
 
-from .caldata import AXES, Calibration, Data, DataError, prepare_data  # noqa: F401 (Calibration re-exported)
-from .sensitivity import Linearization
+from .caldata import Calibration, Data, DataError, prepare_data  # noqa: F401 (Calibration re-exported)
+from .calrows import Rows  # noqa: F401 (re-exported)
 from ..fem.newton import SolveError
 
 log = logging.getLogger("skelfem")
 
 RCOND = 1e-6          # singular values below this fraction of the largest: an unidentifiable direction
-# parameters the residual is linear in (at a fixed active set): a one-sided difference of R is exact
-# (a pin's move is not: it lifts the pinned DOFs, and R at the lifted state is not linear in it)
-LINEAR = ("E", "stiffness", "density", "acceleration", "force", "traction", "contraction", "pretension")
-# parameters that move where a contact starts (a node's gap changes sign within 1e-4 of a ground's
-# position): differenced with 1e-3 of the usual step
-KINKED = ("point",)
 GROUP = 0.2           # a parameter belongs to such a direction's group above this fraction of its largest entry
-
-
-# -- the forward model over all rows ------------------------------------------------------------
-class Rows:
-    """Solves every row of the data for given parameters, with measurements and their sensitivities."""
-
-    def __init__(self, session, data: Data, progress=None, step: float = 1e-4):
-        self.session, self.model, self.solver = session, session.model, session.solver
-        self.data, self.progress, self.h = data, progress, float(step)
-        live = self.model.parameters()
-        self.base = {k: (np.array(v, float) if np.ndim(v) else float(v)) for k, v in live.items()}
-        for p in data.parameters:
-            if any(b not in live for b, _ in p.targets):
-                raise DataError(f"fit: {p.key!r} is not a live parameter of the model")
-        for key in data.conditions:
-            if key not in live and key.rpartition(".")[0] not in live:
-                raise DataError(f"{data.source}: column {key!r} is not a live parameter of the model")
-        self.starts = data.starts()
-        self.states: list = [None] * data.rows          # each row's last accepted equilibrium
-        self.solves = self.newton_iterations = 0
-        # parameters owned by hand-written terms only (cables, springs...): dR/dp from those terms'
-        # gradients, no assembly of the whole residual (serial, no rigid bones, no Dirichlet owners)
-        self._local, self._ufl = {}, {}
-        for p in data.parameters:
-            owners = [t for t in self.model.terms if any(b in t.parameters() for b, _ in p.targets)]
-            if (session.comm.size == 1 and not self.model.rigid and p.base.rsplit(".", 1)[-1] in LINEAR
-                    and not any(t.has_ufl_energy() or t.dirichlet() for t in owners)):
-                self._local[p.key] = owners
-            elif (session.comm.size == 1 and not self.model.rigid and p.base.rsplit(".", 1)[-1] in LINEAR
-                    and all(t.has_ufl_energy() and t.gradient(self.model.u.x.array) is None
-                            and not t.dirichlet() for t in owners)):
-                self._ufl[p.key] = owners                 # E, densities, gravity: the UFL form alone
-        self._sections = sorted({c.split(".", 1)[0] for c in data.columns})
-        self._names = {c.split(".")[1] for c in data.columns}            # whose read-outs are needed
-        self._linear = np.array([c.startswith("markers.") for c in data.columns])   # y = X + S x
-        self._nonlinear = [sec for sec in self._sections if sec != "markers"]
-        self.iteration = 0
-
-    # parameters of a row
-    def _values(self, theta, i: int) -> dict:
-        """{live key: value} for row i under fitted values theta."""
-        vals = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in self.base.items()}
-
-        def put(key, value, add=False):
-            base, comp = (key, None) if key in vals else (key.rpartition(".")[0], AXES.index(key[-1]))
-            if comp is None:
-                vals[base] = vals[base] + value if add else value
-            else:
-                vals[base][comp] = vals[base][comp] + value if add else value
-        for key, col in self.data.conditions.items():
-            put(key, float(col[i]))
-        for p, v in zip(self.data.parameters, theta):
-            for b, comp in p.targets:
-                put(b if comp is None else f"{b}.{AXES[comp]}", float(v), add=p.offset)
-        return vals
-
-    def _apply(self, vals: dict) -> None:
-        now = self.model.parameters()
-        for k, v in vals.items():
-            if not np.array_equal(np.asarray(now[k], float), np.asarray(v, float)):
-                self.model.set_parameter(k, v)
-
-    # measurements
-    def measure(self, sections=None) -> np.ndarray:
-        """The measurement columns at the model's current state (NaN outside sections, if given)."""
-        model = self.model
-        sections = self._sections if sections is None else sections
-        out: dict = {}
-        for term in model.terms:
-            if term.section in sections and (term.section == "markers" or term.name in self._names):
-                values = term.readout(model)
-                if values:
-                    out.setdefault(term.section, {}).update(values)
-        y = np.empty(len(self.data.columns))
-        for j, col in enumerate(self.data.columns):
-            sec, name, rest = col.split(".", 2)
-            if sec not in sections:
-                y[j] = math.nan
-                continue
-            item = out[sec][name]
-            if sec == "markers":
-                y[j] = item["position"][AXES.index(rest)]
-            elif sec == "cables":
-                y[j] = item["tension"]
-            else:
-                what, ax = rest.split(".")
-                y[j] = np.asarray(item[what], float)[AXES.index(ax)]
-        return y
-
-    # one row
-    def _solve(self, i: int, theta, start) -> None:
-        model, solver = self.model, self.solver
-        self._apply(self._values(theta, i))
-        if start is not None:
-            model.u.x.array[:] = start
-            model.changes.clear()                    # no predictor from another row's factorisation
-            report = solver.resolve(1)
-        elif self.starts[i] or not self.session.solved:
-            model.to_rest()
-            report = solver.solve(self.session.design.solver.steps)
-        else:
-            report = solver.resolve(1)
-        self.solves += 1
-        self.newton_iterations += report.newton_iterations
-        self.session.solved = bool(report.converged)
-        if not report.converged:
-            raise SolveError(f"row {i + 1}: the equilibrium did not converge ({report.status})")
-
-    def _sensitivities(self, i: int, theta, y0) -> np.ndarray:
-        """dy/dtheta at row i's equilibrium, (columns, parameters).
-
-        Every parameter's dR/dp first, then dx*/dp for all of them in one solve
-        phase (Linearization.solve_many), then the read-outs along each path.
-        """
-        model = self.model
-        lin = Linearization(model, self.solver)
-        x0 = model.u.vector.copy()
-        bp, bm, r0, u0 = x0.duplicate(), x0.duplicate(), None, None
-        vals = self._values(theta, i)
-        params = self.data.parameters
-        m, n = len(params), len(x0.array_r)
-        J = np.zeros((len(self.data.columns), m))
-        dR, dG, steps = np.zeros((n, m)), np.zeros((n, m)), np.zeros(m)
-        try:
-            for j, p in enumerate(params):
-                value = vals[p.base] if p.component is None else vals[p.base][p.component]
-                h = self.h * max(abs(value), p.scale)
-                if p.base.rsplit(".", 1)[-1] in KINKED:   # contact switches within a step: a tiny one
-                    h *= 1e-3
-                steps[j] = h
-                if p.key in self._local:                  # only hand-written terms: their gradients
-                    model.sync(x0)
-                    self._term_difference(self._local[p.key], vals, p, h, bp)
-                elif p.key in self._ufl:                  # only the compiled energy: its residual alone
-                    if u0 is None:
-                        u0 = x0.duplicate()
-                        self._ufl_residual(x0, u0)
-                    self._set(p, vals, h)
-                    self._ufl_residual(x0, bp)
-                    bp.axpy(-1.0, u0)
-                    bp.scale(1.0 / h)
-                elif p.base.rsplit(".", 1)[-1] in LINEAR:   # R linear in p: one-sided is exact
-                    if r0 is None:
-                        r0 = x0.duplicate()
-                        model.residual(x0, r0)
-                    self._set(p, vals, h)
-                    model.residual(x0, bp)
-                    bp.axpy(-1.0, r0)
-                    bp.scale(1.0 / h)
-                else:           # central; the pins' prescribed values moved with p (lifted: x_D = g(p))
-                    moved = []
-                    for s, b in ((h, bp), (-h, bm)):
-                        self._set(p, vals, s)
-                        xs = x0.copy()
-                        model.apply_bcs(xs)
-                        model.residual(xs, b)
-                        moved.append(xs.array_r.copy())
-                        xs.destroy()
-                    bp.axpy(-1.0, bm)
-                    bp.scale(1.0 / (2.0 * h))               # dR/dp, Dirichlet rows zero
-                    dG[:, j] = (moved[0] - moved[1]) / (2.0 * h)   # dx_D/dp = dg/dp on the pinned DOFs
-                self._set(p, vals, 0.0)
-                dR[:, j] = bp.array_r
-            DX = dG - lin.solve_many(dR) if m else dR      # dx*/dp, every parameter (owned entries)
-            x0a = x0.array_r.copy()
-            for j, p in enumerate(params):
-                h, ys = steps[j], []
-                for s in (h, -h):                        # markers are linear in x: one side suffices
-                    self._set(p, vals, s)
-                    model.u.vector.array_w[:] = x0a + s * DX[:, j]     # x* + s dx*/dp
-                    model.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-                    ys.append(self.measure(None if s > 0 else self._nonlinear))
-                J[:, j] = np.where(self._linear, (ys[0] - y0) / h, (ys[0] - ys[1]) / (2.0 * h))
-                self._set(p, vals, 0.0)
-        finally:
-            self._apply(vals)
-            x0.copy(model.u.vector)
-            model.sync(model.u.vector)
-            model.changes.clear()
-            for v in (x0, bp, bm, r0, u0):
-                if v is not None:
-                    v.destroy()
-            lin.destroy()
-        return J
-
-    def _ufl_residual(self, x, b) -> None:
-        """The compiled energy's part of grad Pi at x, Dirichlet rows zero (no hand-written terms)."""
-        from dolfinx.fem import petsc as fem_petsc
-        model = self.model
-        model.sync(x)
-        with b.localForm() as local:
-            local.set(0.0)
-        fem_petsc.assemble_vector(b, model.residual_form)
-        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        b.array_w[model.fixed[:len(b.array_r)]] = 0.0
-
-    def _term_difference(self, owners, vals, p, h: float, out) -> None:
-        """(R(x*, p + h) - R(x*, p)) / h from the owning terms' hand-written gradients alone."""
-        model = self.model
-        u = model.u.x.array
-        g = np.zeros(model.n_local)
-        for sign, step in ((1.0, h), (-1.0, 0.0)):
-            self._set(p, vals, step)
-            for term in owners:
-                res = term.gradient(u)
-                if res is None:
-                    continue
-                dofs, values = res
-                if term.gather is None:
-                    np.add.at(g, dofs, sign * np.asarray(values, float))
-                else:
-                    term.gather.scatter_add(sign * np.asarray(values, float), g)
-        g[model.fixed] = 0.0
-        with out.localForm() as local:
-            local.set(0.0)
-            local.array_w[:] = g / h
-        out.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-
-    def _set(self, p, vals: dict, s: float) -> None:
-        """Set p's live keys to their row values + s (the others stay as they are)."""
-        for b, comp in p.targets:
-            if comp is None:
-                self.model.set_parameter(b, vals[b] + s)
-            else:
-                v = vals[b].copy()
-                v[comp] += s
-                self.model.set_parameter(b, v)
-
-    def restore(self) -> None:
-        """Give the model back the design's values of every live parameter (after the last row)."""
-        self._apply(self.base)
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.restore()
-
-    def run(self, theta, jacobian: bool = True, states=None):
-        """(Y, J, states): every row solved for theta; J (rows, columns, parameters) or None.
-
-        states: each row's start (default: the accepted ones); SolveError if a row fails.
-        """
-        theta = np.asarray(theta, float)
-        states = self.states if states is None else states
-        n = self.data.rows
-        Y = np.empty((n, len(self.data.columns)))
-        J = np.zeros((n, len(self.data.columns), len(theta))) if jacobian else None
-        new = [None] * n
-        for i in range(n):
-            self._solve(i, theta, states[i])
-            Y[i] = self.measure()
-            if jacobian:
-                J[i] = self._sensitivities(i, theta, Y[i])
-            new[i] = self.model.u.x.array.copy()
-            if self.progress is not None:
-                self.progress(self.iteration, i + 1, n)
-        return Y, J, new
+DECADE = 10.0         # a positive quantity whose 95 % interval spans more than this ratio is not identified
+SEES = 1e-3           # a measurement sees a direction when its derivative along it is above this of its largest
+MAX_STARTS = 100
+STARTS_SPREAD = math.log(10.0)   # further starts: within a decade of the design's values (log ones), or
+                                 # half their scale (the others)
+SETTLED = 1e-3       # converged when the next Gauss-Newton step is below this of every standard deviation
+MAX_TRIALS = 10       # trial steps allowed per iteration (least_squares' evaluation budget)
 
 
 # -- the fit ---------------------------------------------------------------------------------------
@@ -353,127 +80,328 @@ def _weighted(data: Data, Y, J):
 
 
 def calibrate(session, data, fit=None, sigma=None, bounds=None, holdout: float = 0.0, *,
-              max_iterations: int = 20, xtol: float = 1e-8, gtol: float = 1e-14, rcond: float = RCOND,
-              progress=None, seed: int = 0) -> Calibration:
+              max_iterations: int = 20, starts: int = 1, xtol: float = 1e-8, ftol: float = 1e-8,
+              gtol: float = 1e-8, rcond: float = RCOND, progress=None, seed: int = 0) -> Calibration:
     """Fit the live parameters `fit` of the session's design to `data` (see the module doc).
 
     data: a CSV path, CSV text, {column: values} or a prepared Data (then fit,
-    sigma, bounds and holdout are taken from it). progress(iteration, row, rows)
+    sigma, bounds and holdout are taken from it). starts: the number of starts
+    (the first at the design's values, the others drawn within a decade of
+    them, seeded); the lowest misfit wins. progress(iteration, row, rows)
     is called after every row solve. The session's model is given back its
     design's parameter values (its state is the last row's equilibrium, from
     which the next solve warm-starts); apply the estimate with
-    ``session.set(cal.overrides(session.design))``.
+    ``session.set(cal.overrides(session.design))``. A fit that does not
+    converge returns its best state with ``converged`` False.
     """
     t0 = time.perf_counter()
     if session.comm.size > 1:
         raise ValueError(f"calibration runs on one MPI process (got {session.comm.size})")
+    if not 1 <= int(starts) <= MAX_STARTS:
+        raise DataError(f"starts {starts}: must be >= 1 and <= {MAX_STARTS}")
     if not isinstance(data, Data):
         data = prepare_data(session.design, data, fit, sigma, bounds, holdout, seed)
     with Rows(session, data, progress) as rows:
-        return _fit(rows, data, t0, max_iterations, xtol, gtol, rcond)
+        return _fit(rows, data, t0, max_iterations, int(starts), seed, xtol, ftol, gtol, rcond)
 
 
-def _fit(rows, data: Data, t0: float, max_iterations: int, xtol: float, gtol: float, rcond: float) -> Calibration:
-    """The Levenberg-Marquardt iterations and the uncertainty at the estimate (see calibrate)."""
-    from scipy.optimize import lsq_linear
+class _Stop(Exception):
+    """The iteration limit: the fit ends at its last accepted state."""
+
+
+class _Done(Exception):
+    """Converged: the next Gauss-Newton step is far below the estimate's standard deviations."""
+
+
+class _Objective:
+    """The weighted residuals r(z) and their Jacobian in the fit's coordinates z, for least_squares.
+
+    fun(z) solves every row (with its sensitivities) from the rows' last accepted
+    equilibria; a row that fails gives NaN (least_squares then shrinks its trust
+    region). least_squares asks for the Jacobian only where it accepts a step:
+    jac(z) returns that solve's Jacobian and makes its equilibria the rows' starts.
+    Both are divided by the start's |r| (1 if zero), so that least_squares'
+    tolerances are relative to the start's misfit whatever the sigmas.
+    """
+
+    def __init__(self, rows, data: Data, max_iterations: int):
+        self.rows, self.data, self.P = rows, data, data.parameters
+        self.max_iterations = max_iterations
+        self.trials: dict = {}
+        self.accepted = None            # (z, Y, r, Jz) of the last accepted point
+        self.iterations, self.history, self.failed = -1, [], 0
+        self.norm = 1.0
+
+    def theta(self, z) -> np.ndarray:
+        return np.array([p.from_z(v) for p, v in zip(self.P, z)], float)
+
+    def evaluate(self, z):
+        """(Y, states, r, Jz) at z; SolveError if a row fails."""
+        theta = self.theta(z)
+        Y, J, states = self.rows.run(theta)
+        r, Jr = _weighted(self.data, Y, J)
+        Jz = Jr * np.array([p.dvalue_dz(v) for p, v in zip(self.P, theta)])
+        if not (np.all(np.isfinite(r)) and np.all(np.isfinite(Jz))):
+            raise SolveError("the weighted residuals or their derivatives are not finite")
+        return Y, states, r, Jz
+
+    def fun(self, z):
+        key = np.asarray(z, float).tobytes()
+        if key not in self.trials:
+            try:
+                self.trials[key] = self.evaluate(z)
+            except SolveError as exc:
+                log.info("calibrate: a trial step failed (%s); a smaller step", exc)
+                self.failed += 1
+                return np.full(self._n, np.nan)
+        return self.trials[key][2] * self.norm
+
+    def jac(self, z, f=None):
+        key = np.asarray(z, float).tobytes()
+        if key not in self.trials:
+            self.fun(z)
+        Y, states, r, Jz = self.trials[key]
+        self.trials = {key: self.trials[key]}
+        self.rows.states = states
+        self.accepted = (np.array(z, float), Y, r, Jz)
+        self.history.append(0.5 * float(r @ r))
+        self.iterations += 1
+        self.rows.iteration = self.iterations + 1
+        if self.iterations:
+            log.info("calibrate: iteration %d, cost %.6g", self.iterations, self.history[-1])
+        if self.iterations and self._settled(r, Jz):
+            raise _Done
+        if self.iterations >= self.max_iterations:
+            raise _Stop
+        return Jz * self.norm
+
+    def _settled(self, r, Jz) -> bool:
+        """Whether the Gauss-Newton step from here moves every parameter by less than SETTLED of its
+        standard deviation (its rounding by the solves' tolerance is then all that is left to gain)."""
+        n, m = Jz.shape
+        U, sv, Vt = np.linalg.svd(Jz, full_matrices=False)
+        keep = sv > RCOND * sv[0] if len(sv) and sv[0] > 0 else np.zeros(len(sv), bool)
+        if n <= m or not keep.any():
+            return False
+        step = Vt[keep].T @ ((U[:, keep].T @ r) / sv[keep])
+        s2 = 1.0 if np.all(self.data.sigma_given) else float(r @ r) / (n - m)
+        std = np.sqrt(s2 * np.sum((Vt[keep] / sv[keep, None]) ** 2, axis=0))
+        return bool(np.all(np.abs(step) <= SETTLED * std))
+
+    def start(self, z0):
+        """Evaluate the start (SolveError if a row fails there)."""
+        self.rows.states = [None] * self.data.rows
+        Y, states, r, Jz = self.evaluate(z0)
+        self._n = len(r)
+        size = float(np.linalg.norm(r))
+        self.norm = 1.0 / size if size > 0 else 1.0
+        self.trials = {np.asarray(z0, float).tobytes(): (Y, states, r, Jz)}
+        return Jz
+
+
+def _one_fit(rows, data: Data, z0, max_iterations: int, xtol: float, ftol: float, gtol: float) -> dict:
+    """One trust-region fit (least_squares 'trf': a step on a bound moves along it) from z0."""
+    from scipy.optimize import least_squares
+    obj = _Objective(rows, data, max_iterations)
+    J0 = obj.start(z0)
+    lo, hi = np.array([p.z_bounds() for p in data.parameters]).T.reshape(2, -1)
+    converged, status = False, "max_iterations"
+    try:
+        res = least_squares(obj.fun, z0, jac=obj.jac, bounds=(lo, hi), method="trf", x_scale=1.0,
+                            xtol=xtol, ftol=ftol, gtol=gtol, max_nfev=MAX_TRIALS * (max_iterations + 1),
+                            tr_solver="exact")
+        converged = res.status > 0
+        status = {1: "gradient", 2: "no further decrease", 3: "small step", 4: "small step",
+                  0: "too many trial steps", -1: "improper input"}.get(res.status, str(res.status))
+    except _Done:
+        converged, status = True, f"step below {SETTLED:g} of the standard deviations"
+    except _Stop:
+        pass
+    z, Y, r, Jz = obj.accepted
+    return {"z": z, "Y": Y, "r": r, "Jz": Jz, "J0": J0, "cost": 0.5 * float(r @ r), "converged": converged,
+            "status": status, "iterations": max(obj.iterations, 0), "history": obj.history,
+            "failed": obj.failed}
+
+
+def _fit(rows, data: Data, t0: float, max_iterations: int, starts: int, seed: int, xtol: float, ftol: float,
+         gtol: float, rcond: float) -> Calibration:
+    """The trust-region fits from every start and the uncertainty at the best estimate (see calibrate)."""
     from scipy.stats import t as student
 
     P = data.parameters
     m = len(P)
-    scale = np.array([p.scale for p in P])
-    lo = np.array([p.lower for p in P]) / scale
-    hi = np.array([p.upper for p in P]) / scale
-    theta = np.array([p.initial for p in P])
-    try:
-        Y, J, states = rows.run(theta)
-    except SolveError as exc:
-        raise SolveError(f"at the start: {exc}") from None
-    rows.states = states
-    r, Jr = _weighted(data, Y, J)
-    cost = 0.5 * float(r @ r)
-    history, status, converged = [cost], "max_iterations", False
-    A = Jr * scale
-    mu, it, rejected = 1e-3, 0, 0                           # Marquardt: damping relative to diag(A^T A)
-    while it < max_iterations:
-        rows.iteration = it + 1
-        g = A.T @ r
-        if np.max(np.abs(g)) <= gtol * max(1.0, 2.0 * cost) or cost == 0.0:
-            status, converged = "gradient", True
-            break
-        z = theta / scale
-        d = np.sqrt(np.maximum(np.sum(A * A, axis=0), 1e-30 * max(float(np.max(np.sum(A * A, axis=0))), 1e-300)))
-        K = np.vstack([A, math.sqrt(mu) * np.diag(d)])
-        sol = lsq_linear(K, np.concatenate([-r, np.zeros(m)]), bounds=(lo - z, hi - z),
-                         method="bvls" if m <= 30 else "trf", lsmr_tol="auto")
-        D = sol.x
-        if np.max(np.abs(D)) <= xtol * (1.0 + np.max(np.abs(z))):
-            status, converged = "small step", True
-            break
-        pred = float(r @ r - np.sum((r + A @ D) ** 2))
-        if not np.all(np.isfinite(D)) or pred <= 1e-10 * max(float(r @ r), 1e-300):
-            status, converged = "no further decrease predicted", True
-            break
-        it += 1
-        trial = np.clip((z + D) * scale, [p.lower for p in P], [p.upper for p in P])
+    zlo, zhi = (np.array([p.z_bounds()[k] for p in P]) for k in (0, 1))
+    rng = np.random.default_rng(seed)
+    fits, z0s = [], [np.zeros(m)]
+    spread = np.array([STARTS_SPREAD if p.log else 0.5 for p in P])
+    for _ in range(starts - 1):
+        z = rng.uniform(-1.0, 1.0, m) * spread
+        z0s.append(np.clip(z, zlo + 1e-9 * np.abs(zlo), zhi - 1e-9 * np.abs(zhi)))
+    for k, z0 in enumerate(z0s):
         try:
-            Yt, Jt, st = rows.run(trial)
+            fits.append(_one_fit(rows, data, z0, max_iterations, xtol, ftol, gtol))
         except SolveError as exc:
-            log.info("calibrate: trial step failed (%s); more damping", exc)
-            mu *= 10.0
-            continue
-        rt, Jrt = _weighted(data, Yt, Jt)
-        ct = 0.5 * float(rt @ rt)
-        rho = (2.0 * (cost - ct)) / pred
-        if rho > 0.0:
-            theta, Y, J, r, cost, A = trial, Yt, Jt, rt, ct, Jrt * scale
-            rows.states = st
-            history.append(cost)
-            log.info("calibrate: iteration %d, cost %.6g, mu %.3g", it, cost, mu)
-            rejected = 0
-        else:
-            rejected += 1
-            if rejected >= 6:      # at the minimum within the solves' round-off, or stuck
-                status = "no decrease in 6 damped steps"
-                converged = cost <= 1e-14 * history[0] or pred <= 1e-6 * max(2.0 * cost, 1e-300)
-                break
-        mu = mu / 10.0 if rho > 0.75 else (mu if rho > 0.25 else mu * (2.0 if rho > 0.0 else 4.0))
-        mu = min(max(mu, 1e-12), 1e12)
-    # uncertainty
+            if k == 0:
+                raise SolveError(f"at the start: {exc}") from None
+            log.info("calibrate: start %d failed (%s)", k + 1, exc)
+            fits.append(None)
+    best = min((f for f in fits if f is not None), key=lambda f: f["cost"])
+    z, Y, r, A, cost = best["z"], best["Y"], best["r"], best["Jz"], best["cost"]
+    theta = np.array([p.from_z(v) for p, v in zip(P, z)], float)
+    dz = np.array([p.dvalue_dz(v) for p, v in zip(P, theta)], float)     # d theta / d z
+
+    # identifiability from the structure: directions the Jacobian (in z: scale-free) does not see
+    g0, basis0, _ = _null_groups(fits[0]["J0"], rcond)
+    g1, basis1, _ = _null_groups(A, rcond)
+    groups = _merge(g0 + g1)
+    # uncertainty (in z; a positive quantity's interval is exp(log theta +- q s))
     n = len(r)
-    U, sv, Vt = np.linalg.svd(A, full_matrices=False) if m else (None, np.zeros(0), np.zeros((0, 0)))
-    keep = sv > rcond * (sv[0] if len(sv) else 0.0)
-    groups = []
-    for k in np.flatnonzero(~keep):
-        v = np.abs(Vt[k])
-        groups.append(sorted(np.flatnonzero(v >= GROUP * v.max()).tolist()))
-    groups = _merge(groups)
-    inv = (Vt[keep].T / sv[keep] ** 2) @ Vt[keep] if m else np.zeros((0, 0))
+    U, svals, Vt = np.linalg.svd(A, full_matrices=False) if m else (None, np.zeros(0), np.zeros((0, 0)))
+    keep = svals > rcond * (svals[0] if len(svals) else 0.0)
+    inv = (Vt[keep].T / svals[keep] ** 2) @ Vt[keep] if m else np.zeros((0, 0))
     all_given = bool(np.all(data.sigma_given))
     s2 = 1.0 if all_given else (2.0 * cost / (n - m) if n > m else math.nan)
-    cov = s2 * inv * np.outer(scale, scale)
-    std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    cov_z = s2 * inv
+    std_z = np.sqrt(np.maximum(np.diag(cov_z), 0.0))
     bad = sorted({i for g in groups for i in g})
-    std[bad] = math.inf
+    std_z[bad] = math.inf
     q = 1.959963984540054 if all_given or n <= m else float(student.ppf(0.975, n - m))
-    ci = np.column_stack([theta - q * std, theta + q * std])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov / np.outer(std, std)
+    logp = np.array([p.log for p in P], bool)
+    cov = cov_z * np.outer(dz, dz)
+    std = std_z * np.abs(dz)
+    with np.errstate(over="ignore", invalid="ignore"):
+        factor = np.where(logp, np.exp(q * std_z), math.nan)
+        ci = np.where(logp[:, None], np.column_stack([theta / factor, theta * factor]),
+                      np.column_stack([theta - q * std, theta + q * std]))
+        corr = cov_z / np.outer(std_z, std_z)
     corr[bad, :] = math.nan
     corr[:, bad] = math.nan
     np.fill_diagonal(corr, 1.0)
+    identified, reasons = [], []
+    for i, p in enumerate(P):
+        if i in bad:
+            why = "the data cannot separate it from " + ", ".join(P[j].key for g in groups if i in g for j in g
+                                                                    if j != i) if any(
+                len(g) > 1 and i in g for g in groups) else "the data do not see it"
+        elif not math.isfinite(std_z[i]):
+            why = "no interval"
+        elif p.log and factor[i] ** 2 > DECADE:
+            why = f"its 95 % interval spans more than a decade (x/÷ {factor[i]:.3g})"
+        else:
+            why = ""
+        identified.append(not why)
+        reasons.append(why)
+    keys = [[P[i].key for i in g] for g in groups]
+    hints = _identify_with(rows, data, theta, dz, groups, list(basis0) + list(basis1)) if groups else []
     rms = _rms(data, Y, data.train)
     hold = None
     if (~data.train).any():
         Rw = ((Y - data.values) / data.sigma)[~data.train]
         hold = {"rows": int((~data.train).sum()), "rms": _rms(data, Y, ~data.train),
                 "weighted_rms": float(np.sqrt(np.nanmean(Rw ** 2)))}
+    runs = [{"initial": {p.key: float(p.from_z(v)) for p, v in zip(P, z0)},
+             **({"failed": True} if f is None else
+                {"cost": f["cost"], "iterations": f["iterations"], "converged": bool(f["converged"]),
+                 "status": f["status"], "best": f is best})} for z0, f in zip(z0s, fits)]
     return Calibration(
         keys=[p.key for p in P], initial=np.array([p.initial for p in P]), values=theta, std=std, ci95=ci,
-        covariance=cov, correlation=corr, singular_values=sv,
-        unidentifiable=[[P[i].key for i in g] for g in groups], iterations=it, converged=converged,
-        status=status, cost=cost, history=history, columns=list(data.columns), rms=rms, holdout=hold,
-        model_values=Y, data=data, offsets=[p.key for p in P if p.offset], s2=s2, solves=rows.solves,
-        newton_iterations=rows.newton_iterations, time=time.perf_counter() - t0)
+        covariance=cov, correlation=corr, singular_values=svals,
+        unidentifiable=keys, iterations=best["iterations"], converged=bool(best["converged"]),
+        status=best["status"], cost=cost, history=best["history"], columns=list(data.columns), rms=rms,
+        holdout=hold, model_values=Y, data=data, offsets=[p.key for p in P if p.offset], s2=s2,
+        solves=rows.solves, newton_iterations=rows.newton_iterations, time=time.perf_counter() - t0,
+        factor=factor, identified=identified, reasons=reasons,
+        groups_start=[[P[i].key for i in g] for g in g0], groups_end=[[P[i].key for i in g] for g in g1],
+        identify_with=hints, starts=runs)
+
+
+def _null_groups(A, rcond: float):
+    """(groups, basis, singular values) of the directions A does not see.
+
+    The null space (singular values below rcond x the largest) in reduced row
+    echelon form: a basis that does not depend on how the SVD rotated it within
+    the null space; a group is the parameters of a basis vector (entries above
+    GROUP of its largest), overlapping groups merged.
+    """
+    m = A.shape[1]
+    if m == 0:
+        return [], np.zeros((0, 0)), np.zeros(0)
+    _, sv, Vt = np.linalg.svd(A, full_matrices=True)
+    s = np.zeros(m)
+    s[:len(sv)] = sv
+    null = Vt[s <= rcond * s[0]] if s[0] > 0 else np.eye(m)
+    if not len(null):
+        return [], np.zeros((0, m)), sv
+    R = _rref(null)
+    groups = [np.flatnonzero(np.abs(row) > GROUP * np.abs(row).max()).tolist() for row in R]
+    return _merge(groups), R, sv
+
+
+def _rref(M, tol: float = 1e-9) -> np.ndarray:
+    """The reduced row echelon form of M's rows (Gauss-Jordan, partial pivoting), rows normalised."""
+    R = np.array(M, float)
+    rows, cols = R.shape
+    r = 0
+    for c in range(cols):
+        if r == rows:
+            break
+        k = r + int(np.argmax(np.abs(R[r:, c])))
+        if abs(R[k, c]) <= tol:
+            continue
+        R[[r, k]] = R[[k, r]]
+        R[r] /= R[r, c]
+        for i in range(rows):
+            if i != r:
+                R[i] -= R[i, c] * R[r]
+        r += 1
+    R = R[:r]
+    return R / np.linalg.norm(R, axis=1, keepdims=True)
+
+
+def _identify_with(rows, data: Data, theta, dz, groups, basis) -> list:
+    """Per group: the measurements this design offers but the data lack that see the group's directions
+    (basis: null directions in z; their Jacobian along them, one more pass over the rows), and a known
+    load or mass for a group of stiffnesses (scaling every stiffness leaves no force in place)."""
+    from .caldata import measurement_columns
+    design = rows.session.design
+    extra = [c for c in measurement_columns(design) if c not in data.columns]
+    seen: dict = {}
+    if extra:
+        probe = Data(extra, np.zeros((data.rows, len(extra))), np.ones(len(extra)), np.zeros(len(extra), bool),
+                     data.conditions, data.experiments, data.parameters, data.train, data.source)
+        try:
+            more = Rows(rows.session, probe)
+            _, J, _ = more.run(theta, states=rows.states)
+            Jz = J[data.train] * dz                         # (rows, columns, parameters)
+        except SolveError as exc:
+            log.info("calibrate: no suggestions (%s)", exc)
+            Jz = None
+        finally:
+            rows.restore()
+        if Jz is not None:
+            for j, c in enumerate(extra):
+                M = Jz[:, j, :]
+                size = np.linalg.norm(M)
+                for gi, g in enumerate(groups):
+                    along = [b for b in basis if set(np.flatnonzero(np.abs(b) > GROUP * np.abs(b).max())) <= set(g)]
+                    if size > 0 and max((np.linalg.norm(M @ b) for b in along), default=0.0) > SEES * size:
+                        seen.setdefault(gi, []).append(c)
+    out = []
+    for gi, g in enumerate(groups):
+        names = []
+        for c in seen.get(gi, []):
+            sec, name, rest = c.split(".", 2)
+            label = {"cables": f"{c} (a tension column)", "grounds": f"grounds.{name}.force (a force sensor)",
+                     "pins": f"pins.{name}.reaction (the force at the pin)",
+                     "markers": f"markers.{name} (another marker's position)"}[sec]
+            if label not in names:
+                names.append(label)
+        if all(data.parameters[i].base.rsplit(".", 1)[-1] in ("E", "stiffness") for i in g):
+            names.append("a known load or mass (a [[loads]] force or gravity with densities in some rows)")
+        if not names:
+            names.append("rows in which it acts (it changes no measurement of these rows)")
+        out.append(names)
+    return out
 
 
 def _rms(data: Data, Y, rows) -> dict:

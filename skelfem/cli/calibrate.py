@@ -1,7 +1,8 @@
 """``skelfem calibrate``: fit live parameters of a design to measured states (skelfem.analysis.calibrate).
 
     skelfem calibrate DESIGN --data DATA.csv --fit KEY [--fit KEY ...] [--sigma COLUMN=VALUE ...]
-                      [--bounds KEY=LO,HI ...] [--holdout FRACTION] [--max-iterations N] [--out DIR]
+                      [--bounds KEY=LO,HI ...] [--holdout FRACTION] [--max-iterations N] [--starts N]
+                      [--out DIR]
 
 The CSV has one row per measured state (the contract: skelfem.analysis.caldata
 and docs/guide/calibration.md). Writes calibration.json (estimates, initial
@@ -10,7 +11,9 @@ residual RMS per column, the held-out error), calibrated.toml (the design file
 with the fitted values, its comments kept), fit.csv (data and model per row),
 fit.png, residuals.png and parameters.png. Bad input: one ``error:`` line,
 exit 1, nothing written, before any meshing. A row that does not converge at
-the start: exit 2, nothing written.
+the start (or whose sensitivity solve fails there): exit 2, nothing written.
+A fit that does not converge: exit 2, its best state written as a partial
+result (partial.toml instead of calibrated.toml, ``converged: false``).
 """
 from __future__ import annotations
 
@@ -25,6 +28,7 @@ from ..io import outdir
 from ..io.files import FORMAT, write_csv, write_json, write_text
 
 MAX_ITERATIONS = 1000
+MAX_STARTS = 100
 
 
 def add_parsers(subparsers) -> None:
@@ -44,7 +48,10 @@ def add_parsers(subparsers) -> None:
     p.add_argument("--holdout", type=float, default=0.0, metavar="FRACTION",
                    help="fraction of rows kept out of the fit to measure the prediction error (default 0)")
     p.add_argument("--max-iterations", type=int, default=20, metavar="N",
-                   help="Levenberg-Marquardt iterations allowed (default 20)")
+                   help="trust-region Gauss-Newton iterations allowed per start (default 20)")
+    p.add_argument("--starts", type=int, default=1, metavar="N",
+                   help="fit from N starts: the design's values and N - 1 drawn within a decade of them "
+                        "(seeded); the lowest misfit wins (default 1)")
     p.set_defaults(handler=calibrate_command)
 
 
@@ -95,6 +102,8 @@ def calibrate_command(args) -> int:
         raise cli.InputError(f"{args.design}: calibrate runs on one MPI process (got {MPI.COMM_WORLD.size})")
     if not 1 <= args.max_iterations <= MAX_ITERATIONS:
         raise cli.InputError(f"--max-iterations {args.max_iterations}: must be >= 1 and <= {MAX_ITERATIONS}")
+    if not 1 <= args.starts <= MAX_STARTS:
+        raise cli.InputError(f"--starts {args.starts}: must be >= 1 and <= {MAX_STARTS}")
     if not (math.isfinite(args.holdout) and 0.0 <= args.holdout < 1.0):
         raise cli.InputError(f"--holdout {args.holdout:g}: must be a fraction in [0, 1)")
     design = cli.load(args)
@@ -111,7 +120,7 @@ def calibrate_command(args) -> int:
     from ..viz.calplots import calibration_figures
     with session:
         try:
-            cal = calibrate(session, data, max_iterations=args.max_iterations,
+            cal = calibrate(session, data, max_iterations=args.max_iterations, starts=args.starts,
                             progress=_progress(not args.quiet and sys.stderr.isatty()))
         except SolveError as exc:
             cli.error(f"{design.name}: {exc}; nothing written to {args.out}")
@@ -126,9 +135,10 @@ def calibrate_command(args) -> int:
                          + [v for j in range(len(cal.columns))
                             for v in (_cell(data.values[i, j]), float(cal.model_values[i, j]))]))
                 for i in range(data.rows)]
+        design_file = "calibrated.toml" if cal.converged else "partial.toml"     # a partial result: its best state
         with outdir.publish(args.out, kind="calibrate") as stage:    # every file or none
             stage.run(write_json, stage.path / "calibration.json", result)
-            stage.run(write_text, stage.path / "calibrated.toml", text)
+            stage.run(write_text, stage.path / design_file, text)
             stage.run(write_csv, stage.path / "fit.csv", header, rows)
             stage.run(calibration_figures, stage.path, cal, f"{design.name}: calibration")
     if not args.quiet:
@@ -136,16 +146,29 @@ def calibrate_command(args) -> int:
         print(f"{design.name}: {len(cal.keys)} parameters from {data.rows} rows, {state} in "
               f"{cal.iterations} iterations, {cal.solves} solves, {cal.time:.1f} s")
         for i, k in enumerate(cal.keys):
-            ci = (f"95 % [{cal.ci95[i][0]:.6g}, {cal.ci95[i][1]:.6g}]" if math.isfinite(cal.std[i])
-                  else "unidentifiable")
-            print(f"  {k} = {cal.values[i]:.6g} (start {cal.initial[i]:.6g}), {ci}")
-        for group in cal.unidentifiable:
-            print(f"  the data cannot separate: {', '.join(group)}")
+            print(f"  {k} = {cal.values[i]:.6g} (start {cal.initial[i]:.6g}), {_interval(cal, i)}")
+        for group, ways in zip(cal.unidentifiable, cal.identify_with):
+            print(f"  the data cannot separate: {', '.join(group)}; measure as well: {'; or '.join(ways)}")
         if cal.holdout:
             print(f"  held-out rows: {cal.holdout['rows']}, weighted RMS {cal.holdout['weighted_rms']:.3g}")
-        print(f"  results in {args.out}/ (calibration.json, calibrated.toml, fit.csv, fit.png, residuals.png, "
+        print(f"  results in {args.out}/ (calibration.json, {design_file}, fit.csv, fit.png, residuals.png, "
               "parameters.png)")
+    if not cal.converged:
+        cli.error(f"{design.name}: the fit did not converge ({cal.status}) in {cal.iterations} iterations; "
+                  f"its best state is in {args.out}/partial.toml, not calibrated")
+        return cli.EXIT_SOLVE
     return cli.EXIT_OK
+
+
+def _interval(cal, i: int) -> str:
+    """'95 % [lo, hi] (x/÷ f)', or why the parameter is not identified."""
+    if not math.isfinite(cal.std[i]):
+        return f"not identified: {cal.reasons[i]}"
+    lo, hi = cal.ci95[i]
+    text = f"95 % [{lo:.6g}, {hi:.6g}]"
+    if cal.data.parameters[i].log:
+        text += f" (x/÷ {cal.factor[i]:.4g})"
+    return text if cal.identified[i] else f"{text}, not identified: {cal.reasons[i]}"
 
 
 def _cell(v: float):

@@ -45,11 +45,12 @@ OUTPUTS = {
     "sweep": ("summary.csv", "summary.png"),
     "fabricate": ("fabrication.json", "fabrication.png", "casting.png"),
     "optimize": ("optimize.json", "schedules.csv", "optimize.png"),
-    "calibrate": ("calibration.json", "calibrated.toml", "fit.csv", "fit.png", "residuals.png", "parameters.png"),
+    "calibrate": ("calibration.json", "calibrated.toml", "partial.toml", "fit.csv", "fit.png", "residuals.png",
+                  "parameters.png"),
 }
 # files whose names follow the design (one per bone): a pattern per command
 PATTERNS = {"fabricate": re.compile(r"^((bone_[^/\\]+|mould_(bottom|top))\.(stl|step)|[^/\\]+\.3mf)$")}
-STALE_FILE = re.compile(r"^\.(result|solution|deformed|trajectory|motion|optimize|schedules|calibration|calibrated|fit|residuals|parameters|ik|track|bench|summary|fabrication|casting)-.*")
+STALE_FILE = re.compile(r"^\.(result|solution|deformed|trajectory|motion|optimize|schedules|calibration|calibrated|partial|fit|residuals|parameters|ik|track|bench|summary|fabrication|casting)-.*")
 NAME_MAX = 255
 RESERVED_CHARS = 48           # room for ".<name>.tmp-<pid>-<random>" beside the target
 PATH_MAX = 4096 - 128
