@@ -12,9 +12,11 @@ import os
 import sys
 from pathlib import Path
 
+from ..editor.worker import Budget
 from . import common as cli
 
 DEFAULT_PORT = 8765
+MAX_BUDGET = 1e9         # --max-seconds and --max-memory: finite, and far beyond any use
 
 
 def add_parsers(subparsers) -> None:
@@ -30,6 +32,12 @@ def add_parsers(subparsers) -> None:
     p.add_argument("--max-dofs", type=int, default=None, metavar="N",
                    help="refuse designs estimated beyond N unknowns (default: 60,000 in 2D, 30,000 in 3D: "
                         "about a second a solve)")
+    p.add_argument("--max-seconds", type=float, default=None, metavar="S",
+                   help=f"cancel a request the solver has spent more than S seconds on (default {Budget.seconds:g}); "
+                        "the solver starts again from the last design that solved")
+    p.add_argument("--max-memory", type=float, default=None, metavar="MB",
+                   help=f"cancel a request that adds more than MB megabytes to the editor's memory (default "
+                        f"{Budget.memory / 1e6:,.0f})")
     p.add_argument("-q", "--quiet", action="store_true", help="print only errors")
     p.add_argument("-v", "--verbose", action="store_true", help="print every solve")
     p.set_defaults(handler=edit)
@@ -51,6 +59,10 @@ def edit(args) -> int:
         raise cli.InputError(f"--port {args.port}: must be between 0 and 65535")
     if args.max_dofs is not None and not 1 <= args.max_dofs <= resources.MAX_DOFS[2]:
         raise cli.InputError(f"--max-dofs {args.max_dofs}: must be between 1 and {resources.MAX_DOFS[2]:,}")
+    for flag, value in (("--max-seconds", args.max_seconds), ("--max-memory", args.max_memory)):
+        if value is not None and not 0 < value <= MAX_BUDGET:
+            raise cli.InputError(f"{flag} {value:g}: must be a number above 0 and at most {MAX_BUDGET:g}")
+    per_request = Budget(args.max_seconds or Budget.seconds, 1e6 * args.max_memory if args.max_memory else Budget.memory)
     try:
         design = load_design(args.design)
         resources.check(design)
@@ -63,7 +75,7 @@ def edit(args) -> int:
     if not args.verbose:
         cli.log.setLevel(logging.WARNING)       # one line per solve would flood the terminal
     try:
-        editor = Editor(args.design, args.port, max_dofs=args.max_dofs)
+        editor = Editor(args.design, args.port, max_dofs=args.max_dofs, budget=per_request)
     except (DesignError, MeshingError, EditorError) as exc:
         raise cli.InputError(str(exc)) from None
     if not args.quiet:

@@ -14,9 +14,10 @@ Guards: the Host header must be this server's own (``127.0.0.1:PORT`` or
 server's page (403 otherwise); POST bodies must be JSON (415), at most
 MAX_BODY bytes (413) and well-formed (400); a bad design answers 422 with
 ``{"error", "key"}``; a request replaced by a newer one of the same client
-409 (see skelfem.editor.worker); an unexpected failure 500, after which the
-solver starts again from the last design that solved. Nothing a request
-sends can stop the server.
+409 (see skelfem.editor.worker); an unexpected failure 500 and a request
+beyond the solver's time or memory budget 503 (skelfem.editor.worker.Budget),
+after either the solver starts again from the last design that solved.
+Nothing a request sends can stop the server.
 """
 from __future__ import annotations
 
@@ -37,6 +38,9 @@ KEEP_ALIVE = 5              # s an idle keep-alive connection is kept
 MAX_CONNECTIONS = 256       # open HTTP connections; beyond, the oldest idle one is closed (never a 503)
 BACKLOG = 128
 STATIC = ("index.html", "editor.js", "editor.css")
+# The page's own files only; no form may submit anywhere, no <base> may redirect its links, no frame may hold it
+CSP = ("default-src 'self'; img-src 'self' data:; style-src 'self'; script-src 'self'; connect-src 'self'; "
+       "object-src 'none'; form-action 'none'; base-uri 'none'; frame-ancestors 'none'")
 TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
          ".css": "text/css; charset=utf-8"}
 
@@ -142,13 +146,12 @@ def create_app(editor):
 
     from .engine import EditError
     from .savefile import SaveError
-    from .worker import Closed, Superseded
+    from .worker import Closed, OverBudget, Superseded
 
     files = static_files()
     headers = {"Cache-Control": "no-store", "X-Content-Type-Options": "nosniff", "X-Frame-Options": "DENY",
                "Referrer-Policy": "no-referrer",
-               "Content-Security-Policy": "default-src 'self'; img-src 'self' data:; style-src 'self'; "
-                                          "script-src 'self'; connect-src 'self'; frame-ancestors 'none'"}
+               "Content-Security-Policy": CSP}
 
     def json_response(value, status: int = 200):
         return Response(dumps(value), status, media_type="application/json", headers=headers)
@@ -162,7 +165,7 @@ def create_app(editor):
             return json_response({"error": exc.message, "key": ""}, exc.status)
         if isinstance(exc, Superseded):
             return json_response({"error": "superseded by a newer request from the same client", "key": ""}, 409)
-        if isinstance(exc, Closed):
+        if isinstance(exc, (Closed, OverBudget)):
             return json_response({"error": str(exc), "key": ""}, 503)
         return json_response({"error": f"internal error: {type(exc).__name__}: {exc}"[:500], "key": ""}, 500)
 
@@ -307,7 +310,7 @@ class Editor:
 
     HOST = "127.0.0.1"
 
-    def __init__(self, path, port: int = 0, max_dofs=None):
+    def __init__(self, path, port: int = 0, max_dofs=None, budget=None):
         from ..design.parse import load_design
         from .engine import Engine
         from .worker import Worker
@@ -322,7 +325,7 @@ class Editor:
         except BaseException:
             self.sock.close()
             raise
-        self.worker = Worker(self.engine, on_error=self._recover)
+        self.worker = Worker(self.engine, on_error=self._recover, budget=budget)
         self.app = create_app(self)
         self.server = None
         self._thread = None
@@ -335,10 +338,13 @@ class Editor:
         from ..design.spec import DesignError
         from .engine import EditError
         from .savefile import SaveError
-        if not isinstance(exc, (EditError, DesignError, SaveError)):
+        from .worker import Cancel
+        if isinstance(exc, (EditError, DesignError, SaveError)):
+            return
+        if not isinstance(exc, Cancel):                  # a job over budget: the watchdog has said so
             log.warning("editor: %s: %s; starting the solver again from the last design that solved",
                         type(exc).__name__, exc)
-            self.engine.recover()
+        self.engine.recover()
 
     # -- requests the worker runs ---------------------------------------------------------------------------
     def describe(self) -> dict:

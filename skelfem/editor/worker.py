@@ -8,15 +8,62 @@ and a new job replaces it; the replaced job's future fails with Superseded
 busy, a drag's intermediate positions are dropped, never queued: the next
 solve is always for the newest one. Channels waiting together are served in
 the order they started waiting.
+
+Every job has a budget (:class:`Budget`): seconds of the solver's time and
+bytes it may add to the process's resident memory. A watchdog thread looks
+at the running job every POLL seconds; one over budget is answered at once
+with OverBudget (the client is told, JSON 503), and :class:`Cancel` is raised
+inside the solver thread (``PyThreadState_SetAsyncExc``), again every
+RAISE_AGAIN seconds while the job has not ended (a library callback may
+swallow one). Python acts on it between two calls into C: a single call
+(one factorisation, one meshing) is not cut short, and the DOF budget of
+skelfem.editor.engine keeps those short. A cancelled job is treated as an
+unexpected failure whatever it returned: ``on_error`` starts the solver again
+from the last design that solved, and the requests waiting meanwhile are
+served after it.
 """
 from __future__ import annotations
 
+import ctypes
 import logging
+import os
 import threading
+import time
 from collections import OrderedDict
 from concurrent.futures import Future
+from dataclasses import dataclass
 
 log = logging.getLogger("skelfem")
+
+POLL = 0.05          # s between two looks of the watchdog at the running job
+RAISE_AGAIN = 0.5    # s after which Cancel is raised again in a job that has not ended
+
+
+@dataclass(frozen=True)
+class Budget:
+    """What one request may take of the solver: seconds of its time, bytes added to the resident memory."""
+
+    seconds: float = 60.0
+    memory: float = 4e9
+
+    def __post_init__(self):
+        if not (self.seconds > 0 and self.memory > 0):
+            raise ValueError(f"a budget must be positive, got {self.seconds} s and {self.memory} bytes")
+
+
+def resident_bytes() -> int:
+    """This process's resident memory (bytes; 0 where /proc cannot be read)."""
+    try:
+        with open("/proc/self/statm", "rb") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return 0
+
+
+def _raise_in(thread_id: int, exc_type) -> None:
+    """Raise exc_type in the thread thread_id at its next Python instruction (None: take back one not raised yet)."""
+    ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(thread_id),
+                                               ctypes.py_object(exc_type) if exc_type is not None else None)
 
 
 def one_openmp_thread() -> None:
@@ -41,19 +88,42 @@ class Closed(Exception):
     """The worker has stopped."""
 
 
-class Worker:
-    """Runs ``job(engine)`` on its own thread, latest-wins per channel."""
+class OverBudget(Exception):
+    """The job ran beyond its budget and was cancelled; the message says which budget and how to go on."""
 
-    def __init__(self, engine, on_error=None):
+
+class Cancel(BaseException):
+    """Raised inside the solver thread to stop a job over budget (a BaseException: no ``except Exception``
+    on the way swallows it)."""
+
+
+class _Running:
+    """The job on the solver thread, as the watchdog sees it."""
+
+    def __init__(self, fut: Future):
+        self.fut, self.t0, self.rss0 = fut, time.monotonic(), resident_bytes()
+        self.in_job = True               # Cancel may be raised in the solver thread only while this holds
+        self.over: str | None = None     # why it was cancelled
+        self.raised = 0.0                # when Cancel was last raised
+
+
+class Worker:
+    """Runs ``job(engine)`` on its own thread, latest-wins per channel, each job within budget."""
+
+    def __init__(self, engine, on_error=None, budget: Budget | None = None):
         self.engine = engine
         self.on_error = on_error              # called on the thread after a job raised an unexpected error
+        self.budget = budget or Budget()
         self._pending: OrderedDict = OrderedDict()
         self._cond = threading.Condition()
         self._closed = False
-        self._running = None                  # the future of the job being run, if any
+        self._running: _Running | None = None   # the job being run, if any
         self.dropped = 0                      # jobs replaced before they ran
+        self.cancelled = 0                    # jobs cancelled over budget
         self._thread = threading.Thread(target=self._run, name="skelfem-solver", daemon=True)
         self._thread.start()
+        self._watchdog = threading.Thread(target=self._watch, name="skelfem-budget", daemon=True)
+        self._watchdog.start()
 
     def submit(self, channel, job) -> Future:
         """Queue job for channel, replacing (and failing with Superseded) the job waiting there."""
@@ -67,7 +137,7 @@ class Worker:
                 self.dropped += 1
                 old[1].set_exception(Superseded())
             self._pending[channel] = (job, fut)
-            self._cond.notify()
+            self._cond.notify_all()
         return fut
 
     def _run(self) -> None:
@@ -78,16 +148,19 @@ class Worker:
                     self._cond.wait()
                 if self._closed:
                     for _, fut in self._pending.values():
-                        fut.set_exception(Closed("the editor is shutting down"))
+                        _settle(fut, exc=Closed("the editor is shutting down"))
                     self._pending.clear()
                     return
                 _, (job, fut) = self._pending.popitem(last=False)
-            if not fut.set_running_or_notify_cancel():
-                continue
-            self._running = fut
-            try:
-                value = job(self.engine)
-            except BaseException as exc:  # noqa: BLE001 - handed to the waiting request
+                if not fut.set_running_or_notify_cancel():
+                    continue
+                running = self._running = _Running(fut)
+                self._cond.notify_all()                 # the watchdog starts timing it
+            value, exc = self._call(job)
+            over = running.over
+            if over is not None:                        # whatever it returned: its state is not to be trusted
+                value, exc = None, Cancel(over)
+            if exc is not None:
                 _settle(fut, exc=exc)
                 if self.on_error is not None and not self._closed:
                     try:
@@ -96,8 +169,68 @@ class Worker:
                         log.warning("editor: recovery after an error failed: %s: %s", type(exc2).__name__, exc2)
             else:
                 _settle(fut, value=value)
-            finally:
+            with self._cond:
                 self._running = None
+
+    def _call(self, job):
+        """(value, None) or (None, the exception) of job(engine); no Cancel gets past its end."""
+        try:
+            try:
+                value, exc = job(self.engine), None
+            except BaseException as e:  # noqa: BLE001 - handed to the waiting request
+                value, exc = None, e
+        except Cancel as e:             # raised between the job's end and the line above
+            value, exc = None, e
+        while True:
+            try:
+                self._leave()
+                return value, exc
+            except Cancel as e:         # raised before _leave took it back
+                value, exc = None, e
+
+    def _leave(self) -> None:
+        """The job has ended: the watchdog raises nothing more here, and a Cancel not raised yet is taken back."""
+        with self._cond:
+            if self._running is not None:
+                self._running.in_job = False
+            _raise_in(threading.get_ident(), None)
+
+    def _watch(self) -> None:
+        """The watchdog: cancel the running job once it is over its time or memory budget."""
+        while True:
+            with self._cond:
+                while self._running is None and not self._closed:
+                    self._cond.wait()
+                if self._closed and self._running is None:
+                    return
+                self._check(self._running)
+            time.sleep(POLL)
+
+    def _check(self, run: _Running) -> None:
+        """(with the lock held) Fail and cancel run if it is over budget; raise Cancel again if it goes on."""
+        if not run.in_job:
+            return
+        now = time.monotonic()
+        if run.over is None:
+            b = self.budget
+            grown = resident_bytes() - run.rss0
+            if now - run.t0 > b.seconds:
+                run.over = (f"the request took more than the editor's budget of {b.seconds:g} s a request "
+                            "(skelfem edit --max-seconds)")
+            elif grown > b.memory:
+                run.over = (f"the request needed more than the editor's budget of {b.memory / 1e6:,.0f} MB of "
+                            "memory a request (skelfem edit --max-memory)")
+            else:
+                return
+            self.cancelled += 1
+            log.warning("editor: %s; it is cancelled and the solver starts again from the last design that "
+                        "solved", run.over)
+            _settle(run.fut, exc=OverBudget(f"{run.over}; it was cancelled, and the solver starts again from the "
+                                            "last design that solved; a larger mesh.size solves faster, and "
+                                            "skelfem simulate has no such limit"))
+        if now - run.raised >= RAISE_AGAIN:
+            run.raised = now
+            _raise_in(self._thread.ident, Cancel)
 
     @property
     def busy(self) -> bool:
@@ -105,10 +238,11 @@ class Worker:
         return self._thread.is_alive() and self._running is not None
 
     def abandon(self) -> None:
-        """Shutting down: fail the waiting jobs and the running one with Closed at once.
+        """Shutting down: fail the waiting jobs and the running one with Closed at once, and cancel it.
 
-        The running job goes on on its (daemon) thread, but nobody waits for it:
-        a server shutdown (Ctrl-C, SIGTERM) does not wait for a long solve.
+        A server shutdown (Ctrl-C, SIGTERM) does not wait for a long solve: the
+        running job is stopped at its next Python instruction, or, inside a long
+        call into C, goes on on its (daemon) thread with nobody waiting for it.
         """
         with self._cond:
             self._closed = True
@@ -116,15 +250,19 @@ class Worker:
                 _settle(fut, exc=Closed("the editor is shutting down"))
             self._pending.clear()
             running = self._running
-            self._cond.notify()
-        if running is not None:
-            _settle(running, exc=Closed("the editor is shutting down"))
+            if running is not None and running.in_job:
+                _settle(running.fut, exc=Closed("the editor is shutting down"))
+                if running.over is None:
+                    running.over = "the editor is shutting down"
+                running.raised = time.monotonic()
+                _raise_in(self._thread.ident, Cancel)
+            self._cond.notify_all()
 
     def close(self, timeout: float | None = 30.0) -> bool:
         """Stop after the running job (waiting ones fail with Closed); True if the thread has ended."""
         with self._cond:
             self._closed = True
-            self._cond.notify()
+            self._cond.notify_all()
         self._thread.join(timeout)
         return not self._thread.is_alive()
 

@@ -55,6 +55,13 @@ function toMM(evt) {
 function getPath(obj, path) { return path.reduce((o, k) => o[k], obj); }
 function setPath(obj, path, value) { getPath(obj, path.slice(0, -1))[path[path.length - 1]] = value; }
 function named(section) { return (S.design[section] || []); }
+// HTML elements with text: names from a design are only ever text nodes (never markup: no innerHTML)
+function html(tag, props, children) {
+  const e = document.createElement(tag);
+  Object.assign(e, props || {});
+  for (const c of children || []) e.append(c);      // strings become text nodes
+  return e;
+}
 
 // -- talking to the server ----------------------------------------------------------------------------
 function connect() {
@@ -196,7 +203,7 @@ function redo() { if (!S.redo.length) return; S.undo.push(clone(S.design)); S.de
 function afterJump() {
   const focused = document.activeElement && document.activeElement.dataset ? document.activeElement.dataset.key : null;
   buildPanel();
-  if (focused) { const again = document.querySelector(`#panel [data-key="${focused}"]`); if (again) again.focus(); }
+  if (focused) { const again = document.querySelector(`#panel [data-key="${CSS.escape(focused)}"]`); if (again) again.focus(); }
   changed("undo", false); buttons();
 }
 function buttons() { $("undo").disabled = !S.undo.length; $("redo").disabled = !S.redo.length; if (S.file) unsaved(); }
@@ -218,7 +225,7 @@ function buildPanel() {
     const L = c.path.slice(1).reduce((s, p, i) => s + Math.hypot(p[0] - c.path[i][0], p[1] - c.path[i][1]), 0);
     const max = Math.max(1, Math.ceil((c.kind === "tendon" ? 0.3 : 0.2) * L), Math.ceil(c[key] || 0));
     const box = document.createElement("div"); box.className = "slider";
-    box.innerHTML = `<label><span>${c.name} ${key} (mm)</span><output></output></label>`;
+    box.append(html("label", {}, [html("span", {}, [`${c.name} ${key} (mm)`]), html("output")]));
     const r = document.createElement("input");
     Object.assign(r, { type: "range", min: 0, max, step: 0.05, value: c[key] || 0 });
     r.dataset.cable = c.name; r.dataset.param = key; r.dataset.key = `cables.${c.name}.${key}`;
@@ -240,7 +247,7 @@ function buildPanel() {
   const mats = $("materials"); mats.textContent = "";
   for (const [name, m] of Object.entries(d.materials || {})) {
     const row = document.createElement("div"); row.className = "material";
-    row.innerHTML = `<span class="material-name">${name}</span>`;
+    row.append(html("span", { className: "material-name" }, [name]));
     for (const [p, step] of [["E", "any"], ["nu", "0.01"]]) {
       const label = document.createElement("label");
       label.className = "material-field";
@@ -290,15 +297,12 @@ function showStatus() {
     `\n${a.dofs} DOFs, ${a.cells} cells (h = ${fmt(e.mesh_size, 2)} mm${e.draft ? ", draft" : ""}), ` +
     `${e.how}, ${fmt(1000 * (e.seconds || 0), 0)} ms`, false);
   const rows = [];
-  for (const [n, m] of Object.entries(a.markers || {}))
-    rows.push(`<tr><td>marker ${n}</td><td>(${m.position.map((v) => fmt(v)).join(", ")}) mm</td></tr>`);
-  for (const [n, c] of Object.entries(a.cables || {}))
-    rows.push(`<tr><td>${c.kind} ${n}</td><td>${c.tension > 0 ? fmt(c.tension, 3) + " N" : "slack"}</td></tr>`);
-  for (const [n, p] of Object.entries(a.pins || {}))
-    rows.push(`<tr><td>pin ${n}</td><td>(${p.reaction.map((v) => fmt(v, 3)).join(", ")}) N</td></tr>`);
-  for (const [n, g] of Object.entries(a.grounds || {}))
-    rows.push(`<tr><td>ground ${n}</td><td>(${g.force.map((v) => fmt(v, 3)).join(", ")}) N</td></tr>`);
-  $("readouts").innerHTML = `<table>${rows.join("")}</table>`;
+  const row = (what, value) => rows.push(html("tr", {}, [html("td", {}, [what]), html("td", {}, [value])]));
+  for (const [n, m] of Object.entries(a.markers || {})) row(`marker ${n}`, `(${m.position.map((v) => fmt(v)).join(", ")}) mm`);
+  for (const [n, c] of Object.entries(a.cables || {})) row(`${c.kind} ${n}`, c.tension > 0 ? fmt(c.tension, 3) + " N" : "slack");
+  for (const [n, p] of Object.entries(a.pins || {})) row(`pin ${n}`, `(${p.reaction.map((v) => fmt(v, 3)).join(", ")}) N`);
+  for (const [n, g] of Object.entries(a.grounds || {})) row(`ground ${n}`, `(${g.force.map((v) => fmt(v, 3)).join(", ")}) N`);
+  $("readouts").replaceChildren(html("table", {}, rows));
 }
 
 // -- errors at their element ------------------------------------------------------------------------------
@@ -388,12 +392,13 @@ function drawMesh() {
     hi = vals.length ? vals[Math.min(vals.length - 1, Math.floor(0.98 * vals.length))] : 1;
     if (!(hi > lo)) hi = lo + 1e-9;
     $("legend").className = "bar";
-    $("legend").innerHTML = `<span>${fmt(lo, 3)}</span><span>${mode === "stretch" ? "stretch" : "ψ (N·mm/mm³)"}</span><span>≥ ${fmt(hi, 3)}</span>`;
+    $("legend").replaceChildren(html("span", {}, [fmt(lo, 3)]), html("span", {}, [mode === "stretch" ? "stretch" : "ψ (N·mm/mm³)"]),
+      html("span", {}, [`≥ ${fmt(hi, 3)}`]));
   } else {
     const kinds = new Set(Object.values(m.region_names).map(regionKind));
     $("legend").className = "regions";
-    $("legend").innerHTML = ["body", "bone", "object"].filter((k) => kinds.has(k))
-      .map((k) => `<span class="swatch ${k}"></span><span>${REGION_LABEL[k]}</span>`).join("");
+    $("legend").replaceChildren(...["body", "bone", "object"].filter((k) => kinds.has(k))
+      .flatMap((k) => [html("span", { className: `swatch ${k}` }), html("span", {}, [REGION_LABEL[k]])]));
   }
   m.cells.forEach((c, i) => {
     let fill;
