@@ -162,6 +162,28 @@ def slice_check_3mf(_: dict) -> Table:
                   "support sections (everywhere)", "warnings"], rows, caption, [path])
 
 
+def fabrication_volumes(_: dict) -> Table:
+    d, path = load_json("fabrication_volumes/fabrication_volumes.json", "python studies/fabrication_volumes.py")
+    pct = lambda x, digits=2: f"{100 * x:+.{digits}f} %"                                      # noqa: E731
+    rows = [[f"`{r['design']}.toml`",
+             ", ".join(pct(b["relative_error"], 3) for b in r["bones"].values()) or "(no bones)",
+             ", ".join(num(b["removed_volume"], 3) for b in r["bones"].values()),
+             f"{num(r['cavity_volume'], 5)} / {num(r['body_volume'], 5)} mm³ ({pct(r['cavity_relative_error'])})",
+             pct(r["closed_relative_error"], 3), secs(r["seconds"])] for r in d["rows"]]
+    caption = (f"`{d['command']}` on each design; every number from its fabrication.json; "
+               f"{'every check passed' if d['all_passed'] else 'some checks failed'}.")
+    return Table(["design", "bones: STL volume against the kernel's", "removed by channels, holes, sockets [mm³]",
+                  "cavity against the body", "closed cavity against the body", "time"], rows, caption, [path])
+
+
+def fabrication_poses(_: dict) -> Table:
+    d, path = load_json("fabrication_volumes/fabrication_volumes.json", "python studies/fabrication_volumes.py")
+    rows = [[r["design"], part, p["down"], num(p["bed_area"], 3), num(p["support_area"], 3)]
+            for r in d["rows"] for part, p in r["parts"].items()]
+    return Table(["design", "part", "face down", "bed area [mm²]", "support estimate [mm²]"], rows,
+                 "How each part is written, lying on the bed (fabrication.json's `print`).", [path])
+
+
 def in_hand_roll(_: dict) -> Table:
     d, path = load_json("in_hand_roll/in_hand_roll.json", "python studies/in_hand_roll.py")
     rows = [[f"{r['target_deg']:g}", num(-r["rotation_deg"], 3), num(r["error"], 2), r["status"],
@@ -690,7 +712,8 @@ def krylov_bounds(_: dict) -> Table:
                  "P1, contrast and Poisson's ratio at P2.", [path])
 
 
-TABLES = {f.__name__: f for f in (linear_scaling, krylov_bounds, arm3d_fine, reference_3d, bench, in_hand_roll, slice_check, slice_check_3mf, mpi_speed, editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
+TABLES = {f.__name__: f for f in (linear_scaling, krylov_bounds, arm3d_fine, reference_3d, bench, in_hand_roll, slice_check, slice_check_3mf,
+                                  fabrication_volumes, fabrication_poses, mpi_speed, editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
                                   tol_check, tol_check_adaptive, scatter, adaptive_reach, adaptive_tol_runs,
                                   stability, stability_slender, friction_stability, peer, pull_test, dynamics_checks, grasp, grasp3d, hand_grasp, grasp_bench,
                                   cable_friction, capstan, cable_friction_cost)}
