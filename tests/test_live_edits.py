@@ -10,7 +10,7 @@ import tomllib
 
 import numpy as np
 import pytest
-from _hardening import ws_connect, ws_recv, ws_send
+from _hardening import ws_connect, ws_send
 from conftest import GEOMETRY, ROOT
 
 from skelfem import Session
@@ -222,6 +222,37 @@ def dragged(d: dict, what: str, path: list, delta=(0.1, -0.1)) -> dict:
     return d
 
 
+def ws_message(s) -> bytes:
+    """One whole text message from the server: its frames up to FIN; pings answered."""
+    import struct
+
+    def exact(n):
+        data = b""
+        while len(data) < n:
+            chunk = s.recv(n - len(data))
+            if not chunk:
+                raise ConnectionError("closed")
+            data += chunk
+        return data
+    message = b""
+    while True:
+        b0, b1 = exact(2)
+        n = b1 & 0x7F
+        if n == 126:
+            n = struct.unpack(">H", exact(2))[0]
+        elif n == 127:
+            n = struct.unpack(">Q", exact(8))[0]
+        payload = exact(n)
+        if b0 & 0x0F == 9:                    # a ping: answered, or the server closes the connection
+            ws_send(s, payload, opcode=10)
+            continue
+        if b0 & 0x0F >= 8:                    # pong, close
+            continue
+        message += payload
+        if b0 & 0x80:
+            return message
+
+
 TWO_D = [n for n in DESIGNS if tomllib.loads((GEOMETRY / n).read_text()).get("dim", 2) == 2]
 
 
@@ -240,8 +271,7 @@ def test_every_editor_handle_through_the_draft_api(name, tmp_path):
         moves = [(True, dragged(d, what, where)) for what, where in handles(d)]
         for mid, (draft, design) in enumerate([(False, d)] + moves + [(False, moves[-1][1])]):
             ws_send(s, json.dumps({"id": mid, "kind": "solve", "design": design, "draft": draft}).encode())
-            _, payload = ws_recv(s)
-            reply = json.loads(payload)
+            reply = json.loads(ws_message(s))
             assert reply["id"] == mid
             assert reply.get("ok") or (reply.get("status") == 422 and reply["key"]), (mid, reply)
             assert not reply.get("ok") or "converged" in reply["answer"]
