@@ -20,10 +20,10 @@ import numpy as np
 from . import polygons
 from .objects import take as take_objects
 from .sections import check_bodies_held, check_body_scale, read_cables, read_contact, read_dynamics, check_energy_line_search, read_fabrication, read_gravity, read_grounds, read_loads, read_markers, read_pins, read_solver, read_tractions
+from .relations import check_piece_names, check_pinned_objects, check_schedules
 from .shapes import named_entries, read_body, read_bones, read_materials, read_solids
 from .spec import Design, DesignError, FORMAT, MeshSpec, SECTIONS_BY_NAME, force_scale
 from .table import Table, plain_name, positive, apply_override
-from .text import check_text
 
 
 # -- entry points -----------------------------------------------------------------------------------------
@@ -35,11 +35,8 @@ def used_materials(bodies, bones) -> tuple:
 def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     """Validate a design given as parsed TOML (a dict); overrides are ``KEY=VALUE`` strings."""
     data = copy.deepcopy(data)
-    check_text(data, source)
     for assignment in overrides:
         apply_override(data, assignment, source)
-    if overrides:
-        check_text(data, source)
     top = Table(data, "", source)
     fmt = top.take("format", "int")
     if fmt != FORMAT:
@@ -71,16 +68,21 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     check_bodies_held(str(source), bodies, pins, tol)
     loads = read_loads(top, dim, region)
     friction, objects = take_objects(top, dim, materials, bodies, read_solids, named_entries)   # [[objects]], friction keys
-    grounds = read_grounds(top, dim, bodies, tol)
-    contact = read_contact(top, dim)
+    grounds = read_grounds(top, dim, bodies, tol, objects)
+    contact = read_contact(top, dim, mesh.size, (*bodies, *objects))
     markers = read_markers(top, dim, region, objects)
     solver = read_solver(top)
     check_energy_line_search(top, solver, bones, contact, len(bodies) + len(objects))
     gravity = read_gravity(top, dim, materials, list(soft))
     tractions = read_tractions(top, dim)
     fabrication = read_fabrication(top, dim, thickness, bodies)
-    dynamics = read_dynamics(top, materials, list(soft))
+    dynamics = read_dynamics(top, materials, list(dict.fromkeys([*soft, *(o.material for o in objects)])), mesh.size)
     top.done()
+    check_piece_names(str(source), [(t.where, b.name) for (t, _), b in zip(body_tables, bodies)]
+                      + [(f"{section}.{e.name}", e.name) for section, entries in (("objects", objects),
+                                                                                ("grounds", grounds)) for e in entries])
+    check_schedules(str(source), cables, dynamics)
+    check_pinned_objects(str(source), dim, pins, objects, tol)
     if dim == 2:
         loops = polygons.loops_of(bodies)
         measure = sum(abs(polygons.signed_area(b.outline)) - sum(abs(polygons.signed_area(h)) for h in b.holes)

@@ -38,19 +38,50 @@ FORCED = False          # set by the command line's --force for the whole proces
 
 
 def estimate(design) -> dict:
-    """{"cells": ..., "dofs": ...}: what meshing the design at its [mesh] size would give (roughly)."""
+    """{"cells": ..., "dofs": ...}: what meshing the design at its [mesh] size would give (roughly).
+
+    Every meshed piece counts: the bodies (holes out, bones in: design.measure) and the objects, rigid
+    ones too (they are meshed; an object 400 m wide at h = 4 mm was meshed, the body alone counted)."""
     h = float(design.mesh.size)
     dim = design.dim
-    measure = float(design.measure or 0.0)
+    objects = getattr(design, "objects", ())
+    measure = float(design.measure or 0.0) + sum(object_measure(o) for o in objects)
     try:
         scale = h ** dim
     except OverflowError:
         scale = math.inf
     cells = CELLS_PER_H[dim] * measure / scale if scale > 0 else math.inf
-    cells += CELLS_PER_VERTEX[dim] * getattr(design, "vertices", 0)
+    cells += CELLS_PER_VERTEX[dim] * (getattr(design, "vertices", 0) + sum(object_vertices(o) for o in objects))
     if not math.isfinite(cells):
         cells = math.inf
     return {"cells": cells, "dofs": cells * DOFS_PER_CELL[(dim, design.mesh.degree)]}
+
+
+def object_measure(obj) -> float:
+    """An object's area (2D, mm^2) or volume (3D, mm^3; the sum of its primitives': overlaps count twice,
+    an upper bound)."""
+    from . import polygons
+    if obj.outline is not None:
+        return abs(polygons.signed_area(obj.outline))
+    total = 0.0
+    for prim in obj.solids:
+        (kind, p), = prim.items()
+        if kind == "box":
+            total += float(math.prod(p["max"] - p["min"]))
+        elif kind == "sphere":
+            total += 4.0 / 3.0 * math.pi * p["radius"] ** 3
+        elif kind == "cylinder":
+            total += math.pi * p["radius"] ** 2 * math.dist(p["from"], p["to"])
+        else:
+            total += abs(polygons.signed_area(p["outline"])) * float(p["z"][1] - p["z"][0])
+    return total
+
+
+def object_vertices(obj) -> int:
+    """The outline vertices (2D) or primitive corners (3D) of an object, as design.vertices counts them."""
+    if obj.outline is not None:
+        return len(obj.outline)
+    return sum(len(next(iter(s.values())).get("outline", ())) + 8 for s in obj.solids)
 
 
 def physical_memory() -> float:

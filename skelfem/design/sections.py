@@ -7,10 +7,10 @@ import math
 import numpy as np
 
 from . import polygons
-from .objects import primitives_box
+from .objects import ObjectSpec, primitives_box
 from .shapes import check_inside, named_entries
 from .spec import Body, CableSpec, ContactSpec, DesignError, DynamicsSpec, ENERGY_LINE_SEARCHES, FabricationSpec, GroundSpec, INTEGRATORS, LINE_SEARCHES, LINEAR_SOLVERS, LoadSpec, MAX_COORDINATE, MAX_STEPS, MAX_TIME_STEPS, PinSpec, SolverSpec, TractionSpec
-from .table import Table, check_bounded, is_finite, is_number, plain_name, positive, show_value
+from .table import Table, is_finite, is_number, plain_name, positive, show_value
 
 
 MAX_CABLE_FRICTION = 10.0     # mu; any bend with mu tan(theta / 2) >= 1 locks long before
@@ -23,7 +23,7 @@ def read_cables(top: Table, dim: int, region, tol, materials: tuple = ()) -> tup
         kind = t.take("kind", "str")
         if kind not in ("tendon", "ligament"):
             t.fail("kind", f"must be \"tendon\" or \"ligament\", got {kind!r}")
-        path = check_bounded(t, "path", t.take("path", "points", dim=dim))
+        path = t.take("path", "points", dim=dim)
         if len(path) < 2:
             t.fail("path", "a cable path needs at least 2 points")
         seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
@@ -108,12 +108,36 @@ def _schedule(t: Table, value: list, length: float) -> np.ndarray:
     return a
 
 
-def read_dynamics(top: Table, materials: dict, used: list) -> DynamicsSpec | None:
+MIN_DT = 1e-15              # s: a femtosecond, below which no continuum model holds (and 1 / dt^2 overflows)
+MIN_DT_WAVE = 1e-6          # dt is at least this share of the time an elastic wave crosses one element
+
+
+def wave_time(materials: dict, used: list, h: float) -> float:
+    """s: the shortest time an elastic (bar) wave takes to cross one element of size h (mm) in the used
+    materials, h sqrt(rho / E) (rho converted from kg/m^3 to t/mm^3, E in MPa); inf if none has a density."""
+    times = [h * math.sqrt(materials[m].density * 1e-12 / materials[m].E) for m in used
+             if materials[m].density is not None]
+    return min(times, default=math.inf)
+
+
+def read_dynamics(top: Table, materials: dict, used: list, h: float = 0.0) -> DynamicsSpec | None:
+    """[dynamics]: dt in [max(MIN_DT, MIN_DT_WAVE x wave_time), duration], at most MAX_TIME_STEPS steps.
+
+    Below MIN_DT_WAVE of the wave time, the inertia term M / dt^2 outweighs
+    the stiffness by more than 1e12: Newton's relative tolerance no longer sees
+    the elastic forces and a step moves nothing (dt = 1e-300 s exited 3 in
+    1 / dt^2)."""
     if not top.has("dynamics"):
         return None
     t = Table(top.take("dynamics", "table"), "dynamics", top.source)
     dt = positive(t, "dt", t.take("dt", "number"))
     duration = positive(t, "duration", t.take("duration", "number"))
+    wave = wave_time(materials, used, h)
+    floor = max(MIN_DT, MIN_DT_WAVE * wave) if math.isfinite(wave) else MIN_DT
+    if dt < floor:
+        why = (f"{MIN_DT_WAVE:g} x the {wave:.3g} s an elastic wave takes to cross one element"
+               if floor > MIN_DT else "a femtosecond")
+        t.fail("dt", f"must be at least {floor:.3g} s ({why}), got {dt:g}")
     if duration < dt:
         t.fail("duration", f"must be at least one time step (dt = {dt:g} s), got {duration:g}")
     if duration / dt > MAX_TIME_STEPS:
@@ -153,7 +177,7 @@ def read_pins(top: Table, dim: int) -> tuple:
 def read_loads(top: Table, dim: int, region) -> tuple:
     loads = []
     for t in named_entries(top, "loads"):
-        at = check_bounded(t, "at", t.take("at", "vector", dim=dim))
+        at = t.take("at", "point", dim=dim)
         check_inside(t, "at", at, region, "the load point")
         force = t.take("force", "vector", dim=dim)
         t.done()
@@ -190,10 +214,11 @@ def read_gravity(top: Table, dim: int, materials: dict, used: list) -> np.ndarra
     return g
 
 
-def read_grounds(top: Table, dim: int, bodies: tuple, tol: float) -> tuple:
+def read_grounds(top: Table, dim: int, bodies: tuple, tol: float, objects: tuple = ()) -> tuple:
+    """[[grounds]]: rigid half-spaces that no body and no object crosses at rest (touching is fine)."""
     grounds = []
     for t in named_entries(top, "grounds"):
-        point = check_bounded(t, "point", t.take("point", "vector", dim=dim))
+        point = t.take("point", "point", dim=dim)
         normal = t.take("normal", "vector", dim=dim)
         norm = float(np.linalg.norm(normal / np.abs(normal).max())) * np.abs(normal).max() \
             if np.any(normal) else 0.0
@@ -202,16 +227,18 @@ def read_grounds(top: Table, dim: int, bodies: tuple, tol: float) -> tuple:
         normal = normal / norm
         k = positive(t, "stiffness", t.take("stiffness", "number"))
         t.done()
-        depth = -min(_lowest(body, dim, point, normal) for body in bodies)
-        if depth > max(tol, 1e-9):
-            t.fail("point", f"the plane cuts the body at rest ({depth:.3g} mm of it lies beyond the plane); "
-                            "a ground must start on the normal's side of the body (touching is fine)")
+        for piece in (*bodies, *objects):
+            depth = -_lowest(piece, dim, point, normal)
+            if depth > max(tol, 1e-9):
+                what = f"object {piece.name!r}" if piece in objects else "the body"
+                t.fail("point", f"the plane cuts {what} at rest ({depth:.3g} mm of it lies beyond the plane); "
+                                f"a ground must start on the normal's side of {what} (touching is fine)")
         grounds.append(GroundSpec(t.where.split(".", 1)[1], point, normal, k))
     return tuple(grounds)
 
 
-def _lowest(body: Body, dim: int, point: np.ndarray, normal: np.ndarray) -> float:
-    """The smallest signed distance (x - point) . normal over the body at rest."""
+def _lowest(body, dim: int, point: np.ndarray, normal: np.ndarray) -> float:
+    """The smallest signed distance (x - point) . normal over a body or an object at rest."""
     if dim == 2:
         return float(((body.outline - point) @ normal).min())
     lows = []
@@ -236,6 +263,8 @@ def _lowest(body: Body, dim: int, point: np.ndarray, normal: np.ndarray) -> floa
 def _body_box(body, dim: int, thickness: float) -> tuple[np.ndarray, np.ndarray]:
     """An axis-aligned box around the body, or around several (3D: around its primitives, conservative
     for round ones)."""
+    if isinstance(body, ObjectSpec):
+        return tuple(body.box)
     if not isinstance(body, Body):
         boxes = [_body_box(b, dim, thickness) for b in body]
         return np.min([lo for lo, _ in boxes], axis=0), np.max([hi for _, hi in boxes], axis=0)
@@ -298,9 +327,7 @@ def read_fabrication(top: Table, dim: int, thickness: float, body) -> Fabricatio
     else:
         axis = 2 - int(np.argmin(extent[::-1]))      # the smallest extent; ties prefer z, then y
         s = Table(t.take("split", "table", {}), "fabrication.split", top.source)
-        point = s.take("point", "vector", None, dim=3)        # None: skelfem fabricate chooses it
-        if point is not None:
-            point = check_bounded(s, "point", point)
+        point = s.take("point", "point", None, dim=3)        # None: skelfem fabricate chooses it
         normal = s.take("normal", "vector", np.eye(3)[axis], dim=3)
         scale = float(np.abs(normal).max())
         if not scale > 0:
@@ -426,19 +453,37 @@ def read_markers(top: Table, dim: int, region, objects=()) -> dict:
         if "." in name:
             t.fail(name, "marker names must not contain '.'")
         plain_name(t, name, name, "a marker name")
-        X = check_bounded(t, name, t.take(name, "vector", dim=dim))
+        X = t.take(name, "point", dim=dim)
         if not any(inside(o, X) for o in objects):
             check_inside(t, name, X, region, "the marker")
         out[name] = X
     return out
 
 
-def read_contact(top: Table, dim: int) -> ContactSpec:
+MIN_DHAT_MESH = 1e-3    # contact.dhat: at least this share of mesh.size ...
+MAX_DHAT_PIECE = 0.1    # ... and at most this share of the smallest extent of a piece that touches
+
+
+def read_contact(top: Table, dim: int, h: float = 1.0, pieces: tuple = ()) -> ContactSpec:
+    """[contact]; where contact acts (self-contact, or several pieces: bodies and objects) or dhat is
+    written, dhat lies in [MIN_DHAT_MESH x mesh.size, MAX_DHAT_PIECE x the smallest piece's smallest
+    extent]. Below, the barrier's collision detection (bracketed to 1e-3 dhat) crawls: on a 274-DOF
+    strip against a wall 4 s at dhat = 1e-4 h, minutes at 2.5e-7 h, endless at 1e-300 mm. Above,
+    the barrier pushes pieces apart across a good part of their own size."""
     t = Table(top.take("contact", "table", {}), "contact", top.source)
+    written = t.has("dhat")
     spec = ContactSpec(t.take("self", "bool", False), positive(t, "dhat", t.take("dhat", "number", 0.3)))
     if spec.self_contact and dim != 2:
         t.fail("self", "self-contact is implemented for dim = 2 only")
     t.done()
+    if written or spec.self_contact or len(pieces) > 1:
+        low = MIN_DHAT_MESH * h
+        small = min((float(np.min(hi - lo)) for lo, hi in (_body_box(p, dim, np.inf) for p in pieces)),
+                    default=math.inf)
+        high = MAX_DHAT_PIECE * small
+        if not low <= spec.dhat <= high:
+            t.fail("dhat", f"must lie in [{low:.3g}, {high:.3g}] mm for this design ({MIN_DHAT_MESH:g} x mesh.size, "
+                           f"{MAX_DHAT_PIECE:g} x the smallest extent of a piece that touches), got {spec.dhat:g}")
     return spec
 
 

@@ -7,14 +7,13 @@ import math
 import numpy as np
 
 from . import polygons
-from .spec import Body, Bone, DesignError, MAX_COORDINATE, Material, PRIMITIVES
-from .table import Table, check_bounded, convert_value, memoised, plain_name, positive
+from .spec import Body, Bone, DesignError, MAX_COORDINATE, MAX_NAME, Material, PRIMITIVES
+from .table import Table, convert_value, memoised, plain_name, positive
 
 
 def _polygon(t: Table, name: str, pts: np.ndarray, tol: float) -> np.ndarray:
     if len(pts) < 3:
         t.fail(name, "a polygon needs at least 3 points")
-    check_bounded(t, name, pts)
     memoised("polygon", [pts], tol, lambda: _polygon_shape(t, name, pts, tol))
     return pts
 
@@ -116,7 +115,7 @@ def named_entries(top: Table, section: str, required: bool = False) -> list[Tabl
     tables, seen = [], set()
     for i, e in enumerate(entries):
         name = e.get("name")
-        label = name if isinstance(name, str) and name else str(i)
+        label = name if isinstance(name, str) and 0 < len(name) <= MAX_NAME else str(i)   # a key of one line
         t = Table(e, f"{section}.{label}", top.source)
         name = t.take("name", "str")
         if not name or "." in name or "=" in name:
@@ -163,21 +162,21 @@ def _solid(t: Table, i: int, prim, dim: int, tol: float) -> dict:
     (kind, params), = prim.items()
     p = Table(params, f"{where}.{kind}", t.source)
     if kind == "box":
-        lo, hi = check_bounded(p, "min", p.take("min", "vector", dim=3)), check_bounded(p, "max", p.take("max", "vector", dim=3))
+        lo, hi = p.take("min", "point", dim=3), p.take("max", "point", dim=3)
         if np.any(hi - lo <= tol):
             p.fail("max", "must exceed min in every coordinate")
         out = {"min": lo, "max": hi}
     elif kind == "cylinder":
-        a, b = check_bounded(p, "from", p.take("from", "vector", dim=3)), check_bounded(p, "to", p.take("to", "vector", dim=3))
+        a, b = p.take("from", "point", dim=3), p.take("to", "point", dim=3)
         if np.linalg.norm(b - a) <= tol:
             p.fail("to", "must differ from 'from'")
         out = {"from": a, "to": b, "radius": _small(p, "radius", p.take("radius", "number"), tol)}
     elif kind == "sphere":
-        out = {"center": check_bounded(p, "center", p.take("center", "vector", dim=3)),
+        out = {"center": p.take("center", "point", dim=3),
                "radius": _small(p, "radius", p.take("radius", "number"), tol)}
     else:
         outline = _polygon(p, "outline", p.take("outline", "points", dim=2), tol)
-        z = check_bounded(p, "z", p.take("z", "vector", dim=2))
+        z = p.take("z", "point", dim=2)
         if z[1] - z[0] <= tol:
             p.fail("z", "must be [z0, z1] with z1 > z0")
         out = {"outline": outline, "z": z}

@@ -69,6 +69,9 @@ def is_finite(value) -> bool:
 
 
 def convert_value(value, kind: str, dim, fail):
+    """value as kind: "number", "int", "str", "bool", "table", "tables", "list"; "vector" (dim numbers:
+    a force, a normal, a move), "point" (dim coordinates) and "points" (a list of them). Every coordinate
+    of every section obeys one rule here: finite and within +-MAX_COORDINATE mm."""
     if kind == "number":
         if not is_number(value):
             fail(f"must be a number, got {show_value(value)}")
@@ -87,11 +90,11 @@ def convert_value(value, kind: str, dim, fail):
         if not isinstance(value, bool):
             fail(f"must be true or false, got {show_value(value)}")
         return value
-    if kind in ("vector", "points"):
-        shape = (dim,) if kind == "vector" else (None, dim)
-        ok = isinstance(value, list) and (kind == "vector" or all(isinstance(v, list) for v in value))
+    if kind in ("vector", "point", "points"):
+        shape = (None, dim) if kind == "points" else (dim,)
+        ok = isinstance(value, list) and (kind != "points" or all(isinstance(v, list) for v in value))
         if ok:
-            flat = value if kind == "vector" else [x for v in value for x in v]
+            flat = [x for v in value for x in v] if kind == "points" else value
             ok = all(is_number(x) for x in flat)
         if ok:
             if not all(is_finite(x) for x in flat):
@@ -101,8 +104,10 @@ def convert_value(value, kind: str, dim, fail):
             except (ValueError, TypeError, OverflowError):
                 ok = False
         if not ok or a.ndim != len(shape) or a.shape[-1] != dim:
-            what = f"{dim} numbers" if kind == "vector" else f"a list of points with {dim} coordinates each"
+            what = f"a list of points with {dim} coordinates each" if kind == "points" else f"{dim} numbers"
             fail(f"must be {what}")
+        if kind != "vector" and a.size and np.abs(a).max() > MAX_COORDINATE:
+            fail(f"coordinates must lie within +-{MAX_COORDINATE:g} mm (got {np.abs(a).max():g})")
         return a
     if kind == "table":
         if not isinstance(value, dict):
@@ -123,13 +128,6 @@ def positive(t: Table, name: str, value: float, strict: bool = True) -> float:
     if value < 0 or (strict and value == 0):
         t.fail(name, f"must be {'>' if strict else '>='} 0, got {value:g}")
     return value
-
-
-def check_bounded(t: Table, name: str, a: np.ndarray) -> np.ndarray:
-    """Geometry must stay within +-MAX_COORDINATE mm."""
-    if a.size and np.abs(a).max() > MAX_COORDINATE:
-        t.fail(name, f"coordinates must lie within +-{MAX_COORDINATE:g} mm (got {np.abs(a).max():g})")
-    return a
 
 
 def plain_name(t: Table, name: str, value: str, what: str) -> str:
