@@ -308,3 +308,17 @@ def test_a_schedule_without_dynamics_is_refused():
     d = _dynamic(0.01, 1.0)
     d["cables"][0]["schedule"] = [[0.0, 0.0], [1.0, 1.0]]
     assert parse_design(d).cables[0].schedule is not None
+
+
+def test_in_3d_a_fixed_pin_over_a_rigid_object_and_a_ground_cutting_one_are_refused():
+    d = box3d()
+    d["materials"]["pla"] = {"E": 1000.0, "nu": 0.35}
+    d["objects"] = [{"name": "cube", "solids": [{"box": {"min": [20, 0, 0], "max": [30, 10, 10]}}], "material": "pla"}]
+    assert len(parse_design(d).objects) == 1
+    held = copy.deepcopy(d)
+    held["pins"].append({"name": "hold", "region": [[19, -1, 9], [31, 11, 11]], "kind": "fixed"})
+    refused(held, "objects.cube.rigid", "pins.hold.region")
+    cut = copy.deepcopy(d)
+    # the side x <= 25: the body (x <= 10) lies on it, half the cube does not
+    cut["grounds"] = [{"name": "g", "point": [25, 0, 0], "normal": [-1, 0, 0], "stiffness": 1.0}]
+    refused(cut, "grounds.g.point", "cuts object 'cube'")
