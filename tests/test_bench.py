@@ -80,3 +80,62 @@ def test_bench_bad_input_is_one_error_line(tmp_path, capsys, args):
     assert status == 1
     assert len(err) == 1 and err[0].startswith("error:")
     assert not (tmp_path / "o").exists()
+
+
+RIGID_PARTS = """format = 1
+name = "rigid_parts"
+dim = 2
+thickness = 20.0
+
+[mesh]
+size = 4.0
+
+[materials]
+ecoflex = { E = 0.1, nu = 0.45, density = 1070.0 }
+pla = { E = 3000.0, nu = 0.35, density = 1240.0 }
+
+[body]
+outline = [[0, 0], [20, 0], [20, 60], [0, 60]]
+material = "ecoflex"
+
+[[bones]]
+name = "bone"
+outline = [[6, 20], [14, 20], [14, 40], [6, 40]]
+material = "pla"
+rigid = %s
+
+[[cables]]
+name = "flexor"
+kind = "tendon"
+path = [[3, 0], [3, 55]]
+stiffness = 20.0
+contraction = 3.0
+
+[[pins]]
+name = "base"
+region = [[-1, -1], [21, 0.01]]
+kind = "fixed"
+%s
+[markers]
+tip = [10, 60]
+"""
+BOX = """
+[[objects]]
+name = "box"
+outline = [[-30, 40], [-10, 40], [-10, 60], [-30, 60]]
+material = "pla"
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("rigid_bone, box", [(True, False), (False, True)])
+def test_bench_with_rigid_parts_measures_the_floor_of_the_elastic_part(tmp_path, capsys, rigid_bone, box):
+    """A rigid bone's or a rigid object's inner nodes have no stiffness in the UFL Hessian (their motion is
+    the body's few rigid DOFs): the floor matrix held them, so MUMPS failed on its empty rows (exit 3)."""
+    design = tmp_path / "rigid_parts.toml"
+    design.write_text(RIGID_PARTS % ("true" if rigid_bone else "false", BOX if box else ""))
+    out = tmp_path / "out"
+    status = main(["bench", str(design), "--sizes", "4", "--repeats", "1", "--out", str(out), "-q"])
+    assert status == 0, capsys.readouterr().err
+    row = json.loads((out / "bench.json").read_text())["rows"][0]
+    assert row["converged"] and 0 < row["floor_time"] < np.inf and row["refactorization_time"] > 0

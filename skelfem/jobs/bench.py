@@ -234,18 +234,41 @@ class NewtonTimer(LinearTimer):
 
 
 def fe_pattern_timer(model, options: dict) -> LinearTimer:
-    """t_A and t_F of the UFL Hessian alone on its own pattern: the floor of a Newton iteration."""
+    """t_A and t_F of the UFL Hessian alone on its own pattern: the floor of a Newton iteration.
+
+    Nodes the UFL Hessian gives no stiffness (inside a rigid bone or a rigid object: their cells carry
+    no strain, their motion is the rigid body's few DOFs, outside this matrix) have empty rows that
+    leave it singular; they get a 1 on the diagonal, like pinned nodes, so the floor is the factorisation
+    of the elastic part."""
+    from petsc4py import PETSc
     from dolfinx.fem import petsc as fem_petsc
 
     A = fem_petsc.create_matrix(model.jacobian_form)
+    A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)     # the held rows' diagonal, once
+    held = A.createVecLeft()
 
     def assemble():
         A.zeroEntries()
         fem_petsc.assemble_matrix(A, model.jacobian_form, bcs=model.bcs)
         A.assemble()
+        if held_any:
+            A.setDiagonal(held, addv=PETSc.InsertMode.ADD_VALUES)
+    held_any = False
+    assemble()
+    held.array_w[:] = _stiffless_rows(A, model.u.function_space.dofmap.index_map_bs)
+    held_any = bool(model.comm.allreduce(int(held.array_r.sum())))
     timer = LinearTimer(assemble, A, _new_ksp(model.comm, options))
     timer.first_factorization()
     return timer
+
+
+def _stiffless_rows(A, bs: int) -> np.ndarray:
+    """1.0 on the owned rows of the nodes whose every component has a zero diagonal in the assembled A
+    (an empty row), else 0."""
+    diagonal = A.getDiagonal()
+    zero = np.repeat((diagonal.array_r == 0.0).reshape(-1, bs).all(axis=1), bs)
+    diagonal.destroy()
+    return zero.astype(float)
 
 
 def residual_floor(model, samples: int = 3) -> float:
