@@ -213,19 +213,26 @@ def coulomb_limits(b: np.ndarray, c: np.ndarray, mu_tan: np.ndarray, F: np.ndarr
 
 
 def anderson(history: list) -> np.ndarray:
-    """Anderson mixing for the fixed point F = G(F) from the pairs [(F_k, G_k)] (oldest first, the same
-    components locked in all): G_k - sum_i gamma_i (G_i+1 - G_i) with gamma the least-squares fit of
-    the residual differences, clipped to F >= 0. One pair: plain iteration, G_k."""
-    F_k, G_k = history[-1]
+    """Anderson mixing for the fixed point F = G(F) from the pairs [(F_k, G_k)] (oldest first):
+    G_k - sum_i gamma_i (G_i+1 - G_i) with gamma the least-squares fit of the residual differences,
+    clipped to F >= 0. It mixes only the via points free (finite) in every F_k and G_k: a locked bend
+    (LOCKED, infinite) has no residual to fit, and a pair from before a bend locked or unlocked would
+    put inf - inf into the fit. One pair, or no usable fit: plain iteration, G_k."""
+    _, G_k = history[-1]
     out = G_k.copy()
-    free = np.isfinite(G_k)
+    free = np.logical_and.reduce([np.isfinite(f) & np.isfinite(g) for f, g in history])
     if len(history) < 2 or not free.any():
         return out
-    R = np.array([(g - f)[free] for f, g in history])
+    R = np.array([g[free] - f[free] for f, g in history])
     Gs = np.array([g[free] for _, g in history])
     dR, dG = np.diff(R, axis=0).T, np.diff(Gs, axis=0).T
-    gamma = np.linalg.lstsq(dR, R[-1], rcond=1e-10)[0]
-    out[free] = np.maximum(Gs[-1] - dG @ gamma, 0.0)
+    try:
+        gamma = np.linalg.lstsq(dR, R[-1], rcond=1e-10)[0]
+    except np.linalg.LinAlgError:                      # round-off beyond repair: fall back on G_k
+        return out
+    mixed = Gs[-1] - dG @ gamma
+    if np.all(np.isfinite(mixed)):
+        out[free] = np.maximum(mixed, 0.0)
     return out
 
 

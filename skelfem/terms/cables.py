@@ -52,6 +52,13 @@ ANDERSON_DEPTH = 5     # (F, G(F)) pairs the friction limits' fixed point mixes
 WIDE = 256    # DOFs: a segment coupling more (an anchor disk's) has its curvature as rank-one parts
 
 
+def _residual(pair) -> float:
+    """The largest |G(F) - F| of a free via point in one round of the friction limits."""
+    F, G = pair
+    free = np.isfinite(F) & np.isfinite(G)
+    return float(np.abs(G[free] - F[free]).max()) if free.any() else 0.0
+
+
 def _normals(t: np.ndarray) -> np.ndarray:
     """An orthonormal basis of the plane (2D: line) normal to the unit vector t, as rows."""
     if len(t) == 2:
@@ -161,10 +168,13 @@ class Cable:
         finite = np.isfinite(G) & np.isfinite(self.F)
         if same and (not finite.any() or float(np.abs(G[finite] - self.F[finite]).max()) <= rtol * scale):
             return False
-        if not same:
-            self._mixing = []
-        self._mixing = (self._mixing + [(self.F.copy(), G.copy())])[-ANDERSON_DEPTH:]
-        self.F = cable_slip.anderson(self._mixing) if same else G
+        if same:
+            self._mixing = (self._mixing + [(self.F.copy(), G.copy())])[-ANDERSON_DEPTH:]
+            if len(self._mixing) > 1 and _residual(self._mixing[-1]) > _residual(self._mixing[-2]):
+                self._mixing = self._mixing[-1:]       # the mixing made it worse: start it again from here
+            self.F = cable_slip.anderson(self._mixing)
+        else:                        # a bend locked or unlocked: the rounds before it are another problem
+            self._mixing, self.F = [], G
         self._version += 1
         return True
 
