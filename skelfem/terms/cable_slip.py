@@ -236,6 +236,18 @@ def anderson(history: list) -> np.ndarray:
     return out
 
 
+def restarted(history: list) -> list:
+    """The mixing's history from its last pair alone if that round is further from the fixed point
+    (larger max |G - F| over the free via points) than the one before: the mixing made it worse."""
+    def residual(pair):
+        F, G = pair
+        free = np.isfinite(F) & np.isfinite(G)
+        return float(np.abs(G[free] - F[free]).max()) if free.any() else 0.0
+    if len(history) > 1 and residual(history[-1]) > residual(history[-2]):
+        return history[-1:]
+    return history
+
+
 def frozen_limits(b: np.ndarray, c: np.ndarray, mu_tan: np.ndarray, T: np.ndarray, F: np.ndarray,
                   iterations: int = 500) -> np.ndarray:
     """The fixed point F_j = mu tan(theta_j/2)(T_j + T_j+1) with the stick/slip pattern of the tensions T

@@ -52,13 +52,6 @@ ANDERSON_DEPTH = 5     # (F, G(F)) pairs the friction limits' fixed point mixes
 WIDE = 256    # DOFs: a segment coupling more (an anchor disk's) has its curvature as rank-one parts
 
 
-def _residual(pair) -> float:
-    """The largest |G(F) - F| of a free via point in one round of the friction limits."""
-    F, G = pair
-    free = np.isfinite(F) & np.isfinite(G)
-    return float(np.abs(G[free] - F[free]).max()) if free.any() else 0.0
-
-
 def _normals(t: np.ndarray) -> np.ndarray:
     """An orthonormal basis of the plane (2D: line) normal to the unit vector t, as rows."""
     if len(t) == 2:
@@ -169,9 +162,7 @@ class Cable:
         if same and (not finite.any() or float(np.abs(G[finite] - self.F[finite]).max()) <= rtol * scale):
             return False
         if same:
-            self._mixing = (self._mixing + [(self.F.copy(), G.copy())])[-ANDERSON_DEPTH:]
-            if len(self._mixing) > 1 and _residual(self._mixing[-1]) > _residual(self._mixing[-2]):
-                self._mixing = self._mixing[-1:]       # the mixing made it worse: start it again from here
+            self._mixing = cable_slip.restarted((self._mixing + [(self.F.copy(), G.copy())])[-ANDERSON_DEPTH:])
             self.F = cable_slip.anderson(self._mixing)
         else:                        # a bend locked or unlocked: the rounds before it are another problem
             self._mixing, self.F = [], G
