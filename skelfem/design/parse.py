@@ -24,6 +24,7 @@ from .relations import check_piece_names, check_pinned_objects, check_schedules
 from .shapes import named_entries, read_body, read_bones, read_materials, read_solids
 from .spec import Design, DesignError, FORMAT, MeshSpec, SECTIONS_BY_NAME, force_scale
 from .table import Table, plain_name, positive, apply_override
+from .text import check_text
 
 
 # -- entry points -----------------------------------------------------------------------------------------
@@ -35,8 +36,11 @@ def used_materials(bodies, bones) -> tuple:
 def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     """Validate a design given as parsed TOML (a dict); overrides are ``KEY=VALUE`` strings."""
     data = copy.deepcopy(data)
+    check_text(data, source)
     for assignment in overrides:
         apply_override(data, assignment, source)
+    if overrides:
+        check_text(data, source)
     top = Table(data, "", source)
     fmt = top.take("format", "int")
     if fmt != FORMAT:
