@@ -139,6 +139,7 @@ class NewtonSolver(LineSearch):
         self._event = False           # the last SNES solve stopped at a contact event (Model.contact_event)
         self._watch_events = any(getattr(t, "contact_event", None) is not None for t in model.terms)
         self._factorised = False      # lin holds a factorisation of K near the current state
+        self._equilibrium = None      # (u, parameters) of the last converged state (an unchanged re-solve)
         self.snes = self._create_snes(prefix)
 
     # -- SNES set-up -------------------------------------------------------------------
@@ -195,6 +196,7 @@ class NewtonSolver(LineSearch):
         self._retired.append(self.A)
         self.A = self.lin.K = A
         self.lin.reset()
+        self._equilibrium = None
 
     def _retire(self) -> None:
         while self._retired:
@@ -203,6 +205,7 @@ class NewtonSolver(LineSearch):
     def forget(self) -> None:
         """Drop what was computed for the model before it changed (Model.refresh): factorisation, trials."""
         self._factorised = False
+        self._equilibrium = None
         self._last_trial = None
         self._watch, self._watch_allowed = None, True
 
@@ -429,8 +432,23 @@ class NewtonSolver(LineSearch):
         report.time = time.perf_counter() - t0
         return report
 
+    def _parameters(self) -> dict:
+        return {k: np.array(v, dtype=float) for k, v in self.model.parameters().items()}
+
+    def _unchanged(self) -> bool:
+        """Whether the model is still at the last converged state with the same parameters (every rank)."""
+        from mpi4py import MPI
+        if self._equilibrium is None:
+            return False
+        u, params = self._equilibrium
+        now = self._parameters()
+        same = np.array_equal(u, self.model.u.x.array) and now.keys() == params.keys() \
+            and all(np.array_equal(now[k], params[k]) for k in now)
+        return bool(self.model.comm.allreduce(same, op=MPI.LAND))
+
     def _finish(self, report: SolveReport, t0: float) -> SolveReport:
         model = self.model
+        self._equilibrium = (model.u.x.array.copy(), self._parameters()) if report.converged else None
         self.lin.rtol = KRYLOV_RTOL                    # what follows a solve (sensitivities) solves tightly
         report.linear_solver = self.lin.kind
         rest = self.lin.take_krylov()                  # a failed attempt's, not followed by a step
@@ -494,8 +512,12 @@ class NewtonSolver(LineSearch):
             for v in (x, r0, d):
                 v.destroy()
 
-    def resolve(self, steps: int = 1) -> SolveReport:
+    def resolve(self, steps: int = 1, again: bool = False) -> SolveReport:
         """Warm re-solve: a tangent predictor, then Newton at the new parameters, from the last equilibrium.
+
+        With the state and every parameter as the last converged solve left them, nothing is solved
+        (0 iterations: the same state), unless ``again`` asks for a new step at the same load (a
+        quasi-static step in which time passes: friction's anchors are carried into it).
 
         If that fails (other than by an object that is not held, which ends
         the solve), the step of the change is cut: the changed parameters
@@ -506,6 +528,13 @@ class NewtonSolver(LineSearch):
         """
         t0 = time.perf_counter()
         model = self.model
+        if not again and self._unchanged():
+            # nothing to re-solve: the state is the converged one for these parameters. With friction a
+            # new step from it would start with new anchors and lags and could settle elsewhere (friction's
+            # equilibria are not unique): a re-solve with unchanged parameters returns the same state
+            model.changes.clear()
+            return self._finish(SolveReport(True, "converged", 0, 0, [], [
+                {"factor": 1.0, "iterations": 0, "status": "converged", "warm": True, "unchanged": True}]), t0)
         saved = model.u.vector.copy()
         committed = model.history()
         changes = dict(model.changes)

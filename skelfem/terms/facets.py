@@ -27,14 +27,7 @@ def closest_on_facets(P: np.ndarray, y: np.ndarray, facets: np.ndarray) -> np.nd
         ab = b - a
         s = np.clip(np.einsum("nk,nk->n", P - a, ab) / np.einsum("nk,nk->n", ab, ab), 0.0, 1.0)
         return np.column_stack([1.0 - s, s])
-    c = y[facets[:, 2]]
-    e1, e2, q = b - a, c - a, P - a                      # solve the 2x2 normal equations for the plane
-    d11, d12, d22 = (np.einsum("nk,nk->n", u, v) for u, v in ((e1, e1), (e1, e2), (e2, e2)))
-    q1, q2 = np.einsum("nk,nk->n", q, e1), np.einsum("nk,nk->n", q, e2)
-    det = d11 * d22 - d12 ** 2
-    v = (d22 * q1 - d12 * q2) / det
-    w = (d11 * q2 - d12 * q1) / det
-    best = np.column_stack([1.0 - v - w, v, w])
+    best = plane_coordinates(P, y, facets)          # the plane's projection, kept if inside
     inside = (best >= 0.0).all(axis=1)
     if inside.all():
         return best
@@ -49,6 +42,24 @@ def closest_on_facets(P: np.ndarray, y: np.ndarray, facets: np.ndarray) -> np.nd
         bary[:, i], bary[:, j] = 1.0 - s, s
         best[better], dist[better] = bary[better], dd[better]
     return best
+
+
+def plane_coordinates(P: np.ndarray, y: np.ndarray, facets: np.ndarray) -> np.ndarray:
+    """Barycentric coordinates (n, dim) of the orthogonal projections of points P (n, dim) onto the lines
+    (2D) or planes (3D) of facets (n, dim), not clipped to the facet: an anchor placed there has no
+    tangential offset from P (a clipped closest point beside a facet's end has one, up to dhat)."""
+    a, b = y[facets[:, 0]], y[facets[:, 1]]
+    if facets.shape[1] == 2:
+        ab = b - a
+        s = np.einsum("nk,nk->n", P - a, ab) / np.einsum("nk,nk->n", ab, ab)
+        return np.column_stack([1.0 - s, s])
+    e1, e2, q = b - a, y[facets[:, 2]] - a, P - a
+    d11, d12, d22 = (np.einsum("nk,nk->n", u, v) for u, v in ((e1, e1), (e1, e2), (e2, e2)))
+    q1, q2 = np.einsum("nk,nk->n", q, e1), np.einsum("nk,nk->n", q, e2)
+    det = d11 * d22 - d12 ** 2
+    v = (d22 * q1 - d12 * q2) / det
+    w = (d11 * q2 - d12 * q1) / det
+    return np.column_stack([1.0 - v - w, v, w])
 
 
 def closest_facet(P: np.ndarray, piece: np.ndarray, y: np.ndarray, F: np.ndarray, facet_piece: np.ndarray,

@@ -60,7 +60,7 @@ from mpi4py import MPI
 
 from .base import Term
 from .contact import barrier_stiffness, fortran_array
-from .facets import closest_facet, closest_on_facets, tangents
+from .facets import closest_facet, closest_on_facets, plane_coordinates, tangents
 
 
 class ObjectFriction(Term):
@@ -74,7 +74,7 @@ class ObjectFriction(Term):
     tie_break = 1e-3        # facets ranked by distance + this x its part along the facet (see _closest)
     lag_step = 1e-7         # the barrier's N(u) is smooth: a larger step than a ground's, less round-off
     history_fields = ("facet", "b", "T", "N", "fresh", "sliding", "trial", "run", "_report", "_relax",
-                      "_lag_change", "_N_step", "_y0", "_start_facet")
+                      "_lag_change", "_N_step", "_y0", "_start_facet", "_converged")
 
     def __init__(self, ctx, contact, objects):
         design = ctx.design
@@ -126,6 +126,7 @@ class ObjectFriction(Term):
         self._N_step = self.N.copy()                         # N at the last accepted step
         self._y0 = contact.X.copy()                          # vertex positions at the step's start
         self._start_facet = self.facet.copy()                 # the anchors the step started with
+        self._converged = None                               # (u, friction forces) of the last converged step
 
     @property
     def active(self) -> bool:
@@ -322,6 +323,7 @@ class ObjectFriction(Term):
         dhat of another piece at rest are anchored there."""
         if self.active:
             self.facet[:], self.N[:], self.run[:], self.sliding[:] = -1, 0.0, 0.0, False
+            self._converged = None
             self._N_step = self.N.copy()
             self._begin_step()
 
@@ -431,7 +433,18 @@ class ObjectFriction(Term):
             return idx, idx, np.zeros((0, self.bs)), r
         back = ((r - self.eps) / r)[:, None] * d[slip]                     # (n, dim - 1)
         P = self._anchor_points(y, idx) + np.einsum("nka,na->nk", T[idx], back)
-        j, b_new, _ = self._closest(P, self.vertex_piece[idx])
+        j, _, _ = self._closest(P, self.vertex_piece[idx])
+        # on the facet the slid anchor lands on, the anchor sits exactly eps behind the vertex along the
+        # slip carried into that facet's tangent frame (on its line or plane, not clipped to it), so the
+        # next step starts with the force this one converged to (F along the slip). The closest point to
+        # P, clipped at the facet's end past a corner, was up to dhat off along the tangent: a stuck
+        # spring of stiffness mu N / eps pulled there with tens of newtons on one node
+        Tn = tangents(y, self.facets[j])
+        along = np.einsum("nka,nk->na", Tn, np.einsum("nka,na->nk", T[idx], d[slip]))
+        size = np.linalg.norm(along, axis=1)
+        along = np.where(size[:, None] > 0, along / np.where(size > 0, size, 1.0)[:, None], 0.0)
+        vertex = y[self.body_vertices[idx]]
+        b_new = plane_coordinates(vertex - np.einsum("nka,na->nk", Tn, self.eps * along), y, self.facets[j])
         return idx, j, b_new, r
 
     # -- anchors through time (skelfem.analysis.adjoint): the barycentric coordinates b ---------------
@@ -477,6 +490,7 @@ class ObjectFriction(Term):
             return
         u = model.u.x.array
         self._report = self._measure(u)
+        self._converged = (u.copy(), self.vertex_forces(u))      # what the read-outs of this state show
         y = self.c.positions(u)
         idx, j, b_new, r = self._slide(y, self.T)
         if len(idx):
@@ -503,10 +517,13 @@ class ObjectFriction(Term):
     # -- read-out ------------------------------------------------------------------------------------
     def vertex_forces(self, u: np.ndarray) -> np.ndarray:
         """The friction force on every boundary vertex (n, dim), N: -T f on an anchored vertex, +b_k T f
-        on the nodes of its anchor facet."""
+        on the nodes of its anchor facet. At the state of the last accepted step, the forces it converged
+        to (end_step's return map and new anchors would change the sum into the next step's start)."""
         out = np.zeros((len(self.N), self.bs))
         if not self.active:
             return out
+        if self._converged is not None and np.array_equal(u, self._converged[0]):
+            return self._converged[1].copy()     # the converged step's forces, not those after its return map
         on, f = self._force(u)
         ft = np.einsum("nka,na->nk", self.T[on], f)
         np.add.at(out, self.body_vertices[on], -ft)
