@@ -101,6 +101,7 @@ class _FakeSession:
     """A session whose solve on a mesh of size h has (3D) DOFs dofs(h) and a tip at position(h, k),
     k the solve's number; no mesh is made."""
     comm = type("C", (), {"size": 1})()
+    solved = False
 
     def __init__(self, dofs, position):
         from skelfem.design import load_design
@@ -154,6 +155,51 @@ def test_a_twin_mesh_measures_the_scatter_richardson_cannot_see(monkeypatch):
     assert acc["scatter"] == levels[-1]["scatter"] and session.sizes[-1] == h      # the answer is the twin
 
 
+class _FailingSession(_FakeSession):
+    """A _FakeSession whose solves fail below size `fails_below`: warm (a start carried over) only, or also
+    from rest (``solved`` reset, as the ladder does before a second try)."""
+    def __init__(self, fails_below: float, cold_too: bool):
+        super().__init__(lambda h: int(1000 * (4.0 / h) ** 3), lambda h, k: [1e-4 * h ** 1.8, 0.0, 0.0])
+        self.fails_below, self.cold_too, self.solved, self.tries = fails_below, cold_too, True, []
+
+    def edit(self, design, size=None):
+        self.design, self.solved = design, True          # an edit carries the last state over
+
+    def solve(self):
+        h = float(self.design.mesh.size)
+        self.tries.append((h, self.solved))
+        if h < self.fails_below and (self.cold_too or self.solved):
+            self.solved = False
+            return type("R", (), {"converged": False, "status": "inverted_elements", "dofs": self.dofs(h),
+                                  "newton_iterations": 0, "markers": {}})()
+        self.solved = True
+        return super().solve()
+
+
+def test_a_start_carried_over_that_fails_is_solved_again_from_rest(monkeypatch):
+    monkeypatch.setattr(accuracy, "ladder_zones", lambda model, design, h0: None)
+    session = _FailingSession(fails_below=3.0, cold_too=False)
+    _, acc = accuracy.refine(session, tol=0.01)
+    assert acc["met"] and acc["warning"] is None
+    retried = [a for a, b in zip(session.tries, session.tries[1:]) if a[1] and b == (a[0], False)]
+    assert retried and all(h < 3.0 for h, _ in retried)                        # warm failed, then from rest
+
+
+def test_a_finer_level_that_fails_returns_the_level_that_met_the_tolerance(monkeypatch):
+    """A level whose estimate met tol, then a finer one that fails even from rest (the ladder wanted its
+    third level): the answer is the met level again, met with a warning, never a failure."""
+    monkeypatch.setattr(accuracy, "ladder_zones", lambda model, design, h0: None)
+    session = _FailingSession(fails_below=2.5, cold_too=True)
+    result, acc = accuracy.refine(session, tol=0.05)
+    assert result.converged and acc["met"]
+    assert acc["size"] == pytest.approx(2.828427) and session.sizes[-1] == acc["size"]   # solved again there
+    assert "failed (inverted_elements)" in acc["warning"] and acc["stop"] == acc["warning"]
+    assert ladder_rules.MARGIN * acc["estimated_error"] <= 0.05
+    strict = _FailingSession(fails_below=2.5, cold_too=True)
+    _, acc = accuracy.refine(strict, tol=1e-6)                                   # nothing met: not met
+    assert not acc["met"] and acc["warning"] is None and "failed" in acc["stop"]
+
+
 def test_twin_level_takes_the_larger_of_richardson_and_the_scatter():
     level = Level(1.0, 8000, 3, 0.1, np.array([[1.0, 2.0]]), h=1.0, rate=1.5, estimate=0.01)
     res = type("R", (), {"dofs": 9000, "newton_iterations": 2, "markers": {"m": {"position": [1.0, 2.03]}}})()
@@ -169,7 +215,7 @@ def test_a_twin_that_gmsh_meshes_as_its_level_tries_smaller_sizes_then_warns(mon
     level = Level(2.0, 8000, 3, 0.1, np.array([[1.0, 2.0]]), h=2.0, rate=1.5, estimate=0.01)
     same = type("R", (), {"converged": True, "dofs": 8000, "newton_iterations": 1,
                           "markers": {"m": {"position": [1.0, 2.0]}}})()
-    session, factors, warnings = type("S", (), {"solve": lambda self: same})(), [], []
+    session, factors, warnings = type("S", (), {"solve": lambda self: same, "solved": True})(), [], []
     monkeypatch.setattr(accuracy.log, "warning", lambda msg, *args: warnings.append(msg % args))
     twin, _ = ladder_rules.solve_twin(session, level, factors.append)   # (the CLI's logger does not propagate)
     assert factors == pytest.approx([0.95, 0.95 ** 2, 0.95 ** 3]) and twin.size == pytest.approx(2.0 * 0.95 ** 3)

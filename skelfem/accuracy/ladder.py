@@ -436,6 +436,19 @@ def twin_level(level: Level, size: float, result, seconds: float) -> Level:
     return twin
 
 
+def solve_level(session):
+    """session.solve() on a level's new mesh; a start carried over from the last level that fails (it can
+    invert elements on the new mesh) is followed by a solve from rest."""
+    warm = bool(session.solved)
+    result = session.solve()
+    if not result.converged and warm:
+        log.info("--tol: h = %g mm from the last level's state failed (%s); solving from rest",
+                 session.design.mesh.size, result.status)
+        session.solved = False
+        result = session.solve()
+    return result
+
+
 def solve_twin(session, level: Level, edit) -> tuple[Level | None, object]:
     """Solve the twin of ``level``: edit(f) puts the session on the level's mesh family at f times its
     size, for f = TWIN, TWIN^2, TWIN^3 until Gmsh makes another mesh. (the twin's Level, or None if its
@@ -443,7 +456,7 @@ def solve_twin(session, level: Level, edit) -> tuple[Level | None, object]:
     t = time.perf_counter()
     for f in TWIN ** np.arange(1, 4):
         edit(float(f))
-        result = session.solve()
+        result = solve_level(session)
         if not result.converged:
             return None, result
         if result.dofs != level.dofs:

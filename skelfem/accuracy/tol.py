@@ -6,7 +6,7 @@ import logging
 import time
 from dataclasses import replace
 
-from .ladder import DEGREE, Level, MARGIN, MAX_LEVELS, RATIO, at_size, choose_bones, judged, ladder_zones, may_stop, next_level, next_size, rigid_variant, solve_twin, trusted
+from .ladder import DEGREE, Level, MARGIN, MAX_LEVELS, RATIO, at_size, choose_bones, judged, ladder_zones, may_stop, next_level, next_size, rigid_variant, solve_level, solve_twin, trusted
 
 log = logging.getLogger("skelfem")
 
@@ -41,11 +41,29 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
     t0 = time.perf_counter()
     stop = "estimate met the tolerance"
     result = None
+    met_before = None                  # the last level whose estimate met tol (a finer level that fails returns it)
+    warning = None
     while True:
         t = time.perf_counter()
-        result = session.solve()
+        result = solve_level(session) if levels else session.solve()
+
+        def fall_back(stop: str):
+            """(result, answer, stop, warning) after a failed solve: the last level that met tol again."""
+            if met_before is None:
+                return result, answer, stop, None
+            back = met_before
+            session.edit(at_size(design, back.size), size=None if zones is None else zones.scaled(back.size / h0))
+            again = session.solve()
+            if not again.converged:
+                return again, answer, stop, None
+            note = (f"{stop}; the answer is the level at h = {back.size:g} mm, whose estimate "
+                    f"{back.estimate + b:.3g} mm met the tolerance")
+            log.warning("--tol: %s", note)
+            return again, back, note, note
         if not result.converged:
-            stop = f"the solve at h = {session.design.mesh.size:g} mm failed ({result.status})"
+            result, answer, stop, warning = fall_back(
+                f"the solve at h = {session.design.mesh.size:g} mm failed ({result.status})")
+            stale = stale and warning is None
             break
         if levels and result.dofs == levels[-1].dofs:       # Gmsh made the same mesh: no new level
             log.info("--tol: h = %g mm gives the mesh of h = %g mm again", session.design.mesh.size,
@@ -61,6 +79,8 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
                  f" (the observed rate {level.observed:.2f} is not trusted)" if untrusted else "")
         answer = level
         history.append(level)
+        if level.estimate is not None and MARGIN * (level.estimate + b) <= tol:
+            met_before = level
         rigid = rigid_variant(design) if len(history) == 1 else None
         if rigid is not None:
             use, probe, _, bones = choose_bones(session, at_size(rigid, level.size), level,
@@ -74,7 +94,9 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
                 session.edit(at_size(design, f * h), size=None if zones is None else zones.scaled(f * h / h0))
             twin, result = solve_twin(session, level, edit)
             if twin is None:
-                stop = f"the twin solve at h = {session.design.mesh.size:g} mm failed ({result.status})"
+                result, answer, stop, warning = fall_back(
+                    f"the twin solve at h = {session.design.mesh.size:g} mm failed ({result.status})")
+                stale = stale and warning is None
                 break
             answer = twin
             history.append(answer)
@@ -102,10 +124,11 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
         return result, {"tol": tol, "met": False, "stop": stop, "levels": []}
     last = answer
     estimate = None if last.estimate is None else last.estimate + b
-    met = bool(result.converged and last.twin and may_stop(levels) and MARGIN * estimate <= tol)
+    met = bool(result.converged and (last.twin and may_stop(levels) or warning is not None)
+               and estimate is not None and MARGIN * estimate <= tol)
     accuracy = {"tol": tol, "degree": DEGREE, "size": last.size, "dofs": last.dofs,
                 "estimated_error": estimate, "rate": last.rate, "scatter": last.scatter, "met": met,
                 "bones": bones,
-                "stop": stop, "levels": [lv.to_dict() for lv in history],
+                "stop": stop, "warning": warning, "levels": [lv.to_dict() for lv in history],
                 "time": round(time.perf_counter() - t0, 4)}
     return result, accuracy

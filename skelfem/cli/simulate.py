@@ -127,6 +127,8 @@ def _summary(result: dict, out: Path) -> None:
         print(f"  --tol {a['tol']:g} mm: P{a.get('degree', 2)}, {where} "
               f"after {len(a['levels'])} meshes, estimated marker error {est}"
               + ("" if a["met"] else f" (NOT met: {a['stop']})"))
+        if a.get("warning"):
+            print(f"  warning: {a['warning']}")
     if hist:
         print("  last step |R|: " + " ".join(f"{r:.1e}" for r in hist[-5:]))
     for name, m in (result["markers"] or {}).items():

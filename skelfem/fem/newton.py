@@ -30,12 +30,13 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 from petsc4py import PETSc
 
 from ..design.spec import ATOL_RELATIVE, ENERGY_LINE_SEARCHES, LINE_SEARCHES as STRATEGIES, force_scale
+from .equilibrium import Equilibrium
+from .report import SolveError, SolveReport  # noqa: F401 (SolveError re-exported)
 from .linesearch import WATCHDOG, LineSearch, resolve_strategy
 from ..design.resources import direct_limit, stiff_elastic_bones
 from .linear import LowRankSolver, default_petsc_options  # noqa: F401 (re-exported)
@@ -63,28 +64,6 @@ _REASONS = {
     PETSc.SNES.ConvergedReason.DIVERGED_FUNCTION_DOMAIN: "inverted_elements",
     PETSc.SNES.ConvergedReason.DIVERGED_JACOBIAN_DOMAIN: "inverted_elements",
 }
-
-
-class SolveError(RuntimeError):
-    """Raised by callers that need an equilibrium and did not get one."""
-
-
-@dataclass
-class SolveReport:
-    converged: bool
-    status: str
-    newton_iterations: int = 0
-    load_steps: int = 0
-    residual_history: list = field(default_factory=list)   # one list of |R| per load step
-    attempts: list = field(default_factory=list)           # every Newton run: factor, iterations, status
-    energy: float = float("nan")
-    min_jacobian: float = float("nan")
-    time: float = 0.0
-    linear_solver: str = "direct"                           # "direct" (MUMPS) or "iterative" (CG + GAMG)
-    linear_iterations: list = field(default_factory=list)  # iterative: Krylov iterations per Newton step,
-    #                                                       one list per load step
-    linear_fallbacks: int = 0                               # iterative: Newton steps solved by MUMPS instead
-    linear_loose_steps: int = 0                             # ... taken from a stalled Krylov solve
 
 
 class NewtonSolver(LineSearch):
@@ -139,7 +118,7 @@ class NewtonSolver(LineSearch):
         self._event = False           # the last SNES solve stopped at a contact event (Model.contact_event)
         self._watch_events = any(getattr(t, "contact_event", None) is not None for t in model.terms)
         self._factorised = False      # lin holds a factorisation of K near the current state
-        self._equilibrium = None      # (u, parameters) of the last converged state (an unchanged re-solve)
+        self.equilibrium = Equilibrium()     # the last converged state (a re-solve with nothing changed)
         self.snes = self._create_snes(prefix)
 
     # -- SNES set-up -------------------------------------------------------------------
@@ -196,7 +175,7 @@ class NewtonSolver(LineSearch):
         self._retired.append(self.A)
         self.A = self.lin.K = A
         self.lin.reset()
-        self._equilibrium = None
+        self.equilibrium.forget()
 
     def _retire(self) -> None:
         while self._retired:
@@ -205,7 +184,7 @@ class NewtonSolver(LineSearch):
     def forget(self) -> None:
         """Drop what was computed for the model before it changed (Model.refresh): factorisation, trials."""
         self._factorised = False
-        self._equilibrium = None
+        self.equilibrium.forget()
         self._last_trial = None
         self._watch, self._watch_allowed = None, True
 
@@ -432,23 +411,12 @@ class NewtonSolver(LineSearch):
         report.time = time.perf_counter() - t0
         return report
 
-    def _parameters(self) -> dict:
-        return {k: np.array(v, dtype=float) for k, v in self.model.parameters().items()}
-
-    def _unchanged(self) -> bool:
-        """Whether the model is still at the last converged state with the same parameters (every rank)."""
-        from mpi4py import MPI
-        if self._equilibrium is None:
-            return False
-        u, params = self._equilibrium
-        now = self._parameters()
-        same = np.array_equal(u, self.model.u.x.array) and now.keys() == params.keys() \
-            and all(np.array_equal(now[k], params[k]) for k in now)
-        return bool(self.model.comm.allreduce(same, op=MPI.LAND))
-
     def _finish(self, report: SolveReport, t0: float) -> SolveReport:
         model = self.model
-        self._equilibrium = (model.u.x.array.copy(), self._parameters()) if report.converged else None
+        if report.converged:
+            self.equilibrium.mark(model)
+        else:
+            self.equilibrium.forget()
         self.lin.rtol = KRYLOV_RTOL                    # what follows a solve (sensitivities) solves tightly
         report.linear_solver = self.lin.kind
         rest = self.lin.take_krylov()                  # a failed attempt's, not followed by a step
@@ -528,7 +496,7 @@ class NewtonSolver(LineSearch):
         """
         t0 = time.perf_counter()
         model = self.model
-        if not again and self._unchanged():
+        if not again and self.equilibrium.holds(model):
             # nothing to re-solve: the state is the converged one for these parameters. With friction a
             # new step from it would start with new anchors and lags and could settle elsewhere (friction's
             # equilibria are not unique): a re-solve with unchanged parameters returns the same state
