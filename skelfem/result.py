@@ -197,6 +197,19 @@ class Result:
             raise ValueError(f"{self.design}: not converged ({self._data['status']}): no tensions")
         return float(self._data["cables"][cable]["tension"])
 
+    def observables(self) -> dict[str, float]:
+        """Every observable of this result, {name: value} (``markers.tip.x``, ``cables.flexor.tension``...:
+        the names of skelfem.observables, as calibration's CSV columns use them)."""
+        from .observables import observables
+        return observables(self._data)
+
+    def observable(self, name: str) -> float:
+        """One observable by name; KeyError naming the ones there are for an unknown name."""
+        values = self.observables()
+        if name not in values:
+            raise KeyError(f"{name!r}: not an observable of this result (there are: {', '.join(values)})")
+        return values[name]
+
     def displacement(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(rest vertex coordinates X, displacement u at them, cells), as numpy arrays (copies), mm.
 
