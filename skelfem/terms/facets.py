@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+CHUNK = 1 << 20         # 2D: entries of a (points x edges) array at a time (a few of them, 8 MB each)
+
 
 def tangents(y: np.ndarray, facets: np.ndarray) -> np.ndarray:
     """(n, dim, dim - 1) orthonormal tangent bases of facets (rows of vertex indices into y): 2D, the
@@ -75,16 +77,23 @@ def closest_facet(P: np.ndarray, piece: np.ndarray, y: np.ndarray, F: np.ndarray
     if F.shape[1] == 2:
         a, b = y[F[:, 0]], y[F[:, 1]]
         ab = b - a
-        s = np.clip(np.einsum("nek,ek->ne", P[:, None, :] - a[None], ab) / np.einsum("ek,ek->e", ab, ab), 0, 1)
-        q = a[None] + s[..., None] * ab[None]
-        dist = np.linalg.norm(P[:, None, :] - q, axis=2)
-        normal = np.column_stack([-ab[:, 1], ab[:, 0]]) / np.linalg.norm(ab, axis=1)[:, None]
-        across = np.abs(np.einsum("nek,ek->ne", P[:, None, :] - q, normal))
-        rank = dist + tie_break * (dist - across)
-        rank[piece[:, None] == facet_piece[None, :]] = np.inf
-        j = np.argmin(rank, axis=1)
-        k = np.arange(len(P))
-        return j, np.column_stack([1.0 - s[k, j], s[k, j]]), dist[k, j]
+        length2 = np.einsum("ek,ek->e", ab, ab)
+        normal = np.column_stack([-ab[:, 1], ab[:, 0]]) / np.sqrt(length2)[:, None]
+        j = np.zeros(len(P), dtype=np.int64)
+        s_j = np.zeros(len(P))
+        d_j = np.zeros(len(P))
+        rows = max(1, CHUNK // max(len(F), 1))          # points x edges arrays of at most CHUNK entries
+        for lo in range(0, len(P), rows):
+            p = P[lo:lo + rows, None, :]
+            s = np.clip(np.einsum("nek,ek->ne", p - a[None], ab) / length2, 0, 1)
+            off = p - (a[None] + s[..., None] * ab[None])
+            dist = np.linalg.norm(off, axis=2)
+            rank = dist + tie_break * (dist - np.abs(np.einsum("nek,ek->ne", off, normal)))
+            rank[piece[lo:lo + rows, None] == facet_piece[None, :]] = np.inf
+            pick = np.argmin(rank, axis=1)
+            k = np.arange(len(pick))
+            j[lo:lo + rows], s_j[lo:lo + rows], d_j[lo:lo + rows] = pick, s[k, pick], dist[k, pick]
+        return j, np.column_stack([1.0 - s_j, s_j]), d_j
     from scipy.spatial import cKDTree
     centroid = y[F].mean(axis=1)
     best_j = np.full(len(P), -1)
