@@ -16,9 +16,7 @@ as its axis letter (x, y, z):
 ``contacts.A|B.friction_force.x|y|z``    the friction force on A, N (pairs with friction)
 =======================================  ==========================================================
 
-The calibration CSV's columns and ``--tol`` keys use the same names; the
-estimates of ``skelfem simulate --estimate`` (:mod:`skelfem.accuracy.estimate`)
-are keyed by them.
+Calibration's CSV columns use the same names (skelfem.analysis.caldata.measurement_columns).
 """
 from __future__ import annotations
 
@@ -30,8 +28,6 @@ AXES = "xyz"
 VECTORS = {"markers": ("position",), "pins": ("reaction",), "grounds": ("force", "friction_force"),
            "objects": ("position", "rotation"), "contacts": ("normal_force", "friction_force")}
 SCALARS = {"cables": ("tension",), "objects": ("rotation",), "contacts": ("normal_magnitude",)}
-UNITS = {"position": "mm", "rotation": "rad", "tension": "N", "reaction": "N", "force": "N",
-         "friction_force": "N", "normal_force": "N", "normal_magnitude": "N"}
 PATTERNS = ("markers.M.x|y|z", "cables.C.tension", "pins.P.reaction.x|y|z", "grounds.G.force.x|y|z",
             "grounds.G.friction_force.x|y|z", "objects.O.position.x|y|z", "objects.O.rotation",
             "contacts.A|B.normal_magnitude", "contacts.A|B.normal_force.x|y|z",
@@ -64,16 +60,3 @@ def observables(data: dict) -> dict[str, float]:
                 out.update({f"{stem}.{AXES[i]}": float(v) for i, v in enumerate(value)})
     return {k: v for k, v in out.items() if math.isfinite(v)}
 
-
-def unit(name: str) -> str:
-    """The unit of an observable ('mm', 'N' or 'rad')."""
-    parts = name.split(".")
-    if parts[0] == "markers":
-        return "mm"
-    return UNITS[parts[-1] if parts[-1] in UNITS else parts[-2]]
-
-
-def matches(name: str, pattern: str) -> bool:
-    """Whether an observable name matches a key given by a user: the name itself, or a prefix of it at a
-    dot (``markers.tip`` covers ``markers.tip.x`` and ``.y``)."""
-    return name == pattern or name.startswith(pattern + ".")

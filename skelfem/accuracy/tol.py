@@ -43,26 +43,28 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
     result = None
     met_before = None                  # the last level whose estimate met tol (a finer level that fails returns it)
     warning = None
+
+    def fall_back(failed, stop: str):
+        """(result, answer, stop, warning) after a failed solve: the last level whose estimate met tol,
+        solved again, or the failure as it is."""
+        if met_before is None:
+            return failed, answer, stop, None
+        back = met_before
+        session.edit(at_size(design, back.size), size=None if zones is None else zones.scaled(back.size / h0))
+        again = session.solve()
+        if not again.converged:
+            return again, answer, stop, None
+        note = (f"{stop}; the answer is the level at h = {back.size:g} mm, whose estimate "
+                f"{back.estimate + b:.3g} mm met the tolerance")
+        log.warning("--tol: %s", note)
+        return again, back, note, note
+
     while True:
         t = time.perf_counter()
-        result = solve_level(session) if levels else session.solve()
-
-        def fall_back(stop: str):
-            """(result, answer, stop, warning) after a failed solve: the last level that met tol again."""
-            if met_before is None:
-                return result, answer, stop, None
-            back = met_before
-            session.edit(at_size(design, back.size), size=None if zones is None else zones.scaled(back.size / h0))
-            again = session.solve()
-            if not again.converged:
-                return again, answer, stop, None
-            note = (f"{stop}; the answer is the level at h = {back.size:g} mm, whose estimate "
-                    f"{back.estimate + b:.3g} mm met the tolerance")
-            log.warning("--tol: %s", note)
-            return again, back, note, note
+        result = solve_level(session)
         if not result.converged:
             result, answer, stop, warning = fall_back(
-                f"the solve at h = {session.design.mesh.size:g} mm failed ({result.status})")
+                result, f"the solve at h = {session.design.mesh.size:g} mm failed ({result.status})")
             stale = stale and warning is None
             break
         if levels and result.dofs == levels[-1].dofs:       # Gmsh made the same mesh: no new level
@@ -95,7 +97,7 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
             twin, result = solve_twin(session, level, edit)
             if twin is None:
                 result, answer, stop, warning = fall_back(
-                    f"the twin solve at h = {session.design.mesh.size:g} mm failed ({result.status})")
+                    result, f"the twin solve at h = {session.design.mesh.size:g} mm failed ({result.status})")
                 stale = stale and warning is None
                 break
             answer = twin
@@ -124,7 +126,7 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
         return result, {"tol": tol, "met": False, "stop": stop, "levels": []}
     last = answer
     estimate = None if last.estimate is None else last.estimate + b
-    met = bool(result.converged and (last.twin and may_stop(levels) or warning is not None)
+    met = bool(result.converged and ((last.twin and may_stop(levels)) or warning is not None)
                and estimate is not None and MARGIN * estimate <= tol)
     accuracy = {"tol": tol, "degree": DEGREE, "size": last.size, "dofs": last.dofs,
                 "estimated_error": estimate, "rate": last.rate, "scatter": last.scatter, "met": met,

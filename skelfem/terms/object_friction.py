@@ -74,7 +74,7 @@ class ObjectFriction(Term):
     tie_break = 1e-3        # facets ranked by distance + this x its part along the facet (see _closest)
     lag_step = 1e-7         # the barrier's N(u) is smooth: a larger step than a ground's, less round-off
     history_fields = ("facet", "b", "T", "N", "fresh", "sliding", "trial", "run", "_report", "_relax",
-                      "_lag_change", "_N_step", "_y0", "_start_facet", "_converged")
+                      "_lag_change", "_N_step", "_y0", "_start_facet")
 
     def __init__(self, ctx, contact, objects):
         design = ctx.design
@@ -126,7 +126,7 @@ class ObjectFriction(Term):
         self._N_step = self.N.copy()                         # N at the last accepted step
         self._y0 = contact.X.copy()                          # vertex positions at the step's start
         self._start_facet = self.facet.copy()                 # the anchors the step started with
-        self._converged = None                               # (u, friction forces) of the last converged step
+        self._converged = None       # (u, friction forces) of the last accepted step (not history: keyed by u)
 
     @property
     def active(self) -> bool:
