@@ -50,8 +50,24 @@ def test_an_anchor_on_a_facet_has_no_tangential_offset_past_the_facet_end():
     assert np.allclose(b @ y3[:3], [0.8, 0.8, 0.0]) and b.sum() == pytest.approx(1.0)
 
 
+def _own_forces(term, u) -> dict:
+    """{anchored vertex: |its friction force|} at u with the term's anchors as they are."""
+    on, f = term._force(u)
+    return dict(zip(on.tolist(), np.linalg.norm(f, axis=1)))
+
+
 def _check_sequence(path, sets, overrides=()):
+    from skelfem.terms.object_friction import ObjectFriction
     with Session(path, list(overrides)) as s:
+        term = next(t for t in s.model.terms_in("contacts") if isinstance(t, ObjectFriction))
+        seen = {}
+        end_step = term.end_step
+
+        def spy(model):           # each vertex's friction force before and after the step's return map
+            seen["before"] = _own_forces(term, model.u.x.array)
+            end_step(model)
+            seen["after"] = _own_forces(term, model.u.x.array)
+        term.end_step = spy
         for changes in sets:
             s.set(changes)
             r = s.solve()
@@ -62,6 +78,10 @@ def _check_sequence(path, sets, overrides=()):
         force, _ = contact_forces(s.model)
         largest = float(np.linalg.norm(force, axis=1).max())
         assert largest <= 2.0 * total, (largest, total)      # each node's force within its pair's total
+        # the return map keeps each vertex's friction force (its size: past a corner of the other piece
+        # it turns to the new facet's tangent): the next step starts with the one this step converged to
+        before, after = seen["before"], seen["after"]
+        assert before and all(abs(after[v] - before[v]) <= 1e-6 * total for v in before.keys() & after.keys())
         again = s.solve()
         assert again.converged and again.newton_iterations == 0
         assert _same(_readouts(r), _readouts(again))
