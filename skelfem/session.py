@@ -333,20 +333,39 @@ class Session:
     # -- solving -----------------------------------------------------------------------------------
     @_exclusive
     def solve(self, steps: int | None = None) -> Result:
-        """Static equilibrium; warm-started from the last one after the first solve."""
+        """Static equilibrium; warm-started from the last one after the first solve.
+
+        A warm start that fails (after an edit: a carried-over state that inverts elements, a change the
+        parameter path cannot follow) is followed by one solve from rest, the load ramped as
+        ``skelfem simulate`` does; the result then says so (``retried_from_rest``: the warm attempt's
+        status, and a warning: the load path starts again, which friction's answer can depend on).
+        """
         t0 = time.perf_counter()
         steps = steps or self.design.solver.steps
         log.info("%s: %d DOFs, %d cells", self.design.name, self.dofs,
                  self.model.mesh.topology.index_map(self.model.mesh.topology.dim).size_global)
-        if not self.solved:                                   # cold: ramp the load from rest
+        warm = self.solved
+        if not warm:                                          # cold: ramp the load from rest
             self.model.to_rest()
-        report = self.solver.resolve(steps) if self.solved else self.solver.solve(steps)
+        report = self.solver.resolve(steps) if warm else self.solver.solve(steps)
+        retried = None
+        if warm and not report.converged:
+            retried = report
+            log.info("%s: the solve from the last state failed (%s); solving from rest", self.design.name,
+                     report.status)
+            self.model.to_rest()
+            report = self.solver.solve(steps)
         self.solved = bool(report.converged)
         timings = dict(self.timings, solve=time.perf_counter() - t0)
         timings["total"] = sum(timings.values())
         self.timings = {"mesh": 0.0, "compile": 0.0}          # paid once per mesh
         data = result_dict(self.design, self.model, report, timings)
         warnings = list(dict.fromkeys(note for term in self.model.terms for note in term.take_notes()))
+        if retried is not None:
+            data["retried_from_rest"] = {"warm_status": retried.status,
+                                         "warm_newton_iterations": int(retried.newton_iterations)}
+            warnings.append(f"the solve from the last state failed ({retried.status}); solved again from rest "
+                            "(the load path started again)")
         if warnings:                         # e.g. friction switched on at a loaded state
             for note in warnings:
                 log.warning("%s: %s", self.design.name, note)

@@ -438,14 +438,12 @@ def twin_level(level: Level, size: float, result, seconds: float) -> Level:
 
 def solve_level(session):
     """session.solve() on a level's new mesh; a start carried over from the last level that fails (it can
-    invert elements on the new mesh) is followed by a solve from rest."""
-    warm = bool(session.solved)
+    invert elements on the new mesh) is followed by a solve from rest (Session.solve retries once)."""
     result = session.solve()
-    if not result.converged and warm:
-        log.info("--tol: h = %g mm from the last level's state failed (%s); solving from rest",
-                 session.design.mesh.size, result.status)
-        session.solved = False
-        result = session.solve()
+    retried = getattr(result, "retried_from_rest", None)
+    if retried:
+        log.info("--tol: h = %g mm from the last level's state failed (%s); solved from rest",
+                 session.design.mesh.size, retried["warm_status"])
     return result
 
 

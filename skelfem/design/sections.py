@@ -10,7 +10,7 @@ from . import polygons
 from .objects import ObjectSpec, primitives_box
 from .shapes import check_inside, named_entries
 from .spec import Body, CableSpec, ContactSpec, DesignError, DynamicsSpec, ENERGY_LINE_SEARCHES, FabricationSpec, GroundSpec, INTEGRATORS, LINE_SEARCHES, LINEAR_SOLVERS, LoadSpec, MAX_COORDINATE, MAX_STEPS, MAX_TIME_STEPS, PinSpec, SolverSpec, TractionSpec
-from .table import Table, is_finite, is_number, plain_name, positive, show_value
+from .table import Table, entry_name, is_finite, is_number, positive, show_value
 
 
 MAX_CABLE_FRICTION = 10.0     # mu; any bend with mu tan(theta / 2) >= 1 locks long before
@@ -450,9 +450,7 @@ def read_markers(top: Table, dim: int, region, objects=()) -> dict:
     t = Table(top.take("markers", "table", {}), "markers", top.source)
     out = {}
     for name in list(t.data):
-        if "." in name:
-            t.fail(name, "marker names must not contain '.'")
-        plain_name(t, name, name, "a marker name")
+        entry_name(t, name, name, "a marker name")
         X = t.take(name, "point", dim=dim)
         if not any(inside(o, X) for o in objects):
             check_inside(t, name, X, region, "the marker")

@@ -8,7 +8,7 @@ import numpy as np
 
 from . import polygons
 from .spec import Body, Bone, DesignError, MAX_COORDINATE, MAX_NAME, Material, PRIMITIVES
-from .table import Table, convert_value, memoised, plain_name, positive
+from .table import MATERIAL_PAIR, Table, convert_value, entry_name, memoised, positive
 
 
 def _polygon(t: Table, name: str, pts: np.ndarray, tol: float) -> np.ndarray:
@@ -117,10 +117,7 @@ def named_entries(top: Table, section: str, required: bool = False) -> list[Tabl
         name = e.get("name")
         label = name if isinstance(name, str) and 0 < len(name) <= MAX_NAME else str(i)   # a key of one line
         t = Table(e, f"{section}.{label}", top.source)
-        name = t.take("name", "str")
-        if not name or "." in name or "=" in name:
-            t.fail("name", "must be a non-empty name without '.' or '='")
-        plain_name(t, "name", name, "a name")
+        name = entry_name(t, "name", t.take("name", "str"))
         if name in seen:
             t.fail("name", f"duplicate name {name!r} in {section}")
         seen.add(name)
@@ -134,6 +131,7 @@ def read_materials(top: Table) -> dict:
         mt.fail("", "at least one material is required")
     out = {}
     for name in list(mt.data):
+        entry_name(mt, name, name, "a material name", also=MATERIAL_PAIR)
         t = Table(mt.take(name, "table"), f"materials.{name}", top.source)
         E = positive(t, "E", t.take("E", "number"))
         nu = t.take("nu", "number")

@@ -139,6 +139,23 @@ def plain_name(t: Table, name: str, value: str, what: str) -> str:
     return value
 
 
+KEY_SEPARATORS = ".="      # a name is one part of a dotted --set key (cables.NAME.contraction=...)
+MATERIAL_PAIR = ":"        # [contact.pairs] "a:b": two material names
+
+
+def entry_name(t: Table, name: str, value: str, what: str = "a name", also: str = "") -> str:
+    """The one rule for every name a design gives (entries of [[cables]], [[objects]], [[bodies]]...,
+    materials, markers): a plain name (plain_name) that is one part of a dotted --set key, so without '.'
+    or '='; also: more characters the name must not hold (a material's ':' separates a contact pair)."""
+    if name == value and isinstance(value, str) and len(value) > MAX_NAME:   # the key is the name: one line
+        name = value[:MAX_NAME // 4] + "..."
+    bad = [c for c in KEY_SEPARATORS + also if isinstance(value, str) and c in value]
+    if not isinstance(value, str) or not value or bad:
+        seps = " or ".join(repr(c) for c in KEY_SEPARATORS + also)
+        t.fail(name, f"must be a non-empty name without {seps}; got {show_value(value)}")
+    return plain_name(t, name, value, what)
+
+
 # -- overrides ------------------------------------------------------------------------------------------
 def _parse_value(text: str):
     try:
