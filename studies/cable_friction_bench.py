@@ -157,7 +157,8 @@ def main(argv=None) -> dict:
     res = run(args.quick)
     args.out.mkdir(parents=True, exist_ok=True)
     _csv(args.out / "capstan.csv", res["capstan"])
-    _csv(args.out / "order.csv", [dict(r, observed_order=o) for r, o in zip(res["refinement"], [None] + res["observed_order"])])
+    _csv(args.out / "order.csv",
+         [dict(r, observed_order=o) for r, o in zip(res["refinement"], [None] + res["observed_order"])])
     _csv(args.out / "iterations.csv", res["fingers"])
     (args.out / "summary.json").write_text(json.dumps(
         {k: res[k] for k in ("observed_order", "worst_capstan_error", "worst_iteration_ratio")}, indent=2) + "\n")

@@ -162,7 +162,8 @@ def main(argv=None) -> dict:
     for e in res["energy"]:
         print(f"energy {e['integrator']} damping {e['damping']}: largest step increase "
               f"{e['max_increase_relative']:+.1e}, lost {100 * e['lost_relative']:.2f} % of max |Pi|")
-    print(f"slow schedule: {s['gap_mm']:.2e} mm from the static tip ({s['relative']:.1e} of its {s['motion_mm']:.2f} mm motion)")
+    print(f"slow schedule: {s['gap_mm']:.2e} mm from the static tip "
+          f"({s['relative']:.1e} of its {s['motion_mm']:.2f} mm motion)")
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "dynamics_checks.json").write_text(json.dumps(res, indent=2) + "\n")
     print(f"{res['time']:.1f} s; wrote {args.out / 'dynamics_checks.json'}")

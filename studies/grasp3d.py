@@ -58,7 +58,8 @@ def grasp(mu: float, ratios, contraction: float = 3.0, size: float | None = None
         c = _contact(d)
         out["close"] = {"converged": r.converged, "status": r.status, "newton_iterations": its,
                         "time": time.perf_counter() - t0, "normal_magnitude": c.get("normal_magnitude", 0.0),
-                        "min_distance": c.get("min_distance"), "ball_position": d.get("objects", {}).get("ball", {}).get("position")}
+                        "min_distance": c.get("min_distance"),
+                        "ball_position": d.get("objects", {}).get("ball", {}).get("position")}
         print(f"mu {mu:g}: closed ({r.status}, {its} Newton iterations, "
               f"{out['close']['time']:.1f} s), sum N = {out['close']['normal_magnitude']:.4f} N", flush=True)
         N0 = out["close"]["normal_magnitude"]

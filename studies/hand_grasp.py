@@ -276,7 +276,8 @@ def grasp(shape: str, outline: list, mu: float, densities, contraction: float = 
                 if panel is not None:
                     _draw(panel, s, f"{shape}: W = {W:.3g} N held (mu = {mu:g}, margin {entry['margin']:.2f}, "
                                     f"pads {entry['margin_pads']:.2f})")
-            moved = (f"; moved ({entry['moved']['displacement'][0]:+.2f}, {entry['moved']['displacement'][1]:+.2f}) mm, "
+            moved = (f"; moved ({entry['moved']['displacement'][0]:+.2f}, "
+                     f"{entry['moved']['displacement'][1]:+.2f}) mm, "
                      f"turned {entry['moved']['rotation']:+.4f} rad") if entry["held"] else ""
             say(f"{shape:9s} mu {mu:<4g} density {rho:6g}: W = {W:.3f} N, mu_min {entry['mu_min']:.3f} "
                 f"(pads {entry['mu_min_pads']:.3f}): {'held' if entry['held'] else 'LOST'} "

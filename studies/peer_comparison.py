@@ -295,7 +295,8 @@ def skfem_solve(problem: dict, max_iterations: int = 50, line_search: str = "non
         if np.linalg.norm(r) <= max(problem["atol"], problem["rtol"] * r0):
             status = "converged"
     t2 = time.perf_counter()
-    row = {"code": "scikit-fem", "degree": degree, "line_search": line_search, "converged": status == "converged", "status": status,
+    row = {"code": "scikit-fem", "degree": degree, "line_search": line_search, "converged": status == "converged",
+           "status": status,
            "dofs": int(basis_r.N), "newton_iterations": its, "time_setup": t1 - t0, "time_solve": t2 - t1,
            "time": t2 - t0, "final_residual": history[-1],
            "time_jacobian": t_assembly, "time_linear_solve": t_linear}
@@ -339,7 +340,8 @@ def run(sizes=(2.0, 1.0, 0.5), degree: int = 2, out: Path | None = None, progres
             "tip_difference": a.get("difference"), "tension_skelfem": a.get("tension"),
             "tension_scikit_fem": b.get("tension"), "error_vs_finest": a["error"],
             "time_skelfem": a["time"], "time_scikit_fem": b["time"], "speedup": b["time"] / a["time"],
-            "scikit_fem_jacobian_time": b.get("time_jacobian"), "scikit_fem_linear_solve_time": b.get("time_linear_solve"),
+            "scikit_fem_jacobian_time": b.get("time_jacobian"),
+            "scikit_fem_linear_solve_time": b.get("time_linear_solve"),
             "iterations": [a["newton_iterations"], b["newton_iterations"]]})
     result = {"rows": rows, "summary": summary}
     if out is not None:
@@ -348,7 +350,8 @@ def run(sizes=(2.0, 1.0, 0.5), degree: int = 2, out: Path | None = None, progres
 
 
 CSV_FIELDS = ("code", "size", "degree", "dofs", "converged", "status", "newton_iterations", "time_setup",
-              "time_solve", "time", "time_jacobian", "time_linear_solve", "tip_x", "tip_y", "tension", "difference", "error", "final_residual")
+              "time_solve", "time", "time_jacobian", "time_linear_solve", "tip_x", "tip_y", "tension", "difference",
+              "error", "final_residual")
 
 
 def write_outputs(out: Path, result: dict) -> None:
@@ -407,10 +410,12 @@ def main(argv=None) -> int:
         return 1
     res = run(a.sizes, a.degree, a.out)
     for c in res["summary"]["cases"]:
-        say(f"h={c['size']:<5g} {c['dofs']:7d} DOFs: tip skelfem ({c['tip_skelfem'][0]:.6f}, {c['tip_skelfem'][1]:.6f}) "
+        say(f"h={c['size']:<5g} {c['dofs']:7d} DOFs: "
+            f"tip skelfem ({c['tip_skelfem'][0]:.6f}, {c['tip_skelfem'][1]:.6f}) "
               f"scikit-fem ({c['tip_scikit_fem'][0]:.6f}, {c['tip_scikit_fem'][1]:.6f}), difference "
               f"{c['tip_difference']:.1e} mm; time {c['time_skelfem']:.2f} s vs {c['time_scikit_fem']:.2f} s "
-              f"(scikit-fem / skelfem = {c['speedup']:.1f}; scikit-fem Jacobians {c['scikit_fem_jacobian_time']:.2f} s, "
+              f"(scikit-fem / skelfem = {c['speedup']:.1f}; "
+              f"scikit-fem Jacobians {c['scikit_fem_jacobian_time']:.2f} s, "
               f"sparse LU {c['scikit_fem_linear_solve_time']:.2f} s)")
     copy_figure(a.out / "peer_comparison.png", a.figures)
     say(f"outputs in {a.out}")

@@ -237,7 +237,8 @@ def main(argv=None) -> int:
     for key, r in res["conditions"].items():
         ok &= r["status"] == "converged"
         say(f"{r['label']:31s} peak {r['peak_force']:.4f} N at {r['peak_travel']:.2f} mm  "
-              f"normalised {r['normalised_peak']:.3f}  ({r['status']}, {r['iterations']} Newton its, {r['time']:.1f} s)")
+              f"normalised {r['normalised_peak']:.3f}  "
+              f"({r['status']}, {r['iterations']} Newton its, {r['time']:.1f} s)")
     say(f"wrote {a.out}/push_test.csv, push_test.png, push_shapes.png in {time.perf_counter() - t0:.1f} s")
     return 0 if ok else 2
 

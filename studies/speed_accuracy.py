@@ -338,7 +338,8 @@ def plot(path: Path, result: dict) -> None:
         s = result["summary"][problem]
         for p in (1, 2):
             for kind in ("elastic", "rigid"):
-                mine = sorted((r for r in rows if r["degree"] == p and (r.get("bones") == "rigid") == (kind == "rigid")),
+                mine = sorted((r for r in rows
+                               if r["degree"] == p and (r.get("bones") == "rigid") == (kind == "rigid")),
                               key=lambda r: r["time"])
                 if not mine:
                     continue

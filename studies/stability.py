@@ -363,7 +363,8 @@ def main(argv=None) -> int:
     s = res["summary"]
     for name, p in s["strategies"].items():
         say(f"{name:12s} {p['successes']:3d}/{p['cases']} converged (by steps {p['by_steps']}), "
-              f"median {p['median_iterations']} its, {p['total_time']:.1f} s; failures: {', '.join(p['failures']) or '-'}")
+              f"median {p['median_iterations']} its, {p['total_time']:.1f} s; "
+              f"failures: {', '.join(p['failures']) or '-'}")
     for name, p in s.get("slender", {}).items():
         say(f"slender {name:12s} {p['successes']}/{p['cases']} converged, {p['total_time']:.1f} s: {p['iterations']}")
     say(f"picked: {s['picked']} (default: {s['default']}); energy converges over all ratios at "

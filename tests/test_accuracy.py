@@ -16,7 +16,10 @@ from _designs import strip, toml_text
 GEOMETRY = Path(__file__).resolve().parents[1] / "geometry"
 
 
-def _levels(sizes, C=0.3, r=1.6, exact=np.array([[1.0, 2.0]])):
+EXACT = np.array([[1.0, 2.0]])
+
+
+def _levels(sizes, C=0.3, r=1.6, exact=EXACT):
     """Levels whose marker error is exactly C h^r (along a fixed direction)."""
     out = []
     for h in sizes:

@@ -138,9 +138,11 @@ def slice_check(_: dict) -> Table:
     rows = [[r["design"], r["part"], r["down"], num(r["estimated_support_area"], 3), str(r["support_sections"]),
              str(r["layers"]), "yes" if r["manifold"] and r["parts"] == 1 else "no", str(len(r["warnings"]))]
             for r in d["rows"]]
+    moulds = ('every mould half prints without support' if d['moulds_without_support']
+              else 'some mould halves need support')
     caption = (f"{d['slicer']}: `--export-gcode --support-material` on every STL as written; "
                f"{'every part sliced without a warning' if d['all_sliced'] else 'some parts did not slice cleanly'}"
-               f"; {'every mould half prints without support' if d['moulds_without_support'] else 'some mould halves need support'}.")
+               f"; {moulds}.")
     return Table(["design", "part", "face down", "skelfem's support estimate [mm²]", "support sections (G-code)",
                   "layers", "manifold, one part", "warnings"], rows, caption, [path])
 
@@ -364,7 +366,8 @@ def scatter(_: dict) -> Table:
         rest = [x for i, x in enumerate(xs) if i != far]
         rows.append([d.get("design", name), f"{len(xs)} (h = {short(min(sizes))} … {short(max(sizes))})",
                      f"{num(d['std'][0], 2)} mm", f"{num(d['range'][0], 2)} mm",
-                     f"h = {short(sizes[far])}: {num(statistics.pstdev(rest), 2)} / {num(max(rest) - min(rest), 2)} mm"])
+                     f"h = {short(sizes[far])}: {num(statistics.pstdev(rest), 2)} / "
+                     f"{num(max(rest) - min(rest), 2)} mm"])
     if not rows:
         raise Missing(OUTPUT / "scatter", "python studies/scatter.py")
     return Table(["design", "meshes", "tip x: standard deviation", "range",
@@ -669,7 +672,8 @@ def arm3d_fine(_: dict) -> Table:
     rows = [["DOFs (P1 tetrahedra)", f"{thousands(d['dofs'])} ({thousands(d['cells'])})"],
             ["wall time (meshing, compile, solve)", f"{secs(d['wall_s'])} ({secs(t['mesh'])}, {secs(t['compile'])}, "
                                                     f"{secs(t['solve'])})"],
-            ["Newton iterations; Krylov per step (mean)", f"{d['newton_iterations']}; {span(d['krylov_per_newton'], str)} "
+            ["Newton iterations; Krylov per step (mean)",
+             f"{d['newton_iterations']}; {span(d['krylov_per_newton'], str)} "
                                                           f"({num(d['krylov_mean'])})"],
             ["fallbacks to MUMPS", str(d["linear_fallbacks"])],
             ["peak memory", f"{num(d['peak_gb'])} GB, {num(d['kb_per_dof'])} KB per DOF"],
@@ -712,10 +716,12 @@ def krylov_bounds(_: dict) -> Table:
                  "P1, contrast and Poisson's ratio at P2.", [path])
 
 
-TABLES = {f.__name__: f for f in (linear_scaling, krylov_bounds, arm3d_fine, reference_3d, bench, in_hand_roll, slice_check, slice_check_3mf,
-                                  fabrication_volumes, fabrication_poses, mpi_speed, editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
+TABLES = {f.__name__: f for f in (linear_scaling, krylov_bounds, arm3d_fine, reference_3d, bench, in_hand_roll,
+                                  slice_check, slice_check_3mf, fabrication_volumes, fabrication_poses, mpi_speed,
+                                  editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
                                   tol_check, tol_check_adaptive, scatter, adaptive_reach, adaptive_tol_runs,
-                                  stability, stability_slender, friction_stability, peer, pull_test, dynamics_checks, grasp, grasp3d, hand_grasp, grasp_bench,
+                                  stability, stability_slender, friction_stability, peer, pull_test, dynamics_checks,
+                                  grasp, grasp3d, hand_grasp, grasp_bench,
                                   cable_friction, capstan, cable_friction_cost)}
 
 

@@ -6,7 +6,8 @@ import logging
 import time
 from dataclasses import replace
 
-from .ladder import DEGREE, Level, MARGIN, MAX_LEVELS, RATIO, at_size, choose_bones, judged, ladder_zones, may_stop, next_level, next_size, rigid_variant, solve_level, solve_twin, trusted
+from .ladder import (DEGREE, Level, MARGIN, MAX_LEVELS, RATIO, at_size, choose_bones, judged, ladder_zones, may_stop,
+                     next_level, next_size, rigid_variant, solve_level, solve_twin, trusted)
 
 log = logging.getLogger("skelfem")
 

@@ -15,11 +15,12 @@ One row per measured state. Columns:
 Fitted parameters (``fit``) are live keys (or a vector key's component); a fitted key
 that is also a condition column is fitted as an *offset* added to every row's value
 (e.g. a tendon's contraction zero). A key with wildcards (``cables.lig*.stiffness``,
-fnmatch) fits *one* value shared by every live key it matches (they must start equal). ``sigma`` gives a column's (or an fnmatch pattern
-of columns') measurement standard deviation; ``bounds`` a parameter's box.
+fnmatch) fits *one* value shared by every live key it matches (they must start equal). ``sigma`` gives a
+column's (or an fnmatch pattern of columns') measurement standard deviation; ``bounds`` a parameter's box.
 
 Everything here reads the Design only (no DOLFINx), so a command can refuse bad data
-with one line before meshing. The outcome of a fit, :class:`Calibration`, is here too. ``live_keys`` lists what a built model's
+with one line before meshing. The outcome of a fit, :class:`Calibration`, is here too. ``live_keys`` lists what
+a built model's
 ``parameters()`` will list (checked against it in the tests).
 """
 from __future__ import annotations

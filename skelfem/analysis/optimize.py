@@ -14,7 +14,8 @@ minimises it within the bounds; it stops once every target is within tol
 (default 1e-3 x finger length), or when L-BFGS-B converges or runs out of
 evaluations. ``method="gauss-newton"`` instead solves the bounded
 least-squares problem with scipy's trust-region reflective method on the
-Jacobian of the residuals from the forward (tangent) sensitivities. The best evaluation found is returned, with reached = false if
+Jacobian of the residuals from the forward (tangent) sensitivities. The best evaluation found is returned,
+with reached = false if
 a target is still further than tol. Through contact and ground friction
 the gradient is exact on the forward run's branch; through cable friction,
 or on several MPI processes, it holds friction at each step

@@ -50,7 +50,8 @@ def setup_logging(verbosity: int) -> None:
         logging.getLogger(name).setLevel(logging.WARNING)
 
 
-def common_arguments(parser: argparse.ArgumentParser, out_help: str = "output folder (default: results/<name>)") -> None:
+def common_arguments(parser: argparse.ArgumentParser,
+                     out_help: str = "output folder (default: results/<name>)") -> None:
     """Arguments every command that runs a design shares."""
     parser.add_argument("design", type=Path, help="design file (TOML)")
     parser.add_argument("--out", type=Path, default=None, help=out_help)

@@ -111,7 +111,8 @@ def _peek(args):
         big = float(np.max(body_extent(design)))
         if not TOL_RANGE[0] * big <= args.tol <= TOL_RANGE[1] * big:
             # a larger one counted every target as reached; a smaller one lies below what Newton resolves
-            raise cli.InputError(f"--tol {args.tol:g}: must lie in [{TOL_RANGE[0] * big:.3g}, {TOL_RANGE[1] * big:.3g}] "
+            raise cli.InputError(f"--tol {args.tol:g}: must lie in "
+                                 f"[{TOL_RANGE[0] * big:.3g}, {TOL_RANGE[1] * big:.3g}] "
                                  f"mm for this design ({TOL_RANGE[0]:g} to {TOL_RANGE[1]:g} x its largest extent, "
                                  f"{big:.3g} mm)")
     for name in contraction_bounds(args.max_contraction):
@@ -368,7 +369,8 @@ class TrackProgress:
     def __init__(self, out: Path, design, args, targets: np.ndarray):
         target = Path(os.path.realpath(out))
         self.folder = target.parent / f".{target.name}.track-partial"
-        key = {"design": design.raw, "marker": args.marker, "bounds": sorted(contraction_bounds(args.max_contraction).items()),
+        key = {"design": design.raw, "marker": args.marker,
+               "bounds": sorted(contraction_bounds(args.max_contraction).items()),
                "reg": args.reg, "tol": args.tol, "max_solves": args.max_solves,
                "targets": np.asarray(targets, float).tolist()}
         self.key = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()

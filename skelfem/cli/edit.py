@@ -62,7 +62,8 @@ def edit(args) -> int:
     for flag, value in (("--max-seconds", args.max_seconds), ("--max-memory", args.max_memory)):
         if value is not None and not 0 < value <= MAX_BUDGET:
             raise cli.InputError(f"{flag} {value:g}: must be a number above 0 and at most {MAX_BUDGET:g}")
-    per_request = Budget(args.max_seconds or Budget.seconds, 1e6 * args.max_memory if args.max_memory else Budget.memory)
+    per_request = Budget(args.max_seconds or Budget.seconds,
+                         1e6 * args.max_memory if args.max_memory else Budget.memory)
     try:
         design = load_design(args.design)
         resources.check(design)

@@ -12,7 +12,8 @@ import argparse
 import os
 import sys
 from pathlib import Path
-from .common import EXIT_INPUT, EXIT_INTERNAL, EXIT_SOLVE, InputError, print_error, common_arguments, error, setup_logging
+from .common import (EXIT_INPUT, EXIT_INTERNAL, EXIT_SOLVE, InputError, print_error, common_arguments, error,
+                     setup_logging)
 from .fabricate import fabricate
 from .simulate import simulate
 from . import bench, calibrate, control, edit, optimize, sweep

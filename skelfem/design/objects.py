@@ -124,7 +124,8 @@ def primitives_box(solids) -> tuple[np.ndarray, np.ndarray]:
         elif kind == "sphere":
             los.append(p["center"] - p["radius"]), his.append(p["center"] + p["radius"])
         else:
-            los.append(np.r_[p["outline"].min(axis=0), p["z"][0]]), his.append(np.r_[p["outline"].max(axis=0), p["z"][1]])
+            los.append(np.r_[p["outline"].min(axis=0), p["z"][0]])
+            his.append(np.r_[p["outline"].max(axis=0), p["z"][1]])
     return np.min(los, axis=0), np.max(his, axis=0)
 
 
@@ -206,7 +207,6 @@ def _objects(top, dim: int, materials: dict, bodies: tuple, read_solids, named_e
     if not tables:
         return ()
     if dim == 2:
-        loops = polygons.loops_of(bodies)
         tol = 1e-9 * max(float(np.ptp(np.vstack([b.outline for b in bodies]), axis=0).max()), 1.0)
     else:
         lo, hi = primitives_box([p for b in bodies for p in b.solids])

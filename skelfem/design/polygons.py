@@ -94,7 +94,8 @@ def _memberships(i0, span, gx):
 def _choose_grid(lo, hi, region, n):
     """Columns and rows of the grid over region that make the fewest memberships and pairs.
 
-    Powers of two per axis (only occupied cells cost anything); memberships and pairs are estimated on a sample of the boxes,
+    Powers of two per axis (only occupied cells cost anything); memberships and pairs are estimated on a
+    sample of the boxes,
     so long thin boxes favour cells stretched along them and a crowded
     corner favours finer cells.
     """
@@ -368,7 +369,8 @@ def parity(points: np.ndarray, loops) -> np.ndarray:
             x, y = points[idx, 0:1], points[idx, 1:2]
             straddle = (a[None, :, 1] > y) != (b[None, :, 1] > y)
             with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-                xc = a[None, :, 0] + (y - a[None, :, 1]) * (b[None, :, 0] - a[None, :, 0]) / (b[None, :, 1] - a[None, :, 1])
+                xc = (a[None, :, 0]
+                      + (y - a[None, :, 1]) * (b[None, :, 0] - a[None, :, 0]) / (b[None, :, 1] - a[None, :, 1]))
             out[idx] = np.sum(straddle & (x < xc), axis=1) % 2 == 1
     return out
 

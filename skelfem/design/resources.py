@@ -144,7 +144,8 @@ def check(design, force: bool | None = None) -> dict:
         force = FORCED
     most, linear = limit(design, est["dofs"])
     if est["dofs"] > most and not force:
-        how = "" if design.dim == 2 else (f" with the {linear} solver, {peak_bytes(most, linear, design.mesh.degree) / 1e9:.0f} GB "
+        how = "" if design.dim == 2 else (f" with the {linear} solver, "
+                                           f"{peak_bytes(most, linear, design.mesh.degree) / 1e9:.0f} GB "
                                            f"of {physical_memory() / 1e9:.0f}")
         raise DesignError(
             f"{design.source}: mesh.size: {design.mesh.size:g} mm gives about {_fmt(est['cells'])} cells and "

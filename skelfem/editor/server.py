@@ -266,7 +266,8 @@ def create_app(editor):
     async def favicon(request):
         return Response(b"", 204, headers=headers)
 
-    routes = [Route("/", page), Route("/favicon.ico", favicon), Route("/static/{name}", static), Route("/api/design", design),
+    routes = [Route("/", page), Route("/favicon.ico", favicon), Route("/static/{name}", static),
+              Route("/api/design", design),
               Route("/api/solve", solve, methods=["POST"]), Route("/api/ik", ik, methods=["POST"]),
               Route("/api/save", save, methods=["POST"]), WebSocketRoute("/api/live", live)]
     return Starlette(routes=routes, middleware=[Middleware(Guard, port_of=lambda: editor.port)])

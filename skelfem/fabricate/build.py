@@ -205,7 +205,8 @@ def build_half(plan: Plan, side: str, folder: Path | None = None) -> Part:
             half = clean_solids(occ, occ.fuse(half, [s for t in adds for s in tool_shapes(occ, t)])[0])
         mass.append(total_mass(occ, half))
         cuts = [t for t in plan.mould_tools
-                if t.kind in ("exit", "pry", "rod_hole", "clamp") or (side == "top" and t.kind in ("pin_hole", "pour", "vent"))]
+                if t.kind in ("exit", "pry", "rod_hole", "clamp")
+                or (side == "top" and t.kind in ("pin_hole", "pour", "vent"))]
         half = cut_solids(occ, half, [s for t in cuts for s in tool_shapes(occ, t)])
         mass.append(total_mass(occ, half))
         info = {"block_volume": block, "pegs": sum(t.side == side for t in plan.pegs),

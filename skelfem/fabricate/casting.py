@@ -50,7 +50,8 @@ def _neighbours(shape: tuple[int, int]) -> list[tuple[np.ndarray, np.ndarray]]:
             if di == dj == 0:
                 continue
             ok = (a + di >= 0) & (a + di < shape[0]) & (b + dj >= 0) & (b + dj < shape[1])
-            out.append((np.ravel_multi_index((a[ok], b[ok]), shape), np.ravel_multi_index((a[ok] + di, b[ok] + dj), shape)))
+            out.append((np.ravel_multi_index((a[ok], b[ok]), shape),
+                        np.ravel_multi_index((a[ok] + di, b[ok] + dj), shape)))
     return out
 
 
@@ -293,7 +294,8 @@ def undercuts(planner) -> tuple[dict, list[str]]:
         out[side] = float(rays["area"][locked].sum())
         if out[side] > 0:
             where = rays["centre"][locked][np.argmax(rays["area"][locked])]
-            notes.append(f"the {side} half has {out[side]:.3g} mm^2 of undercut (near {where_text(where)}): it comes off "
+            notes.append(f"the {side} half has {out[side]:.3g} mm^2 of undercut (near {where_text(where)}): "
+                         "it comes off "
                          "only as far as the silicone bends; another fabrication.split avoids it")
     return out, notes
 

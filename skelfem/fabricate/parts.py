@@ -24,7 +24,7 @@ def cable_radius(spec, cable) -> float:
     return (spec.channel_diameter if cable.kind == "tendon" else spec.anchor_diameter) / 2
 
 
-# -- the plan's data ----------------------------------------------------------------------------------------------------
+# -- the plan's data ---------------------------------------------------------------------------------------------
 @dataclass
 class Frame:
     """The mould's axes: u, v span the parting plane n . x = c; the block spans lo..hi in (u, v, n)."""

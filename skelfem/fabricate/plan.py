@@ -43,7 +43,8 @@ from .parts import Frame, Plan, Tool, cable_points, where_text
 from . import casting
 from .routes import RouteHolder
 from .sheaths import sheath
-from .surfaces import FabricationError, GRAZING, PROBE_CURVATURE, Surface, face_distances, inside, point_triangle_distance, ray_hits
+from .surfaces import (FabricationError, GRAZING, PROBE_CURVATURE, Surface, face_distances, inside,
+                       point_triangle_distance, ray_hits)
 
 
 def path_samples(points: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
@@ -504,7 +505,8 @@ class _Planner:
         tools = []
         for name, s in self.spool.items():
             d = s["direction"]
-            tools.append(Tool("exit", np.vstack([s["origin"], s["origin"] + (self.frame.reach(s["origin"], d) + 1.0) * d]),
+            end = s["origin"] + (self.frame.reach(s["origin"], d) + 1.0) * d
+            tools.append(Tool("exit", np.vstack([s["origin"], end]),
                               self.r_channel, cable=name))
         return tools
 

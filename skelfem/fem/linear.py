@@ -117,7 +117,7 @@ class LowRankSolver:
         self._dense: dict = {}
         self._work = None               # the embedded right-hand side (Border.hosts)
         self.solves = 0                 # solve phases run (one multi-RHS solve counts once)
-        self._hksp = None               # iterative: the KSP of the whole system (_operator_mode) on (x, z) vectors: n rows and the border's m
+        self._hksp = None               # iterative: the whole system's KSP (_operator_mode) on (x, z): n + m rows
         self._bvecs = None              # ... (rhs, solution) of that size, and two n-vectors
         self.ZB = np.zeros((0, 0))      # ... B [G | E], B one multigrid cycle (an approximate K^{-1})
         self.CB = np.zeros((0, 0))      # ... the small system's matrix made from ZB

@@ -318,7 +318,8 @@ class NewtonSolver(LineSearch):
         if reason > 0:
             return True, "converged", self.snes.getIterationNumber()
         why = self.model.failure(converged=False)
-        return False, why or self._failure or _REASONS.get(reason, f"diverged ({reason})"), self.snes.getIterationNumber()
+        why = why or self._failure or _REASONS.get(reason, f"diverged ({reason})")
+        return False, why, self.snes.getIterationNumber()
 
     def _predict(self, prev, a_prev: float, a: float, target: float) -> None:
         """Secant predictor: extrapolate the last increment to the new load factor."""

@@ -50,7 +50,8 @@ OUTPUTS = {
 }
 # files whose names follow the design (one per bone): a pattern per command
 PATTERNS = {"fabricate": re.compile(r"^((bone_[^/\\]+|mould_(bottom|top))\.(stl|step)|[^/\\]+\.3mf)$")}
-STALE_FILE = re.compile(r"^\.(result|solution|deformed|trajectory|motion|optimize|schedules|calibration|calibrated|partial|fit|residuals|parameters|ik|track|bench|summary|fabrication|casting)-.*")
+STALE_FILE = re.compile(r"^\.(result|solution|deformed|trajectory|motion|optimize|schedules|calibration|calibrated"
+                        r"|partial|fit|residuals|parameters|ik|track|bench|summary|fabrication|casting)-.*")
 NAME_MAX = 255
 RESERVED_CHARS = 48           # room for ".<name>.tmp-<pid>-<random>" beside the target
 PATH_MAX = 4096 - 128

@@ -1,4 +1,5 @@
-"""The state as numbers (vertex displacements, regions, cables, markers) gathered on rank 0, and solution.xdmf / trajectory.xdmf.
+"""The state as numbers (vertex displacements, regions, cables, markers) gathered on rank 0, and
+solution.xdmf / trajectory.xdmf.
 """
 from __future__ import annotations
 
@@ -44,7 +45,8 @@ def contact_forces(model) -> tuple[np.ndarray, np.ndarray] | None:
     X, edges, facets = pieces.X, pieces.edges, pieces.facets
     side = X[facets[:, 1:]] - X[facets[:, :1]]
     dim = X.shape[1]
-    measure = np.linalg.norm(side[:, 0], axis=1) if dim == 2 else 0.5 * np.linalg.norm(np.cross(side[:, 0], side[:, 1]), axis=1)
+    measure = (np.linalg.norm(side[:, 0], axis=1) if dim == 2
+               else 0.5 * np.linalg.norm(np.cross(side[:, 0], side[:, 1]), axis=1))
     w = np.zeros(len(X))
     np.add.at(w, facets.ravel(), np.repeat(measure / dim, dim))
     mesh, V = model.mesh, model.V
@@ -186,7 +188,8 @@ def snapshot(model, to=(0,)) -> Snapshot | None:
     snap = Snapshot(x=x, u=u, cells=cells, regions=regions, cables=cables, markers=markers, objects=objects,
                     contact_forces=contacts,
                     body_tag=soft_tags(model.tm.tags)[0],
-                    body_tags=soft_tags(model.tm.tags), tags=dict(model.tm.tags), design=model.design) if comm.rank == 0 else None
+                    body_tags=soft_tags(model.tm.tags), tags=dict(model.tm.tags),
+                    design=model.design) if comm.rank == 0 else None
     for rank in sorted(set(to) - {0}):
         if comm.rank == 0:
             comm.send(snap, dest=rank, tag=71)
@@ -235,7 +238,8 @@ def write_xdmf(path: Path, state) -> None:
     `state` is a model (collective) or a Snapshot of one.
 
     Cables are extra points and line cells in the same grid, carrying their
-    tension (each segment's: with friction it varies along the cable) and an id (the cable's position in the design), so a single file
+    tension (each segment's: with friction it varies along the cable) and an id (the cable's position in the
+    design), so a single file
     opens in ParaView (Warp By Vector on `displacement`) and in meshio.
     """
     snap = gathered_snapshot(state)
@@ -298,7 +302,8 @@ def _data_item(f, a: np.ndarray) -> None:
 def write_xml_grid(path, points: np.ndarray, blocks: list, point_data: dict, cell_data: dict) -> None:
     """One XDMF 3 grid with its data inline as text, written as it is made: meshio's
     ``xdmf.write(..., data_format="XML")`` layout, which holds the whole file as text in memory at once
-    (0.4 KB per cell: 1.1 GB for arm3d's 2.8M cells at 1.43M DOFs); this takes a few MB of scratch. points (n, 3); blocks
+    (0.4 KB per cell: 1.1 GB for arm3d's 2.8M cells at 1.43M DOFs); this takes a few MB of scratch.
+    points (n, 3); blocks
     [(meshio cell type, (m, k) nodes)]; point_data {name: (n,) or (n, 3)}; cell_data {name: [one (m,)
     array per block]}."""
     with open(path, "wb") as f:

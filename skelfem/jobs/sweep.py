@@ -146,7 +146,8 @@ def load_sweep(path) -> Sweep:
             with open(design, "rb") as fh:      # at most what a design may be (an endless file is not one)
                 design_bytes = fh.read(MAX_FILE + 1)
             if len(design_bytes) > MAX_FILE:
-                _fail(source, "design", f"{data['design']!r} is larger than {MAX_FILE // 2 ** 20} MB; not a design file")
+                _fail(source, "design",
+                      f"{data['design']!r} is larger than {MAX_FILE // 2 ** 20} MB; not a design file")
     except (OSError, ValueError, RuntimeError) as exc:
         _fail(source, "design", f"cannot read {data['design']!r} ({exc})")
     if design_bytes is None:

@@ -4,7 +4,8 @@
 the model calls each on the design and sums what they return. Adding an
 ingredient is one new module and one line here.
 """
-from . import cables, contact, elasticity, friction, gravity, grounds, objects, inertia, loads, markers, pins, rigid, tractions
+from . import (cables, contact, elasticity, friction, gravity, grounds, objects, inertia, loads, markers, pins, rigid,
+               tractions)
 from .base import Context, Term
 
 BUILDERS = [

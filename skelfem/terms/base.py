@@ -25,7 +25,8 @@ Besides the energy a term exposes its *parameters* (the ``--set`` keys it owns,
 changed live without re-meshing or recompiling), its *read-outs* (what goes
 into result.json under ``section``), step bounds and admissibility for the
 line search, an optional step correction (exact rigid rotations of bones),
-Dirichlet conditions, rigid bodies (node groups that follow a few rigid DOFs), and a per-step hook for history-dependent ingredients.
+Dirichlet conditions, rigid bodies (node groups that follow a few rigid DOFs), and a per-step hook for
+history-dependent ingredients.
 
 When an edit keeps the mesh (its nodes may move: the editor's drafts), a term
 may ``follow`` the new design in place; the model builds anew the ingredients

@@ -527,7 +527,8 @@ class ObjectFriction(Term):
         on, f = self._force(u)
         ft = np.einsum("nka,na->nk", self.T[on], f)
         np.add.at(out, self.body_vertices[on], -ft)
-        np.add.at(out, self.facets[self.facet[on]].ravel(), (self.b[on][:, :, None] * ft[:, None, :]).reshape(-1, self.bs))
+        shares = (self.b[on][:, :, None] * ft[:, None, :]).reshape(-1, self.bs)
+        np.add.at(out, self.facets[self.facet[on]].ravel(), shares)
         return out
 
     def _measure(self, u: np.ndarray) -> dict:

@@ -69,7 +69,8 @@ def write_motion_gif(path: Path, frames: list, title: str = "", fps: int = 20) -
     names = list(first.markers)
     dots = [line for line in ax.lines if line.get_marker() == "o"]
     labels = {t.get_text(): t for t in ax.texts}
-    moving = [*(patch for patch, _ in patches), *cables.values(), *dots, *(labels[n] for n in names if n in labels), ax.title]
+    moving = [*(patch for patch, _ in patches), *cables.values(), *dots, *(labels[n] for n in names if n in labels),
+              ax.title]
     for artist in moving:
         artist.set_animated(True)
     canvas = fig.canvas
