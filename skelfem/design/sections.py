@@ -1,4 +1,5 @@
-"""One reader per design section besides the body and bones: cables, pins, loads, tractions, gravity, grounds, markers, contact, solver, dynamics, fabrication.
+"""One reader per design section besides the body and bones: cables, pins, loads, tractions, gravity, grounds,
+markers, contact, solver, dynamics, fabrication.
 """
 from __future__ import annotations
 
@@ -9,7 +10,9 @@ import numpy as np
 from . import polygons
 from .objects import ObjectSpec, primitives_box
 from .shapes import check_inside, named_entries
-from .spec import Body, CableSpec, ContactSpec, DesignError, DynamicsSpec, ENERGY_LINE_SEARCHES, FabricationSpec, GroundSpec, INTEGRATORS, LINE_SEARCHES, LINEAR_SOLVERS, LoadSpec, MAX_COORDINATE, MAX_STEPS, MAX_TIME_STEPS, PinSpec, SolverSpec, TractionSpec
+from .spec import (Body, CableSpec, ContactSpec, DesignError, DynamicsSpec, ENERGY_LINE_SEARCHES, FabricationSpec,
+                   GroundSpec, INTEGRATORS, LINE_SEARCHES, LINEAR_SOLVERS, LoadSpec, MAX_COORDINATE, MAX_STEPS,
+                   MAX_TIME_STEPS, PinSpec, SolverSpec, TractionSpec)
 from .table import Table, entry_name, is_finite, is_number, positive, show_value
 
 
