@@ -13,7 +13,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = sorted((ROOT / "examples").glob("plot_*.py"))
-SLOW = {"plot_04_dynamics.py", "plot_05_3d_finger.py", "plot_06_calibration.py"}   # more than about three seconds
+SLOW = {"plot_04_dynamics.py", "plot_05_3d_finger.py", "plot_06_calibration.py", "plot_07_first_object.py"}   # more than about three seconds
 
 
 def test_examples_found():
