@@ -31,6 +31,9 @@ from .design.parse import changed_keys, flatten, live_value, load_design, parse_
 from .runtime import memory
 
 log = logging.getLogger("skelfem")
+# result.json's keys that describe the run, not a stage: left out of each entry of ``stages``
+STAGE_LEFT_OUT = ("format", "design", "dofs", "cells", "degree", "linear_solver", "attempts", "residual_history",
+                  "linear_iterations", "linear_fallbacks", "linear_loose_steps")
 CARRY_CHUNK = 20_000      # new nodes located in the old mesh at a time when an edit carries the solution over
 
 
@@ -339,22 +342,47 @@ class Session:
         parameter path cannot follow) is followed by one solve from rest, the load ramped as
         ``skelfem simulate`` does; the result then says so (``retried_from_rest``: the warm attempt's
         status, and a warning: the load path starts again, which friction's answer can depend on).
+        An object that jumps within a load step (skelfem.fem.jumps) is listed in ``events``.
         """
         t0 = time.perf_counter()
         steps = steps or self.design.solver.steps
         log.info("%s: %d DOFs, %d cells", self.design.name, self.dofs,
                  self.model.mesh.topology.index_map(self.model.mesh.topology.dim).size_global)
         warm = self.solved
-        if not warm:                                          # cold: ramp the load from rest
-            self.model.to_rest()
-        report = self.solver.resolve(steps) if warm else self.solver.solve(steps)
+        report, events = self._equilibrium(steps)
         retried = None
         if warm and not report.converged:
             retried = report
             log.info("%s: the solve from the last state failed (%s); solving from rest", self.design.name,
                      report.status)
+            self.solved = False
+            report, events = self._equilibrium(steps)
+        return self._result(report, t0, retried, events)
+
+    def _equilibrium(self, steps: int, stage_steps: int | None = None):
+        """(SolveReport, jump events) of one static solve: the load ramped from rest in `steps` steps, or
+        a warm re-solve from the last equilibrium (in stage_steps equal steps along the parameter path
+        when given)."""
+        from .fem.jumps import JumpWatch
+        warm = self.solved
+        if not warm:                                          # cold: ramp the load from rest
             self.model.to_rest()
-            report = self.solver.solve(steps)
+        watch = JumpWatch(self.model)
+        self.model.step_watchers.append(watch)
+        try:
+            if not warm:
+                report = self.solver.solve(steps)
+            elif stage_steps is not None and stage_steps > 1 and self.model.changes:
+                report = self.solver.path(dict(self.model.changes), stage_steps)
+            else:
+                report = self.solver.resolve(steps)
+        finally:
+            self.model.step_watchers.remove(watch)
+        return report, watch.events
+
+    def _result(self, report, t0: float, retried=None, events=()) -> Result:
+        """The Result of a static solve that ended with report (result.json's keys, warnings, events)."""
+        from .fem.jumps import describe
         self.solved = bool(report.converged)
         timings = dict(self.timings, solve=time.perf_counter() - t0)
         timings["total"] = sum(timings.values())
@@ -366,11 +394,57 @@ class Session:
                                          "warm_newton_iterations": int(retried.newton_iterations)}
             warnings.append(f"the solve from the last state failed ({retried.status}); solved again from rest "
                             "(the load path started again)")
+        if events:
+            data["events"] = _plain(list(events))
+            warnings.append(f"a jump within a load step: {describe(events)}; the static answer is one of several "
+                            "(try more load steps, or a run in time with [dynamics])")
         if warnings:                         # e.g. friction switched on at a loaded state
             for note in warnings:
                 log.warning("%s: %s", self.design.name, note)
             data["warnings"] = warnings
         return Result(data, report, self._state())
+
+    @_exclusive
+    def run_stages(self, on_stage=None) -> Result:
+        """The design's ``[[stages]]`` in order (skelfem.design.stages): each stage's changes set live, then
+        a static solve from the last stage's state and friction history (the first from rest).
+
+        on_stage(stage, result): called after each stage (collective under MPI: a snapshot may be taken).
+        A stage that fails ends the run. The Result is the last stage's, with ``stages`` (one entry per
+        stage run: its name, status, iterations and read-outs), ``failed_stage`` if one failed, the
+        iterations and load steps of every stage summed, and every stage's ``events`` (each naming its
+        stage). The session's design is then the last stage's.
+        """
+        stages = self.design.stages
+        if not stages:
+            raise DesignError(f"{self.design.source}: stages: the design has no [[stages]]")
+        t0 = time.perf_counter()
+        entries, events, result = [], [], None
+        iterations = load_steps = 0
+        for stage in stages:
+            self.set(stage.changes, design=stage.design)
+            ts = time.perf_counter()
+            report, seen = self._equilibrium(stage.steps or stage.design.solver.steps, stage.steps)
+            for e in seen:
+                e["stage"] = stage.name
+            result = self._result(report, ts, events=seen)
+            data = result.to_dict()
+            entries.append({"name": stage.name, **{k: v for k, v in data.items() if k not in STAGE_LEFT_OUT}})
+            events += seen
+            iterations, load_steps = iterations + result.newton_iterations, load_steps + result.load_steps
+            if on_stage is not None:
+                on_stage(stage, result)
+            if not result.converged:
+                log.info("%s: stage %s failed (%s)", self.design.name, stage.name, result.status)
+                break
+        data = result.to_dict()
+        data.update(stages=entries, newton_iterations=iterations, load_steps=load_steps)
+        data["timings"]["total"] = round(time.perf_counter() - t0, 4)
+        if events:
+            data["events"] = _plain(events)
+        if not result.converged:
+            data["failed_stage"] = entries[-1]["name"]
+        return Result(data, result.report, self._state())
 
     @_exclusive
     def run_in_time(self, on_step=None, progress=None) -> Result:

@@ -24,6 +24,9 @@ def simulate(args) -> int:
                          "sets [mesh] by hand")
     if getattr(args, "adaptive", False) and args.tol is None:
         raise InputError("--adaptive: refines for --tol; give --tol ABS_MM too")
+    if args.tol is not None and design.stages:
+        raise InputError(f"{args.design}: --tol refines the mesh of one static solve; a design with [[stages]] "
+                         "sets [mesh] by hand")
     if args.tol is not None and not design.markers:
         raise InputError(f"{args.design}: --tol needs at least one marker (its error is what --tol bounds)")
     args.out = reserve_output(args, design)           # before any work: a bad --out is bad input
@@ -37,6 +40,8 @@ def simulate(args) -> int:
         design, session = prepare(args)
         if design.dynamics is not None:
             return _simulate_in_time(args, design, session, t0, extra)
+        if design.stages:
+            return _simulate_stages(args, design, session, t0, extra)
         with session:
             solved = session.solve()
             result = write_results(session, solved, args.out, t0, picture=not args.no_picture, extra=extra)
@@ -111,6 +116,29 @@ def _simulate_in_time(args, design, session, t0, extra) -> int:
     return EXIT_OK
 
 
+def _simulate_stages(args, design, session, t0, extra) -> int:
+    """simulate for a design with [[stages]]: each stage in order, and the files (run.write_staged_results)."""
+    from mpi4py import MPI
+
+    from ..jobs.run import write_staged_results
+
+    with session:
+        result = write_staged_results(session, args.out, t0, picture=not args.no_picture, extra=extra)
+    if not result["converged"]:
+        failed = result["stages"][-1]
+        done = [s["name"] for s in result["stages"][:-1]]
+        error(f"{design.name}: stage {failed['name']} failed ({failed['status']}) after "
+              f"{failed['load_steps']} load step(s); "
+              + (f"stage(s) {', '.join(done)} completed (stages.xdmf); " if done else "")
+              + ("" if failed["status"].startswith("no equilibrium") else
+                 f"try more steps in stage {failed['name']} (steps = N) or a finer mesh; ")
+              + f"details in {args.out / 'result.json'}")
+        return EXIT_SOLVE
+    if not args.quiet and MPI.COMM_WORLD.rank == 0:
+        _summary(result, args.out)
+    return EXIT_OK
+
+
 def _summary(result: dict, out: Path) -> None:
     hist = result["residual_history"][-1] if result["residual_history"] else []
     print(f"{result['design']}: converged in {result['newton_iterations']} Newton iterations "
@@ -129,6 +157,13 @@ def _summary(result: dict, out: Path) -> None:
               + ("" if a["met"] else f" (NOT met: {a['stop']})"))
         if a.get("warning"):
             print(f"  warning: {a['warning']}")
+    for stage in result.get("stages", []):
+        print(f"  stage {stage['name']}: {stage['status']} in {stage['newton_iterations']} Newton iterations over "
+              f"{stage['load_steps']} step(s)")
+    if result.get("events"):
+        from ..fem.jumps import describe
+        print(f"  jump: {describe(result['events'])}; a static answer is one of several here, try more load "
+              "steps or a run in time ([dynamics])")
     if hist:
         print("  last step |R|: " + " ".join(f"{r:.1e}" for r in hist[-5:]))
     for name, m in (result["markers"] or {}).items():
@@ -136,7 +171,8 @@ def _summary(result: dict, out: Path) -> None:
               f"moved ({', '.join(f'{d:+.2f}' for d in m['displacement'])}) mm")
     for name, c in (result["cables"] or {}).items():
         print(f"  {c['kind']} {name}: tension {c['tension']:.3f} N, length {c['length']:.2f} mm")
-    print(f"  results in {out}/ (result.json, solution.xdmf, deformed.png), "
+    files = "result.json, solution.xdmf, deformed.png" + (", stages.xdmf" if result.get("stages") else "")
+    print(f"  results in {out}/ ({files}), "
           f"{result['timings']['total']:.1f} s")
 
 

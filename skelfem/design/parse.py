@@ -11,6 +11,7 @@ bad design is rejected before any heavy import or meshing.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import tomllib
 from pathlib import Path
 
@@ -20,10 +21,11 @@ import numpy as np
 from . import polygons
 from .objects import take as take_objects
 from .sections import check_bodies_held, check_body_scale, read_cables, read_contact, read_dynamics, check_energy_line_search, read_fabrication, read_gravity, read_grounds, read_loads, read_markers, read_pins, read_solver, read_tractions
+from .stages import read_stages
 from .relations import check_piece_names, check_pinned_objects, check_schedules
 from .shapes import named_entries, read_body, read_bones, read_materials, read_solids
 from .spec import Design, DesignError, FORMAT, MeshSpec, SECTIONS_BY_NAME, force_scale
-from .table import Table, plain_name, positive, apply_override
+from .table import Table, plain_name, positive, apply_override, raw_value  # noqa: F401 (raw_value re-exported)
 from .text import check_text
 
 
@@ -81,6 +83,7 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     tractions = read_tractions(top, dim)
     fabrication = read_fabrication(top, dim, thickness, bodies)
     dynamics = read_dynamics(top, materials, list(dict.fromkeys([*soft, *(o.material for o in objects)])), mesh.size)
+    stage_tables = named_entries(top, "stages")
     top.done()
     check_piece_names(str(source), [(t.where, b.name) for (t, _), b in zip(body_tables, bodies)]
                       + [(f"{section}.{e.name}", e.name) for section, entries in (("objects", objects),
@@ -112,6 +115,8 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
         tractions=tractions, fabrication=fabrication, dynamics=dynamics, friction=friction, objects=objects, data=data, measure=float(measure), vertices=int(vertices),
     )
     check_tolerances(design)
+    if stage_tables:            # each stage's design validated like this one (read_stages parses it)
+        design = dataclasses.replace(design, stages=read_stages(stage_tables, design, parse_design))
     return design
 
 
@@ -192,21 +197,6 @@ def changed_keys(old: dict, new: dict) -> set:
     """The keys whose values differ between two flattened designs (present in one only included)."""
     missing = object()
     return {k for k in old.keys() | new.keys() if old.get(k, missing) != new.get(k, missing)}
-
-
-def raw_value(raw: dict, key: str):
-    """The value of a dotted design key (named entries by name) in a design's raw dict; KeyError if none."""
-    node = raw
-    for part in key.split("."):
-        if isinstance(node, list):
-            node = next((e for e in node if isinstance(e, dict) and e.get("name") == part), None)
-            if node is None:
-                raise KeyError(key)
-        elif isinstance(node, dict):
-            node = node[part]
-        else:
-            raise KeyError(key)
-    return node
 
 
 def live_value(raw: dict, key: str, held):

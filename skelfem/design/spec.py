@@ -23,7 +23,7 @@ ENERGY_LINE_SEARCHES = ("energy", "curved")   # line searches on Pi: the only on
 INTEGRATORS = ("euler", "bdf2")
 MAX_TIME_STEPS = 1_000_000   # duration / dt: a cap against runaway runs
 # every [[...]] array of tables of the design contract: its entries are named, --set and flattened by name
-SECTIONS_BY_NAME = ("bodies", "bones", "cables", "pins", "loads", "grounds", "tractions", "objects")
+SECTIONS_BY_NAME = ("bodies", "bones", "cables", "pins", "loads", "grounds", "tractions", "objects", "stages")
 PRIMITIVES = ("box", "cylinder", "sphere", "extrude")
 LINEAR_SOLVERS = ("auto", "direct", "iterative")
 
@@ -244,6 +244,7 @@ class Design:
     friction: FrictionSpec = field(default_factory=FrictionSpec)   # Coulomb coefficients (design.objects)
     objects: tuple = ()                    # ObjectSpec: free rigid bodies (design.objects)
     bodies: tuple = ()                     # Body: every soft body ([[bodies]]), or (body,)
+    stages: tuple = ()                     # StageSpec: a static scenario in steps (design.stages)
     format: int = FORMAT
     data: Mapping = field(default_factory=dict)   # the TOML data after overrides, read-only (see raw)
     measure: float = 0.0      # body area (2D, mm^2) or volume (3D, mm^3), bones included

@@ -171,6 +171,12 @@ def apply_override(data: dict, assignment: str, source: str) -> None:
     if "=" not in assignment:
         fail("expected KEY=VALUE")
     key, text = assignment.split("=", 1)
+    set_key(data, key, _parse_value(text), fail)
+
+
+def set_key(data: dict, key: str, value, fail) -> None:
+    """Set the dotted key (named entries addressed by name) to value in data, in place; fail(message) for
+    a key that leads nowhere (an unknown entry, a value where a table is needed)."""
     parts = [p.strip() for p in key.strip().split(".")]
     if not all(parts):
         fail("empty key")
@@ -195,7 +201,22 @@ def apply_override(data: dict, assignment: str, source: str) -> None:
         fail(f"address an entry of {'.'.join(parts[:-1])} by name")
     if not isinstance(node, dict):
         fail(f"{'.'.join(parts[:-1])} is a value, not a table")
-    node[parts[-1]] = _parse_value(text)
+    node[parts[-1]] = value
+
+
+def raw_value(raw: dict, key: str):
+    """The value of a dotted design key (named entries by name) in a design's raw dict; KeyError if none."""
+    node = raw
+    for part in key.split("."):
+        if isinstance(node, list):
+            node = next((e for e in node if isinstance(e, dict) and e.get("name") == part), None)
+            if node is None:
+                raise KeyError(key)
+        elif isinstance(node, dict):
+            node = node[part]
+        else:
+            raise KeyError(key)
+    return node
 
 
 # -- geometry checks (2D) --------------------------------------------------------------------------------

@@ -106,6 +106,7 @@ class Model(MatrixAssembly):
         self._packs = PackedCoefficients()
         self._bone_nodes: dict = {}  # stiff elastic bone -> its owned nodes (stiff_bone_modes)
         self.changes: dict = {}      # {key: (value at the last solve, value now)} of live parameters
+        self.step_watchers: list = []   # callables(model) told of every accepted load step (fem.jumps)
 
     def _constraints(self, terms=None) -> None:
         """Dirichlet conditions and rigid bodies of the terms (default: the model's own)."""
@@ -279,6 +280,8 @@ class Model(MatrixAssembly):
     def end_step(self) -> None:
         for term in self.terms:
             term.end_step(self)
+        for watch in self.step_watchers:
+            watch(self)
 
     def to_rest(self) -> None:
         """u = 0 and no history (friction's slips and anchors): the start of a solve from rest."""

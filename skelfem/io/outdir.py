@@ -38,7 +38,7 @@ from ..runtime import interrupts
 # files each command writes; a folder holding only these (and stale temporaries) may be replaced
 OUTPUTS = {
     "simulate": ("result.json", "solution.xdmf", "solution.h5", "deformed.png",
-                 "trajectory.csv", "trajectory.xdmf", "trajectory.h5", "motion.gif"),
+                 "trajectory.csv", "trajectory.xdmf", "trajectory.h5", "motion.gif", "stages.xdmf", "stages.h5"),
     "ik": ("ik.json", "ik.png"),
     "track": ("track.csv", "track.json", "track.png"),
     "bench": ("bench.json",),
@@ -49,9 +49,10 @@ OUTPUTS = {
                   "parameters.png"),
 }
 # files whose names follow the design (one per bone): a pattern per command
-PATTERNS = {"fabricate": re.compile(r"^((bone_[^/\\]+|mould_(bottom|top))\.(stl|step)|[^/\\]+\.3mf)$")}
-STALE_FILE = re.compile(r"^\.(result|solution|deformed|trajectory|motion|optimize|schedules|calibration|calibrated"
-                        r"|partial|fit|residuals|parameters|ik|track|bench|summary|fabrication|casting)-.*")
+PATTERNS = {"fabricate": re.compile(r"^((bone_[^/\\]+|mould_(bottom|top))\.(stl|step)|[^/\\]+\.3mf)$"),
+            "simulate": re.compile(r"^deformed-[^/\\]+\.png$")}          # one picture per stage
+STALE_FILE = re.compile(r"^\.(result|solution|deformed|trajectory|motion|stages|optimize|schedules|calibration"
+                        r"|calibrated|partial|fit|residuals|parameters|ik|track|bench|summary|fabrication|casting)-.*")
 NAME_MAX = 255
 RESERVED_CHARS = 48           # room for ".<name>.tmp-<pid>-<random>" beside the target
 PATH_MAX = 4096 - 128

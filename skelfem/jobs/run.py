@@ -32,12 +32,9 @@ def write_results(session, result, out: Path, t0: float, picture: bool = True,
                   extra: dict | None = None) -> dict:
     """result.json always; solution.xdmf and deformed.png only for an equilibrium."""
     from ..io.outdir import publish
-    from ..viz.plots import plot_deformed, plot_deformed_3d
-    from ..io.xdmf import snapshot, write_xdmf
     from ..io.files import write_json
 
-    design, model = session.design, session.model
-    comm = model.comm
+    comm = session.model.comm
     data = result.to_dict()
     data.update(extra or {})
     # staged beside `out` and swapped in whole (skelfem.io.outdir): the folder holds the old
@@ -45,13 +42,7 @@ def write_results(session, result, out: Path, t0: float, picture: bool = True,
     with publish(out, comm) as stage:
         if result.converged:
             # one gather; under MPI the last rank draws the picture while rank 0 writes the XDMF
-            painter = comm.size - 1 if picture else 0
-            snap = snapshot(model, to=(0, painter))
-            if comm.rank == 0:
-                stage.run(write_xdmf, stage.path / "solution.xdmf", snap)
-            if picture and comm.rank == painter:
-                plot = plot_deformed if design.dim == 2 else plot_deformed_3d
-                stage.run(plot, stage.path / "deformed.png", snap, picture_title(design))
+            _write_equilibrium(stage, session, picture, comm.size - 1 if picture else 0)
         if comm.size > 1:
             comm.Barrier()                       # the total includes the picture
         data["timings"]["total"] = round(time.perf_counter() - t0, 4)
@@ -60,10 +51,76 @@ def write_results(session, result, out: Path, t0: float, picture: bool = True,
     return data
 
 
+def write_staged_results(session, out: Path, t0: float, picture: bool = True, extra: dict | None = None) -> dict:
+    """Run the design's [[stages]] (Session.run_stages) and write its results, all or nothing.
+
+    result.json always (``stages``: one entry per stage run); stages.xdmf/.h5, one frame per completed
+    stage (time = the stage's number, 1, 2, ...), and deformed-STAGE.png of each; solution.xdmf and
+    deformed.png of the last stage when every stage converged. A stage that fails ends the run: the
+    completed stages' frames and pictures are kept.
+    """
+    from ..io.outdir import publish
+    from ..io.xdmf import XdmfSeries, snapshot
+    from ..io.files import write_json
+
+    design, model = session.design, session.model
+    comm = model.comm
+    painter = comm.size - 1 if picture else 0
+    with publish(out, comm) as stage:
+        frames = {"series": None, "count": 0}
+
+        def on_stage(spec, result):
+            if not result.converged:
+                return
+            snap = snapshot(session.model, to=(0, painter))      # collective
+            frames["count"] += 1
+            if comm.rank == 0:
+                if frames["series"] is None:
+                    frames["series"] = stage.run(XdmfSeries, stage.path / "stages.xdmf", snap)
+                if frames["series"] is not None:
+                    stage.run(frames["series"].write, float(frames["count"]), snap)
+            if picture and comm.rank == painter:
+                stage.run(_picture, stage.path / f"deformed-{spec.name}.png", snap, design,
+                          f"{design.name}, stage {spec.name}")
+
+        result = session.run_stages(on_stage)
+        if comm.rank == 0 and frames["series"] is not None:
+            stage.run(frames["series"].close)
+        data = result.to_dict()
+        data.update(extra or {})
+        if result.converged:
+            _write_equilibrium(stage, session, picture, painter)
+        if comm.size > 1:
+            comm.Barrier()
+        data["timings"]["total"] = round(time.perf_counter() - t0, 4)
+        if comm.rank == 0:
+            stage.run(write_json, stage.path / "result.json", data)
+    return data
+
+
+def _picture(path: Path, snap, design, title: str) -> None:
+    from ..viz.plots import plot_deformed, plot_deformed_3d
+    (plot_deformed if design.dim == 2 else plot_deformed_3d)(path, snap, title)
+
+
+def _write_equilibrium(stage, session, picture: bool, painter: int) -> None:
+    """solution.xdmf (rank 0) and deformed.png (rank painter) of the session's state (collective)."""
+    from ..io.xdmf import snapshot, write_xdmf
+    design, comm = session.design, session.model.comm
+    snap = snapshot(session.model, to=(0, painter))
+    if comm.rank == 0:
+        stage.run(write_xdmf, stage.path / "solution.xdmf", snap)
+    if picture and comm.rank == painter:
+        stage.run(_picture, stage.path / "deformed.png", snap, design, picture_title(design))
+
+
 def simulate_design(design, out: Path, comm, picture: bool = True, extra: dict | None = None) -> dict:
-    """Mesh, solve and write one design on comm; returns the result dict."""
+    """Mesh, solve (every stage in order, if the design has [[stages]]) and write one design on comm;
+    returns the result dict."""
     t0 = time.perf_counter()
     with open_session(design, comm) as session:
+        if design.stages:
+            return write_staged_results(session, Path(out), t0, picture, extra)
         result = session.solve()
         return write_results(session, result, Path(out), t0, picture, extra)
 
