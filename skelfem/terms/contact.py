@@ -67,11 +67,6 @@ from scipy.spatial import cKDTree
 from ..mesh.geometry import body_tag_name, object_tag_name
 from .base import Context, Term
 
-# One thread: ipctk's parallel sums (barrier, friction, distances) then add in one order, so the same input
-# gives the same answer to the last bit. With two threads the order varied from run to run and so did a
-# path near a stick/slip threshold (a 3D cube at its friction limit took 9 s to 5 min to be found "not held").
-# skelfem runs its parallelism as MPI ranks and sweep processes instead.
-ipctk.set_num_threads(1)
 CCD_TOLERANCE = 1e-3    # continuous collision detection brackets the time of first contact to this x dhat
 PATTERN_REACH = 2.0     # the matrix pattern holds node pairs that may collide after moving this x dhat more
 
@@ -150,6 +145,12 @@ class SelfContact(Term):
     bounds_steps = True
 
     def __init__(self, V, dhat: float, stiffness: float, thickness: float = 1.0, project: bool = True):
+        # One thread: ipctk's parallel sums (barrier, friction, distances) then add in one order, so the same
+        # input gives the same answer to the last bit. With two threads the order varied from run to run and
+        # so did a path near a stick/slip threshold (a 3D cube at its friction limit took 9 s to 5 min to be
+        # found "not held"). skelfem runs its parallelism as MPI ranks and sweep processes instead. Set here,
+        # where contact is built, not at import: importing skelfem changes nothing global.
+        ipctk.set_num_threads(1)
         from ..mesh.points import DofGather
         self.bs = V.dofmap.index_map_bs
         self.nodes, self.facets = boundary_facets(V)        # under MPI: global numbers, on every rank

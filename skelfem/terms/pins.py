@@ -7,8 +7,10 @@ zero-length springs of stiffness k per area,
     Pi_pin = k t/2 int_{Gamma_pin} |u - a move|^2 ds.
 
 The read-out is the force the pin exerts on the body (``reaction``): for a
-fixed pin minus the sum of grad Pi over its DOFs (the Dirichlet rows of the
-full gradient), for a spring pin minus the sum of its own gradient.
+fixed pin the sum of grad Pi over its DOFs (the Dirichlet rows of the full
+gradient: the force the rest of the body would need there, which the pin
+supplies), for a spring pin minus the sum of its own gradient. A load f on
+a pinned body gives reaction -f (tests/test_mechanics.py).
 """
 from __future__ import annotations
 
