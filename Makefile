@@ -72,7 +72,7 @@ $(STAMP): pyproject.toml | system
 	@$(SYSPY) -c "import numpy, scipy, matplotlib; \
 		print(f'numpy=={numpy.__version__}\nscipy=={scipy.__version__}\nmatplotlib=={matplotlib.__version__}')" \
 		> $(VENV)/constraints.txt
-	$(PY) -m pip install -q --no-build-isolation -c $(VENV)/constraints.txt -e .
+	$(PY) -m pip install -q --no-build-isolation -c $(VENV)/constraints.txt -e ".[test,study]"
 	@$(PY) -c "import dolfinx, skelfem; print('skelfem ready: dolfinx', dolfinx.__version__)"
 	@touch $@
 
