@@ -115,6 +115,17 @@ def reserve_output(args, design, kind: str = "simulate") -> Path:
     return out
 
 
+def meshing_line(design) -> str:
+    """The summary's first line: the mesh, and in 2D how deep the slab is, saying so where that depth is the
+    1 mm default (a forgotten thickness makes a body twenty times softer against its cables and loads)."""
+    text = f"{design.name}: meshing (size {design.mesh.size:g} mm, P{design.mesh.degree}"
+    if design.dim == 2:
+        text += f", a {design.thickness:g} mm slab"
+        if "thickness" not in design.data:
+            text += ": thickness not given, the default"
+    return text + ")"
+
+
 def prepare(args, kind: str = "simulate"):
     """Load and validate args.design, reserve the output folder, mesh; returns (design, session)."""
     from mpi4py import MPI
@@ -125,7 +136,7 @@ def prepare(args, kind: str = "simulate"):
 
     design = load(args)
     args.out = reserve_output(args, design, kind)
-    log.info("%s: meshing (size %g mm, P%d)", design.name, design.mesh.size, design.mesh.degree)
+    log.info("%s", meshing_line(design))
     try:
         session = open_session(design, MPI.COMM_WORLD)
     except (DesignError, MeshingError) as exc:
