@@ -30,18 +30,35 @@ def vertex_displacements(model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return x, u, geo
 
 
+STICKING, SLIPPING = 1.0, 2.0     # contact_state: 0 no friction anchor (free, or a frictionless contact)
+
+
 def contact_forces(model) -> tuple[np.ndarray, np.ndarray] | None:
-    """Where pieces (bodies, objects) can touch: (force (n, dim) N, traction (n, dim) MPa) at every node
-    of the (local) P1 geometry: the barrier's and friction's force the other pieces exert on it, and
-    that force over the node's share of the boundary (2D: half its edges' lengths times the thickness;
-    3D: a third of its triangles' areas). A P2 edge midpoint's force and share go half to each end of
-    its edge; None without such contact. Collective: under MPI every rank has the whole boundary's
-    forces (global node numbers) and keeps its own geometry nodes'."""
+    """(contact_force, contact_traction) of contact_fields, or None without contact between pieces."""
+    fields = contact_fields(model)
+    return None if fields is None else (fields["contact_force"], fields["contact_traction"])
+
+
+def contact_fields(model) -> dict | None:
+    """Where pieces (bodies, objects) can touch: at every node of the (local) P1 geometry, {name: (n, dim)
+    or (n,)}: ``contact_force`` (N), the barrier's and friction's force the other pieces exert on it, split
+    into ``contact_normal_force`` (the barrier's) and ``contact_friction_force``; ``contact_traction``
+    (MPa), that force over the node's share of the boundary (2D: half its edges' lengths times the
+    thickness; 3D: a third of its triangles' areas); ``contact_state``, STICKING (1) or SLIPPING (2) for a
+    node anchored by friction on another piece (as the pairs' ``sticking`` counts it), 0 otherwise. A P2
+    edge midpoint's forces and share go half to each end of its edge; None without such contact.
+    Collective: under MPI every rank has the whole boundary's forces (global node numbers) and keeps its
+    own geometry nodes'."""
     pieces = next((t for t in model.terms_in("contacts") if hasattr(t, "nodal_forces")), None)
     if pieces is None:
         return None
     _, normal, friction = pieces.nodal_forces(model)
-    f = normal + friction
+    state = np.zeros(len(normal))
+    rubbing = next((t for t in model.terms_in("contacts") if hasattr(t, "vertex_states")), None)
+    if rubbing is not None:
+        anchored, slipping, N = rubbing.vertex_states(model.u.x.array)
+        on = anchored & (N > 0)
+        state[on] = np.where(slipping[on], SLIPPING, STICKING)
     X, edges, facets = pieces.X, pieces.edges, pieces.facets
     side = X[facets[:, 1:]] - X[facets[:, :1]]
     dim = X.shape[1]
@@ -73,15 +90,22 @@ def contact_forces(model) -> tuple[np.ndarray, np.ndarray] | None:
         a, b = edges[:, 0], edges[:, 1]
         for s, t in ((a, b), (b, a)):
             m = mid[s] & ~mid[t]
-            np.add.at(f, t[m], 0.5 * f[s[m]])
-            np.add.at(w, t[m], 0.5 * w[s[m]])
+            for values in (normal, friction, w):
+                np.add.at(values, t[m], 0.5 * values[s[m]])
     keep = ~mid & (where >= 0)
-    force = np.zeros((len(mesh.geometry.x), dim))
-    share = np.zeros(len(force))
-    np.add.at(force, where[keep], f[keep])
+    n = len(mesh.geometry.x)
+    out = {}
+    for name, values in (("contact_normal_force", normal), ("contact_friction_force", friction)):
+        out[name] = np.zeros((n, dim))
+        np.add.at(out[name], where[keep], values[keep])
+    out["contact_force"] = out["contact_normal_force"] + out["contact_friction_force"]
+    share = np.zeros(n)
     np.add.at(share, where[keep], w[keep])
-    traction = np.divide(force, share[:, None] * pieces.t, out=np.zeros_like(force), where=share[:, None] > 0)
-    return force, traction
+    out["contact_traction"] = np.divide(out["contact_force"], share[:, None] * pieces.t,
+                                        out=np.zeros((n, dim)), where=share[:, None] > 0)
+    out["contact_state"] = np.zeros(n)
+    np.maximum.at(out["contact_state"], where[keep], state[keep])
+    return out
 
 
 def cell_regions(model) -> np.ndarray:
@@ -172,7 +196,7 @@ def snapshot(model, to=(0,)) -> Snapshot | None:
     cables = cable_states(model)
     markers = marker_positions(model)
     objects = object_states(model)
-    contacts = contact_forces(model)
+    contacts = contact_fields(model)
     if comm.size > 1:
         orig = np.asarray(model.mesh.geometry.input_global_indices, dtype=np.int64)
         parts = comm.gather((orig, x, u, orig[cells], regions, contacts), root=0)
@@ -184,9 +208,9 @@ def snapshot(model, to=(0,)) -> Snapshot | None:
             cells = np.searchsorted(numbers, np.concatenate([p[3] for p in parts]))
             regions = np.concatenate([p[4] for p in parts])
             if contacts is not None:        # a node a rank has only as a ghost carries its whole force too
-                contacts = tuple(np.concatenate([p[5][k] for p in parts])[first] for k in range(2))
+                contacts = {k: np.concatenate([p[5][k] for p in parts])[first] for k in contacts}
     snap = Snapshot(x=x, u=u, cells=cells, regions=regions, cables=cables, markers=markers, objects=objects,
-                    contact_forces=contacts,
+                    contact_fields=contacts,
                     body_tag=soft_tags(model.tm.tags)[0],
                     body_tags=soft_tags(model.tm.tags), tags=dict(model.tm.tags),
                     design=model.design) if comm.rank == 0 else None
@@ -232,8 +256,8 @@ def cell_stretches(x: np.ndarray, y: np.ndarray, cells: np.ndarray) -> np.ndarra
 
 def write_xdmf(path: Path, state) -> None:
     """Mesh (rest coordinates) with displacement, region tag, largest principal stretch per cell, and
-    cables as polylines; where bodies and objects can touch, the contact force (N) and traction (MPa)
-    on every node (contact_forces).
+    cables as polylines; where bodies and objects can touch, the contact force (N), its normal and
+    friction parts, the traction (MPa) and the stick/slip state on every node (contact_fields).
 
     `state` is a model (collective) or a Snapshot of one.
 
@@ -276,9 +300,12 @@ def write_xdmf(path: Path, state) -> None:
         ids.append(np.asarray(cable_id, float))
         stretch.append(np.zeros(len(tension)))
     point_data = {"displacement": d3}
-    if getattr(snap, "contact_forces", None) is not None:      # pieces that can touch: forces between them
+    if getattr(snap, "contact_fields", None) is not None:      # pieces that can touch: forces between them
         pad = len(pts) - len(x)
-        for name, values in zip(("contact_force", "contact_traction"), snap.contact_forces):
+        for name, values in snap.contact_fields.items():
+            if values.ndim == 1:
+                point_data[name] = np.concatenate([values, np.zeros(pad)])
+                continue
             v = np.vstack([values, np.zeros((pad, values.shape[1]))])
             point_data[name] = v if v.shape[1] == 3 else np.column_stack([v, np.zeros(len(pts))])
     cell_data = {"region": region, "tension": tens, "cable": ids, "stretch": stretch}

@@ -126,7 +126,7 @@ class ObjectFriction(Term):
         self._N_step = self.N.copy()                         # N at the last accepted step
         self._y0 = contact.X.copy()                          # vertex positions at the step's start
         self._start_facet = self.facet.copy()                 # the anchors the step started with
-        self._converged = None       # (u, friction forces) of the last accepted step (not history: keyed by u)
+        self._converged = None   # (u, friction forces, vertex states) of the last accepted step (keyed by u)
 
     @property
     def active(self) -> bool:
@@ -490,7 +490,7 @@ class ObjectFriction(Term):
             return
         u = model.u.x.array
         self._report = self._measure(u)
-        self._converged = (u.copy(), self.vertex_forces(u))      # what the read-outs of this state show
+        self._converged = (u.copy(), self.vertex_forces(u), self._states(u))   # what this state's read-outs show
         y = self.c.positions(u)
         idx, j, b_new, r = self._slide(y, self.T)
         if len(idx):
@@ -531,14 +531,32 @@ class ObjectFriction(Term):
         np.add.at(out, self.facets[self.facet[on]].ravel(), shares)
         return out
 
+    def _states(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(anchored, slipping): per boundary vertex, whether it has an anchor on another piece, and whether
+        it slipped in this step (|d| > eps, at a converged state before the return map)."""
+        anchored, d = self._slip(self.c.positions(u))
+        slipping = np.zeros(len(self.N), bool)
+        slipping[anchored] = np.linalg.norm(d, axis=1) > self.eps * (1 + 1e-12)
+        return self.facet >= 0, slipping
+
+    def vertex_states(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(anchored, slipping, lagged normal force N) per boundary vertex, as the pairs' ``sticking`` counts
+        them: at the state of the last accepted step, the step's own (before its return map)."""
+        if not self.active:
+            n = len(self.N)
+            return np.zeros(n, bool), np.zeros(n, bool), np.zeros(n)
+        if self._converged is not None and np.array_equal(u, self._converged[0]):
+            anchored, slipping = self._converged[2]
+        else:
+            anchored, slipping = self._states(u)
+        return anchored.copy(), slipping.copy(), self.N.copy()
+
     def _measure(self, u: np.ndarray) -> dict:
         """Per pair of pieces rubbing: the friction force on the first (N) and the share of the normal
         force carried by vertices that did not slip in this step (at a converged state, before the
         return map). A vertex of piece p anchored on a facet of piece q feels -T f; the facet, +T f."""
         on, f = self._force(u)
-        anchored, d = self._slip(self.c.positions(u))
-        slipping = np.zeros(len(self.N), bool)
-        slipping[anchored] = np.linalg.norm(d, axis=1) > self.eps * (1 + 1e-12)
+        _, slipping = self._states(u)
         mine = np.flatnonzero(self.facet >= 0)
         slave, master = self.vertex_piece[mine], self.facet_piece[self.facet[mine]]
         force_on = self.vertex_piece[on], self.facet_piece[self.facet[on]]
