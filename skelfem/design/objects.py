@@ -95,16 +95,17 @@ def inside(obj: ObjectSpec, X: np.ndarray) -> bool:
         return bool(polygons.parity(X, [np.asarray(obj.outline, float)])[0])
     for prim in obj.solids:
         (kind, p), = prim.items()
+        hit: bool
         if kind == "box":
-            hit = np.all(X >= p["min"]) and np.all(X <= p["max"])
+            hit = bool(np.all(X >= p["min"]) and np.all(X <= p["max"]))
         elif kind == "sphere":
-            hit = np.linalg.norm(X - p["center"]) <= p["radius"]
+            hit = bool(np.linalg.norm(X - p["center"]) <= p["radius"])
         elif kind == "cylinder":
             a, axis = p["from"], p["to"] - p["from"]
             s = float((X - a) @ axis) / float(axis @ axis)
-            hit = 0.0 <= s <= 1.0 and np.linalg.norm(X - a - s * axis) <= p["radius"]
+            hit = bool(0.0 <= s <= 1.0 and np.linalg.norm(X - a - s * axis) <= p["radius"])
         else:
-            hit = p["z"][0] <= X[2] <= p["z"][1] and bool(polygons.parity(X[:2], [p["outline"]])[0])
+            hit = bool(p["z"][0] <= X[2] <= p["z"][1]) and bool(polygons.parity(X[:2], [p["outline"]])[0])
         if hit:
             return True
     return False
@@ -117,12 +118,15 @@ def primitives_box(solids) -> tuple[np.ndarray, np.ndarray]:
     for prim in solids:
         (kind, p), = prim.items()
         if kind == "box":
-            los.append(p["min"]), his.append(p["max"])
+            los.append(p["min"])
+            his.append(p["max"])
         elif kind == "cylinder":
             ends = np.array([p["from"], p["to"]])
-            los.append(ends.min(axis=0) - p["radius"]), his.append(ends.max(axis=0) + p["radius"])
+            los.append(ends.min(axis=0) - p["radius"])
+            his.append(ends.max(axis=0) + p["radius"])
         elif kind == "sphere":
-            los.append(p["center"] - p["radius"]), his.append(p["center"] + p["radius"])
+            los.append(p["center"] - p["radius"])
+            his.append(p["center"] + p["radius"])
         else:
             los.append(np.r_[p["outline"].min(axis=0), p["z"][0]])
             his.append(np.r_[p["outline"].max(axis=0), p["z"][1]])
@@ -181,7 +185,8 @@ def _pairs(contact, materials: dict, default: Coulomb) -> dict:
         return {}
     Table = type(contact)
     t = Table(contact.take("pairs", "table"), f"{contact.where}.pairs", contact.source)
-    out, written = {}, {}
+    out: dict = {}
+    written: dict = {}
     for key in list(t.data):
         names = key.split(":")
         if len(names) != 2 or not all(n in materials for n in names):
@@ -315,7 +320,7 @@ def take(top, dim: int, materials: dict, bodies: tuple, read_solids, named_entri
     contact = _stripped(top, "contact", "table")
     default = Coulomb()
     if contact is not None:
-        default = _coulomb(contact, default)
+        default = _coulomb(contact, default) or default      # never None with a default
     pairs = _pairs(contact, materials, default)
     grounds = {}
     for name, t in _stripped(top, "grounds", "tables") or ():

@@ -20,7 +20,9 @@ import numpy as np
 
 from . import polygons
 from .objects import take as take_objects
-from .sections import check_bodies_held, check_body_scale, read_cables, read_contact, read_dynamics, check_energy_line_search, read_fabrication, read_gravity, read_grounds, read_loads, read_markers, read_pins, read_solver, read_tractions
+from .sections import (check_bodies_held, check_body_scale, read_cables, read_contact, read_dynamics,
+                       check_energy_line_search, read_fabrication, read_gravity, read_grounds, read_loads, read_markers,
+                       read_pins, read_solver, read_tractions)
 from .stages import read_stages
 from .relations import check_piece_names, check_pinned_objects, check_schedules
 from .shapes import named_entries, read_body, read_bones, read_materials, read_solids
@@ -73,7 +75,8 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
     pins = read_pins(top, dim)
     check_bodies_held(str(source), bodies, pins, tol)
     loads = read_loads(top, dim, region)
-    friction, objects = take_objects(top, dim, materials, bodies, read_solids, named_entries)   # [[objects]], friction keys
+    # [[objects]], friction keys
+    friction, objects = take_objects(top, dim, materials, bodies, read_solids, named_entries)
     grounds = read_grounds(top, dim, bodies, tol, objects)
     contact = read_contact(top, dim, mesh.size, (*bodies, *objects))
     markers = read_markers(top, dim, region, objects)
@@ -112,7 +115,8 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
         source=str(source), name=name, dim=dim, thickness=thickness, mesh=mesh,
         materials=materials, body=body, bodies=bodies, bones=bones, cables=cables, pins=pins, loads=loads,
         grounds=grounds, contact=contact, markers=markers, solver=solver, gravity=gravity,
-        tractions=tractions, fabrication=fabrication, dynamics=dynamics, friction=friction, objects=objects, data=data, measure=float(measure), vertices=int(vertices),
+        tractions=tractions, fabrication=fabrication, dynamics=dynamics, friction=friction, objects=objects, data=data,
+        measure=float(measure), vertices=int(vertices),
     )
     check_tolerances(design)
     if stage_tables:            # each stage's design validated like this one (read_stages parses it)

@@ -300,7 +300,7 @@ def _loop_edges(loops):
 def meeting_loops(loops, tol: float) -> set:
     """Pairs (i, j), i < j, of loops (polygons) whose boundaries touch or cross."""
     p, q, lab = _loop_edges(loops)
-    out = set()
+    out: set = set()
     for I, J in candidate_pairs(_boxes(p, q, tol), lab):
         hit = segments_intersect(p[I], q[I], p[J], q[J], tol)
         if hit.any():

@@ -272,6 +272,7 @@ def _body_box(body, dim: int, thickness: float) -> tuple[np.ndarray, np.ndarray]
         boxes = [_body_box(b, dim, thickness) for b in body]
         return np.min([lo for lo, _ in boxes], axis=0), np.max([hi for _, hi in boxes], axis=0)
     if dim == 2:
+        assert body.outline is not None                     # a 2D body has one
         lo, hi = body.outline.min(axis=0), body.outline.max(axis=0)
         return np.r_[lo, 0.0], np.r_[hi, thickness]
     return primitives_box(body.solids)

@@ -67,7 +67,7 @@ def _check_layout_2d(body_t: "Table", region: _Region2D, bone_tables: list, bone
     in_outline = polygons.parity(firsts, [outline])
 
     boxes = np.array([np.r_[loop.min(axis=0) - tol, loop.max(axis=0) + tol] for loop in loops])
-    nested = set()                                  # (i, j): loop i's first vertex lies inside loop j
+    nested: set = set()                             # (i, j): loop i's first vertex lies inside loop j
     candidates: dict = {}
     for I, J in polygons.candidate_pairs(boxes[1:]):
         for i, j in zip((I + 1).tolist(), (J + 1).tolist()):
@@ -233,7 +233,8 @@ def _read_bodies(top: Table, dim: int, materials: dict):
     outlines = [t.take("outline", "points", dim=2) for t in tables]
     sizes = [float(np.ptp(o, axis=0).max()) for o in outlines if len(o) >= 1]
     tol = 1e-9 * max(max(sizes, default=1.0), 1.0)
-    bodies, out = [], []
+    bodies: list = []
+    out: list = []
     for t, outline in zip(tables, outlines):
         material = _material_ref(t, materials)
         body, region = _outline_body(t, t.where.split(".", 1)[1], material, outline, tol)
@@ -249,7 +250,8 @@ def _read_bodies_3d(tables: list, materials: dict):
     """[[bodies]] in 3D: each its solids; no two may overlap or touch (checked with OpenCASCADE)."""
     from .solids import touching
     tol = 1e-9 * max(max((_extent({"body": t.data}) for t in tables), default=1.0), 1.0)
-    bodies, out = [], []
+    bodies: list = []
+    out: list = []
     for t in tables:
         name = t.where.split(".", 1)[1]
         material = _material_ref(t, materials)
@@ -304,6 +306,7 @@ def read_bones(top: Table, dim: int, materials: dict, tol, body_tables: list) ->
         home = np.zeros(len(bones), int)           # the body around each bone's first vertex
         if len(body_tables) > 1:
             for k, b in enumerate(bones):
+                assert b.outline is not None                # a 2D bone has one
                 inside = [polygons.contains(r.outline, b.outline[:1], tol)[0] for _, r in body_tables]
                 if not any(inside):
                     tables[k].fail("outline", "a bone must lie strictly inside one body's outline")

@@ -168,7 +168,7 @@ def _check(gmsh, body_solids, bones, pins, tol) -> Check:
     outer_edges = _boundary(gmsh, outer_faces)
     outer = outer_faces | outer_edges | _boundary(gmsh, outer_edges)
 
-    closures = []
+    closures: list = []
     for (name, _), pieces in zip(bones, bone_sets):
         where = f"bones.{name}.solids"
         if not pieces <= body:
@@ -221,7 +221,7 @@ def _components(gmsh, volumes) -> list:
 def _pinned_parts(gmsh, parts, outer_faces, pins, tol) -> list:
     occ = gmsh.model.occ
     part_of = {v: i for i, part in enumerate(parts) for v in part}
-    faces_of = [set() for _ in parts]
+    faces_of: list[set] = [set() for _ in parts]
     for v, i in part_of.items():
         faces_of[i] |= _boundary(gmsh, [(3, v)]) & outer_faces
     caught = [False] * len(parts)

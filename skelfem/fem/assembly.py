@@ -2,6 +2,8 @@
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import scipy.sparse as sp
 from dolfinx import cpp as _cpp
@@ -46,6 +48,31 @@ class MatrixAssembly:
     K T when the border is built. A contact block between the body and a
     rigid object's boundary would otherwise couple every node of the two
     in the pattern, and the factorisation would fill in over them."""
+
+    # What the host (the Model) holds and this mixin reads, named for the type checker.
+    comm: Any
+    V: fem.FunctionSpace
+    u: fem.Function
+    terms: list
+    rigid: Any
+    bcs: list
+    bs: int
+    n_local: int
+    n_owned: int
+    global_dofs: np.ndarray
+    fixed: np.ndarray
+    slaved: Any
+    jacobian_form: Any
+    gradient: Any
+    sync: Any
+    embed_border: Any
+    _packs: Any
+    _block_cache: Any
+    _fixed_cache: Any
+    _csr_cache: Any
+    _extra_rows: Any
+    _slaved_rows: Any
+    _last_gradient: Any
 
     def _term_blocks(self, term):
         """The term's pattern blocks as (global rows this rank sets, global columns)."""
@@ -242,7 +269,7 @@ class MatrixAssembly:
         time (a cable's curvature) reuses its map into the matrix.
         """
         blocks, values = [], []
-        aside = ([], [], [])
+        aside: tuple[list, list, list] = ([], [], [])
         for term in self.terms:
             for i, (dofs, H) in enumerate(term.hessian(u)):
                 H = H if sp.isspmatrix_coo(H) else sp.coo_matrix(H)
@@ -341,8 +368,9 @@ class MatrixAssembly:
         KT = KB.getDenseArray().copy()
         KB.destroy()                # not left to the garbage collector: it leaked K T and T per call
         B.destroy()
-        if getattr(self, "_aside", None) is not None:        # the terms' entries kept out of A (serial)
-            KT += self._aside @ T
+        aside = getattr(self, "_aside", None)
+        if aside is not None:                                # the terms' entries kept out of A (serial)
+            KT += aside @ T
         C = T.T @ KT
         C = C if self.comm.size == 1 else self.comm.allreduce(C)
         j = 0
@@ -359,6 +387,7 @@ class MatrixAssembly:
     def _embed_border(self, A: PETSc.Mat, KT: np.ndarray, C: np.ndarray) -> np.ndarray:
         """Write E = K T and C into the hosts' rows and columns of A (serial); the host DOFs in q's order."""
         g, j, insert = self.global_dofs, 0, PETSc.InsertMode.INSERT_VALUES
+        assert self._hosts is not None          # called only when the border has hosts
         for host, near in self._hosts:
             E = KT[near, j:j + len(host)]
             A.setValues(g[near], g[host], E, addv=insert)

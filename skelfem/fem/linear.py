@@ -68,6 +68,8 @@ the formulas above for the rest of its solves, counted in ``fallbacks``
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import scipy.sparse as sp
 from petsc4py import PETSc
@@ -100,30 +102,32 @@ class LowRankSolver:
             self._nullspace = near_nullspace(K, modes() if callable(modes) else modes, comm)
             K.setNearNullSpace(self._nullspace)
         self.ksp = self._make_ksp(prefix, self._options, self.coarse)
-        self._direct = None             # iterative: the fallback factorisation, made when first needed
+        self._direct: Any = None        # iterative: the fallback factorisation, made when first needed
         self._fallen = False            # iterative: this update's solves use the fallback
         self.fallbacks = 0              # updates whose Krylov solves failed and fell back to MUMPS
         self.direct_limit = np.inf      # ... unless K has more rows than MUMPS fits (a failed Newton step)
         self.loose_steps = 0            # Newton steps taken from a stalled Krylov solve (see _krylov)
-        self.krylov = []                # iterative: Krylov iterations since each update (one entry per update)
+        self.krylov: list[int] = []     # iterative: Krylov iterations since each update (one entry per update)
         self._its_since, self._decades_since = 0, 0.0   # iterative: since the last update, for ...
-        self._fresh_rate = None         # ... the iterations per decade of residual of a fresh multigrid
+        self._fresh_rate: float | None = None   # ... the iterations per decade of residual of a fresh multigrid
         self._rebuilt = True
         self.rtol = KRYLOV_RTOL         # iterative: the relative residual of a Newton step's solve (forcing)
         self.c = np.zeros(0)
-        self.G = self.Z = None
-        self.border = None
+        self.G: Any = None              # set by update (PETSc vectors, sparse or dense columns) ...
+        self.Z: Any = None              # ... and by the solves that need them
+        self.border: Any = None         # Border | None: the last update's
         self.C = np.zeros((0, 0))
         self._dense: dict = {}
-        self._work = None               # the embedded right-hand side (Border.hosts)
+        self._work: Any = None          # the embedded right-hand side (Border.hosts)
         self.solves = 0                 # solve phases run (one multi-RHS solve counts once)
-        self._hksp = None               # iterative: the whole system's KSP (_operator_mode) on (x, z): n + m rows
-        self._bvecs = None              # ... (rhs, solution) of that size, and two n-vectors
-        self.ZB = np.zeros((0, 0))      # ... B [G | E], B one multigrid cycle (an approximate K^{-1})
+        self._hksp: Any = None          # iterative: the whole system's KSP (_operator_mode) on (x, z): n + m rows
+        self._bvecs: Any = None         # ... (rhs, solution) of that size, and two n-vectors
+        self.ZB: Any = np.zeros((0, 0))  # ... B [G | E], B one multigrid cycle (an approximate K^{-1})
         self.CB = np.zeros((0, 0))      # ... the small system's matrix made from ZB
         self.deflation = deflation      # iterative: () -> W, modes the multigrid cycle is balanced against
-        self.W = None                   # ... at the last update
-        self.KW, self.WKW = None, None  # ... K W and W^T K W at the last update
+        self.W: Any = None              # ... at the last update
+        self.KW: Any = None             # ... K W and W^T K W at the last update
+        self.WKW: Any = None
 
     def _make_ksp(self, prefix: str, options: dict, coarse: Coarse | None = None) -> PETSc.KSP:
         ksp = PETSc.KSP().create(self.comm)
@@ -445,14 +449,14 @@ class LowRankSolver:
             bvec.destroy()
             y = x.array_r.copy()
         ZG, ZE = self.Z[:, :k], self.Z[:, k:]
-        rhs = np.concatenate([(self._dots(border.T, b.array_r[:, None])[:, 0] if m else np.zeros(0))
+        rhs = np.concatenate([(self._dots(border.T, b.array_r[:, None])[:, 0] if m else np.zeros(0))  # type: ignore[union-attr]  # m > 0: a border
                               - self._dots(E, y[:, None])[:, 0],
                               -self._dots(self.G, y[:, None])[:, 0]])
         zw = np.linalg.solve(self.C, rhs)
         z, w = zw[:m], zw[m:]
         out = y - ZE @ z - ZG @ w
         if m:
-            out = out + border.T @ z
+            out = out + border.T @ z  # type: ignore[union-attr]  # m > 0: a border
         x.array_w[:] = out
 
     def _take_z(self, Z: np.ndarray, E: np.ndarray, border: Border | None) -> None:
@@ -465,7 +469,7 @@ class LowRankSolver:
         k, m = len(self.c), E.shape[1]
         ZG, ZE = Z[:, :k], Z[:, k:]
         C = np.zeros((m + k, m + k))
-        C[:m, :m] = (border.C if m else 0.0) - self._dots(E, ZE)
+        C[:m, :m] = (border.C if m else 0.0) - self._dots(E, ZE)  # type: ignore[union-attr]  # m > 0: a border
         C[:m, m:] = self.H - self._dots(E, ZG)
         C[m:, :m] = C[:m, m:].T
         C[m:, m:] = -(np.diag(1.0 / self.c) + self._dots(self.G, ZG))
@@ -507,10 +511,10 @@ class LowRankSolver:
         else:
             Y = self._multi_solve(Bf)
         ZG, ZE = self.Z[:, :k], self.Z[:, k:]
-        top = (self._dots(border.T, B) if m else np.zeros((0, B.shape[1]))) - self._dots(E, Y)
+        top = (self._dots(border.T, B) if m else np.zeros((0, B.shape[1]))) - self._dots(E, Y)  # type: ignore[union-attr]  # m > 0: a border
         ZW = np.linalg.solve(self.C, np.vstack([top, -self._dots(self.G, Y)]))
         out = Y - ZE @ ZW[:m] - ZG @ ZW[m:]
-        return out + border.T @ ZW[:m] if m else out
+        return out + border.T @ ZW[:m] if m else out  # type: ignore[union-attr]  # m > 0: a border
 
     def as_pc(self, pc: PETSc.PC) -> None:
         """Make pc apply this solver (for SNES's KSP of type preonly)."""

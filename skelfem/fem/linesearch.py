@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from typing import Any
 
 import numpy as np
 from mpi4py import MPI
@@ -22,6 +23,10 @@ class LineSearch:
     """The energy line search of the Newton solver (a mixin): SNES's pre-check scales each Newton step so
     that the trial state is admissible (``Model.max_step``) and lowers the total energy (Armijo
     backtracking, with a watchdog that lets a few full steps raise it), optionally along a curve."""
+
+    # What the host (the NewtonSolver) holds and this mixin reads, named for the type checker.
+    model: Any
+    lin: Any
 
     def _energy_line_search(self, x, y):
         """SNES pre-check: scale the step -y so that x - y is admissible and lowers Pi

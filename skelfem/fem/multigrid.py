@@ -134,9 +134,9 @@ class Coarse:
     def attach(self, pc: PETSc.PC, K: PETSc.Mat) -> None:
         """Make pc the two-level multigrid of K (A_c made anew from K's pattern)."""
         self.destroy_coarse()
-        self.Ac = K.PtAP(self.P)
-        self._nullspace = near_nullspace(self.Ac, self.modes, self.comm)
-        self.Ac.setNearNullSpace(self._nullspace)
+        Ac = self.Ac = K.PtAP(self.P)
+        self._nullspace = near_nullspace(Ac, self.modes, self.comm)
+        Ac.setNearNullSpace(self._nullspace)
         pc.setType(PETSc.PC.Type.MG)
         pc.setMGLevels(2)
         pc.setMGInterpolation(1, self.P)
@@ -184,7 +184,7 @@ def owned_rigid_body_modes(X: np.ndarray, dim: int, comm) -> np.ndarray:
 
 def near_nullspace(K: PETSc.Mat, modes: np.ndarray, comm) -> PETSc.NullSpace:
     """An orthonormal PETSc near-nullspace from the owned rows of the modes (modified Gram-Schmidt)."""
-    vecs = []
+    vecs: list = []
     for j in range(modes.shape[1]):
         v = K.createVecLeft()
         v.array_w[:] = modes[:, j]

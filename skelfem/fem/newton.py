@@ -146,7 +146,7 @@ class NewtonSolver(LineSearch):
         snes.setOptionsPrefix(prefix)
         snes.setFunction(lambda s, x, b: self._residual(x, b), self.b)
         snes.setJacobian(lambda s, x, A, P: self.jacobian(x), self.A)
-        options = {}
+        options: dict = {}
         if self.strategy == "trust_region":
             snes.setType("newtontr")
         else:

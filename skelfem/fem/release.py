@@ -24,8 +24,9 @@ def release_vectors(model) -> None:
             continue
         seen.add(id(obj))
         if isinstance(obj, fem.Function):
-            if getattr(obj, "_petsc_x", None) is not None:
-                obj._petsc_x.destroy()
+            wrapped = getattr(obj, "_petsc_x", None)   # DOLFINx's PETSc Vec over the array, made on first use
+            if wrapped is not None:
+                wrapped.destroy()
                 obj._petsc_x = None
             continue
         if isinstance(obj, PETSc.Object):       # vectors and matrices the terms made (rank-one parts...)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 from mpi4py import MPI
@@ -142,10 +143,11 @@ def object_states(model) -> list[dict]:
     boundary nodes from the other pieces (positions, barrier and friction forces, N; collective). Then,
     without an outline, every body but the first that something touches, with the forces on it."""
     objects = model.terms_in("objects")
-    pieces = next((t for t in model.terms_in("contacts") if hasattr(t, "nodal_forces")), None)
+    pieces: Any = next((t for t in model.terms_in("contacts") if hasattr(t, "nodal_forces")), None)
     if not objects and pieces is None:
         return []
-    y, normal, friction = pieces.nodal_forces(model) if pieces is not None else (None, None, None)
+    nodal: Any = pieces.nodal_forces(model) if pieces is not None else (None, None, None)
+    y, normal, friction = nodal
 
     def forces_on(k: int) -> dict:
         touched = (pieces.label == k) & (np.linalg.norm(normal, axis=1) + np.linalg.norm(friction, axis=1) > 0)

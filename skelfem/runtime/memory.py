@@ -30,8 +30,9 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+from typing import Any
 
-_LIBC = None
+_LIBC: Any = None
 BIG_CELLS = 200_000          # meshes with more cells than this are worth a trim after their build
 MMAP_VECTORS = 8             # blocks of this many solution vectors or more are mapped on their own ...
 MMAP_BYTES = 1 << 20         # ... and always those of this many bytes

@@ -62,7 +62,7 @@ def agree(ctl, code: int, message: str | None, in_step: bool, grace: float = GRA
         return code, message
     from mpi4py import MPI
 
-    old = [signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)]
+    old: list | None = [signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)]
     try:                              # the run is over: a late signal must not interrupt the hand-shake
         for s in (signal.SIGINT, signal.SIGTERM):
             signal.signal(s, signal.SIG_IGN)

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass, field
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
 import ufl
@@ -44,13 +45,17 @@ from dolfinx import fem
 from dolfinx import mesh as dmesh
 from petsc4py import PETSc
 
+if TYPE_CHECKING:
+    from ..design.spec import Design
+    from ..mesh.geometry import TaggedMesh
+
 
 class Term:
     """Base class of every energy term; the defaults describe a term that does nothing."""
 
     section: str = ""            # result.json key and design section, e.g. "cables"
     name: str = ""               # entry name within the section
-    gather = None                # DofGather: DOFs are global numbers; None: local indices
+    gather: Any = None           # DofGather: DOFs are global numbers; None: local indices
     bounds_steps: bool = False   # whether max_step can return < 1
     actuated: bool = False       # an actuator: its contraction is a control of Soft IK, tracking and optimisation
 
@@ -276,15 +281,16 @@ class Context:
     :meth:`ds` inside ``ufl_energy``.
     """
 
-    design: object
-    tagged: object                   # skelfem.mesh.geometry.TaggedMesh
-    V: object
-    u: object                        # fem.Function: the displacement
+    design: Design
+    tagged: TaggedMesh
+    V: fem.FunctionSpace
+    u: fem.Function                  # the displacement
     thickness: fem.Constant          # t: slab depth in 2D, 1 in 3D
     fixed: np.ndarray | None = None  # Dirichlet flags of the local DOFs (set by the model)
+    anchor_radius: float | None = None   # cables' default anchor radius (cable_route, made on first use)
     _boxes: list = field(default_factory=list)
     _facets: list = field(default_factory=list)
-    _measure: object = None
+    _measure: Any = None
     _codes: np.ndarray | None = None
 
     @property

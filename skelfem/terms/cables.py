@@ -32,6 +32,7 @@ its curvature block, of rank gdim - 1, joins the low-rank parts too.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -103,7 +104,9 @@ class Cable:
         self.s_prev = self.s_hat.copy()         # the anchors before the last accepted step
         self.F = np.zeros(max(m - 1, 0))        # lagged friction limits of the interior via points
         self.slipping = np.zeros(max(m - 1, 0), dtype=bool)   # which slipped in the last accepted step
-        self._version, self._cache, self._mixing = 0, None, []
+        self._version = 0
+        self._mixing: list = []
+        self._cache: Any = None
 
     @property
     def friction(self) -> bool:
@@ -340,8 +343,8 @@ class Cable:
         gdim = t.shape[1]
         tt = t[:, :, None] * t[:, None, :]
         W = (T / norm)[:, None, None] * (np.eye(gdim)[None] - tt) + axial[:, None, None] * tt
-        data = [np.matmul(BdT, np.matmul(W[members], Bd)).ravel() for members, Bd, BdT in groups]
-        data = np.concatenate(data) if data else np.zeros(0)
+        parts = [np.matmul(BdT, np.matmul(W[members], Bd)).ravel() for members, Bd, BdT in groups]
+        data = np.concatenate(parts) if parts else np.zeros(0)
         return sp.coo_matrix((data, (rows, cols)), shape=(m, m))
 
     def wide_parts(self, u: np.ndarray, L: float) -> list[tuple[float, np.ndarray]]:
@@ -589,6 +592,6 @@ def via_coefficients(ctx: Context, cable: Cable, by_material: dict) -> np.ndarra
     return np.maximum(mu_seg[:-1], mu_seg[1:])
 
 def build(ctx: Context) -> list[Term]:
-    terms = [CableTerm(ctx, spec) for spec in ctx.design.cables]
+    terms: list[Term] = [CableTerm(ctx, spec) for spec in ctx.design.cables]
     release_facets(ctx.mesh)
     return terms

@@ -56,6 +56,8 @@ step is the smallest over ranks.
 """
 from __future__ import annotations
 
+from typing import Any
+
 import ipctk
 import numpy as np
 import scipy.sparse as sp
@@ -171,7 +173,7 @@ class SelfContact(Term):
         # ipctk's default of 1e-6 (mm) took seconds for a face landing flat on a face
         self.ccd = ipctk.TightInclusionCCD(tolerance=CCD_TOLERANCE * self.dhat)
         self.outgrown = False       # a Hessian needed node pairs the pattern had not (see the module note)
-        self._pairs = None          # the node pairs the pattern holds (on first use: _near_pairs at rest)
+        self._pairs: Any = None     # the node pairs the pattern holds (on first use: _near_pairs at rest)
 
     # -- the matrix pattern ----------------------------------------------------------------------
     def can_couple(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -19,6 +19,8 @@ each unpinned bone into the exact one (see :meth:`Elasticity.step_correction`).
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import ufl
 from dolfinx import fem
@@ -133,9 +135,9 @@ class Elasticity(Term):
         self._update_fields()
         self.dx = elastic_measure(ctx, design)
         self._scale_form = fem.form(ctx.thickness * (self.mu + self.lam) * self.dx)
-        self._groups = None
-        self._fit = None
-        self._corr = None             # (u0, p, alpha, correction) of the last call
+        self._groups: Any = None
+        self._fit: Any = None
+        self._corr: Any = None        # (u0, p, alpha, correction) of the last call
 
     def _update_fields(self) -> None:
         for name, cells in self.cells.items():
@@ -191,6 +193,7 @@ class Elasticity(Term):
             nodes = nodes[nodes < n_owned]
             dofs = nodes[:, None] * bs + np.arange(bs)
             count = ctx.comm.allreduce(len(nodes), op=MPI.SUM)
+            assert ctx.fixed is not None                # set by the model before the terms are asked
             pinned = ctx.comm.allreduce(bool(ctx.fixed[dofs].any()), op=MPI.LOR)
             if count >= 3 and not pinned:
                 groups.append(dofs)
@@ -211,6 +214,7 @@ class Elasticity(Term):
         if self._groups is None:
             self._groups = self._bone_groups()
         dim, fits = self.ctx.dim, []
+        w: float | np.ndarray           # the rotation: an angle in 2D, a vector in 3D
         for dofs, X in self._groups:   # one vectorised block per bone
             y = X + u0[dofs]
             n = self._sum(len(y))

@@ -82,17 +82,17 @@ def closest_facet(P: np.ndarray, piece: np.ndarray, y: np.ndarray, F: np.ndarray
         j = np.zeros(len(P), dtype=np.int64)
         s_j = np.zeros(len(P))
         d_j = np.zeros(len(P))
-        rows = max(1, CHUNK // max(len(F), 1))          # points x edges arrays of at most CHUNK entries
-        for lo in range(0, len(P), rows):
-            p = P[lo:lo + rows, None, :]
+        chunk = max(1, CHUNK // max(len(F), 1))         # points x edges arrays of at most CHUNK entries
+        for lo in range(0, len(P), chunk):
+            p = P[lo:lo + chunk, None, :]
             s = np.clip(np.einsum("nek,ek->ne", p - a[None], ab) / length2, 0, 1)
             off = p - (a[None] + s[..., None] * ab[None])
             dist = np.linalg.norm(off, axis=2)
             rank = dist + tie_break * (dist - np.abs(np.einsum("nek,ek->ne", off, normal)))
-            rank[piece[lo:lo + rows, None] == facet_piece[None, :]] = np.inf
+            rank[piece[lo:lo + chunk, None] == facet_piece[None, :]] = np.inf
             pick = np.argmin(rank, axis=1)
-            k = np.arange(len(pick))
-            j[lo:lo + rows], s_j[lo:lo + rows], d_j[lo:lo + rows] = pick, s[k, pick], dist[k, pick]
+            at = np.arange(len(pick))
+            j[lo:lo + chunk], s_j[lo:lo + chunk], d_j[lo:lo + chunk] = pick, s[at, pick], dist[at, pick]
         return j, np.column_stack([1.0 - s_j, s_j]), d_j
     from scipy.spatial import cKDTree
     centroid = y[F].mean(axis=1)

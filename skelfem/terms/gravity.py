@@ -56,7 +56,7 @@ class Gravity(Term):
         self._ga.value[:] = a * self.g
 
     def parameters(self) -> dict:
-        out = {"gravity.acceleration": self.g.copy()}
+        out: dict = {"gravity.acceleration": self.g.copy()}
         out.update({f"materials.{n}.density": rho for n, rho in self.density.items()})
         return out
 

@@ -51,6 +51,8 @@ stiffness damping, ``materials.NAME.E`` / ``.nu`` (shared with elasticity).
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import ufl
 from dolfinx import fem
@@ -80,6 +82,7 @@ class Inertia(Term):
         self._M = None                  # the mass matrix, assembled on first use
         design, mesh = ctx.design, ctx.mesh
         spec = design.dynamics
+        assert spec is not None                         # built for a design with [dynamics] only
         self.order = 2 if spec.integrator == "bdf2" else 1
         self.cells = region_cells(ctx, design)          # cells that strain (body, bones): rho, mu, lambda
         self.rigid_cells = object_cells(ctx, design)     # free rigid objects' cells: rho only
@@ -101,7 +104,7 @@ class Inertia(Term):
         self.damping = (float(spec.damping_mass), float(spec.damping_stiffness))
         t = ctx.thickness
         self._kinetic_form = fem.form(0.5 * MASS_UNIT * t * self.rho * ufl.dot(self.v, self.v) * ufl.dx)
-        self._own_form = None
+        self._own_form: Any = None
         self.active = False
         self.h = 0.0                # step size of the step being solved (0: none)
         self.x: list[np.ndarray] = []       # x_n, x_{n-1} (local arrays, ghosts included)

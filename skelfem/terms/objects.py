@@ -38,6 +38,8 @@ asserted positive).
 """
 from __future__ import annotations
 
+from typing import Any
+
 import ipctk
 import numpy as np
 from dolfinx import fem
@@ -114,7 +116,7 @@ class RigidObject(Term):
         return self.body
 
     def parameters(self) -> dict:
-        out = {f"materials.{self.spec.material}.density": self.rho}
+        out: dict = {f"materials.{self.spec.material}.density": self.rho}
         if self.ctx.design.gravity is not None:
             out["gravity.acceleration"] = self.g.copy()
         return out
@@ -234,7 +236,7 @@ class PieceContact(SelfContact):
         self.pieces = piece_names(ctx.design)           # the bodies, then the objects
         self.bodies = len(ctx.design.bodies)
         self.objects = objects
-        self._weights = None          # boundary weights of the nodes (grounds' quadrature), on demand
+        self._weights: Any = None     # boundary weights of the nodes (grounds' quadrature), on demand
         self.label = piece_labels(ctx, self.nodes)
         self.mesh.can_collide = ipctk.make_vertex_patches_filter(self.label)
 

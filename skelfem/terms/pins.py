@@ -68,7 +68,7 @@ class Pin(Term):
         self.move.value[:] = a * self.target
 
     def parameters(self) -> dict:
-        out = {f"pins.{self.name}.move": self.target.copy()}
+        out: dict = {f"pins.{self.name}.move": self.target.copy()}
         if self.kind == "spring":
             out[f"pins.{self.name}.stiffness"] = float(self.k.value)
         return out

@@ -11,6 +11,8 @@ and the loaded area |Gamma| t (mm^2).
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import ufl
 from dolfinx import fem
@@ -34,7 +36,7 @@ class Traction(Term):
         self.tau = np.asarray(spec.traction, dtype=float).copy()
         self._at = constant(ctx.mesh, np.zeros(ctx.dim))        # a tau, ramped
         self.factor = 0.0
-        self._area_form = None
+        self._area_form: Any = None
 
     def ufl_energy(self, ctx: Context):
         ds = ctx.ds(self.box)
