@@ -113,23 +113,44 @@ class Morph:
         polys = polygons(design)
         if len(polys) != len(self.polys0) or any(p.shape != q.shape for p, q in zip(polys, self.polys0)):
             return None
-        moves = [p - q for p, q in zip(polys, self.polys0)]
-        k, i = self.edge[:, 0], self.edge[:, 1]
-        n_vertices = np.array([len(p) for p in polys])
-        offsets = np.r_[0, np.cumsum(n_vertices)[:-1]]
-        d_all = np.vstack(moves)
-        da = d_all[offsets[k] + i]
-        db = d_all[offsets[k] + (i + 1) % n_vertices[k]]
-        delta = np.zeros_like(self.X0)
-        delta[self.bound] = (1.0 - self.t)[:, None] * da + self.t[:, None] * db
-        if self._solve is not None:
-            rhs = -(self.K_IB @ delta[self.bound])
-            delta[self.free] = np.column_stack([self._solve(rhs[:, j]) for j in range(2)])
-        x = self.X0 + delta
+        x = self.X0 + self.displacement([p - q for p, q in zip(polys, self.polys0)])
         area, quality = shape_ratio(x, self.cells)
         if np.any(area * np.sign(self.area0) <= 0.0) or quality.min() < MIN_QUALITY:
             return None
         return x
+
+    def _vertex_map(self) -> sp.csr_matrix:
+        """W: the boundary nodes' moves (n_bound, per axis) from the stacked polygon vertex moves."""
+        n_vertices = np.array([len(p) for p in self.polys0])
+        offsets = np.r_[0, np.cumsum(n_vertices)[:-1]]
+        k, i = self.edge[:, 0], self.edge[:, 1]
+        a, b = offsets[k] + i, offsets[k] + (i + 1) % n_vertices[k]
+        rows = np.arange(len(self.bound))
+        return sp.csr_matrix((np.r_[1.0 - self.t, self.t], (np.r_[rows, rows], np.r_[a, b])),
+                             shape=(len(self.bound), int(n_vertices.sum())))
+
+    def displacement(self, moves) -> np.ndarray:
+        """The node moves (n, 2) for polygon vertex moves (one (m_i, 2) array per polygon, in
+        ``polygons`` order): linear in them (the edge interpolation, then the harmonic extension)."""
+        delta = np.zeros_like(self.X0)
+        delta[self.bound] = self._vertex_map() @ np.vstack(moves)
+        if self._solve is not None:
+            rhs = -(self.K_IB @ delta[self.bound])
+            delta[self.free] = np.column_stack([self._solve(rhs[:, j]) for j in range(2)])
+        return delta
+
+    def pull_back(self, g: np.ndarray) -> list[np.ndarray]:
+        """The transpose of ``displacement``: for g = dJ/dX (n, 2) at fixed vertex moves, dJ/d(vertex
+        moves), one (m_i, 2) array per polygon. One solve with K_II per axis, whatever the number of
+        design variables (K_II is symmetric)."""
+        g = np.asarray(g, dtype=float)
+        g_bound = g[self.bound].copy()
+        if self._solve is not None:
+            y = np.column_stack([self._solve(np.ascontiguousarray(g[self.free, j])) for j in range(2)])
+            g_bound -= self.K_IB.T @ y
+        flat = self._vertex_map().T @ g_bound
+        ends = np.cumsum([len(p) for p in self.polys0])[:-1]
+        return np.split(flat, ends)
 
     def apply(self, x: np.ndarray) -> None:
         """Put the node coordinates x into the mesh and forget what was computed from the old ones."""

@@ -1,0 +1,225 @@
+"""Exact design gradients of a static equilibrium by the adjoint (2D).
+
+The design's handles p (skelfem.analysis.handles) move its polygons, cable
+sketches and markers; the mesh follows the polygons by the editor's morph
+(skelfem.mesh.morph: the same topology, node coordinates X(p) linear in the
+polygon vertices), and the equilibrium u(p) solves R(u; X, Q, E) = 0. For an
+objective J(u; X, Q, markers):
+
+    dJ/dp = (dJ/dpsi - z^T dR/dpsi) dpsi/dp,     H z = dJ/du,
+
+psi = (X, Q, marker references, E), H the Newton Hessian at the converged
+state, factorised once (skelfem.analysis.sensitivity.Linearization, the
+same matrix and factorisation as Soft IK), so one back-substitution serves
+every handle. z^T dR/dX and dJ/dX are assembled once as vectors over the
+nodes (skelfem.analysis.shape) and pulled back to the polygon vertices by the
+transpose of the morph (Morph.pull_back: two solves with its Laplacian),
+whatever the number of handles.
+
+Exact for the discrete problem on the moved mesh: what the test against
+full re-solves on moved meshes (tests/test_design_gradient.py) measures. Not
+covered (ValueError): see skelfem.analysis.shape.uncovered.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..mesh.morph import Morph, polygons
+from .cable_shape import mesh_edges
+from .handles import DesignHandles
+from .sensitivity import Linearization
+from .shape import ShapeDerivative, uncovered
+from .shape_points import MaterialPoints
+from .smooth_step import smooth_step
+
+
+# -- objectives -------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class MarkerTarget:
+    """J = |y - target|^2 (mm^2), y a marker's position at equilibrium."""
+
+    marker: str
+    target: tuple
+
+    def _points(self, model):
+        markers = model.term("markers")
+        i = markers.names.index(self.marker)
+        return markers, i
+
+    def value(self, model) -> float:
+        markers, i = self._points(model)
+        r = markers.positions(model.u.x.array)[i] - np.asarray(self.target, dtype=float)
+        return float(r @ r)
+
+    def state_gradient(self, model) -> np.ndarray:
+        markers, i = self._points(model)
+        r = markers.positions(model.u.x.array)[i] - np.asarray(self.target, dtype=float)
+        S = markers.local_operator()[2 * i:2 * i + 2]
+        return np.asarray(S.T @ (2.0 * r)).ravel()
+
+    def explicit(self, model, shape) -> tuple[np.ndarray, dict, dict]:
+        """(dJ/dX, {cable: dJ/dQ}, {marker: dJ/d(reference)}) at fixed u."""
+        markers, i = self._points(model)
+        u = model.u.x.array
+        gy = 2.0 * (markers.positions(u)[i] - np.asarray(self.target, dtype=float))
+        pts = MaterialPoints(model.V, markers.X[i:i + 1])
+        G = pts.gradients(u)[0]
+        return pts.nodes_of(-(G.T @ gy)[None, :]), {}, {self.marker: gy + G.T @ gy}
+
+
+@dataclass(frozen=True)
+class Tension:
+    """J = the tension of a cable, k max(l - L, 0) (N)."""
+
+    cable: str
+
+    def value(self, model) -> float:
+        term = model.term("cables", self.cable)
+        return float(term.cable.tension(model.u.x.array, term.rest_length))
+
+    def state_gradient(self, model) -> np.ndarray:
+        term = model.term("cables", self.cable)
+        u = model.u.x.array
+        out = np.zeros(len(u))
+        if term.cable.length(u) > term.rest_length:
+            np.add.at(out, term.cable.dofs, term.cable.k * term.cable.length_gradient(u))
+        return out
+
+    def explicit(self, model, shape) -> tuple[np.ndarray, dict, dict]:
+        gX, gQ = shape.cables[self.cable].tension_gradient(model.u.x.array)
+        return gX, {self.cable: gQ}, {}
+
+
+# -- the gradient ------------------------------------------------------------------------------------------
+class DesignGradient:
+    """A session's design with handles, solved at p and differentiated there.
+
+    Make it while the session's mesh is the one generated for its design (before any morphing edit):
+    the morph's linear map starts from it. Cables whose ends or bends pull on a disk of the default
+    radius (1 % of the mesh's bounding box, which has kinks where nodes tie for an extreme) get that
+    radius written into the design (``cables.C.anchor_radius``), the same value: the start's answer
+    does not change, and the optimised design file keeps it.
+    """
+
+    def __init__(self, session, keys):
+        why = uncovered(session.model)
+        if why:
+            raise ValueError(why)
+        self.session = session
+        self.handles = DesignHandles(session.design, keys)
+        self.morph = Morph(session.model.tm, session.design)
+        self.p = np.zeros(len(self.handles.keys))
+        self._shape = None
+        self.timings: dict = {}
+        # a cable end or bend in silicone pulls on a disk whose default radius is 1 % of the mesh's
+        # bounding box: a kink wherever several nodes share an extreme (a straight side of the body).
+        # The moved designs keep the start's radius, written out (the start's answer is unchanged).
+        for term in session.model.terms_in("cables"):
+            if term.anchors and session.design.cable(term.name).anchor_radius is None:
+                self.handles.anchor_radii[term.name] = float(next(iter(term.anchors.values())))
+        if self.handles.anchor_radii:
+            session.edit(self.handles.raw(self.p), morph=True)
+
+    @property
+    def keys(self) -> list[str]:
+        return list(self.handles.keys)
+
+    def solve(self, p=None):
+        """Move the design to p (the mesh by the morph, same topology) and solve; returns the Result."""
+        if p is not None:
+            p = np.asarray(p, dtype=float)
+            how = self.session.edit(self.handles.raw(p), morph=True)
+            if how == "re-meshed":
+                raise ValueError("the moved mesh degrades at these design values (the morph refused it): "
+                                 "re-mesh and start again from there")
+            self.p = p.copy()
+        t0 = time.perf_counter()
+        result = self.session.solve()
+        self.timings["solve"] = time.perf_counter() - t0
+        return result
+
+    def shape(self) -> ShapeDerivative:
+        """The shape derivative of the present model (forms compiled once per model; cables traced anew)."""
+        model = self.session.model
+        key = (id(model), tuple(id(t) for t in model.terms if t.has_ufl_energy()))
+        if self._shape is None or self._shape[0] != key:
+            self._shape = (key, ShapeDerivative(model))
+        else:
+            self._shape[1].trace_cables()
+        return self._shape[1]
+
+    def check_mesh(self) -> None:
+        """The mesh is where the morph puts it for the handles' present values (else the gradient would be
+        of another discrete problem)."""
+        model = self.session.model
+        polys, _, _ = self.handles.split(self.handles.points(self.p))
+        X = self.morph.X0 + self.morph.displacement([a - b for a, b in zip(polys, self.morph.polys0)])
+        scale = 1.0 + float(np.abs(X).max())
+        if not np.allclose(model.mesh.geometry.x[:, :2], X, rtol=0.0, atol=1e-9 * scale):
+            raise ValueError("the mesh is not the start mesh moved by the morph (was the session re-meshed?)")
+        if len(polygons(self.session.design)) != len(polys):
+            raise ValueError("the design's polygons changed")
+
+    def gradient(self, objective) -> tuple[float, np.ndarray]:
+        """(J, dJ/dp) at the present solved state, by one adjoint solve."""
+        t0 = time.perf_counter()
+        self.check_mesh()
+        model, solver = self.session.model, self.session.solver
+        J = objective.value(model)
+        lin = Linearization(model, solver)
+        t1 = time.perf_counter()
+        try:
+            rhs = objective.state_gradient(model)
+            rhs[model.fixed] = 0.0
+            b = model.u.vector.duplicate()
+            b.array_w[:] = rhs[:len(b.array_w)]
+            z_vec = lin.solve(b)
+            z = z_vec.array_r.copy()
+            b.destroy()
+            z_vec.destroy()
+        finally:
+            lin.destroy()
+        t2 = time.perf_counter()
+        shape = self.shape()
+        rX, rQ = shape.adjoint(z)
+        eX, eQ, eM = objective.explicit(model, shape)
+        gQ = {c: eQ.get(c, 0.0) - rQ[c] for c in rQ}
+        g_polys = self.morph.pull_back(eX - rX)
+        g_points = self.handles.join(g_polys, gQ, eM)
+        dJ = np.einsum("ni,nij->j", g_points, self.handles.velocities(self.p))
+        for j, h in enumerate(self.handles.handles):
+            if h.kind == "modulus":
+                dJ[j] -= shape.modulus(z, h.material)
+        t3 = time.perf_counter()
+        self.timings.update(factorise=t1 - t0, adjoint_solve=t2 - t1, assemble=t3 - t2, gradient=t3 - t0)
+        return J, dJ
+
+    def smooth_step(self, dp) -> float:
+        """The largest step h along dp before the discrete energy has a kink (a mesh node crosses a cable's
+        sketch, a sketch vertex, anchor lattice point or marker crosses a mesh edge: skelfem.analysis.
+        smooth_step), followed to second order in h: where J(p + h dp) is smooth and its Taylor remainder
+        falls as h^2."""
+        dp = np.asarray(dp, dtype=float)
+        h = self.handles
+        V = h.velocities(self.p) @ dp                       # (points, 2)
+        polys_v, paths_v, markers_v = h.split(V)
+        polys, paths, markers = h.split(h.points(self.p))
+        mesh = self.session.model.mesh
+        nodes = mesh.geometry.x[:, :2]
+        W = self.morph.displacement(polys_v)
+        segments = [np.stack([q[:-1], q[1:]], axis=1) for q in paths.values()]
+        seg_v = [np.stack([v[:-1], v[1:]], axis=1) for v in paths_v.values()]
+        pts = [q for q in paths.values()] + [np.atleast_2d(m) for m in markers.values()]
+        pts_v = [v for v in paths_v.values()] + [np.atleast_2d(m) for m in markers_v.values()]
+        for name, c in self.shape().cables.items():
+            for samples, k in c.lattice:
+                pts.append(samples)
+                pts_v.append(np.broadcast_to(paths_v[name][k], samples.shape))
+        edges = mesh_edges(mesh)[0]
+        return smooth_step(nodes, W, edges, np.concatenate(segments) if segments else np.zeros((0, 2, 2)),
+                           np.concatenate(seg_v) if seg_v else np.zeros((0, 2, 2)),
+                           np.vstack(pts) if pts else np.zeros((0, 2)),
+                           np.vstack(pts_v) if pts_v else np.zeros((0, 2)))

@@ -1,0 +1,263 @@
+"""Design handles: a few numbers p that move a 2D design's points, and the exact velocities dPoints/dp.
+
+A handle is named by a design key (the same names as the optimize-design task's ``[[variables]]``);
+its value is a change from the start design (p = 0):
+
+=================================  ===============================================================
+``body.outline[i].x|y``            a body outline vertex (mm); ``bodies.NAME.outline[i]`` with
+                                   ``[[bodies]]``
+``body.holes[k][i].x|y``           a hole vertex (mm); ``bodies.NAME.holes[k][i]``
+``bones.B.outline[i].x|y``         a bone vertex (mm)
+``bones.B.offset.x|y``             the bone's translation (mm)
+``bones.B.angle``                  the bone's rotation about its outline's area centroid at the
+                                   start, degrees, counter-clockwise
+``cables.C.path[i].x|y``           a via point (sketch vertex) of a cable (mm)
+``materials.M.E``                  a material's Young's modulus (MPa): a parameter, not a shape
+=================================  ===============================================================
+
+A bone's pose carries with it the cable sketch vertices and the markers that lie strictly inside
+the bone at the start (a tendon's end anchored in the bone moves with it). The design is
+points(p) = pose_b(start + additive moves), pose_b(P) = c_b + R(angle_b) (P - c_b) + offset_b for
+the points of bone b; ``velocities`` is its exact Jacobian at any p.
+"""
+from __future__ import annotations
+
+import copy
+import math
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..design import polygons as poly_tools
+from ..mesh.morph import polygons
+
+_POINT = re.compile(r"^(?P<base>.+?)\[(?P<i>\d+)\]\.(?P<axis>[xy])$")
+_HOLE = re.compile(r"^(?P<base>.+?)\.holes\[(?P<k>\d+)\]\[(?P<i>\d+)\]\.(?P<axis>[xy])$")
+
+
+@dataclass(frozen=True)
+class Handle:
+    key: str
+    kind: str                   # "point" (one coordinate of a point), "offset", "angle" or "modulus"
+    point: int = -1             # "point": the point's index
+    axis: int = 0               # "point", "offset": 0 x, 1 y
+    bone: int = -1              # "offset", "angle": the bone's index
+    material: str = ""          # "modulus"
+
+
+class DesignHandles:
+    """The points a set of handles moves, at the start design, and how they move."""
+
+    def __init__(self, design, keys):
+        if design.dim != 2:
+            raise ValueError("design handles are 2D")
+        self.start = design
+        self.polys0 = polygons(design)
+        self.paths0 = {c.name: np.asarray(c.path, dtype=float) for c in design.cables}
+        self.markers0 = {n: np.asarray(v, dtype=float) for n, v in design.markers.items()}
+        # every movable point in one array: polygon vertices, sketch vertices, markers
+        self.names: list[tuple] = []
+        for k, p in enumerate(self.polys0):
+            self.names += [("poly", k, i) for i in range(len(p))]
+        for c, path in self.paths0.items():
+            self.names += [("path", c, i) for i in range(len(path))]
+        self.names += [("marker", m, 0) for m in self.markers0]
+        self.P0 = np.vstack(self.polys0 + list(self.paths0.values())
+                            + [m[None, :] for m in self.markers0.values()])
+        self.index = {n: j for j, n in enumerate(self.names)}
+        n_loops = len(design.body_loops)
+        self.bone_poly = {b.name: n_loops + j for j, b in enumerate(design.bones)}
+        self.loop_of = self._body_loops(design)
+        self.handles = [self._handle(key) for key in keys]
+        self.anchor_radii: dict = {}     # {cable: radius} written into every moved design (DesignGradient)
+        self.keys = [h.key for h in self.handles]
+        posed = sorted({h.bone for h in self.handles if h.kind in ("offset", "angle")})
+        self.group = np.full(len(self.P0), -1)           # the posed bone each point follows, or -1
+        self.centre = {}
+        for b in posed:
+            bone = design.bones[b]
+            outline = np.asarray(bone.outline, dtype=float)
+            tol = 1e-9 * (1.0 + float(np.abs(outline).max()))
+            k = self.bone_poly[bone.name]
+            members = [self.index[("poly", k, i)] for i in range(len(outline))]
+            others = [j for j, n in enumerate(self.names) if n[0] != "poly"]
+            inside = poly_tools.strictly_inside(outline, self.P0[others], tol) if others else []
+            members += [j for j, flag in zip(others, inside) if flag]
+            self.group[members] = b
+            self.centre[b] = _centroid(outline)
+
+    @staticmethod
+    def _body_loops(design) -> dict:
+        """{(body key prefix, "outline" or hole k): polygon index} of the body loops."""
+        out, k = {}, 0
+        several = "bodies" in design.raw
+        for body in design.bodies:
+            prefix = f"bodies.{body.name}" if several else "body"
+            out[(prefix, "outline")] = k
+            k += 1
+            for h in range(len(body.holes)):
+                out[(prefix, h)] = k
+                k += 1
+        return out
+
+    def _handle(self, key: str) -> Handle:
+        design = self.start
+        if not isinstance(key, str):
+            raise ValueError(f"{key!r}: a design variable is a dotted key")
+        parts = key.split(".")
+        if len(parts) == 3 and parts[0] == "materials" and parts[2] == "E":
+            if parts[1] not in design.materials:
+                raise ValueError(f"{key}: no material {parts[1]!r}")
+            return Handle(key, "modulus", material=parts[1])
+        if len(parts) in (3, 4) and parts[0] == "bones" and parts[2] in ("offset", "angle"):
+            names = [b.name for b in design.bones]
+            if parts[1] not in names:
+                raise ValueError(f"{key}: no bone {parts[1]!r}")
+            if parts[2] == "angle" and len(parts) == 3:
+                return Handle(key, "angle", bone=names.index(parts[1]))
+            if parts[2] == "offset" and len(parts) == 4 and parts[3] in "xy" and len(parts[3]) == 1:
+                return Handle(key, "offset", bone=names.index(parts[1]), axis="xy".index(parts[3]))
+            raise ValueError(f"{key}: a bone's pose is bones.B.offset.x, bones.B.offset.y or bones.B.angle")
+        point = self._point(key)
+        if point is None:
+            raise ValueError(f"{key}: not a design variable (body.outline[i].x, body.holes[k][i].x, "
+                             "bones.B.outline[i].x, bones.B.offset.x, bones.B.angle, cables.C.path[i].x, "
+                             "materials.M.E; .y likewise)")
+        return point
+
+    def _point(self, key: str) -> Handle | None:
+        hole = _HOLE.match(key)
+        if hole:
+            loop = self.loop_of.get((hole["base"], int(hole["k"])))
+            return self._vertex(key, ("poly", loop, int(hole["i"])), hole["axis"]) if loop is not None else None
+        m = _POINT.match(key)
+        if not m:
+            return None
+        base = m["base"]
+        if base.endswith(".outline"):
+            owner = base[:-len(".outline")]
+            loop = self.loop_of.get((owner, "outline"))
+            if loop is None and owner.startswith("bones."):
+                loop = self.bone_poly.get(owner[len("bones."):])
+            return self._vertex(key, ("poly", loop, int(m["i"])), m["axis"]) if loop is not None else None
+        if base.startswith("cables.") and base.endswith(".path"):
+            name = base[len("cables."):-len(".path")]
+            return self._vertex(key, ("path", name, int(m["i"])), m["axis"]) if name in self.paths0 else None
+        return None
+
+    def _vertex(self, key, name, axis) -> Handle:
+        if name not in self.index:
+            raise ValueError(f"{key}: no such vertex (index out of range)")
+        return Handle(key, "point", point=self.index[name], axis="xy".index(axis))
+
+    # -- the design at p, and its velocities --------------------------------------------------------------
+    def _poses(self, p) -> dict:
+        """{bone: (rotation matrix, angle in rad, offset)} at p."""
+        out = {b: [0.0, np.zeros(2)] for b in self.centre}
+        for h, v in zip(self.handles, p):
+            if h.kind == "angle":
+                out[h.bone][0] += math.radians(float(v))
+            elif h.kind == "offset":
+                out[h.bone][1] = out[h.bone][1] + float(v) * np.eye(2)[h.axis]
+        return {b: (_rotation(a), a, o) for b, (a, o) in out.items()}
+
+    def points(self, p) -> np.ndarray:
+        """Every movable point at p, (n, 2)."""
+        P = self.P0.copy()
+        for h, v in zip(self.handles, p):
+            if h.kind == "point":
+                P[h.point, h.axis] += float(v)
+        for b, (R, _, o) in self._poses(p).items():
+            idx = self.group == b
+            P[idx] = self.centre[b] + (P[idx] - self.centre[b]) @ R.T + o
+        return P
+
+    def velocities(self, p) -> np.ndarray:
+        """dPoints/dp, (n, 2, handles): exact at p."""
+        P = self.P0.copy()
+        for h, v in zip(self.handles, p):
+            if h.kind == "point":
+                P[h.point, h.axis] += float(v)
+        poses = self._poses(p)
+        out = np.zeros((len(P), 2, len(self.handles)))
+        for j, h in enumerate(self.handles):
+            if h.kind == "point":
+                b = self.group[h.point]
+                out[h.point, :, j] = poses[b][0][:, h.axis] if b >= 0 else np.eye(2)[h.axis]
+            elif h.kind == "offset":
+                out[self.group == h.bone, h.axis, j] = 1.0
+            elif h.kind == "angle":
+                idx = self.group == h.bone
+                R = poses[h.bone][0]
+                r = (P[idx] - self.centre[h.bone]) @ R.T
+                out[idx, :, j] = math.radians(1.0) * np.column_stack([-r[:, 1], r[:, 0]])
+        return out
+
+    def moduli(self, p) -> dict:
+        """{material: E} at p, of the materials with a handle."""
+        out = {}
+        for h, v in zip(self.handles, p):
+            if h.kind == "modulus":
+                out[h.material] = out.get(h.material, float(self.start.materials[h.material].E)) + float(v)
+        return out
+
+    def raw(self, p) -> dict:
+        """The start design's TOML data with the handles at p (a fresh dict for parse_design)."""
+        raw = copy.deepcopy(self.start.raw)
+        P = self.points(p)
+        for body_key, loop in sorted(self.loop_of.items(), key=lambda kv: kv[1]):
+            pts = P[[self.index[("poly", loop, i)] for i in range(len(self.polys0[loop]))]]
+            prefix, which = body_key
+            table = raw["body"] if prefix == "body" else next(b for b in raw["bodies"]
+                                                               if b.get("name") == prefix.split(".", 1)[1])
+            if which == "outline":
+                table["outline"] = pts.tolist()
+            else:
+                table["holes"][which] = pts.tolist()
+        for bone in raw.get("bones", []):
+            loop = self.bone_poly[bone["name"]]
+            bone["outline"] = P[[self.index[("poly", loop, i)] for i in range(len(self.polys0[loop]))]].tolist()
+        for cable in raw.get("cables", []):
+            name = cable["name"]
+            cable["path"] = P[[self.index[("path", name, i)] for i in range(len(self.paths0[name]))]].tolist()
+        for name in self.markers0:
+            raw["markers"][name] = P[self.index[("marker", name, 0)]].tolist()
+        for material, E in self.moduli(p).items():
+            raw["materials"][material]["E"] = E
+        for cable in raw.get("cables", []):
+            if cable["name"] in self.anchor_radii:
+                cable["anchor_radius"] = self.anchor_radii[cable["name"]]
+        return raw
+
+    def split(self, P: np.ndarray) -> tuple[list, dict, dict]:
+        """(polygons, {cable: path}, {marker: point}) of a points array (or of its derivatives)."""
+        polys = [P[[self.index[("poly", k, i)] for i in range(len(p))]] for k, p in enumerate(self.polys0)]
+        paths = {c: P[[self.index[("path", c, i)] for i in range(len(p))]] for c, p in self.paths0.items()}
+        markers = {m: P[self.index[("marker", m, 0)]] for m in self.markers0}
+        return polys, paths, markers
+
+    def join(self, polys, paths: dict, markers: dict) -> np.ndarray:
+        """The inverse of split (missing cables or markers: zero)."""
+        out = np.zeros_like(self.P0)
+        for k, g in enumerate(polys):
+            out[[self.index[("poly", k, i)] for i in range(len(g))]] = g
+        for c, g in paths.items():
+            out[[self.index[("path", c, i)] for i in range(len(g))]] = g
+        for m, g in markers.items():
+            out[self.index[("marker", m, 0)]] = g
+        return out
+
+
+def _rotation(angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s], [s, c]])
+
+
+def _centroid(outline: np.ndarray) -> np.ndarray:
+    """The area centroid of a simple polygon."""
+    x, y = outline[:, 0], outline[:, 1]
+    x1, y1 = np.roll(x, -1), np.roll(y, -1)
+    cross = x * y1 - x1 * y
+    area = 0.5 * cross.sum()
+    return np.array([((x + x1) * cross).sum(), ((y + y1) * cross).sum()]) / (6.0 * area)

@@ -1,0 +1,132 @@
+"""Shape derivatives of the discrete energy and residual: d/dX at fixed u, X the mesh's node coordinates.
+
+For the terms whose energy is a UFL integral (elasticity, spring pins,
+gravity, tractions) the derivative is UFL's CoordinateDerivative, which
+FFCx 0.5 compiles:
+
+    dPi/dX [w] = derivative(Pi, SpatialCoordinate(mesh), w),
+    z^T dR/dX [w] = derivative(derivative(Pi, u, z), SpatialCoordinate(mesh), w),
+
+w in the P1 vector space of the mesh's coordinates; exact for the discrete
+energy (the quadrature moves with the cells). The hand-written cables add
+theirs (skelfem.analysis.cable_shape), which depend on their sketches Q
+too. A material's Young's modulus E enters psi through mu and lam, both
+proportional to E, so z^T dR/dE = z^T R_M / E with R_M the elastic residual
+over that material's cells.
+
+Covered: 2D, one MPI process, elastic bones, fixed and spring pins, gravity,
+tractions, frictionless cables, markers. Refused with a ValueError naming
+the ingredient: rigid bones and objects, contact, friction, grounds, point
+loads, dynamics, 3D.
+"""
+from __future__ import annotations
+
+import numpy as np
+import ufl
+from dolfinx import fem
+from dolfinx.fem import petsc as fem_petsc
+
+from ..terms.base import Term
+from ..terms.cables import CableTerm
+from ..terms.elasticity import Elasticity, deformation_gradient, psi
+from .cable_shape import CableShape, mesh_edges
+
+COVERED = (CableTerm,)      # hand-written terms whose shape derivative is known
+
+
+def uncovered(model) -> str | None:
+    """Why design gradients do not cover this model, or None."""
+    design = model.design
+    if model.comm.size > 1:
+        return "design gradients run on one MPI process"
+    if design.dim != 2:
+        return "design gradients cover 2D designs"
+    if model.rigid:
+        return f"bones.{model.rigid[0].name}.rigid: design gradients do not cover rigid bones yet"
+    if design.dynamics is not None:
+        return "dynamics: design gradients cover static equilibria"
+    for term in model.terms:
+        hand = type(term).gradient is not Term.gradient
+        if hand and not isinstance(term, COVERED):
+            return f"{term.section}.{term.name}: design gradients do not cover this ingredient yet"
+        if isinstance(term, CableTerm) and term.cable.friction:
+            return f"cables.{term.name}.friction: design gradients do not cover cable friction"
+        if term.history() is not None:
+            return f"{term.section}.{term.name}: design gradients do not cover friction"
+    return None
+
+
+class ShapeDerivative:
+    """dPi/dX and z^T dR/dX of one model at its present mesh and state (forms compiled once)."""
+
+    def __init__(self, model):
+        why = uncovered(model)
+        if why:
+            raise ValueError(why)
+        self.model = model
+        mesh, u = model.mesh, model.u
+        parts = [e for e in (term.ufl_energy(model.ctx) for term in model.terms) if e is not None]
+        Pi = sum(parts[1:], parts[0])
+        X = ufl.SpatialCoordinate(mesh)
+        V1 = fem.VectorFunctionSpace(mesh, ("Lagrange", 1))
+        w = ufl.TestFunction(V1)
+        self.z = fem.Function(model.V)
+        self._energy = fem.form(ufl.derivative(Pi, X, w))
+        self._adjoint = fem.form(ufl.derivative(ufl.derivative(Pi, u, self.z), X, w))
+        # V1's DOFs are the geometry nodes, numbered apart: node_of[dof]
+        self.node_of = np.empty(len(mesh.geometry.x), dtype=np.int64)
+        self.node_of[V1.dofmap.list.array] = mesh.geometry.dofmap.array
+        elastic = model.term("materials")
+        assert isinstance(elastic, Elasticity)
+        self.elastic = elastic
+        self.chi = fem.Function(elastic.mu.function_space)       # 1 on one material's cells
+        energy = model.ctx.thickness * psi(deformation_gradient(u), self.chi * elastic.mu,
+                                           self.chi * elastic.lam) * elastic.dx
+        self._material = fem.form(ufl.derivative(energy, u, self.z))
+        self.trace_cables()
+
+    def trace_cables(self) -> None:
+        """Trace the model's cables on the mesh as it is now (after its nodes moved)."""
+        model = self.model
+        edges = mesh_edges(model.mesh)
+        self.cables = {t.name: CableShape(model, t, edges) for t in model.terms if isinstance(t, CableTerm)}
+
+    def _nodes(self, form) -> np.ndarray:
+        vec = fem_petsc.assemble_vector(form)
+        values = vec.array.copy()
+        vec.destroy()
+        out = np.zeros((len(self.node_of), 2))
+        out[self.node_of] = values.reshape(-1, 2)
+        return out
+
+    def energy(self) -> tuple[np.ndarray, dict]:
+        """(dPi/dX (n, 2), {cable: dPi/dQ}) at the present state."""
+        u = self.model.u.x.array
+        gX = self._nodes(self._energy)
+        gQ = {}
+        for name, c in self.cables.items():
+            dX, gQ[name] = c.energy_gradient(u)
+            gX += dX
+        return gX, gQ
+
+    def adjoint(self, z: np.ndarray) -> tuple[np.ndarray, dict]:
+        """(z^T dR/dX (n, 2), {cable: z^T dR/dQ}) for a local DOF array z (zero on Dirichlet DOFs)."""
+        u = self.model.u.x.array
+        self.z.x.array[:] = z
+        gX = self._nodes(self._adjoint)
+        gQ = {}
+        for name, c in self.cables.items():
+            dX, gQ[name] = c.adjoint_gradient(u, z)
+            gX += dX
+        return gX, gQ
+
+    def modulus(self, z: np.ndarray, material: str) -> float:
+        """z^T dR/dE of a material (R is linear in E: z^T R_material / E)."""
+        elastic = self.elastic
+        if material not in elastic.cells:
+            raise KeyError(material)
+        self.z.x.array[:] = z
+        self.chi.x.array[:] = 0.0
+        self.chi.x.array[elastic.cells[material]] = 1.0
+        value = fem.assemble_scalar(self._material)
+        return float(value) / float(elastic.materials[material][0])

@@ -1,0 +1,143 @@
+"""Exact design gradients (skelfem.analysis.design_gradient): Taylor tests against full re-solves.
+
+For every kind of design variable, J(p0 + h e) is solved anew on the mesh moved by the morph (the same
+topology) for four halving steps h, and the remainder |J(p0 + h e) - J(p0) - h dJ/dp . e| must fall
+at order >= 1.9 over the three halvings: it does only if the adjoint gradient is the derivative of
+the discrete problem, every part of dR/dX, dR/dQ and dJ/dX included. The steps stay inside the
+piece where the discrete energy is smooth (DesignGradient.smooth_step: no node crosses a cable's
+sketch, no sketch vertex or anchor point crosses an edge).
+"""
+import numpy as np
+import pytest
+
+from skelfem.design.parse import load_design
+from skelfem.mesh.geometry import mesh_design
+from skelfem.mesh.morph import Morph, polygons
+
+FINGER = "geometry/finger.toml"
+# the flexor off the mesh's node rows at x = 3 (a sketch through nodes is a kink), a hole, tight Newton
+OVERRIDES = ["cables.flexor.path=[[3.3, 0], [3.3, 78.3], [9, 84]]",
+             "body.holes=[[[16, 20], [18.5, 20], [18.5, 26], [16, 26]]]",
+             "solver.atol=1e-12", "solver.rtol=1e-14"]
+KEYS = ["bones.proximal.outline[2].y", "bones.distal.offset.x", "bones.distal.offset.y", "bones.middle.angle",
+        "body.holes[0][1].x", "body.outline[8].x", "body.outline[1].x", "cables.flexor.path[2].x", "materials.ecoflex.E",
+        "materials.pla.E"]
+
+
+@pytest.fixture(scope="module")
+def finger_gradient():
+    from skelfem.analysis.design_gradient import DesignGradient
+    from skelfem.session import Session
+    session = Session(FINGER, overrides=OVERRIDES)
+    yield DesignGradient(session, KEYS)
+    session.close()
+
+
+def _first_step(dg, key, j) -> float:
+    e = np.eye(len(dg.keys))[j]
+    if key.endswith(".E"):
+        material = key.split(".")[1]
+        return 0.05 * float(dg.session.design.materials[material].E)
+    return min(0.25, 0.5 * dg.smooth_step(e))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("key", KEYS)
+def test_taylor_remainder_falls_at_second_order(finger_gradient, key):
+    from skelfem.analysis.design_gradient import MarkerTarget, Tension
+    dg = finger_gradient
+    j = dg.keys.index(key)
+    objectives = [MarkerTarget("tip", (-20.0, 80.0)), Tension("flexor")]
+    dg.solve(np.zeros(len(dg.keys)))
+    values, grads = zip(*[dg.gradient(o) for o in objectives])
+    e = np.eye(len(dg.keys))[j]
+    h0 = _first_step(dg, key, j)
+    remainders = np.zeros((len(objectives), 4))
+    for i, h in enumerate(h0 * 0.5 ** np.arange(4)):
+        dg.solve(h * e)
+        for k, o in enumerate(objectives):
+            remainders[k, i] = abs(o.value(dg.session.model) - values[k] - h * grads[k][j])
+    dg.solve(np.zeros(len(dg.keys)))
+    for k, o in enumerate(objectives):
+        orders = np.log2(remainders[k, :-1] / remainders[k, 1:])
+        assert np.all(orders >= 1.9), (key, type(o).__name__, grads[k][j], remainders[k], orders)
+
+
+@pytest.mark.slow
+def test_gradient_needs_the_cables_part(finger_gradient, monkeypatch):
+    """Leaving out the cables' part of z^T dR/dX changes the gradient by far more than the Taylor test
+    resolves: the part the test holds is not negligible."""
+    from skelfem.analysis.design_gradient import MarkerTarget
+    from skelfem.analysis.shape import ShapeDerivative
+    dg = finger_gradient
+    dg.solve(np.zeros(len(dg.keys)))
+    objective = MarkerTarget("tip", (-20.0, 80.0))
+    _, full = dg.gradient(objective)
+    monkeypatch.setattr(ShapeDerivative, "trace_cables", lambda self: setattr(self, "cables", {}))
+    _, without = dg.gradient(objective)
+    j = dg.keys.index("bones.distal.offset.x")
+    assert abs(full[j] - without[j]) > 1e-2 * abs(full[j])
+
+
+def test_morph_pull_back_is_the_transpose_of_the_move():
+    """g . displacement(moves) == pull_back(g) . moves for random g and moves: the adjoint of the morph that
+    carries dJ/dX to the polygon vertices whatever the number of design variables."""
+    from mpi4py import MPI
+    design = load_design(FINGER)
+    morph = Morph(mesh_design(design, MPI.COMM_SELF), design)
+    rng = np.random.default_rng(0)
+    moves = [rng.standard_normal(p.shape) for p in polygons(design)]
+    g = rng.standard_normal(morph.X0.shape)
+    lhs = float(np.sum(g * morph.displacement(moves)))
+    rhs = sum(float(np.sum(a * b)) for a, b in zip(morph.pull_back(g), moves))
+    assert abs(lhs - rhs) <= 1e-10 * abs(lhs)
+    # and displacement is what moved() applies
+    moved = [p + 0.01 * m for p, m in zip(polygons(design), moves)]
+    assert morph.moved(design) is not None
+    assert np.allclose(morph.X0 + morph.displacement([a - b for a, b in zip(moved, polygons(design))]),
+                       morph.X0 + 0.01 * morph.displacement(moves))
+
+
+@pytest.mark.parametrize("key, message", [
+    ("bones.nope.angle", "no bone 'nope'"),
+    ("bones.distal.offset.z", "bones.B.offset.x"),
+    ("body.outline[99].x", "out of range"),
+    ("cables.flexor.contraction", "not a design variable"),
+    ("materials.steel.E", "no material 'steel'"),
+])
+def test_unknown_variables_are_named(key, message):
+    from skelfem.analysis.handles import DesignHandles
+    with pytest.raises(ValueError, match=message.replace("[", r"\[").replace(".", r"\.")):
+        DesignHandles(load_design(FINGER), [key])
+
+
+def test_handles_move_the_design_exactly():
+    """points(p) is the design the handles describe: a bone's pose carries the sketch vertices inside it,
+    and velocities() is points()'s derivative (central differences, linear handles exact)."""
+    from skelfem.analysis.handles import DesignHandles
+    design = load_design(FINGER)
+    keys = ["bones.distal.angle", "bones.distal.offset.y", "cables.flexor.path[2].x", "body.outline[1].y"]
+    h = DesignHandles(design, keys)
+    p = np.array([10.0, 1.0, 0.5, -2.0])
+    polys, paths, _ = h.split(h.points(p))
+    raw = h.raw(p)
+    assert np.allclose(raw["cables"][0]["path"], paths["flexor"])
+    assert np.allclose(paths["flexor"][2], np.asarray(raw["cables"][0]["path"][2]))
+    c = h.centre[2]
+    rot = np.radians(10.0)
+    R = np.array([[np.cos(rot), -np.sin(rot)], [np.sin(rot), np.cos(rot)]])
+    expected = c + R @ (np.array([9.5, 84.0]) - c) + [0.0, 1.0]     # the flexor's end rides on the distal bone
+    assert np.allclose(paths["flexor"][2], expected)
+    V = h.velocities(p)
+    for j in range(len(keys)):
+        e = np.eye(len(keys))[j] * 1e-6
+        fd = (h.points(p + e) - h.points(p - e)) / 2e-6
+        assert np.allclose(fd, V[:, :, j], atol=1e-6)
+
+
+def test_designs_the_gradient_does_not_cover_are_refused():
+    from skelfem.analysis.design_gradient import DesignGradient
+    from skelfem.session import Session
+    with Session("geometry/finger_friction.toml") as session:
+        with pytest.raises(ValueError, match="friction"):
+            DesignGradient(session, ["bones.distal.angle"])
