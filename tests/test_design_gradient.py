@@ -141,3 +141,9 @@ def test_designs_the_gradient_does_not_cover_are_refused():
     with Session("geometry/finger_friction.toml") as session:
         with pytest.raises(ValueError, match="friction"):
             DesignGradient(session, ["bones.distal.angle"])
+
+
+def test_a_variable_named_twice_is_refused():
+    from skelfem.analysis.handles import DesignHandles
+    with pytest.raises(ValueError, match=r"bones\.distal\.angle: named twice"):
+        DesignHandles(load_design(FINGER), ["bones.distal.angle", "body.outline[1].x", "bones.distal.angle"])

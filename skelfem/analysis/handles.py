@@ -70,6 +70,9 @@ class DesignHandles:
         self.bone_poly = {b.name: n_loops + j for j, b in enumerate(design.bones)}
         self.loop_of = self._body_loops(design)
         self.handles = [self._handle(key) for key in keys]
+        twice = sorted({k for k in keys if list(keys).count(k) > 1})
+        if twice:
+            raise ValueError(f"{twice[0]}: named twice")
         self.anchor_radii: dict = {}     # {cable: radius} written into every moved design (DesignGradient)
         self.keys = [h.key for h in self.handles]
         posed = sorted({h.bone for h in self.handles if h.kind in ("offset", "angle")})
