@@ -40,13 +40,14 @@ print("the block moved", np.round(block["displacement"], 4), "mm")
 # -------------------------------------------
 
 fig, ax = plt.subplots(figsize=(5, 6))
-r.plot(ax)
+if s.comm.size == 1:        # the deformed mesh is kept by serial sessions (under mpirun: solution.xdmf)
+    r.plot(ax)
 outline = np.array(design["objects"][0]["outline"]) + block["displacement"]
 ax.fill(*np.vstack([outline, outline[:1]]).T, color="tab:blue", alpha=0.3, label="block")
 ax.axhline(0.0, color="k", lw=1)
 corner = np.array(r.markers["corner"]["position"])
 on_block = -np.asarray(touch["normal_force"]) - np.asarray(touch["friction_force"])   # forces act on `between`[0]
-ax.annotate("", corner + 10 * on_block, corner, arrowprops={"arrowstyle": "<-", "color": "tab:red"})
+ax.annotate("", corner + 10 * on_block, corner, arrowprops={"arrowstyle": "->", "color": "tab:red"})
 ax.set_aspect("equal")
 ax.set_xlabel("x [mm]")
 ax.set_ylabel("y [mm]")

@@ -25,6 +25,7 @@ from skelfem.design.spec import SECTIONS_BY_NAME
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "docs" / "guide" / "design-files.md"
 FIRST_OBJECT = ROOT / "docs" / "guide" / "first-object.md"
+README = ROOT / "README.md"
 DESIGN_LAYER = ROOT / "skelfem" / "design"
 HEADER = re.compile(r"^\|\s*key\s*\|\s*type\s*\|\s*default\s*\|\s*unit\s*\|\s*meaning\s*\|\s*$")
 # keys whose children the design layer reads as a free-form table (by material), not one take() each
@@ -77,7 +78,7 @@ def toml_blocks(path: Path) -> list[str]:
 
 def corpus() -> list[tuple[str, dict]]:
     designs = [(p.name, read_toml(p)) for p in sorted((ROOT / "geometry").glob("*.toml"))]
-    for page in (REFERENCE, FIRST_OBJECT):
+    for page in (REFERENCE, FIRST_OBJECT, README):
         designs += [(f"{page.name}[{i}]", tomllib.loads(b)) for i, b in enumerate(toml_blocks(page))]
     return designs
 
@@ -116,11 +117,12 @@ def literal_keys() -> set:
     return out
 
 
-def test_the_reference_pages_examples_are_valid_designs():
-    blocks = toml_blocks(REFERENCE)
-    assert blocks, "design-files.md has no complete example"
-    for i, block in enumerate(blocks):
-        parse_design(tomllib.loads(block), f"design-files.md[{i}]")
+def test_the_complete_designs_on_the_pages_are_valid():
+    for page in (REFERENCE, README):
+        blocks = toml_blocks(page)
+        assert blocks, f"{page.name} has no complete design"
+        for i, block in enumerate(blocks):
+            parse_design(tomllib.loads(block), f"{page.name}[{i}]")
 
 
 def test_every_key_the_design_layer_reads_is_documented(read_keys):
