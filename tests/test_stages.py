@@ -98,13 +98,16 @@ def test_a_bad_stage_is_one_design_error_naming_it(stage, message):
     assert str(e.value).startswith("g.toml: ") and message in str(e.value) and "\n" not in str(e.value)
 
 
-def test_duplicate_stage_names_and_stages_in_a_run_in_time_are_refused():
+def test_duplicate_stage_names_too_many_stages_and_stages_in_a_run_in_time_are_refused():
     with pytest.raises(DesignError, match=r"stages\.close\.name: duplicate name 'close' in stages"):
         parse_design(_staged(CLOSE, CLOSE), "g.toml")
     d = _staged(CLOSE)
     d["dynamics"] = {"dt": 0.01, "duration": 0.1}
     with pytest.raises(DesignError, match=r"g\.toml: stages: stages are a static scenario"):
         parse_design(d, "g.toml")
+    many = _staged(*({"name": f"s{i}", "set": {"contact.friction": 0.1 + i / 1000}} for i in range(101)))
+    with pytest.raises(DesignError, match=r"g\.toml: stages: at most 100 stages, got 101"):
+        parse_design(many, "g.toml")
     d = _staged({"name": "weigh", "set": {"gravity.acceleration": [0, -9.81]}})
     del d["gravity"]                               # no [gravity]: a stage cannot switch it on live
     with pytest.raises(DesignError, match=r"stages\.weigh\.set\.gravity\.acceleration: not a parameter"):
