@@ -160,3 +160,20 @@ def test_every_bundled_design_is_listed():
     listed = set(re.findall(r"^\| `geometry/([^`]+)` \|", text, re.M))
     bundled = {p.name for p in (ROOT / "geometry").iterdir() if p.suffix in (".toml", ".csv")}
     assert bundled == listed, (sorted(bundled - listed), sorted(listed - bundled))
+
+
+@pytest.mark.slow
+def test_gravity_ramps_with_the_load_steps_as_the_reference_says():
+    """design-files.md: "Gravity is ramped with the load steps, as contractions and loads are"."""
+    from skelfem import Session
+    assert "Gravity is ramped with the load steps" in REFERENCE.read_text()
+    factors = {"gravity": [], "cables": []}
+    with Session(ROOT / "geometry" / "finger_block.toml", ["solver.steps=4", "mesh.size=5"]) as s:
+        for section, name in (("gravity", "gravity"), ("cables", "flexor")):
+            term = s.model.term(section, name)
+            real = term.set_factor
+            term.set_factor = lambda a, real=real, seen=factors[section]: (seen.append(a), real(a))[1]
+        assert s.solve().converged
+    for section in factors:
+        ramp = sorted(set(factors[section]) - {0.0})
+        assert ramp[:4] == [0.25, 0.5, 0.75, 1.0], (section, factors[section])
