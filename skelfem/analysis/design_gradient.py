@@ -127,11 +127,12 @@ class DesignGradient:
     def keys(self) -> list[str]:
         return list(self.handles.keys)
 
-    def solve(self, p=None):
-        """Move the design to p (the mesh by the morph, same topology) and solve; returns the Result."""
-        if p is not None:
-            p = np.asarray(p, dtype=float)
-            how = self.session.edit(self.handles.raw(p), morph=True)
+    def solve(self, p=None, overrides=()):
+        """Move the design to p (the mesh by the morph, same topology), with --set overrides (live parameters:
+        a target's contraction), and solve; returns the Result."""
+        if p is not None or overrides:
+            p = self.p if p is None else np.asarray(p, dtype=float)
+            how = self.session.edit(self.handles.raw(p), overrides=list(overrides), morph=True)
             if how == "re-meshed":
                 raise ValueError("the moved mesh degrades at these design values (the morph refused it): "
                                  "re-mesh and start again from there")

@@ -1,19 +1,8 @@
 """Design handles: a few numbers p that move a 2D design's points, and the exact velocities dPoints/dp.
 
-A handle is named by a design key (the same names as the optimize-design task's ``[[variables]]``);
-its value is a change from the start design (p = 0):
-
-=================================  ===============================================================
-``body.outline[i].x|y``            a body outline vertex (mm); ``bodies.NAME.outline[i]`` with
-                                   ``[[bodies]]``
-``body.holes[k][i].x|y``           a hole vertex (mm); ``bodies.NAME.holes[k][i]``
-``bones.B.outline[i].x|y``         a bone vertex (mm)
-``bones.B.offset.x|y``             the bone's translation (mm)
-``bones.B.angle``                  the bone's rotation about its outline's area centroid at the
-                                   start, degrees, counter-clockwise
-``cables.C.path[i].x|y``           a via point (sketch vertex) of a cable (mm)
-``materials.M.E``                  a material's Young's modulus (MPa): a parameter, not a shape
-=================================  ===============================================================
+A handle is named by a design key (skelfem.design.variables: a vertex of a body, a hole or a bone, a
+bone's offset or angle, a cable's sketch vertex, a material's E); its value is a change from the start
+design (p = 0).
 
 A bone's pose carries with it the cable sketch vertices and the markers that lie strictly inside
 the bone at the start (a tendon's end anchored in the bone moves with it). The design is
@@ -24,16 +13,13 @@ from __future__ import annotations
 
 import copy
 import math
-import re
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..design import polygons as poly_tools
+from ..design.variables import parse_variable
 from ..mesh.morph import polygons
-
-_POINT = re.compile(r"^(?P<base>.+?)\[(?P<i>\d+)\]\.(?P<axis>[xy])$")
-_HOLE = re.compile(r"^(?P<base>.+?)\.holes\[(?P<k>\d+)\]\[(?P<i>\d+)\]\.(?P<axis>[xy])$")
 
 
 @dataclass(frozen=True)
@@ -92,67 +78,30 @@ class DesignHandles:
 
     @staticmethod
     def _body_loops(design) -> dict:
-        """{(body key prefix, "outline" or hole k): polygon index} of the body loops."""
+        """{(body name, "outline" or hole k): polygon index} of the body loops, in ``polygons`` order."""
         out, k = {}, 0
-        several = "bodies" in design.raw
         for body in design.bodies:
-            prefix = f"bodies.{body.name}" if several else "body"
-            out[(prefix, "outline")] = k
+            out[(body.name or "", "outline")] = k
             k += 1
             for h in range(len(body.holes)):
-                out[(prefix, h)] = k
+                out[(body.name or "", h)] = k
                 k += 1
         return out
 
     def _handle(self, key: str) -> Handle:
-        design = self.start
-        if not isinstance(key, str):
-            raise ValueError(f"{key!r}: a design variable is a dotted key")
-        parts = key.split(".")
-        if len(parts) == 3 and parts[0] == "materials" and parts[2] == "E":
-            if parts[1] not in design.materials:
-                raise ValueError(f"{key}: no material {parts[1]!r}")
-            return Handle(key, "modulus", material=parts[1])
-        if len(parts) in (3, 4) and parts[0] == "bones" and parts[2] in ("offset", "angle"):
-            names = [b.name for b in design.bones]
-            if parts[1] not in names:
-                raise ValueError(f"{key}: no bone {parts[1]!r}")
-            if parts[2] == "angle" and len(parts) == 3:
-                return Handle(key, "angle", bone=names.index(parts[1]))
-            if parts[2] == "offset" and len(parts) == 4 and parts[3] in "xy" and len(parts[3]) == 1:
-                return Handle(key, "offset", bone=names.index(parts[1]), axis="xy".index(parts[3]))
-            raise ValueError(f"{key}: a bone's pose is bones.B.offset.x, bones.B.offset.y or bones.B.angle")
-        point = self._point(key)
-        if point is None:
-            raise ValueError(f"{key}: not a design variable (body.outline[i].x, body.holes[k][i].x, "
-                             "bones.B.outline[i].x, bones.B.offset.x, bones.B.angle, cables.C.path[i].x, "
-                             "materials.M.E; .y likewise)")
-        return point
-
-    def _point(self, key: str) -> Handle | None:
-        hole = _HOLE.match(key)
-        if hole:
-            loop = self.loop_of.get((hole["base"], int(hole["k"])))
-            return self._vertex(key, ("poly", loop, int(hole["i"])), hole["axis"]) if loop is not None else None
-        m = _POINT.match(key)
-        if not m:
-            return None
-        base = m["base"]
-        if base.endswith(".outline"):
-            owner = base[:-len(".outline")]
-            loop = self.loop_of.get((owner, "outline"))
-            if loop is None and owner.startswith("bones."):
-                loop = self.bone_poly.get(owner[len("bones."):])
-            return self._vertex(key, ("poly", loop, int(m["i"])), m["axis"]) if loop is not None else None
-        if base.startswith("cables.") and base.endswith(".path"):
-            name = base[len("cables."):-len(".path")]
-            return self._vertex(key, ("path", name, int(m["i"])), m["axis"]) if name in self.paths0 else None
-        return None
-
-    def _vertex(self, key, name, axis) -> Handle:
-        if name not in self.index:
-            raise ValueError(f"{key}: no such vertex (index out of range)")
-        return Handle(key, "point", point=self.index[name], axis="xy".index(axis))
+        v = parse_variable(self.start, key)
+        if v.kind == "modulus":
+            return Handle(key, "modulus", material=v.owner)
+        if v.kind in ("offset", "angle"):
+            bone = [b.name for b in self.start.bones].index(v.owner)
+            return Handle(key, v.kind, bone=bone, axis=v.axis)
+        if v.kind == "path":
+            name = ("path", v.owner, v.index)
+        elif v.kind == "bone_vertex":
+            name = ("poly", self.bone_poly[v.owner], v.index)
+        else:
+            name = ("poly", self.loop_of[(v.owner, "outline" if v.kind == "body" else v.hole)], v.index)
+        return Handle(key, "point", point=self.index[name], axis=v.axis)
 
     # -- the design at p, and its velocities --------------------------------------------------------------
     def _poses(self, p) -> dict:
@@ -209,11 +158,10 @@ class DesignHandles:
         """The start design's TOML data with the handles at p (a fresh dict for parse_design)."""
         raw = copy.deepcopy(self.start.raw)
         P = self.points(p)
-        for body_key, loop in sorted(self.loop_of.items(), key=lambda kv: kv[1]):
+        several = "bodies" in raw
+        for (owner, which), loop in self.loop_of.items():
             pts = P[[self.index[("poly", loop, i)] for i in range(len(self.polys0[loop]))]]
-            prefix, which = body_key
-            table = raw["body"] if prefix == "body" else next(b for b in raw["bodies"]
-                                                               if b.get("name") == prefix.split(".", 1)[1])
+            table = next(b for b in raw["bodies"] if b.get("name") == owner) if several else raw["body"]
             if which == "outline":
                 table["outline"] = pts.tolist()
             else:

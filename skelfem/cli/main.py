@@ -16,11 +16,11 @@ from .common import (EXIT_INPUT, EXIT_INTERNAL, EXIT_SOLVE, InputError, print_er
                      setup_logging)
 from .fabricate import fabricate
 from .simulate import simulate
-from . import bench, calibrate, control, edit, optimize, sweep
+from . import bench, calibrate, control, edit, optimize, optimize_design, sweep
 
 # Modules that add sub-commands: each has add_parsers(subparsers), and every
 # parser it adds sets `handler` (a function args -> exit status).
-COMMAND_MODULES = (sweep, bench, control, edit, optimize, calibrate)
+COMMAND_MODULES = (sweep, bench, control, edit, optimize, optimize_design, calibrate)
 
 
 

@@ -45,6 +45,7 @@ OUTPUTS = {
     "sweep": ("summary.csv", "summary.png"),
     "fabricate": ("fabrication.json", "fabrication.png", "casting.png"),
     "optimize": ("optimize.json", "schedules.csv", "optimize.png"),
+    "optimize-design": ("optimize_design.json", "optimized.toml", "history.csv"),
     "calibrate": ("calibration.json", "calibrated.toml", "partial.toml", "fit.csv", "fit.png", "residuals.png",
                   "parameters.png"),
 }
@@ -52,7 +53,8 @@ OUTPUTS = {
 PATTERNS = {"fabricate": re.compile(r"^((bone_[^/\\]+|mould_(bottom|top))\.(stl|step)|[^/\\]+\.3mf)$"),
             "simulate": re.compile(r"^deformed-[^/\\]+\.png$")}          # one picture per stage
 STALE_FILE = re.compile(r"^\.(result|solution|deformed|trajectory|motion|stages|optimize|schedules|calibration"
-                        r"|calibrated|partial|fit|residuals|parameters|ik|track|bench|summary|fabrication|casting)-.*")
+                        r"|calibrated|partial|fit|residuals|parameters|ik|track|bench|summary|fabrication|casting"
+                        r"|optimize_design|optimized|history)-.*")
 NAME_MAX = 255
 RESERVED_CHARS = 48           # room for ".<name>.tmp-<pid>-<random>" beside the target
 PATH_MAX = 4096 - 128
