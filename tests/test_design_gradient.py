@@ -147,3 +147,23 @@ def test_a_variable_named_twice_is_refused():
     from skelfem.analysis.handles import DesignHandles
     with pytest.raises(ValueError, match=r"bones\.distal\.angle: named twice"):
         DesignHandles(load_design(FINGER), ["bones.distal.angle", "body.outline[1].x", "bones.distal.angle"])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("key", ["bones.distal.offset.x", "cables.flexor.path[2].x", "body.outline[8].x"])
+def test_taylor_remainder_at_p2(key):
+    """The same at P2, where a cable is cut into four pieces per cell (points between the cuts)."""
+    from skelfem.analysis.design_gradient import DesignGradient, MarkerTarget
+    from skelfem.session import Session
+    with Session(FINGER, overrides=OVERRIDES + ["mesh.degree=2", "mesh.size=3"]) as session:
+        dg = DesignGradient(session, [key])
+        dg.solve()
+        objective = MarkerTarget("tip", (-20.0, 80.0))
+        J0, g = dg.gradient(objective)
+        h0 = min(0.25, 0.5 * dg.smooth_step([1.0]))
+        remainders = []
+        for h in h0 * 0.5 ** np.arange(4):
+            dg.solve(np.array([h]))
+            remainders.append(abs(objective.value(session.model) - J0 - h * g[0]))
+    orders = np.log2(np.array(remainders[:-1]) / np.array(remainders[1:]))
+    assert np.all(orders >= 1.9), (key, remainders, orders)

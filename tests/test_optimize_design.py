@@ -44,6 +44,9 @@ def _run(tmp_path, task_text, design=FINGER):
     (("bounds = [-1.5, 1.5]", "bounds = [1.5, -1.5]"), "variables[0].bounds: lower 1.5 must be below upper -1.5"),
     (('marker = "tip"', 'marker = "nail"'), "objectives[0].marker: 'nail' not in the design"),
     (('"cables.flexor.contraction" = 8.0', '"cables.flexor.colour" = 8.0'), "objectives[0].targets[0].set.cables.flexor.colour"),
+    (('"cables.flexor.contraction" = 8.0', '"cables.nope.contraction" = 8.0'), "objectives[0].targets[0].set.cables.nope.contraction"),
+    (('"cables.flexor.contraction" = 8.0', '"bones.distal.outline" = [[6, 74], [14, 74], [14, 90]]'), "a target sets loads only"),
+    (('set = { "cables.flexor.contraction" = 8.0 }', 'set = 8.0'), "objectives[0].targets[0].set: expected a table"),
     (("max_evaluations = 6", "max_evaluations = 0"), "optimizer.max_evaluations: expected an integer from 1"),
     (("[optimizer]", "[constraints]\nmin_wall = 1.0\n[optimizer]"), "task.constraints: unknown key"),
 ])

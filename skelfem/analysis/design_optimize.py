@@ -45,13 +45,15 @@ class DesignOptimum:
     time: float = 0.0
 
 
-def _override(key: str, value) -> str:
+def override_text(key: str, value) -> str:
+    """A --set string for a target's setting."""
     if isinstance(value, (list, tuple)):
         return f"{key}=[" + ", ".join(repr(float(v)) for v in value) + "]"
     return f"{key}={float(value)!r}"
 
 
-def _objective(objective, target):
+def objective_of(objective, target):
+    """The design-gradient objective of one target of a task objective."""
     return MarkerTarget(objective.name, target.at) if objective.kind == "reach" else Tension(objective.name)
 
 
@@ -67,13 +69,13 @@ class TaskObjective:
         for objective in self.task.objectives:
             for target in objective.targets:
                 try:
-                    result = dg.solve(p, overrides=[_override(k, v) for k, v in target.set])
+                    result = dg.solve(p, overrides=[override_text(k, v) for k, v in target.set])
                 except ValueError as exc:
                     raise Stop(str(exc)) from None
                 self.evaluations += 1
                 if not result.converged:
                     raise Stop(f"the solve failed at evaluation {self.evaluations} ({result.status})")
-                J, g = dg.gradient(_objective(objective, target))
+                J, g = dg.gradient(objective_of(objective, target))
                 total += objective.weight * J
                 grad += objective.weight * g
         return total, grad
@@ -88,7 +90,7 @@ class TaskObjective:
                 result = session.solve()
                 if not result.converged:
                     raise Stop(f"the fresh solve failed ({result.status})")
-                total += objective.weight * _objective(objective, target).value(session.model)
+                total += objective.weight * objective_of(objective, target).value(session.model)
                 session.set({k: base[k] for k, _ in target.set if k in base})
         return total
 

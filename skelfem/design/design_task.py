@@ -28,6 +28,7 @@ bounds that exclude the start, a task with no objective, a marker or cable the d
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 from .parse import parse_design, read_toml
@@ -35,6 +36,7 @@ from .spec import DesignError
 from .variables import Variable, parse_variable, start_value
 
 KINDS = ("reach", "tension")
+TARGET_SETTING = re.compile(r"^(cables\.[^.]+\.(contraction|pretension)|pins\.[^.]+\.move|gravity\.acceleration)$")
 MAX_EVALUATIONS = 1000
 
 
@@ -144,6 +146,10 @@ def _variables(source, design, items) -> tuple:
 
 
 def _setting(source, where, design, key, value) -> tuple:
+    if not TARGET_SETTING.match(key):
+        raise DesignError(f"{source}: {where}.{key}: a target sets loads only (cables.C.contraction, "
+                          "cables.C.pretension, pins.P.move, gravity.acceleration): the design variables and the "
+                          "mesh stay the optimiser's")
     if isinstance(value, list):
         text = "[" + ", ".join(repr(_number(source, f"{where}.{key}", v)) for v in value) + "]"
     else:
@@ -179,8 +185,9 @@ def _objectives(source, design, items) -> tuple:
         for j, t in enumerate(_list(source, f"{where}.targets", raw_targets)):
             tw = f"{where}.targets[{j}]"
             t = _table(source, tw, t, ("set", "at") if kind == "reach" else ("set",))
-            settings = tuple(_setting(source, f"{tw}.set", design, k, v)
-                             for k, v in _table(source, f"{tw}.set", t.get("set", {}), list(t.get("set", {}))).items())
+            given = t.get("set", {})
+            given = _table(source, f"{tw}.set", given, list(given) if isinstance(given, dict) else ())
+            settings = tuple(_setting(source, f"{tw}.set", design, k, v) for k, v in given.items())
             at = None
             if kind == "reach":
                 if not isinstance(t.get("at"), list) or len(t["at"]) != 2:
