@@ -25,13 +25,13 @@ from pathlib import Path
 
 import numpy as np
 
-HANDLES = tuple(dict.fromkeys(["bones.middle.angle", "bones.distal.offset.x", "cables.flexor.path[2].x", "materials.ecoflex.E"]
-           + [f"bones.{b}.{k}" for b in ("proximal", "middle", "distal") for k in ("offset.x", "offset.y")]
-           + ["bones.proximal.angle", "bones.distal.angle", "materials.pla.E", "cables.flexor.path[2].y"]
-           + [f"bones.{b}.outline[{i}].{a}" for b, n in (("proximal", 4), ("middle", 4)) for i in range(n)
-              for a in "xy"]
-           + [f"body.outline[{i}].{a}" for i in (3, 4, 5, 6, 7) for a in "xy"]
-           + ["bones.distal.outline[0].x", "bones.distal.outline[1].x", "bones.distal.outline[2].y"]))
+FIRST = ["bones.middle.angle", "bones.distal.offset.x", "cables.flexor.path[2].x", "materials.ecoflex.E"]
+MORE = ([f"bones.{b}.{k}" for b in ("proximal", "middle", "distal") for k in ("offset.x", "offset.y")]
+        + ["bones.proximal.angle", "bones.distal.angle", "materials.pla.E", "cables.flexor.path[2].y"]
+        + [f"bones.{b}.outline[{i}].{a}" for b, n in (("proximal", 4), ("middle", 4)) for i in range(n) for a in "xy"]
+        + [f"body.outline[{i}].{a}" for i in (3, 4, 5, 6, 7) for a in "xy"]
+        + ["bones.distal.outline[0].x", "bones.distal.outline[1].x", "bones.distal.outline[2].y"])
+HANDLES = tuple(dict.fromkeys(FIRST + MORE))      # 42 distinct variables; the first n are used
 
 
 def run(design="geometry/finger.toml", size: float | None = None, counts=(4, 40), repeats: int = 5,
