@@ -167,3 +167,15 @@ def test_taylor_remainder_at_p2(key):
             remainders.append(abs(objective.value(session.model) - J0 - h * g[0]))
     orders = np.log2(np.array(remainders[:-1]) / np.array(remainders[1:]))
     assert np.all(orders >= 1.9), (key, remainders, orders)
+
+
+def test_a_gradient_needs_a_solved_design_and_a_real_marker():
+    from skelfem.analysis.design_gradient import DesignGradient, MarkerTarget
+    from skelfem.session import Session
+    with Session(FINGER) as session:
+        dg = DesignGradient(session, ["bones.distal.angle"])
+        with pytest.raises(ValueError, match="not solved"):
+            dg.gradient(MarkerTarget("tip", (0.0, 0.0)))
+        dg.solve()
+        with pytest.raises(ValueError, match="markers.nail: no such marker"):
+            dg.gradient(MarkerTarget("nail", (0.0, 0.0)))

@@ -45,9 +45,13 @@ class MarkerTarget:
     target: tuple
 
     def _points(self, model):
-        markers = model.term("markers")
-        i = markers.names.index(self.marker)
-        return markers, i
+        try:
+            markers = model.term("markers")
+        except KeyError:
+            raise ValueError(f"markers.{self.marker}: the design has no markers") from None
+        if self.marker not in markers.names:
+            raise ValueError(f"markers.{self.marker}: no such marker (have: {', '.join(markers.names)})")
+        return markers, markers.names.index(self.marker)
 
     def value(self, model) -> float:
         markers, i = self._points(model)
@@ -167,6 +171,8 @@ class DesignGradient:
     def gradient(self, objective) -> tuple[float, np.ndarray]:
         """(J, dJ/dp) at the present solved state, by one adjoint solve."""
         t0 = time.perf_counter()
+        if not self.session.solved:
+            raise ValueError("the design is not solved: call solve() first")
         self.check_mesh()
         model, solver = self.session.model, self.session.solver
         J = objective.value(model)
