@@ -22,6 +22,7 @@ from pathlib import Path
 import pytest
 
 import skelfem
+from skelfem.design import DesignError, load_design
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), *sorted((ROOT / "docs" / "guide").glob("*.md"))]
@@ -187,6 +188,12 @@ def test_shell_block_commands_parse(page, line, text):
                 value = getattr(ns, key, None)
                 if isinstance(value, Path) and str(value).startswith(("geometry/", "studies/", "examples/")):
                     assert (ROOT / value).exists(), f"{where}: no file {value}"
+            design = getattr(ns, "design", None)
+            if isinstance(design, Path) and str(design).startswith("geometry/") and design.suffix == ".toml":
+                try:                                 # the design with the command's --set keys: no meshing
+                    load_design(ROOT / design, getattr(ns, "overrides", None) or ())
+                except DesignError as exc:
+                    pytest.fail(f"{where}: {exc}")
             continue
         if words[0] in ("python", "python3", ".venv/bin/python") and len(words) > 1 and words[1].endswith(".py"):
             assert (ROOT / words[1]).exists(), f"{where}: no script {words[1]}"
