@@ -21,7 +21,7 @@ OVERRIDES = ["cables.flexor.path=[[3.3, 0], [3.3, 78.3], [9, 84]]",
              "solver.atol=1e-12", "solver.rtol=1e-14"]
 KEYS = ["bones.proximal.outline[2].y", "bones.distal.offset.x", "bones.distal.offset.y", "bones.middle.angle",
         "body.holes[0][1].x", "body.outline[8].x", "body.outline[1].x", "cables.flexor.path[2].x", "materials.ecoflex.E",
-        "materials.pla.E"]
+        "materials.pla.E", "cables.lig1_dorsal.pretension", "cables.flexor.stiffness"]
 
 
 @pytest.fixture(scope="module")
@@ -38,6 +38,8 @@ def _first_step(dg, key, j) -> float:
     if key.endswith(".E"):
         material = key.split(".")[1]
         return 0.05 * float(dg.session.design.materials[material].E)
+    if key.endswith(".stiffness"):
+        return 0.05 * float(dg.session.design.cable(key.split(".")[1]).stiffness)
     return min(0.25, 0.5 * dg.smooth_step(e))
 
 
@@ -104,6 +106,8 @@ def test_morph_pull_back_is_the_transpose_of_the_move():
     ("body.outline[99].x", "out of range"),
     ("cables.flexor.contraction", "not a design variable"),
     ("materials.steel.E", "no material 'steel'"),
+    ("cables.flexor.pretension", "a tendon has no pretension"),
+    ("cables.nope.stiffness", "no cable 'nope'"),
 ])
 def test_unknown_variables_are_named(key, message):
     from skelfem.analysis.handles import DesignHandles

@@ -36,6 +36,23 @@ from .shape_points import MaterialPoints
 from .smooth_step import smooth_step
 
 
+# -- a cable's own parameters -----------------------------------------------------------------------------
+def cable_parameter(model, name: str, kind: str, z: np.ndarray) -> tuple[float, float]:
+    """(z^T dR/dq, dT/dq) for q a frictionless cable's stiffness k or pretension p at fixed u, T its tension.
+
+    R_cable = k s g with s = l - L0 + p (taut, s > 0; zero while slack) and g = grad l:
+    dR/dk = s g, dT/dk = s; dR/dp = k g, dT/dp = k."""
+    term = model.term("cables", name)
+    u = model.u.x.array
+    s = term.cable.length(u) - term.rest_length
+    if s <= 0.0:
+        return 0.0, 0.0
+    zg = float(np.dot(z[term.cable.dofs], term.cable.length_gradient(u)))
+    if kind == "stiffness":
+        return s * zg, s
+    return term.cable.k * zg, term.cable.k
+
+
 # -- objectives -------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class MarkerTarget:
@@ -64,6 +81,10 @@ class MarkerTarget:
         S = markers.local_operator()[2 * i:2 * i + 2]
         return np.asarray(S.T @ (2.0 * r)).ravel()
 
+    def explicit_parameter(self, cable: str, kind: str, dT: float) -> float:
+        """dJ/dq at fixed u for a cable's parameter q (dT: the cable's tension's): a marker does not see it."""
+        return 0.0
+
     def explicit(self, model, shape) -> tuple[np.ndarray, dict, dict]:
         """(dJ/dX, {cable: dJ/dQ}, {marker: dJ/d(reference)}) at fixed u."""
         markers, i = self._points(model)
@@ -91,6 +112,9 @@ class Tension:
         if term.cable.length(u) > term.rest_length:
             np.add.at(out, term.cable.dofs, term.cable.k * term.cable.length_gradient(u))
         return out
+
+    def explicit_parameter(self, cable: str, kind: str, dT: float) -> float:
+        return dT if cable == self.cable else 0.0
 
     def explicit(self, model, shape) -> tuple[np.ndarray, dict, dict]:
         gX, gQ = shape.cables[self.cable].tension_gradient(model.u.x.array)
@@ -200,6 +224,9 @@ class DesignGradient:
         for j, h in enumerate(self.handles.handles):
             if h.kind == "modulus":
                 dJ[j] -= shape.modulus(z, h.material)
+            elif h.kind in ("stiffness", "pretension"):
+                dR, dJ_explicit = cable_parameter(model, h.cable, h.kind, z)
+                dJ[j] += objective.explicit_parameter(h.cable, h.kind, dJ_explicit) - dR
         t3 = time.perf_counter()
         self.timings.update(factorise=t1 - t0, adjoint_solve=t2 - t1, assemble=t3 - t2, gradient=t3 - t0)
         return J, dJ

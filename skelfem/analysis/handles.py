@@ -25,11 +25,13 @@ from ..mesh.morph import polygons
 @dataclass(frozen=True)
 class Handle:
     key: str
-    kind: str                   # "point" (one coordinate of a point), "offset", "angle" or "modulus"
+    kind: str                   # "point" (one coordinate of a point), "offset", "angle", "modulus", "stiffness"
+    #                             or "pretension"
     point: int = -1             # "point": the point's index
     axis: int = 0               # "point", "offset": 0 x, 1 y
     bone: int = -1              # "offset", "angle": the bone's index
     material: str = ""          # "modulus"
+    cable: str = ""             # "stiffness", "pretension"
 
 
 class DesignHandles:
@@ -92,6 +94,8 @@ class DesignHandles:
         v = parse_variable(self.start, key)
         if v.kind == "modulus":
             return Handle(key, "modulus", material=v.owner)
+        if v.kind in ("stiffness", "pretension"):
+            return Handle(key, v.kind, cable=v.owner)
         if v.kind in ("offset", "angle"):
             bone = [b.name for b in self.start.bones].index(v.owner)
             return Handle(key, v.kind, bone=bone, axis=v.axis)
@@ -176,6 +180,10 @@ class DesignHandles:
             raw["markers"][name] = P[self.index[("marker", name, 0)]].tolist()
         for material, E in self.moduli(p).items():
             raw["materials"][material]["E"] = E
+        for h, v in zip(self.handles, p):
+            if h.kind in ("stiffness", "pretension"):
+                cable = next(c for c in raw["cables"] if c["name"] == h.cable)
+                cable[h.kind] = float(getattr(self.start.cable(h.cable), h.kind)) + float(v)
         for cable in raw.get("cables", []):
             if cable["name"] in self.anchor_radii:
                 cable["anchor_radius"] = self.anchor_radii[cable["name"]]

@@ -139,8 +139,8 @@ def _variables(source, design, items) -> tuple:
         if not lo <= start <= hi:
             raise DesignError(f"{source}: {where}.bounds: [{lo:g}, {hi:g}] exclude the start value {start:g} "
                               f"of {v.key}")
-        if v.kind == "modulus" and lo <= 0.0:
-            raise DesignError(f"{source}: {where}.bounds: E must stay > 0 (lower bound {lo:g})")
+        if v.kind in ("modulus", "stiffness") and lo <= 0.0:
+            raise DesignError(f"{source}: {where}.bounds: {v.key} must stay > 0 (lower bound {lo:g})")
         out.append(TaskVariable(v, start, lo, hi))
     return tuple(out)
 

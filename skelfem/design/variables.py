@@ -8,6 +8,8 @@
 ``bones.B.angle``                  the bone's rotation about its outline's area centroid (degrees,
                                    counter-clockwise, starts at 0)
 ``cables.C.path[i].x|y``           a cable's sketch vertex (mm)
+``cables.C.stiffness``              a cable's spring constant k (N/mm)
+``cables.C.pretension``             a ligament's pretension (mm: its rest length L0 - pretension)
 ``materials.M.E``                  a material's Young's modulus (MPa)
 =================================  ==================================================================
 
@@ -23,13 +25,15 @@ _POINT = re.compile(r"^(?P<base>.+?)\[(?P<i>\d+)\]\.(?P<axis>[xy])$")
 _HOLE = re.compile(r"^(?P<base>.+?)\.holes\[(?P<k>\d+)\]\[(?P<i>\d+)\]\.(?P<axis>[xy])$")
 
 KINDS_TEXT = ("body.outline[i].x, body.holes[k][i].x, bones.B.outline[i].x, bones.B.offset.x, bones.B.angle, "
-              "cables.C.path[i].x, materials.M.E; .y likewise")
+              "cables.C.path[i].x, cables.C.stiffness, cables.C.pretension, materials.M.E; .y likewise")
+CABLE_PARAMETERS = ("stiffness", "pretension")
 
 
 @dataclass(frozen=True)
 class Variable:
     key: str
-    kind: str              # "body", "hole", "bone_vertex", "offset", "angle", "path", "modulus"
+    kind: str              # "body", "hole", "bone_vertex", "offset", "angle", "path", "modulus", "stiffness",
+    #                        "pretension"
     owner: str = ""        # body ("" for [body]), bone, cable or material name
     hole: int = -1         # "hole": which hole of the body
     index: int = -1        # vertex index
@@ -57,6 +61,15 @@ def parse_variable(design, key) -> Variable:
         if parts[1] not in design.materials:
             raise ValueError(f"{key}: no material {parts[1]!r}")
         return Variable(key, "modulus", owner=parts[1])
+    if len(parts) == 3 and parts[0] == "cables" and parts[2] in CABLE_PARAMETERS:
+        cable = next((c for c in design.cables if c.name == parts[1]), None)
+        if cable is None:
+            raise ValueError(f"{key}: no cable {parts[1]!r}")
+        if cable.friction > 0.0 or getattr(cable, "friction_by_material", ()):
+            raise ValueError(f"{key}: design gradients do not cover cable friction")
+        if parts[2] == "pretension" and cable.kind != "ligament":
+            raise ValueError(f"{key}: a tendon has no pretension (its contraction is a load: set it per target)")
+        return Variable(key, parts[2], owner=parts[1])
     bones = {b.name: b for b in design.bones}
     if len(parts) in (3, 4) and parts[0] == "bones" and parts[2] in ("offset", "angle"):
         if parts[1] not in bones:
@@ -106,6 +119,8 @@ def start_value(design, v: Variable) -> float:
         return 0.0
     if v.kind == "modulus":
         return float(design.materials[v.owner].E)
+    if v.kind in CABLE_PARAMETERS:
+        return float(getattr(design.cable(v.owner), v.kind))
     if v.kind == "path":
         return float(design.cable(v.owner).path[v.index][v.axis])
     if v.kind == "bone_vertex":
