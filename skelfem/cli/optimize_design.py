@@ -57,8 +57,12 @@ def optimize_design_command(args) -> int:
             cli.error(f"{design.name}: the start design does not solve ({first.status}); nothing written to "
                       f"{args.out}")
             return cli.EXIT_SOLVE
+        def progress(solves: int, objective: float) -> None:
+            if not args.quiet:
+                print(f"  {solves:4d} solves: objective {objective:.6g}", flush=True)
+
         try:
-            opt = optimize_design(session, task)
+            opt = optimize_design(session, task, progress)
         except ValueError as exc:          # what the design gradient does not cover, found on the model
             raise cli.InputError(f"{args.design}: {exc}") from None
     if opt.evaluations == 0 or opt.objective != opt.objective:
