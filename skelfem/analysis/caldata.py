@@ -322,6 +322,7 @@ def prepare_data(design, data, fit, sigma=None, bounds=None, holdout: float = 0.
             raise DataError(f"{source}: experiment {lab!r}: its rows must be consecutive (one load path)")
     names = [c for c, _ in cols]
     values = np.array([v for _, v in cols], float).T
+    _check_condition_values(design, conds, source)
 
     # fitted parameters
     fit = list(fit or [])
@@ -437,6 +438,38 @@ def _bounds(key: str, value) -> tuple[float, float]:
     if not lo < hi:
         raise DataError(f"bounds: {key}: lower {lo:g} is not below upper {hi:g}")
     return lo, hi
+
+
+def _check_condition_values(design, conds: dict, source: str) -> None:
+    """Every row's conditions must make a design the design file's rules accept (a contraction longer
+    than the cable, E <= 0, ...), as `--set` would: one parse of the design per distinct row, before any
+    meshing (a contraction of 1e9 mm was meshed and solved, then ended in exit 2 blaming the solve)."""
+    from ..design.parse import parse_design
+    from ..design.spec import DesignError
+    if not conds:
+        return
+    vectors = {k: v for k, v in live_keys(design).items() if np.ndim(v) > 0}
+    where = []                                     # (condition key, its design key, component or None)
+    for key in conds:
+        base, _, last = key.rpartition(".")
+        where.append((key, base, AXES.index(last)) if base in vectors and last in AXES else (key, key, None))
+    rows = np.array([conds[key] for key, _, _ in where], float).T
+    for i in sorted({tuple(r): i for i, r in reversed(list(enumerate(rows)))}.values()):
+        sets: dict = {}
+        for (key, base, comp), value in zip(where, rows[i]):
+            if comp is None:
+                sets[base] = repr(float(value))
+            else:
+                vec = sets.setdefault(base, [float(v) for v in vectors[base]])
+                vec[comp] = float(value)
+        overrides = [f"{k}={v if isinstance(v, str) else '[' + ', '.join(repr(x) for x in v) + ']'}"
+                     for k, v in sets.items()]
+        try:
+            parse_design(design.raw, design.source, overrides)
+        except DesignError as exc:
+            why = str(exc).split(": ", 1)[-1]
+            raise DataError(f"{source}: row {i + 1}: its conditions make a design the design file's rules "
+                            f"refuse ({why})") from None
 
 
 def _check_bound_values(design, key: str, targets, lo: float, hi: float, vector_keys: dict) -> None:

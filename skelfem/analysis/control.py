@@ -71,11 +71,9 @@ class IKResult:
 
 
 def body_extent(model) -> float:
-    """Extent of the body along its longest axis, mm."""
-    from mpi4py import MPI
-    x = model.mesh.geometry.x[:, :model.dim]
-    lo = model.comm.allreduce(x.min(axis=0), op=MPI.MIN)
-    hi = model.comm.allreduce(x.max(axis=0), op=MPI.MAX)
+    """Extent of the body along its longest axis, mm (objects do not count)."""
+    from ..mesh.geometry import body_box
+    lo, hi = body_box(model.tm, model.design)
     return float(np.max(hi - lo))
 
 

@@ -171,7 +171,7 @@ def read_pins(top: Table, dim: int) -> tuple:
             k = positive(t, "stiffness", t.take("stiffness", "number"))
         else:
             k = 0.0
-        move = t.take("move", "vector", np.zeros(dim), dim=dim)
+        move = t.take("move", "point", np.zeros(dim), dim=dim)     # mm: under the coordinate rule
         t.done()
         pins.append(PinSpec(name, region, kind, k, move))
     return tuple(pins)
@@ -480,9 +480,15 @@ def read_contact(top: Table, dim: int, h: float = 1.0, pieces: tuple = ()) -> Co
     t.done()
     if written or spec.self_contact or len(pieces) > 1:
         low = MIN_DHAT_MESH * h
-        small = min((float(np.min(hi - lo)) for lo, hi in (_body_box(p, dim, np.inf) for p in pieces)),
-                    default=math.inf)
+        small, name = min(((float(np.min(hi - lo)), p.name) for p, (lo, hi) in
+                           ((p, _body_box(p, dim, np.inf)) for p in pieces)), default=(math.inf, ""))
         high = MAX_DHAT_PIECE * small
+        if low > high:                  # no dhat fits: the mesh is too coarse for the piece, not dhat wrong
+            raise DesignError(f"{top.source}: mesh.size: {h:g} mm is more than {MAX_DHAT_PIECE / MIN_DHAT_MESH:g} x "
+                              f"the smallest extent of a piece that touches ({small:.3g} mm, {name!r}), so no "
+                              f"contact.dhat fits ({MIN_DHAT_MESH:g} x mesh.size to {MAX_DHAT_PIECE:g} x that "
+                              f"extent); use a mesh.size of at most {small * MAX_DHAT_PIECE / MIN_DHAT_MESH:.3g} "
+                              "mm, or a larger piece")
         if not low <= spec.dhat <= high:
             t.fail("dhat", f"must lie in [{low:.3g}, {high:.3g}] mm for this design ({MIN_DHAT_MESH:g} x mesh.size, "
                            f"{MAX_DHAT_PIECE:g} x the smallest extent of a piece that touches), got {spec.dhat:g}")

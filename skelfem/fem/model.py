@@ -187,7 +187,8 @@ class Model(MatrixAssembly):
         self._csr_cache = None
         self._last_gradient = self.border = None
         border_blocks, self._hosts = self._border_pattern([b for term in terms for b in term.pattern()])
-        if self._within_pattern([b for term in rebuilt for b in term.pattern()] + border_blocks):
+        if self._within_pattern([b for term in rebuilt for b in term.pattern()]) \
+                and self._within_pattern(border_blocks, followers=True):
             return "same matrix"
         # the new matrix keeps the replaced terms' blocks too: while a drag moves via points from
         # cell to cell, the pattern grows a few times and then holds
@@ -203,11 +204,14 @@ class Model(MatrixAssembly):
         starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]]) if len(rows) else np.zeros(0, int)
         return [(rows[i:i + 1], c) for i, c in zip(starts, np.split(cols, starts[1:]))]
 
-    def _within_pattern(self, blocks) -> bool:
-        """Whether every pattern block (row nodes, column nodes) is inside the last matrix made (serial)."""
+    def _within_pattern(self, blocks, followers: bool = False) -> bool:
+        """Whether every pattern block (row nodes, column nodes) is inside the last matrix made (serial).
+        A rigid body's nodes are kept out of the pattern, and out of the check, but for the border's blocks
+        (``followers``): its host nodes carry the body's DOFs, coupled to the nodes near it (a dragged rigid
+        object brought new nodes near it, and the kept matrix raised "new nonzero" in the draft's solve)."""
         if self._pattern_keys is None:
             return False
-        follower = self._follower_nodes()           # rigid bodies' nodes: kept out of the pattern
+        follower = None if followers else self._follower_nodes()    # rigid bodies' nodes: not in the pattern
         if follower is not None:
             blocks = [(np.asarray(r)[~follower[np.asarray(r)]], np.asarray(c)[~follower[np.asarray(c)]])
                       for r, c in blocks]

@@ -32,6 +32,22 @@ def body_tags(tm: "TaggedMesh", design) -> list[int]:
     return [tm.tags[name] for name in body_tag_names(design)]
 
 
+def body_box(tm: "TaggedMesh", design) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) corners of the box around the soft bodies' cells (bones lie inside them; objects,
+    which are not the robot, do not count), over every rank: what "the body's size" means."""
+    mesh, gdim = tm.mesh, tm.mesh.geometry.dim
+    cells = tm.cell_tags.indices[np.isin(tm.cell_tags.values, body_tags(tm, design))]
+    dofmap = mesh.geometry.dofmap
+    nodes = np.unique(dofmap.array.reshape(len(dofmap.offsets) - 1, -1)[cells])
+    x = mesh.geometry.x[nodes, :gdim]
+    lo = x.min(axis=0) if len(x) else np.full(gdim, np.inf)
+    hi = x.max(axis=0) if len(x) else np.full(gdim, -np.inf)
+    if mesh.comm.size > 1:
+        mesh.comm.Allreduce(MPI.IN_PLACE, lo, op=MPI.MIN)
+        mesh.comm.Allreduce(MPI.IN_PLACE, hi, op=MPI.MAX)
+    return lo, hi
+
+
 def bone_tag_name(name: str) -> str:
     return f"bone:{name}"
 

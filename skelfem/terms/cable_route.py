@@ -15,7 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 from mpi4py import MPI
 
-from ..mesh.geometry import body_tags
+from ..mesh.geometry import body_box, body_tags
 from ..mesh.points import DofGather, cell_sizes, global_interpolation, locate_cells, owner_ranks
 from .base import Context
 
@@ -258,7 +258,9 @@ def differences(S: sp.csr_matrix, gdim: int) -> sp.csr_matrix:
 
 
 def default_anchor_radius(ctx: Context) -> float:
-    """1 % of the body's bounding-box diagonal (about a knot or bead on a finger-sized body)."""
+    """1 % of the body's bounding-box diagonal (about a knot or bead on a finger-sized body): the box of
+    the soft bodies' cells (bones lie inside them), never of the objects, which are not the robot (an
+    object 10 m away made the radius 100 mm, and the anchors of a 60 mm tendon swallowed it whole)."""
     radius = getattr(ctx, "_anchor_radius", None)
     if radius is None:
         radius = ctx._anchor_radius = _one_percent_of_diagonal(ctx)
@@ -266,12 +268,7 @@ def default_anchor_radius(ctx: Context) -> float:
 
 
 def _one_percent_of_diagonal(ctx: Context) -> float:
-    x = ctx.mesh.geometry.x[:, :ctx.dim]
-    lo = x.min(axis=0) if len(x) else np.full(ctx.dim, np.inf)
-    hi = x.max(axis=0) if len(x) else np.full(ctx.dim, -np.inf)
-    if ctx.comm.size > 1:
-        ctx.comm.Allreduce(MPI.IN_PLACE, lo, op=MPI.MIN)
-        ctx.comm.Allreduce(MPI.IN_PLACE, hi, op=MPI.MAX)
+    lo, hi = body_box(ctx.tagged, ctx.design)
     return 0.01 * float(np.linalg.norm(hi - lo))
 
 

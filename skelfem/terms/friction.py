@@ -74,6 +74,7 @@ from dolfinx.fem import petsc as fem_petsc
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from ..mesh.geometry import body_box
 from .base import Context, Term
 from .grounds import nodal_ds
 
@@ -150,10 +151,8 @@ class GroundFriction(Term):
                 "there, or the ground built anew by an edit), as if the body had slid freely to it; friction "
                 "depends on the load path: the same loads with friction from rest give another state (solve "
                 "from rest for that)")
-        x = ctx.mesh.geometry.x[:, :ctx.dim]
-        parts = ctx.comm.allgather((x.max(axis=0), x.min(axis=0)) if len(x) else None)
-        size = np.linalg.norm(np.max([p[0] for p in parts if p is not None], axis=0)
-                              - np.min([p[1] for p in parts if p is not None], axis=0))
+        lo, hi = body_box(ctx.tagged, ctx.design)                     # the body's size, never an object's
+        size = np.linalg.norm(hi - lo)
         self.eps = self.slip_length * float(size)                      # mm
         self.dc = self.breakaway * float(size)                          # mm
         self.run = np.zeros(len(self.nodes))                            # slip since the node last stuck, mm
