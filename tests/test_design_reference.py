@@ -177,3 +177,23 @@ def test_gravity_ramps_with_the_load_steps_as_the_reference_says():
     for section in factors:
         ramp = sorted(set(factors[section]) - {0.0})
         assert ramp[:4] == [0.25, 0.5, 0.75, 1.0], (section, factors[section])
+
+
+def _within(part, whole) -> bool:
+    """Every key and value of part is in whole (entries of a [[...]] list matched by name)."""
+    if isinstance(part, dict):
+        return isinstance(whole, dict) and all(k in whole and _within(v, whole[k]) for k, v in part.items())
+    if isinstance(part, list) and part and all(isinstance(e, dict) and "name" in e for e in part):
+        named = {e.get("name"): e for e in whole if isinstance(e, dict)} if isinstance(whole, list) else {}
+        return all(e["name"] in named and _within(e, named[e["name"]]) for e in part)
+    return part == whole
+
+
+def test_the_first_object_recipe_quotes_its_design_file():
+    """The recipe's snippets are the bundled design's own keys and values (a change to one shows here)."""
+    design = read_toml(ROOT / "geometry" / "finger_block.toml")
+    snippets = re.findall(r"```toml\n(.*?)```", FIRST_OBJECT.read_text(), re.S)
+    assert len(snippets) >= 3
+    for text in snippets:
+        assert _within(tomllib.loads(text), design), text
+    assert "geometry/finger_block.toml" in FIRST_OBJECT.read_text()
