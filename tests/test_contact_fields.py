@@ -2,6 +2,7 @@
 and 3D: each piece's nodes sum to result.json's pair totals, and the stick/slip states are the ones the
 pair's ``sticking`` share counts."""
 import math
+import tomllib
 
 import numpy as np
 import pytest
@@ -35,8 +36,10 @@ def _sums_match(path, tags, piece, pair):
 
 @pytest.mark.slow
 def test_the_gripper_s_per_node_fields_sum_to_the_pair_and_show_where_it_slips(tmp_path):
-    """2D: the gripper closed, then weighed (geometry/gripper_stages.toml)."""
-    with Session(GEOMETRY / "gripper_stages.toml") as s:
+    """2D: the gripper closed, then weighed (the first two stages of geometry/gripper_stages.toml)."""
+    d = tomllib.loads((GEOMETRY / "gripper_stages.toml").read_text())
+    d["stages"] = d["stages"][:2]
+    with Session(d) as s:
         r = s.run_stages()
         write_xdmf(tmp_path / "s.xdmf", s.model)
         tags = dict(s.model.tm.tags)

@@ -34,24 +34,25 @@ CLOSE = {"name": "close", "set": {"cables.left_flexor.contraction": 4.0, "cables
 
 @pytest.mark.slow
 def test_the_gripper_closes_then_weighs_and_holds_the_box_from_the_command_line(tmp_path):
-    """geometry/gripper_stages.toml: close (both flexors 4 mm, no gravity), then weigh (gravity on). Ramped
-    together from rest the grip and the weight lose the box; stage by stage the box is held, sinking by less
-    than a millimetre, and result.json and stages.xdmf hold one entry and one frame per stage."""
+    """geometry/gripper_stages.toml: close (both flexors 4 mm, no gravity), then weigh (gravity on), lift and
+    turn. Ramped together from rest the grip and the weight lose the box; stage by stage the box is held,
+    sinking by less than a millimetre when it is weighed, and result.json and stages.xdmf hold one entry and
+    one frame per stage (the lift and the turn: tests/test_pin_rotation.py)."""
     run = _simulate(STAGED, tmp_path / "out")
     assert run.returncode == 0, run.stderr[-2000:]
     assert "stage close: converged" in run.stdout and "stage weigh: converged" in run.stdout
     d = json.loads((tmp_path / "out" / "result.json").read_text())
-    assert d["converged"] and [s["name"] for s in d["stages"]] == ["close", "weigh"]
-    close, weigh = d["stages"]
-    assert close["converged"] and weigh["converged"]
+    assert d["converged"] and [s["name"] for s in d["stages"]] == ["close", "weigh", "lift", "turn"]
+    close, weigh, _, turn = d["stages"]
+    assert all(s["converged"] for s in d["stages"]) and turn["load_steps"] == 8       # its steps = 8
     assert close["objects"]["box"]["weight"] == [0.0, 0.0] and weigh["objects"]["box"]["weight"][1] < 0
     assert -1.0 < weigh["objects"]["box"]["displacement"][1] < close["objects"]["box"]["displacement"][1]
-    assert d["objects"] == weigh["objects"] and d["markers"] == weigh["markers"]      # the last stage's read-outs
-    assert d["newton_iterations"] == close["newton_iterations"] + weigh["newton_iterations"]
+    assert d["objects"] == turn["objects"] and d["markers"] == turn["markers"]      # the last stage's read-outs
+    assert d["newton_iterations"] == sum(s["newton_iterations"] for s in d["stages"])
     pair = next(c for c in weigh["contacts"] if c["between"] == ["body", "box"])
     assert pair["friction_force"][1] == pytest.approx(weigh["objects"]["box"]["weight"][1], rel=1e-3)   # on the body
     xdmf = (tmp_path / "out" / "stages.xdmf").read_text()
-    assert xdmf.count('<Time Value="') == 2 and (tmp_path / "out" / "solution.xdmf").exists()
+    assert xdmf.count('<Time Value="') == 4 and (tmp_path / "out" / "solution.xdmf").exists()
 
 
 @pytest.mark.slow

@@ -172,9 +172,35 @@ def read_pins(top: Table, dim: int) -> tuple:
         else:
             k = 0.0
         move = t.take("move", "point", np.zeros(dim), dim=dim)     # mm: under the coordinate rule
+        angle, centre, axis = _rotation(t, dim)
         t.done()
-        pins.append(PinSpec(name, region, kind, k, move))
+        pins.append(PinSpec(name, region, kind, k, move, angle, centre, axis))
     return tuple(pins)
+
+
+MAX_PIN_ANGLE = 360.0     # degrees: a pin turns by at most one revolution
+
+
+def _rotation(pin: Table, dim: int) -> tuple:
+    """A pin's ``rotate = {angle, centre, axis}``: (degrees, centre point, unit axis in 3D) or (0, None, None).
+    The pinned boundary turns about the centre (after the move: x = c + move + R (X - c))."""
+    if not pin.has("rotate"):
+        return 0.0, None, None
+    t = Table(pin.take("rotate", "table"), pin.key("rotate"), pin.source)
+    angle = t.take("angle", "number")
+    if abs(angle) > MAX_PIN_ANGLE:
+        t.fail("angle", f"must lie within +-{MAX_PIN_ANGLE:g} degrees, got {angle:g}")
+    if not t.has("centre"):
+        t.fail("centre", "missing: a rotation turns about a centre (a point)")
+    centre = t.take("centre", "point", dim=dim)
+    axis = None
+    if dim == 3:
+        axis = t.take("axis", "vector", dim=3)
+        if not np.linalg.norm(axis) > 0:
+            t.fail("axis", "must not be zero")
+        axis = axis / np.linalg.norm(axis)
+    t.done()
+    return float(angle), centre, axis
 
 
 def read_loads(top: Table, dim: int, region) -> tuple:

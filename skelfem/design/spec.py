@@ -93,6 +93,9 @@ class PinSpec:
     kind: str = "fixed"   # "fixed" (Dirichlet) or "spring" (penalty)
     stiffness: float = 0.0
     move: np.ndarray | None = None
+    angle: float = 0.0                   # rotate.angle: the pinned boundary turned by this many degrees ...
+    centre: np.ndarray | None = None     # ... about this point (rotate.centre; required with an angle) ...
+    axis: np.ndarray | None = None       # ... and, in 3D, this unit axis (rotate.axis)
 
 
 @dataclass(frozen=True, eq=False)

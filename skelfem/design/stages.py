@@ -25,7 +25,7 @@ from .spec import DesignError, MAX_STEPS, SECTIONS_BY_NAME
 from .table import Table, is_number, raw_value, set_key
 
 MAX_STAGES = 100          # a scenario, not a sweep: each stage's design is validated in full
-VECTOR_FIELDS = ("move", "force", "point", "acceleration", "traction")   # live keys holding a vector
+VECTOR_FIELDS = ("move", "force", "point", "acceleration", "traction", "centre", "axis")   # live vectors
 
 
 @dataclass(frozen=True, eq=False)
@@ -43,7 +43,11 @@ def live_keys(design) -> list:
         keys += [f"cables.{c.name}.{'contraction' if c.kind == 'tendon' else 'pretension'}",
                  f"cables.{c.name}.stiffness", f"cables.{c.name}.friction"]
     for p in design.pins:
-        keys += [f"pins.{p.name}.move"] + ([f"pins.{p.name}.stiffness"] if p.kind == "spring" else [])
+        keys += [f"pins.{p.name}.move"]
+        if p.centre is not None:                   # a pin the design turns (rotate = {angle, centre})
+            keys += [f"pins.{p.name}.rotate.angle", f"pins.{p.name}.rotate.centre"]
+            keys += [f"pins.{p.name}.rotate.axis"] if design.dim == 3 else []
+        keys += [f"pins.{p.name}.stiffness"] if p.kind == "spring" else []
     keys += [f"loads.{ld.name}.force" for ld in design.loads]
     keys += [f"tractions.{t.name}.traction" for t in design.tractions]
     for g in design.grounds:
@@ -95,7 +99,7 @@ def read_stages(tables: list, design, parse) -> tuple:
         raise DesignError(f"{source}: stages: at most {MAX_STAGES} stages, got {len(tables)}")
     live = live_keys(design)
     data = {k: copy.deepcopy(v) for k, v in design.raw.items() if k != "stages"}
-    before = {}
+    before: dict = {}
     out = []
     for t in tables:
         name = t.where.split(".", 1)[1]
@@ -109,8 +113,10 @@ def read_stages(tables: list, design, parse) -> tuple:
         for key, value in changes.items():
             where = Table({}, f"{t.where}.set", source)
             if key not in live:
-                where.fail(key, f"not a parameter a stage can change (this design's live ones: "
-                                f"{_patterns(live)})")
+                turned = key.split(".")[0] == "pins" and ".rotate." in key
+                where.fail(key, "not a parameter a stage can change" + (
+                    " (a stage turns a pin that the design gives rotate = {angle = 0.0, centre = [...]})"
+                    if turned else f" (this design's live ones: {_patterns(live)})"))
             vector = key.rsplit(".", 1)[1] in VECTOR_FIELDS
             if not (isinstance(value, list) if vector else is_number(value)):
                 where.fail(key, f"must be {'a list of numbers' if vector else 'a number'} to change live")

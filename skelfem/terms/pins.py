@@ -1,10 +1,16 @@
-"""Pins: the body's boundary inside a box held in place (or moved).
+"""Pins: the body's boundary inside a box held in place (or moved and turned).
 
-``kind = "fixed"``: Dirichlet conditions u = a * move on every DOF of the
-boundary facets inside the box (a: the load factor). ``kind = "spring"``:
-zero-length springs of stiffness k per area,
+The pinned boundary follows a rigid motion: a point X goes to
 
-    Pi_pin = k t/2 int_{Gamma_pin} |u - a move|^2 ds.
+    x(X) = c + a move + R(a angle) (X - c),   g(X) = x(X) - X = a move + (R - I)(X - c),
+
+c the rotation's centre, R the rotation by a x angle (2D: in the plane;
+3D: about the unit axis), a the load factor (no rotation: g = a move).
+``kind = "fixed"``: Dirichlet conditions u = g on every DOF of the boundary
+facets inside the box. ``kind = "spring"``: zero-length springs of
+stiffness k per area,
+
+    Pi_pin = k t/2 int_{Gamma_pin} |u - g|^2 ds.
 
 The read-out is the force the pin exerts on the body (``reaction``): for a
 fixed pin the sum of grad Pi over its DOFs (the Dirichlet rows of the full
@@ -38,16 +44,24 @@ class Pin(Term):
         self.nodes = fem.locate_dofs_topological(V, ctx.mesh.topology.dim - 1, facets)
         self.dofs = (self.nodes[:, None] * bs + np.arange(bs)).ravel()
         self.target = np.asarray(spec.move, dtype=float).copy()
+        self.angle = float(spec.angle)                                      # degrees
+        self.centre = np.zeros(bs) if spec.centre is None else np.asarray(spec.centre, float).copy()
+        self.axis = None if bs == 2 else (np.array([0.0, 0.0, 1.0]) if spec.axis is None
+                                          else np.asarray(spec.axis, float).copy())
         self.move = constant(ctx.mesh, np.zeros(bs))
+        self.turn = constant(ctx.mesh, np.zeros((bs, bs)))                 # R - I
+        self.c = constant(ctx.mesh, self.centre)
         self.k = constant(ctx.mesh, float(spec.stiffness))
-        self.bc = fem.dirichletbc(self.move, self.nodes, V) if self.kind == "fixed" else None
+        self.X = V.tabulate_dof_coordinates()[self.nodes, :bs]
+        self.g = fem.Function(V) if self.kind == "fixed" else None       # the prescribed displacement
+        self.bc = fem.dirichletbc(self.g, self.nodes) if self.kind == "fixed" else None
         self.factor = 0.0
         self._force_form = None
 
     def ufl_energy(self, ctx: Context):
         if self.kind != "spring":
             return None
-        d = ctx.u - self.move
+        d = ctx.u - self.move - ufl.dot(self.turn, ufl.SpatialCoordinate(ctx.mesh) - self.c)
         self._energy = 0.5 * self.k * ctx.thickness * ufl.inner(d, d) * ctx.ds(self.box)
         return self._energy
 
@@ -55,7 +69,11 @@ class Pin(Term):
         """The same box and kind, and the same boundary facets in it after the nodes moved."""
         if touched(changed, f"pins.{self.name}", "pins.#order"):
             return False
-        return np.array_equal(np.sort(ctx.boundary_facets(self.spec.region)), self.facets)
+        if not np.array_equal(np.sort(ctx.boundary_facets(self.spec.region)), self.facets):
+            return False
+        self.X = ctx.V.tabulate_dof_coordinates()[self.nodes, :ctx.bs]     # the nodes may have moved
+        self.set_factor(self.factor)
+        return True
 
     def has_ufl_energy(self) -> bool:
         return self.kind == "spring"
@@ -66,22 +84,39 @@ class Pin(Term):
     def set_factor(self, a: float) -> None:
         self.factor = float(a)
         self.move.value[:] = a * self.target
+        self.turn.value[:] = rotation(a * np.radians(self.angle), self.axis) - np.eye(self.ctx.bs)
+        self.c.value[:] = self.centre
+        if self.g is not None:
+            bs = self.ctx.bs
+            self.g.x.array.reshape(-1, bs)[self.nodes] = self.move.value + (self.X - self.centre) @ self.turn.value.T
 
     def parameters(self) -> dict:
-        out: dict = {f"pins.{self.name}.move": self.target.copy()}
+        p = f"pins.{self.name}"
+        out: dict = {f"{p}.move": self.target.copy()}
+        if self.spec.centre is not None:           # a pin the design turns: its rotation changes live too
+            out.update({f"{p}.rotate.angle": self.angle, f"{p}.rotate.centre": self.centre.copy()})
+            if self.axis is not None:
+                out[f"{p}.rotate.axis"] = self.axis.copy()
         if self.kind == "spring":
-            out[f"pins.{self.name}.stiffness"] = float(self.k.value)
+            out[f"{p}.stiffness"] = float(self.k.value)
         return out
 
     def set_parameter(self, key: str, value) -> None:
-        which = key.rsplit(".", 1)[1]
+        which = key.removeprefix(f"pins.{self.name}.")
         if which == "move":
             self.target = np.asarray(value, dtype=float).reshape(self.target.shape).copy()
-            self.set_factor(self.factor)
+        elif which == "rotate.angle":
+            self.angle = float(value)
+        elif which == "rotate.centre":
+            self.centre = np.asarray(value, dtype=float).reshape(self.centre.shape).copy()
+        elif which == "rotate.axis" and self.axis is not None:
+            axis = np.asarray(value, dtype=float).reshape(3)
+            self.axis = axis / np.linalg.norm(axis)
         elif which == "stiffness" and self.kind == "spring":
             self.k.value = float(value)
         else:
             raise KeyError(key)
+        self.set_factor(self.factor)
 
     def readout(self, model) -> dict:
         bs = self.ctx.bs
@@ -100,6 +135,15 @@ class Pin(Term):
             full[owned].reshape(-1, bs).sum(axis=0)
         reaction = self.ctx.comm.allreduce(np.asarray(r, float))
         return {self.name: {"reaction": reaction}}
+
+
+def rotation(phi: float, axis: np.ndarray | None) -> np.ndarray:
+    """The rotation by phi (rad): 2D in the plane (axis None), 3D about the unit axis (Rodrigues)."""
+    c, s = np.cos(phi), np.sin(phi)
+    if axis is None:
+        return np.array([[c, -s], [s, c]])
+    K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + s * K + (1.0 - c) * K @ K
 
 
 def build(ctx: Context) -> list[Term]:
