@@ -104,3 +104,26 @@ def test_a_3d_rotation_needs_an_axis_and_a_stage_turns_only_a_pin_the_design_tur
         parse_design(g, "t.toml")
     next(p for p in g["pins"] if p["name"] == "palm")["rotate"] = {"angle": 0.0, "centre": [50.0, 115.0]}
     assert parse_design(g, "t.toml").stages[-1].design.pins[0].angle == 10.0
+
+
+@pytest.mark.mpi
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["fixed", "spring"])
+def test_a_turned_pin_under_a_load_agrees_across_two_ranks(tmp_path, mpirun, kind):
+    """The turned block pulled sideways at its tip: `mpirun -n 2` gives the serial tip and reaction to 1e-9."""
+    import json
+
+    from _designs import toml_text
+    d = _block(kind, {"angle": 20.0, "centre": [5.0, 30.0]})
+    d["loads"] = [{"name": "pull", "at": [5, 1], "force": [0.01, 0.0]}]
+    path = tmp_path / "turn.toml"
+    path.write_text(toml_text(d))
+    out = {}
+    for ranks in (1, 2):
+        res = mpirun.run([mpirun.skelfem, "simulate", str(path), "--out", str(tmp_path / str(ranks)), "-q",
+                          "--no-picture"], ranks)
+        assert res.returncode == 0, res.stdout + res.stderr
+        out[ranks] = json.loads((tmp_path / str(ranks) / "result.json").read_text())
+    assert np.allclose(out[1]["markers"]["tip"]["position"], out[2]["markers"]["tip"]["position"], atol=1e-9)
+    assert np.allclose(out[1]["pins"]["top"]["reaction"], out[2]["pins"]["top"]["reaction"], atol=1e-9)
+    assert out[1]["pins"]["top"]["reaction"][0] == pytest.approx(-0.01, rel=1e-6)
