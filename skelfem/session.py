@@ -26,6 +26,7 @@ import time
 import numpy as np
 
 from .design.spec import Design, DesignError
+from .fem.report import BUDGET_SPENT
 from .result import Result, plain as _plain, result_dict  # noqa: F401 (Result re-exported)
 from .design.parse import changed_keys, flatten, live_value, load_design, parse_design
 from .runtime import memory
@@ -351,7 +352,7 @@ class Session:
         warm = self.solved
         report, events = self._equilibrium(steps)
         retried = None
-        if warm and not report.converged:
+        if warm and not report.converged and report.status != BUDGET_SPENT:   # a preview goes on from its state
             retried = report
             log.info("%s: the solve from the last state failed (%s); solving from rest", self.design.name,
                      report.status)
@@ -383,7 +384,7 @@ class Session:
     def _result(self, report, t0: float, retried=None, events=()) -> Result:
         """The Result of a static solve that ended with report (result.json's keys, warnings, events)."""
         from .fem.jumps import describe
-        self.solved = bool(report.converged)
+        self.solved = bool(report.converged) or report.status == BUDGET_SPENT   # a start for the next solve
         timings = dict(self.timings, solve=time.perf_counter() - t0)
         timings["total"] = sum(timings.values())
         self.timings = {"mesh": 0.0, "compile": 0.0}          # paid once per mesh

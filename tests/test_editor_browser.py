@@ -69,7 +69,7 @@ def test_drag_bone_vertex_changes_equilibrium(page):
     drafts = page.js("S.server.filter(x => x.draft).map(x => x.how)")
     assert drafts                                                          # drafts answered while dragging
     # moved nodes, or a re-mesh where a large step would have spoilt the moved mesh
-    assert set(drafts) <= {"edit (moved nodes)", "edit (re-meshed)"}
+    assert set(drafts) <= {"edit (moved nodes)", "edit (re-meshed)", "go on"}     # go on: a frame out of time
     assert page.solves() >= solves0 + 2
     moved = page.js("S.design.bones[2].outline[0]")
     assert moved[0] < 6 - 0.5 and moved[1] < 74 - 0.2

@@ -23,6 +23,21 @@ which re-meshes, so the answer is the one ``skelfem simulate`` gives. ``Engine.i
 same as ``skelfem ik``) for a marker target from the current equilibrium;
 ligaments are never actuated.
 
+A draft has a frame budget (``frame_budget``, FRAME_SECONDS): Newton stops
+after the first step that ends past it, on models without path dependence
+(NewtonSolver.deadline), and the answer is that state, ``converged`` false,
+status ``frame_budget``, with its mesh. The same design asked again goes on
+from there ("go on"); the next design starts from it (``set`` with the tangent
+predictor, or moved nodes). A request without ``draft`` is always solved to
+the end.
+
+Every answer carries a ``certificate``: the residual |R| of the state shown,
+the tolerance a batch solve (``skelfem simulate``) of the design holds its
+answer to (at least: :meth:`skelfem.fem.newton.NewtonSolver.certificate`), their
+ratio, and ``state``: "converged" only for a state on the design's own mesh
+(not a draft's moved nodes) with |R| at or below that tolerance, else
+"preview" and ``why``.
+
 A bad design raises EditError with the one-line DesignError message and its
 key (e.g. ``bones.proximal.outline``) and leaves the Session as it was, so the
 last valid result stays the current one. Not thread-safe: one thread (the
@@ -44,6 +59,10 @@ from .payload import mesh_payload
 
 log = logging.getLogger("skelfem")
 
+# A draft's Newton steps (a handle being dragged, draft=True) stop after the first one that ends this long after
+# the request began (at least one step): the frame is sent as a "preview", and the page asks for the same design
+# again, which goes on from that state. Engine(frame_budget=None) solves every draft to the end.
+FRAME_SECONDS = 0.012
 IK_LIVE_SOLVES = 12       # forward solves of one Soft IK request while a target is dragged
 IK_FINAL_SOLVES = 40      # ... and when it is let go (as `skelfem ik`)
 CONTRACTION_DECIMALS = 4  # contractions Soft IK finds are written back rounded to 0.1 um
@@ -109,7 +128,8 @@ def live_changes(old: dict, new: dict, live) -> dict | None:
 class Engine:
     """A Session that follows the designs it is given; answers are payload dicts (see solve)."""
 
-    def __init__(self, design: dict, source: str, comm=None, max_dofs: dict | int | None = None):
+    def __init__(self, design: dict, source: str, comm=None, max_dofs: dict | int | None = None,
+                 frame_budget: float | None = FRAME_SECONDS):
         from mpi4py import MPI
 
         from ..session import Session
@@ -119,6 +139,8 @@ class Engine:
         d = self.parse(design)
         self.session = Session(d, comm=self.comm)
         self.flat, self.draft, self.answer, self.good = flatten(d.raw), False, None, d
+        self.frame_budget = frame_budget
+        self.preview = False                  # the state is a draft frame stopped at its budget (not converged)
         self.initial = d                      # recovery's last resort: the design the editor started with
         self.first = self._answer(self.session.solve(), time.perf_counter(), "built")
 
@@ -150,13 +172,34 @@ class Engine:
             self.recover()
 
     def _answer(self, result, t0: float, how: str) -> dict:
+        from ..fem.report import BUDGET_SPENT
+        self.preview = result.status == BUDGET_SPENT
         payload = result.to_dict()
-        payload["mesh"] = mesh_payload(self.session.model) if result.converged else None
+        payload["mesh"] = mesh_payload(self.session.model) if result.converged or self.preview else None
+        payload["certificate"] = self.certificate(result.converged)
         payload["editor"] = {"how": how, "draft": self.draft, "mesh_size": float(self.session.design.mesh.size),
                              "seconds": round(time.perf_counter() - t0, 4)}
         if result.converged:
             self.answer, self.good = payload, self.session.design
         return payload
+
+    def certificate(self, converged: bool) -> dict:
+        """What the shown state is worth: its residual against the batch tolerance (see the module doc)."""
+        residual, tol = self.session.solver.certificate(self.session.design.solver.steps)
+        ratio = residual / tol if tol > 0 else math.inf
+        if self.preview:
+            why = "the frame's time was spent; the solve goes on"
+        elif not converged:
+            why = "the solve did not converge"
+        elif not ratio <= 1.0:
+            why = "the residual is above the batch tolerance"
+        elif self.draft:
+            why = "moved mesh nodes: a new mesh follows on release"
+        else:
+            why = ""
+        finite = math.isfinite(ratio)
+        return {"state": "preview" if why else "converged", "why": why,
+                "residual": residual if finite else None, "tolerance": tol, "ratio": ratio if finite else None}
 
     # -- solving --------------------------------------------------------------------------------------
     def solve(self, design: dict, draft: bool = False) -> dict:
@@ -165,21 +208,32 @@ class Engine:
         ``converged`` false: the solve failed; ``mesh`` is None and the last valid answer stays.
         """
         t0 = time.perf_counter()
+        start = time.monotonic()
         d = self.parse(design)
         self.ensure()
         flat = flatten(d.raw)
         draft = bool(draft) and d.dim == 2
-        if flat == self.flat and draft == self.draft and self.answer is not None and self.session.solved:
-            again = dict(self.answer, editor=dict(self.answer["editor"], how="unchanged", seconds=0.0))
-            return again
-        changes = live_changes(self.flat, flat, self.session.model.parameters()) if draft == self.draft else None
-        if changes is not None:
-            how = "set"
-            self.session.set(changes, design=d)       # validated above
+        kept = draft or not self.draft              # a request not a draft re-meshes moved nodes (a release)
+        if flat == self.flat and kept and self.session.solved:
+            if not self.preview and self.answer is not None:
+                return dict(self.answer, editor=dict(self.answer["editor"], how="unchanged", seconds=0.0))
+            how = "go on"                           # from the last frame's state
         else:
-            how = f"edit ({self._edit(d, draft)})"
-        self.flat, self.draft = flat, draft
-        return self._answer(self.session.solve(), t0, how)
+            changes = live_changes(self.flat, flat, self.session.model.parameters()) if kept else None
+            if changes is not None:
+                how = "set"
+                self.session.set(changes, design=d)       # validated above
+            else:
+                how = f"edit ({self._edit(d, draft)})"
+                self.draft = draft
+            self.flat = flat
+        solver = self.session.solver
+        solver.deadline = start + self.frame_budget if draft and self.frame_budget is not None else None
+        try:
+            result = self.session.solve()
+        finally:
+            solver.deadline = None
+        return self._answer(result, t0, how)
 
     def _edit(self, d, draft: bool) -> str:
         """Session.edit (moving the mesh's nodes for a draft); returns how the mesh was got."""
@@ -242,7 +296,7 @@ class Engine:
         """
         from ..session import Session
         old, self.session = self.session, None
-        self.draft, self.answer, self.flat = False, None, None
+        self.draft, self.answer, self.flat, self.preview = False, None, None, False
         if old is not None:
             try:
                 old.close()

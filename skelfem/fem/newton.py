@@ -36,7 +36,7 @@ from petsc4py import PETSc
 
 from ..design.spec import ATOL_RELATIVE, ENERGY_LINE_SEARCHES, LINE_SEARCHES as STRATEGIES, force_scale
 from .equilibrium import Equilibrium
-from .report import SolveError, SolveReport  # noqa: F401 (SolveError re-exported)
+from .report import BUDGET_SPENT, SolveError, SolveReport  # noqa: F401 (SolveError re-exported)
 from .linesearch import WATCHDOG, LineSearch, resolve_strategy
 from ..design.resources import direct_limit, stiff_elastic_bones
 from .linear import LowRankSolver, default_petsc_options  # noqa: F401 (re-exported)
@@ -116,6 +116,12 @@ class NewtonSolver(LineSearch):
         self._watch = None            # the watchdog's reference (state, energy, Newton step) while relaxed
         self._watch_allowed = True
         self._event = False           # the last SNES solve stopped at a contact event (Model.contact_event)
+        # time.monotonic() after which a warm re-solve (resolve) stops after its current Newton step, its
+        # state kept as a start for the next (status BUDGET_SPENT, not converged); None: no deadline. Only
+        # for models whose answer does not depend on the path (no friction history to leave half-updated)
+        self.deadline: float | None = None
+        self._stop_at: float | None = None     # the deadline of the Newton solve running now
+        self._budget_spent = False
         self._watch_events = any(getattr(t, "contact_event", None) is not None for t in model.terms)
         self._factorised = False      # lin holds a factorisation of K near the current state
         self.equilibrium = Equilibrium()     # the last converged state (a re-solve with nothing changed)
@@ -222,6 +228,9 @@ class NewtonSolver(LineSearch):
             return PETSc.SNES.ConvergedReason.CONVERGED_SNORM_RELATIVE
         if self._failure is not None:
             return PETSc.SNES.ConvergedReason.DIVERGED_LINE_SEARCH
+        if it > 0 and self._stop_at is not None and time.monotonic() >= self._stop_at:
+            self._budget_spent = True
+            return PETSc.SNES.ConvergedReason.DIVERGED_MAX_IT
         if it >= self.max_iterations:
             return PETSc.SNES.ConvergedReason.DIVERGED_MAX_IT
         return PETSc.SNES.ConvergedReason.ITERATING
@@ -234,6 +243,7 @@ class NewtonSolver(LineSearch):
         self._decrement_converged = False
         self._last_trial = None
         self._event = False
+        self._budget_spent = False
         self.model.u.vector.copy(self.x)
         self.model.apply_bcs(self.x)
         if not self.model.admissible(self.x):
@@ -250,6 +260,8 @@ class NewtonSolver(LineSearch):
         self.model.sync(self.x)
         reason = self.snes.getConvergedReason()
         its = self.snes.getIterationNumber()
+        if self._budget_spent:          # the deadline came: the state is the last accepted Newton iterate
+            return False, BUDGET_SPENT, its
         if self._event:                 # stopped where contacts formed (anchored there): go on with them
             return self._relag(its)
         if self.model.update_lag():     # lagged friction (or contacts a failed solve ran into): solve again
@@ -430,6 +442,34 @@ class NewtonSolver(LineSearch):
         report.time = time.perf_counter() - t0
         return report
 
+    def certificate(self, steps: int = 1) -> tuple[float, float]:
+        """(|R|, tol): the residual at the model's current state, and the tolerance a solve from rest of
+        the same model in ``steps`` load steps holds it to at least.
+
+        Such a solve stops at max(atol, rtol |R_0|), |R_0| the largest first residual of its load steps;
+        the first is |R| at rest (pins at their first load factor's moves), so tol = max(atol, rtol x that)
+        is at most its tolerance: a state with |R| <= tol is converged as a batch solve is. Two residual
+        assemblies; the state, load factor and parameters are left as they were.
+        """
+        model = self.model
+        x = model.u.vector.copy()
+        rest, b = x.duplicate(), x.duplicate()
+        factor = model.factor
+        try:
+            rest.set(0.0)
+            model.set_factor(1.0 / max(int(steps), 1))
+            model.apply_bcs(rest)
+            model.residual(rest, b)
+            tol = max(float(self.atol), float(self.rtol) * float(b.norm()))
+            model.set_factor(factor)
+            model.residual(x, b)
+            return float(b.norm()), tol
+        finally:
+            model.set_factor(factor)
+            model.sync(x)
+            for v in (x, rest, b):
+                v.destroy()
+
     def _tangent_predictor(self) -> float:
         """Euler predictor from the last equilibrium u_0 to the changed parameters p_1.
 
@@ -494,6 +534,10 @@ class NewtonSolver(LineSearch):
         (:meth:`path`), each step starting from the last equilibrium reached
         and its history (friction's anchors), never from rest: a grip is
         not squeezed and loaded at once. The report counts every iteration.
+
+        With a ``deadline`` (and no path dependence), Newton stops after the first step that ends past it:
+        the report is not converged, its status BUDGET_SPENT, and the state, the last accepted iterate, is
+        where the next resolve goes on from (the editor's frames while a handle is dragged).
         """
         t0 = time.perf_counter()
         model = self.model
@@ -510,7 +554,16 @@ class NewtonSolver(LineSearch):
         model.set_factor(1.0)
         predicted = self._tangent_predictor()
         model.changes.clear()
-        ok, status, its = self._newton()
+        self._stop_at = self.deadline if not model.path_dependent else None
+        try:
+            ok, status, its = self._newton()
+        finally:
+            self._stop_at = None
+        if status == BUDGET_SPENT and model.admissible(model.u.vector):   # a preview: the next call goes on
+            saved.destroy()
+            return self._finish(SolveReport(False, status, its, 0, [self._history], [
+                {"factor": 1.0, "iterations": int(its), "status": status, "warm": True,
+                 "predictor_step": predicted}]), t0)
         report = SolveReport(ok, status, its, int(ok), [self._history] if ok else [],
                              [{"factor": 1.0, "iterations": int(its), "status": status, "warm": True,
                                "predictor_step": predicted}],

@@ -4,6 +4,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 
+BUDGET_SPENT = "frame_budget"   # status of a warm re-solve stopped at its deadline (NewtonSolver.deadline)
+
+
 class SolveError(RuntimeError):
     """Raised by callers that need an equilibrium and did not get one."""
 

@@ -33,6 +33,7 @@ const S = {
   inputSeq: 0, inputs: [],               // input events not yet shown: {seq, t, kind}
   latency: { rendered: [], events: [] }, // ms from an input event to the picture showing it
   solves: 0, errors: 0, ready: false, server: [], renderMs: [],
+  certificates: [],                      // {state, ratio} of every answer shown
 };
 window.skelfemEditor = S;
 
@@ -92,7 +93,7 @@ function onAnswer(data) {
   if (!req || data.id !== req.id) return;
   S.inflight = null;
   if (data.dropped) { /* a newer request replaced it on the server */ }
-  else if (data.ok && data.answer.converged) {
+  else if (data.ok && (data.answer.converged || data.answer.status === "frame_budget") && data.answer.mesh) {
     const a = data.answer;
     if (a.new_design && req.kind === "ik") adoptContractions(a.new_design);
     if (a.ik) S.ik.info = a.ik;
@@ -101,6 +102,8 @@ function onAnswer(data) {
     clearError();
     render();
     painted(req.input);
+    // a frame stopped at its time budget: the same design again goes on from its state (unless newer input waits)
+    if (a.status === "frame_budget" && !S.queued) S.queued = { kind: "solve", draft: !!req.draft, input: req.input };
   } else if (data.ok) {
     S.failed = `solve failed: ${data.answer.status} after ${data.answer.newton_iterations} Newton iterations; ` +
       "the last equilibrium stays on screen"; S.errors += 1;
@@ -238,9 +241,10 @@ function buildPanel() {
       if (!r.dataset.live) { checkpoint(); r.dataset.live = "1"; }
       const m = named("cables").find((x) => x.name === c.name); m[key] = Number(r.value);
       box.querySelector("output").textContent = fmt(r.value);
-      changed(c.kind === "tendon" ? "contraction" : "pretension", false);
+      changed(c.kind === "tendon" ? "contraction" : "pretension", true);
     });
-    r.addEventListener("change", () => { delete r.dataset.live; });
+    // let go (or a key's step): the design is solved to the end, and becomes an undo step and unsaved
+    r.addEventListener("change", () => { delete r.dataset.live; changed("slider-release", false); });
     box.querySelector("output").textContent = fmt(r.value);
     box.appendChild(r); sliders.appendChild(box);
   }
@@ -293,7 +297,9 @@ function setStatus(text, failed) { $("status").textContent = text; $("status").c
 function showStatus() {
   const a = S.answer; if (!a) return;
   const e = a.editor || {};
-  setStatus(`${a.design}: ${a.converged ? "converged" : a.status} in ${a.newton_iterations} Newton iterations` +
+  showCertificate(a.certificate);
+  setStatus(`${a.design}: ${a.converged ? "converged" : a.status === "frame_budget" ? "preview" : a.status} in ` +
+    `${a.newton_iterations} Newton iterations` +
     `\n${a.dofs} DOFs, ${a.cells} cells (h = ${fmt(e.mesh_size, 2)} mm${e.draft ? ", draft" : ""}), ` +
     `${e.how}, ${fmt(1000 * (e.seconds || 0), 0)} ms`, false);
   const rows = [];
@@ -303,6 +309,19 @@ function showStatus() {
   for (const [n, p] of Object.entries(a.pins || {})) row(`pin ${n}`, `(${p.reaction.map((v) => fmt(v, 3)).join(", ")}) N`);
   for (const [n, g] of Object.entries(a.grounds || {})) row(`ground ${n}`, `(${g.force.map((v) => fmt(v, 3)).join(", ")}) N`);
   $("readouts").replaceChildren(html("table", {}, rows));
+}
+
+// The certificate of the state on screen: "converged" only when the server measured its residual at or below
+// the batch tolerance on the design's own mesh; "preview" otherwise (a draft, or a solve still short of it).
+function showCertificate(c) {
+  const box = $("certificate"); if (!box) return;
+  const state = c ? c.state : "preview";
+  const ratio = c && c.ratio !== null && c.ratio !== undefined ? `|R| = ${fmt(c.ratio, 2)} × batch tolerance` : "";
+  box.textContent = [state, c && c.why ? c.why : "", ratio].filter((t) => t).join(" · ");
+  box.dataset.state = state;
+  box.classList.toggle("converged", state === "converged");
+  S.certificates.push({ state, ratio: c ? c.ratio : null });
+  if (S.certificates.length > 20000) S.certificates.splice(0, 10000);
 }
 
 // -- errors at their element ------------------------------------------------------------------------------

@@ -1,0 +1,138 @@
+"""The editor's frames while a handle is dragged: a frame budget, and a certificate on every frame.
+
+The engine alone (no server, no browser), on geometry/finger.toml. A frame budget far
+below one Newton step (``frame_budget=1e-6`` s) makes every draft outrun the solver:
+each stops after one Newton step and is shown as a "preview". The certificate's
+residual is checked against the model's residual read here, its tolerance against the
+one a fresh batch solve of the same design (``Session(design).solve()``, what
+``skelfem simulate`` runs) is held to, and the release's state against that batch
+solve's, node by node.
+"""
+import copy
+import tomllib
+
+import numpy as np
+import pytest
+from conftest import GEOMETRY
+
+from skelfem.editor.engine import Engine
+from skelfem.session import Session
+
+RELEASE_RTOL = 1e-8        # the released state against a fresh batch solve, relative to its largest displacement
+
+
+@pytest.fixture(scope="module")
+def design():
+    return tomllib.loads((GEOMETRY / "finger.toml").read_text())
+
+
+def _residual(eng) -> float:
+    """|R| at the engine's state, from the model (not from the certificate's code)."""
+    model = eng.session.model
+    x = model.u.vector.copy()
+    b = x.duplicate()
+    model.residual(x, b)
+    out = b.norm()
+    for v in (x, b):
+        v.destroy()
+    return float(out)
+
+
+def _batch(d):
+    """(dof coordinates, u, the tolerance its Newton stopped at) of a fresh batch solve of design dict d."""
+    s = Session(copy.deepcopy(d))
+    try:
+        assert s.solve().converged
+        tol = max(s.solver.atol, s.solver.rtol * s.solver.reference_residual)
+        return s.model.V.tabulate_dof_coordinates()[:, :2].copy(), s.model.u.x.array.copy(), tol
+    finally:
+        s.close()
+
+
+def _same_state(eng, batch) -> float:
+    """max |u - u_batch| / max |u_batch| on the same mesh (the nodes are checked to be the same)."""
+    X, u, _ = batch
+    model = eng.session.model
+    assert np.allclose(model.V.tabulate_dof_coordinates()[:, :2], X, rtol=0, atol=1e-12)
+    return float(np.abs(model.u.x.array - u).max() / np.abs(u).max())
+
+
+def _check(eng, answer) -> dict:
+    """The certificate of answer holds: its residual is the model's, "converged" only at or below tolerance."""
+    c = answer["certificate"]
+    r = _residual(eng)
+    assert c["residual"] == pytest.approx(r, rel=1e-6, abs=1e-14)
+    assert c["ratio"] == pytest.approx(c["residual"] / c["tolerance"], rel=1e-12)
+    if c["state"] == "converged":
+        assert answer["converged"] and not answer["editor"]["draft"] and r <= c["tolerance"]
+    else:
+        assert c["state"] == "preview" and c["why"]
+    return c
+
+
+@pytest.mark.slow
+def test_a_drag_that_outruns_the_solver_is_preview_until_converged_and_the_release_is_the_batch_solve(design):
+    eng = Engine(copy.deepcopy(design), "finger.toml", frame_budget=1e-6)
+    try:
+        first = _check(eng, eng.first)
+        assert first["state"] == "converged"
+        d = copy.deepcopy(design)
+        states = []
+        for _ in range(6):                                  # a bone vertex dragged 3 mm in 6 frames
+            d["bones"][-1]["outline"][0][0] -= 0.5
+            a = eng.solve(d, draft=True)
+            assert a["mesh"] is not None and a["editor"]["draft"]
+            states.append((_check(eng, a), a["status"]))
+        # the solver was outrun: frames stopped at their budget with the residual above tolerance, all "preview"
+        outrun = [c for c, status in states if status == "frame_budget" and c["ratio"] > 1]
+        assert outrun and all(c["state"] == "preview" for c, _ in states)
+        released = eng.solve(d)                             # let go: a new mesh, solved to the end
+        c = _check(eng, released)
+        assert c["state"] == "converged" and released["editor"]["how"] == "edit (re-meshed)"
+        batch = _batch(d)
+        assert c["tolerance"] <= batch[2]                   # the certificate's tolerance is never looser
+        assert _same_state(eng, batch) < RELEASE_RTOL
+    finally:
+        eng.close()
+
+
+@pytest.mark.slow
+def test_a_slider_frame_goes_on_from_its_state_to_the_batch_solve(design):
+    eng = Engine(copy.deepcopy(design), "finger.toml", frame_budget=1e-6)
+    try:
+        d = copy.deepcopy(design)
+        d["cables"][0]["contraction"] = float(d["cables"][0].get("contraction", 0.0)) + 3.0
+        a = eng.solve(d, draft=True)
+        seen = [(_check(eng, a), a)]
+        assert a["editor"]["how"] == "set" and a["status"] == "frame_budget" and a["mesh"] is not None
+        while seen[-1][1]["status"] == "frame_budget" and len(seen) < 30:   # the page asks again
+            a = eng.solve(d, draft=True)
+            assert a["editor"]["how"] == "go on"
+            seen.append((_check(eng, a), a))
+        last, answer = seen[-1]
+        assert answer["converged"] and last["state"] == "converged" and len(seen) >= 2
+        assert [c["state"] for c, _ in seen[:-1]] == ["preview"] * (len(seen) - 1)
+        # a new Newton step each time: the residual falls frame by frame
+        ratios = [c["ratio"] for c, _ in seen]
+        assert ratios[-1] < ratios[0]
+        assert eng.solve(d)["editor"]["how"] == "unchanged"          # the release: nothing left to solve
+        assert _same_state(eng, _batch(d)) < RELEASE_RTOL
+    finally:
+        eng.close()
+
+
+def test_without_a_budget_every_draft_is_solved_to_the_end(design):
+    eng = Engine(copy.deepcopy(design), "finger.toml", frame_budget=None)
+    try:
+        d = copy.deepcopy(design)
+        d["cables"][0]["contraction"] = float(d["cables"][0].get("contraction", 0.0)) + 1.0
+        a = eng.solve(d, draft=True)
+        c = _check(eng, a)
+        assert a["converged"] and c["state"] == "converged" and c["ratio"] <= 1      # the mesh's own nodes
+        d["bones"][-1]["outline"][0][0] -= 0.3
+        a = eng.solve(d, draft=True)
+        c = _check(eng, a)
+        assert a["converged"] and c["ratio"] <= 1 and c["state"] == "preview"       # moved nodes: a preview
+        assert "moved mesh" in c["why"]
+    finally:
+        eng.close()
