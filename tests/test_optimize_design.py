@@ -87,3 +87,15 @@ def test_short_run_improves_and_writes_a_valid_design(tmp_path):
                                                              + final["bones.distal.offset.x"])
     assert "# A cable-driven finger" in (out / "optimized.toml").read_text()     # the file's comments kept
     assert (out / "history.csv").read_text().splitlines()[0] == "evaluation,objective,gradient_norm"
+
+
+def test_a_turned_pin_is_refused_before_meshing(tmp_path, capsys):
+    """A turned pin's displacement depends on where its nodes are, which the design gradient does not follow."""
+    task = tmp_path / "task.toml"
+    task.write_text(GOOD)
+    out = tmp_path / "out"
+    rc = main(["optimize-design", FINGER, "--task", str(task), "--out", str(out), "-q",
+               "--set", "pins.base.rotate={angle = 5.0, centre = [10.0, 0.0]}"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and len(err) == 1 and "pins.base.rotate: design gradients do not cover turned pins" in err[0], err
+    assert not out.exists()

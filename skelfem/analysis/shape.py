@@ -17,7 +17,7 @@ over that material's cells.
 Covered: 2D, one MPI process, elastic bones, fixed and spring pins, gravity,
 tractions, frictionless cables, markers. Refused with a ValueError naming
 the ingredient: rigid bones and objects, contact, friction, grounds, point
-loads, dynamics, 3D.
+loads, turned pins, dynamics, 3D.
 """
 from __future__ import annotations
 
@@ -45,6 +45,9 @@ def uncovered(model) -> str | None:
         return f"bones.{model.rigid[0].name}.rigid: design gradients do not cover rigid bones yet"
     if design.dynamics is not None:
         return "dynamics: design gradients cover static equilibria"
+    for pin in design.pins:
+        if getattr(pin, "angle", 0.0):
+            return f"pins.{pin.name}.rotate: design gradients do not cover turned pins yet"
     for term in model.terms:
         hand = type(term).gradient is not Term.gradient
         if hand and not isinstance(term, COVERED):

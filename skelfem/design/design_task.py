@@ -89,6 +89,10 @@ def uncovered(design) -> str | None:
     for section in ("objects", "grounds", "loads"):
         if getattr(design, section):
             return f"{section}: design gradients do not cover this ingredient yet"
+    for pin in design.pins:
+        if getattr(pin, "angle", 0.0):
+            return (f"pins.{pin.name}.rotate: design gradients do not cover turned pins (their displacement "
+                    "depends on the nodes)")
     if design.contact.self_contact:
         return "contact.self: design gradients do not cover contact"
     return None
