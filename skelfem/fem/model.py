@@ -148,7 +148,7 @@ class Model(MatrixAssembly):
         if self.comm.size != 1 or any(k.split(".", 1)[0] in MODEL_KEYS for k in changed):
             return None
         values = {}
-        for key in changed & live.keys():       # dropped for its default, or in another form: build anew
+        for key in sorted(changed & live.keys()):   # sorted: a set's order follows the hash seed
             value = live_value(design.raw, key, live[key])
             if value is not None:
                 values[key] = value
