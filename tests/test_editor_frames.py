@@ -136,3 +136,21 @@ def test_without_a_budget_every_draft_is_solved_to_the_end(design):
         assert "moved mesh" in c["why"]
     finally:
         eng.close()
+
+
+def test_the_solver_thread_runs_openblas_on_one_thread():
+    import ctypes
+
+    from skelfem.editor.worker import Worker, loaded_libraries
+    libs = [ctypes.CDLL(p) for p in loaded_libraries("blas")]
+    libs = [lib for lib in libs if hasattr(lib, "openblas_get_num_threads")]
+    if not libs:
+        pytest.skip("no OpenBLAS in this process")
+    for lib in libs:
+        lib.openblas_set_num_threads(2)                 # as a two-core host starts it
+    w = Worker(engine=None)
+    try:
+        counts = w.submit("t", lambda e: [lib.openblas_get_num_threads() for lib in libs]).result(30)
+    finally:
+        w.close()
+    assert counts == [1] * len(libs)
