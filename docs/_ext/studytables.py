@@ -475,6 +475,34 @@ def peer(_: dict) -> Table:
                  [path])
 
 
+def adversarial(_: dict) -> Table:
+    d, path = load_json("adversarial.json", "python studies/adversarial.py")
+    classes = ("ok", "bad_input", "failed", "interrupted")
+    rows = []
+    for group, g in d["groups"].items():
+        other = sum(n for a, n in g["answers"].items() if a not in classes)
+        rows.append([group, str(g["probes"]), str(g["clean"])] + [str(g["answers"].get(a, 0)) for a in classes]
+                    + [str(other)])
+    total = {a: sum(g["answers"].get(a, 0) for g in d["groups"].values()) for a in classes}
+    rows.append(["**all**", f"**{d['probes']}**", f"**{d['clean']}**"] + [str(total[a]) for a in classes]
+                + [str(d["probes"] - sum(total.values()))])
+    found = ", ".join(f"{k} {v}" for k, v in sorted(d["findings_by_class"].items())) or "none"
+    slowest = d.get("slowest_signal_s")
+    caption = (f"Findings by class: {found}. The slowest end after a SIGINT: "
+               f"{'–' if slowest is None else secs(slowest)}; the whole pass took {secs(d['seconds'])}."
+               + (f" Stages were skipped: {d['stages_skipped']}" if d.get("stages_skipped") else ""))
+    return Table(["group", "probes", "clean", "exit 0 / 200", "exit 1 / 4xx (bad input)", "exit 2 / 503 (failed)",
+                  "interrupted", "other (exit 3, 500, hang, slow)"], rows, caption, [path])
+
+
+def adversarial_findings(_: dict) -> Table:
+    d, path = load_json("adversarial.json", "python studies/adversarial.py")
+    rows = [[r["group"], r["name"], r["answer"], "; ".join(f"{f['class']}: {f['what']}" for f in r["findings"])]
+            for r in d["results"] if r["findings"]]
+    return Table(["group", "probe", "answer", "finding"], rows or [["–", "none", "–", "–"]],
+                 "Probes whose answer broke the contract in the kept run.", [path])
+
+
 # -- tables of studies whose outputs are not kept in the repository ----------------------------------------
 def pull_test(_: dict) -> Table:
     rows_in, path = load_csv("pull_test/pull_test.csv", "python studies/pull_test.py")
@@ -722,7 +750,7 @@ TABLES = {f.__name__: f for f in (linear_scaling, krylov_bounds, arm3d_fine, ref
                                   tol_check, tol_check_adaptive, scatter, adaptive_reach, adaptive_tol_runs,
                                   stability, stability_slender, friction_stability, peer, pull_test, dynamics_checks,
                                   grasp, grasp3d, hand_grasp, grasp_bench,
-                                  cable_friction, capstan, cable_friction_cost)}
+                                  cable_friction, capstan, cable_friction_cost, adversarial, adversarial_findings)}
 
 
 # -- docutils -----------------------------------------------------------------------------------------------

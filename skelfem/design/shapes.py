@@ -125,7 +125,13 @@ def named_entries(top: Table, section: str, required: bool = False) -> list[Tabl
     return tables
 
 
+MIN_E, MAX_E = 1e-6, 1e7      # MPa: Young's moduli from 1 Pa (softer than any gel) to 10 TPa (beyond diamond)
+
+
 def read_materials(top: Table) -> dict:
+    """[materials]: E within [MIN_E, MAX_E] MPa (E = 1e-300 beside a 20 N/mm tendon made Newton steps of
+    1e300 mm, and the contact's collision detection on such a step did not answer SIGINT for minutes),
+    nu in (-1, 0.5), density > 0."""
     mt = Table(top.take("materials", "table"), "materials", top.source)
     if not mt.data:
         mt.fail("", "at least one material is required")
@@ -134,6 +140,9 @@ def read_materials(top: Table) -> dict:
         entry_name(mt, name, name, "a material name", also=MATERIAL_PAIR)
         t = Table(mt.take(name, "table"), f"materials.{name}", top.source)
         E = positive(t, "E", t.take("E", "number"))
+        if not MIN_E <= E <= MAX_E:
+            t.fail("E", f"must lie in [{MIN_E:g}, {MAX_E:g}] MPa (1 Pa to 10 TPa; check the units: MPa = N/mm^2), "
+                        f"got {E:g}")
         nu = t.take("nu", "number")
         if not -1.0 < nu < 0.5:
             t.fail("nu", f"must lie in (-1, 0.5), got {nu:g}")
