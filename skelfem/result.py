@@ -210,6 +210,16 @@ class Result:
             raise KeyError(f"{name!r}: not an observable of this result (there are: {', '.join(values)})")
         return values[name]
 
+    def error(self, name: str) -> float | None:
+        """The estimated error |exact - computed| of one observable, in its unit (``Session.solve(estimate=True)``
+        or ``--estimate``); None where it could not be estimated; ValueError without an estimate."""
+        errors = self._data.get("errors")
+        if errors is None:
+            raise ValueError(f"{self.design}: no error estimate (solve with estimate=True, or --estimate)")
+        self.observable(name)                                  # KeyError naming the observables there are
+        entry = errors.get(name)
+        return None if entry is None else entry["error"]
+
     def displacement(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(rest vertex coordinates X, displacement u at them, cells), as numpy arrays (copies), mm.
 

@@ -336,8 +336,11 @@ class Session:
 
     # -- solving -----------------------------------------------------------------------------------
     @_exclusive
-    def solve(self, steps: int | None = None) -> Result:
+    def solve(self, steps: int | None = None, estimate: bool = False) -> Result:
         """Static equilibrium; warm-started from the last one after the first solve.
+
+        ``estimate``: also estimate the error of every observable (skelfem.estimate: the same
+        equilibrium one degree richer on the same mesh); the result's ``errors`` and ``estimate``.
 
         A warm start that fails (after an edit: a carried-over state that inverts elements, a change the
         parameter path cannot follow) is followed by one solve from rest, the load ramped as
@@ -358,7 +361,7 @@ class Session:
                      report.status)
             self.solved = False
             report, events = self._equilibrium(steps)
-        return self._result(report, t0, retried, events)
+        return self._result(report, t0, retried, events, estimate)
 
     def _equilibrium(self, steps: int, stage_steps: int | None = None):
         """(SolveReport, jump events) of one static solve: the load ramped from rest in `steps` steps, or
@@ -381,8 +384,9 @@ class Session:
             self.model.step_watchers.remove(watch)
         return report, watch.events
 
-    def _result(self, report, t0: float, retried=None, events=()) -> Result:
-        """The Result of a static solve that ended with report (result.json's keys, warnings, events)."""
+    def _result(self, report, t0: float, retried=None, events=(), estimate: bool = False) -> Result:
+        """The Result of a static solve that ended with report (result.json's keys, warnings, events; the
+        error estimate of every observable if asked and converged)."""
         from .fem.jumps import describe
         self.solved = bool(report.converged) or report.status == BUDGET_SPENT   # a start for the next solve
         timings = dict(self.timings, solve=time.perf_counter() - t0)
@@ -403,7 +407,21 @@ class Session:
             for note in warnings:
                 log.warning("%s: %s", self.design.name, note)
             data["warnings"] = warnings
+        if estimate and self.solved:
+            data.update(self._estimate())
         return Result(data, report, self._state())
+
+    @_exclusive
+    def estimate(self) -> dict:
+        """The error estimate of every observable at the converged state (skelfem.estimate):
+        result.json's ``errors`` ({observable: {"error", "discretisation", "algebraic"}}) and ``estimate``
+        (how, at what cost). The state is left as it is."""
+        return self._estimate()
+
+    def _estimate(self) -> dict:
+        from .estimate import estimate
+        out = estimate(self)
+        return {"errors": _plain(out["errors"]), "estimate": _plain(out["estimate"])}
 
     @_exclusive
     def run_stages(self, on_stage=None) -> Result:

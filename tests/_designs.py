@@ -74,7 +74,7 @@ def toml_text(d: dict) -> str:
     return text
 
 
-def simulate_refused_before_meshing(d: dict, tmp_path, monkeypatch, capsys) -> str:
+def simulate_refused_before_meshing(d: dict, tmp_path, monkeypatch, capsys, *extra: str) -> str:
     """`skelfem simulate` on design d: exit 1 with one `error: PATH: ...` line (returned), no traceback,
     no output folder, and the design never meshed."""
     from skelfem.mesh import geometry
@@ -86,7 +86,7 @@ def simulate_refused_before_meshing(d: dict, tmp_path, monkeypatch, capsys) -> s
     path = tmp_path / "design.toml"
     path.write_text(toml_text(d))
     out = tmp_path / "out"
-    assert main(["simulate", str(path), "--out", str(out), "-q"]) == 1
+    assert main(["simulate", str(path), "--out", str(out), "-q", *extra]) == 1
     err = capsys.readouterr().err
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"error: {path}: ") and "Traceback" not in err, err

@@ -24,7 +24,7 @@ LAYERS = [
     ("mesh",),                          # Gmsh -> DOLFINx mesh, material points
     ("terms",),                         # one module per physical ingredient
     ("fem",),                           # model, matrix, linear solves, Newton, time steps
-    ("result", "session", "observables"),   # the live Session, its Result, the observables named
+    ("result", "session", "observables", "estimate"),   # the live Session, its Result, observables, their errors
     ("analysis", "viz"),                # sensitivities, control, optimisation; pictures
     ("accuracy", "fabricate"),          # --tol ladders; printable parts
     ("jobs",),                          # one run to files, sweeps, bench

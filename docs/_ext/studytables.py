@@ -744,7 +744,54 @@ def krylov_bounds(_: dict) -> Table:
                  "P1, contrast and Poisson's ratio at P2.", [path])
 
 
-TABLES = {f.__name__: f for f in (linear_scaling, krylov_bounds, arm3d_fine, reference_3d, bench, in_hand_roll,
+def estimate_effectivity(_: dict) -> Table:
+    d, path = load_json("estimate_effectivity/estimate_effectivity.json",
+                        "python studies/estimate_effectivity.py")
+    rows = []
+    for r in d["rows"]:
+        if not r["measurable"] and r["observable"].startswith("pins"):
+            continue                                   # reactions of a body nothing else holds: round-off
+        eff = "–" if r["effectivity"] is None else num(r["effectivity"], 2)
+        rows.append([r["case"], f"P{r['degree']}, {thousands(r['dofs'])}", f"`{r['observable']}`", num(r["value"], 4),
+                     num(r["true_error"], 2), num(r["reference_uncertainty"], 1), num(r["estimate"], 2),
+                     f"**{eff}**" if r["effectivity"] is not None and not 0.5 <= r["effectivity"] <= 2 else eff])
+    s = d["summary"]
+    cap = (f"{s['measurable']} measurable rows of {s['rows']}: {s['within_0.5_2']} with an effectivity in [0.5, 2], "
+           f"{s['within_0.33_3']} in [1/3, 3], {s['below_0.1']} below 0.1 "
+           f"(range {num(s['min'], 2)}–{num(s['max'], 2)}); "
+           f"tip and tension within [0.5, 2]: {s['tip_and_tension_within_0.5_2']}. "
+           "A row is measurable when its true error is at least three times the references' own difference; "
+           "bold: outside [0.5, 2].")
+    return Table(["case", "mesh", "observable", "value", "true error", "reference ±", "estimate", "effectivity"],
+                 rows, cap, [path])
+
+
+def estimate_cost(_: dict) -> Table:
+    d, path = load_json("estimate_effectivity/estimate_effectivity.json",
+                        "python studies/estimate_effectivity.py")
+    rows = [[case, thousands(c["dofs"]), secs(c["solve_s"]), secs(c["estimate_s"]), f"**{num(c['ratio'], 2)}**",
+             secs(c["compile_s"])] for case, c in d["summary"]["cost"].items()]
+    return Table(["case", "DOFs", "solve", "estimate", "estimate / solve", "its forms compiled (once)"], rows,
+                 "Wall times in one process, one after the other; the richer degree's forms are compiled once per "
+                 "machine (FFCx's cache), counted apart.", [path])
+
+
+def goal_oriented(_: dict) -> Table:
+    d, path = load_json("goal_oriented/goal_oriented.json", "python studies/goal_oriented.py")
+    rows = []
+    for c in d:
+        for method in ("uniform", "goal"):
+            pts = ", ".join(f"{thousands(r['dofs'])}: {num(r['error'], 2)}" for r in c[method])
+            rows.append([c["case"], method, pts, thousands(round(c[f"dofs_{method}"])) if c[f"dofs_{method}"] else "–"])
+        rows.append([c["case"], "**uniform / goal**", "", f"**{num(c['ratio'], 2)}**" if c["ratio"] else "–"])
+    return Table(["design", "refinement", "DOFs: tension error [N], mesh by mesh", "DOFs to 1 % error"], rows,
+                 "P2; the reference is P2 on a finer uniform mesh (" + "; ".join(
+                     f"{c['case']}: {num(c['reference']['tension'], 4)} N ± {num(c['reference']['uncertainty'], 1)}"
+                     for c in d) + ").", [path])
+
+
+TABLES = {f.__name__: f for f in (estimate_effectivity, estimate_cost, goal_oriented,
+                                  linear_scaling, krylov_bounds, arm3d_fine, reference_3d, bench, in_hand_roll,
                                   slice_check, slice_check_3mf, fabrication_volumes, fabrication_poses, mpi_speed,
                                   editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
                                   tol_check, tol_check_adaptive, scatter, adaptive_reach, adaptive_tol_runs,

@@ -170,6 +170,37 @@ def marker_adjoint(model, solver, direction: np.ndarray, index: int) -> np.ndarr
         lin.destroy()
 
 
+def tension_adjoint(model, solver, name: str) -> np.ndarray:
+    """z with H z = dT/du at the model's equilibrium (T: cable `name`'s tension), local array."""
+    from ..analysis.sensitivity import Linearization, local_values
+    lin = Linearization(model, solver)
+    try:
+        term = next(t for t in model.terms if t.section == "cables" and t.name == name)
+        v = lin.tension_gradient(term)
+        z = lin.solve(v)
+        out = local_values(z)
+        for vec in (v, z):
+            vec.destroy()
+        return out
+    finally:
+        lin.destroy()
+
+
+def target_adjoint(model, solver, targets, row: int, direction: np.ndarray) -> np.ndarray | None:
+    """The adjoint that weights the indicators for the ladder's worst row: a marker's (along the row's
+    change) or a cable tension's; None (strain differences alone) for the other observables."""
+    name, index = targets.owner(row, len(model.design.markers))
+    if name is None:
+        return marker_adjoint(model, solver, direction, index)
+    section, entry = name.split(".")[:2]
+    if section == "markers":
+        return marker_adjoint(model, solver, direction, list(model.design.markers).index(entry))
+    if section == "cables":
+        return tension_adjoint(model, solver, entry)
+    log.info("--tol (adaptive): %s has no adjoint yet; indicators of the strain differences alone", name)
+    return None
+
+
 def indicators(model, coarse_V, coarse_u: np.ndarray, z: np.ndarray | None) -> np.ndarray:
     """eta_K on model's (the fine mesh's) local cells; see the module docstring.
 
@@ -245,7 +276,8 @@ def round_may_stop(ladder: list[Level], before: float | None) -> bool:
     return round_trusted(ladder, before) or before is None
 
 
-def _choose_bones(session, base, ladder: list[Level], result, size: float, degree: int, field, tol: float):
+def _choose_bones(session, base, ladder: list[Level], result, size: float, degree: int, field, tol: float,
+                  rows=None):
     """accuracy.refine's choice of bones, on the first round's first mesh (accuracy.choose_bones): returns
     (the design the rounds go on with, b, ``accuracy.bones``, the Result the session holds). With elastic
     bones that mesh is solved again, so the session holds the answer its Level reports."""
@@ -253,7 +285,7 @@ def _choose_bones(session, base, ladder: list[Level], result, size: float, degre
     if rigid is None:
         return base, 0.0, None, result
     use, probe, rigid_result, bones = accuracy.choose_bones(session, _design(rigid, size, degree), ladder[-1],
-                                                            field, tol)
+                                                            field, tol, rows)
     if use:
         ladder[-1] = probe
         return rigid, bones["difference"], bones, rigid_result
@@ -310,9 +342,9 @@ def _record(rnd: int, mesh, level: Level, result, session) -> dict:
             "change": level.change, "estimate": level.estimate, "rate": level.rate, "twin": level.twin}
 
 
-def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted: bool = True,
-                    max_rounds: int = MAX_ROUNDS, on_level=None, reduction: float | None = None
-                    ) -> tuple[object, dict]:
+def refine_adaptive(session, tol, degree: int = accuracy.DEGREE, weighted: bool = True,
+                    max_rounds: int = MAX_ROUNDS, on_level=None, reduction: float | None = None,
+                    graded: bool = True) -> tuple[object, dict]:
     """Rounds of three meshes of an adapted size field until the marker-error estimate meets tol.
 
     session: a Session of the design at the first size (2x its [mesh] size,
@@ -321,20 +353,24 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
     differences alone). on_level(level_dict, session): called after each
     solve (studies time and read it). reduction: aim each round at this
     fraction of the last estimate instead of at tol (a convergence curve for
-    studies; tol then only stops). Returns (the last Result, the
+    studies; tol then only stops). graded=False starts from uniform meshes, without the ladder's zones
+    at anchors and clamped corners (studies: what the indicators find on their own). Returns (the last Result, the
     ``accuracy`` dict of result.json); the session holds the last mesh.
     """
     from ..design import resources
+    from .targets import Targets
 
     if session.comm.size != 1:
         raise ValueError("adaptive refinement runs serially (use the uniform ladder under MPI)")
+    targets = tol if isinstance(tol, Targets) else Targets.markers(tol, session.design.dim)
+    tol, rows = targets.tol, (None if targets.bare else targets)
     t0 = time.perf_counter()
     base = session.design                     # at the first size, 2 h
     h_design = 0.5 * float(base.mesh.size)
     dim = base.dim
     factors = FACTORS[dim]
     h_cap = float(base.mesh.size) / factors[0]    # the first round's finest size: rounds only refine
-    zones = accuracy.ladder_zones(session.model, base, float(base.mesh.size))   # the first round's grading
+    zones = accuracy.ladder_zones(session.model, base, float(base.mesh.size)) if graded else None
     records, rounds = [], []
     field = None
     before = before_last = None           # the observed rate of the round before (and of the one before it)
@@ -357,10 +393,10 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
             if not result.converged:
                 stop = f"the solve of round {rnd + 1}, mesh {i + 1} failed ({result.status})"
                 break
-            ladder.append(accuracy.next_level(ladder, factor, result, time.perf_counter() - t))
+            ladder.append(accuracy.next_level(ladder, factor, result, time.perf_counter() - t, rows))
             if not rounds and i == 0:
                 base, b, bones, result = _choose_bones(session, base, ladder, result, h_cap * factor, degree,
-                                                       first, tol)
+                                                       first, tol, rows)
                 if not result.converged:
                     stop = f"the elastic solve of round 1, mesh 1 failed again ({result.status})"
                     break
@@ -388,7 +424,7 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
                 def edit(f):
                     session.edit(_design(base, f * h_cap, degree),
                                  size=None if size is None else size.scaled(f * scale))
-                twin, result = accuracy.solve_twin(session, level, edit)
+                twin, result = accuracy.solve_twin(session, level, edit, rows)
                 if twin is None:
                     stop = f"the twin solve of round {rnd + 1} failed ({result.status})"
                     break
@@ -411,7 +447,7 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
             i_max = int(np.argmax(np.linalg.norm(m1.markers - m2.markers, axis=1)))
             g = m1.markers[i_max] - m2.markers[i_max]
             g = g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else np.eye(dim)[0]
-            z = marker_adjoint(model, session.solver, g, i_max) if weighted else None
+            z = target_adjoint(model, session.solver, targets, i_max, g) if weighted else None
             eta = indicators(model, coarse[0], coarse[1], z)
             eta *= (level.change + level.estimate) / max(float(np.sum(eta)), 1e-300)
             goal = tol / (MARGIN * AIM) if reduction is None else reduction * level.estimate
@@ -429,14 +465,15 @@ def refine_adaptive(session, tol: float, degree: int = accuracy.DEGREE, weighted
             continue
         break
     if not rounds:
-        return result, {"tol": tol, "adaptive": True, "met": False, "stop": stop, "levels": records}
+        return result, {"tol": targets.spec(), "adaptive": True, "met": False, "stop": stop, "levels": records}
     last = rounds[-1][-1]
     estimate = None if last.estimate is None else last.estimate + b
     three = [lv for lv in rounds[-1] if not lv.twin]
     met = bool(result.converged and last.twin and round_may_stop(three, before_last) and estimate is not None
                and MARGIN * estimate <= tol)
     h_final = cell_sizes(session.model.mesh)
-    accuracy_dict = {"tol": tol, "adaptive": True, "degree": degree, "dofs": last.dofs,
+    accuracy_dict = {"tol": targets.spec(), "unit": targets.unit, "targets": targets.per_target(estimate),
+                     "adaptive": True, "degree": degree, "dofs": last.dofs,
                      "min_size": float(h_final.min()), "max_size": float(h_final.max()),
                      "size": float(h_final.max()), "rounds": len(rounds),
                      "estimated_error": estimate, "rate": last.rate, "scatter": last.scatter,

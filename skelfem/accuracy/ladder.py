@@ -404,14 +404,19 @@ def first_level(design):
     return at_size(design, 2.0 * float(design.mesh.size))
 
 
-def _positions(result) -> np.ndarray:
+def _positions(result, targets=None) -> np.ndarray:
+    """The rows the ladder measures: the markers' positions (mm), or the rows of --tol's named targets
+    (skelfem.accuracy.targets.Targets.rows: each in units of its tolerance)."""
+    if targets is not None:
+        return targets.rows(result)
     return np.array([m["position"] for m in result.markers.values()], dtype=float)
 
 
-def next_level(levels: list[Level], size: float, result, seconds: float) -> Level:
+def next_level(levels: list[Level], size: float, result, seconds: float, targets=None) -> Level:
     """The Level of a solve on a mesh of size h after ``levels`` (same family): its measured size, its
     change d_k, its Richardson estimate and rate, and the observed three-level rate, from result."""
-    level = Level(float(size), int(result.dofs), int(result.newton_iterations), seconds, _positions(result))
+    level = Level(float(size), int(result.dofs), int(result.newton_iterations), seconds,
+                  _positions(result, targets))
     level.h = level.size
     if levels:
         last = levels[-1]
@@ -425,10 +430,11 @@ def next_level(levels: list[Level], size: float, result, seconds: float) -> Leve
     return level
 
 
-def twin_level(level: Level, size: float, result, seconds: float) -> Level:
+def twin_level(level: Level, size: float, result, seconds: float, targets=None) -> Level:
     """The twin of ``level`` (solved on a mesh of size TWIN h_k): its scatter s = max |x_twin - x_k| and
     its estimate max(E_k, s)."""
-    twin = Level(float(size), int(result.dofs), int(result.newton_iterations), seconds, _positions(result),
+    twin = Level(float(size), int(result.dofs), int(result.newton_iterations), seconds,
+                 _positions(result, targets),
                  h=_h(level) * (level.dofs / result.dofs) ** (1.0 / level.markers.shape[1]),
                  rate=level.rate, twin=True)
     twin.scatter = twin.change = float(np.max(np.linalg.norm(twin.markers - level.markers, axis=1)))
@@ -447,7 +453,7 @@ def solve_level(session):
     return result
 
 
-def solve_twin(session, level: Level, edit) -> tuple[Level | None, object]:
+def solve_twin(session, level: Level, edit, targets=None) -> tuple[Level | None, object]:
     """Solve the twin of ``level``: edit(f) puts the session on the level's mesh family at f times its
     size, for f = TWIN, TWIN^2, TWIN^3 until Gmsh makes another mesh. (the twin's Level, or None if its
     solve failed; the Result)."""
@@ -462,7 +468,7 @@ def solve_twin(session, level: Level, edit) -> tuple[Level | None, object]:
     else:
         log.warning("--tol: %g ... %g times the size of %d DOFs give one mesh: the scatter is not measured",
                     TWIN, f, level.dofs)
-    return twin_level(level, level.size * f, result, time.perf_counter() - t), result
+    return twin_level(level, level.size * f, result, time.perf_counter() - t, targets), result
 
 
 def rigid_variant(design):
@@ -478,7 +484,8 @@ def rigid_variant(design):
         return None
 
 
-def choose_bones(session, rigid, level: Level, size, tol: float) -> tuple[bool, Level | None, object, dict | None]:
+def choose_bones(session, rigid, level: Level, size, tol: float,
+                 targets=None) -> tuple[bool, Level | None, object, dict | None]:
     """The first mesh again with every bone rigid: rigid is that design at the level's size, size its graded
     field. Returns (use, the rigid Level, its Result, ``accuracy.bones``): use when MARGIN b <= RIGID_SHARE tol,
     b = max |x_rigid - x_elastic|; (False, None, None, None) if the model refuses rigid bones or their solve
@@ -495,7 +502,7 @@ def choose_bones(session, rigid, level: Level, size, tol: float) -> tuple[bool, 
         log.info("--tol: the solve with rigid bones failed (%s); elastic bones", result.status)
         return False, None, None, None
     probe = Level(level.size, int(result.dofs), int(result.newton_iterations), time.perf_counter() - t,
-                  _positions(result), h=level.h)
+                  _positions(result, targets), h=level.h)
     b = float(np.max(np.linalg.norm(probe.markers - level.markers, axis=1)))
     use = MARGIN * b <= RIGID_SHARE * tol
     log.info("--tol: rigid bones move the markers by %.3g mm: %s bones", b, "rigid" if use else "elastic")

@@ -6,28 +6,39 @@ import logging
 import time
 from dataclasses import replace
 
+from .targets import Targets
 from .ladder import (DEGREE, Level, MARGIN, MAX_LEVELS, RATIO, at_size, choose_bones, judged, ladder_zones, may_stop,
                      next_level, next_size, rigid_variant, solve_level, solve_twin, trusted)
 
 log = logging.getLogger("skelfem")
 
 
-def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
+def refine(session, tol, adaptive: bool = False) -> tuple[object, dict]:
     """Solve session's design on the ladder of meshes until the estimate meets tol.
 
     session: a Session of the design at its first level (DEGREE, size h_0), not
-    yet solved. Returns (the last solve's Result, the ``accuracy`` dict of
+    yet solved. tol: mm for every marker, or the Targets of named observables
+    (skelfem.accuracy.targets). Returns (the last solve's Result, the ``accuracy`` dict of
     result.json; its ``levels`` are every solve in order, twins included). The
     session holds the last solve afterwards.
     adaptive: rounds of graded meshes from element indicators instead
     (skelfem.accuracy.adapt; serial runs only, the uniform ladder under MPI).
     """
+    targets = tol if isinstance(tol, Targets) else Targets.markers(tol, session.design.dim)
     if adaptive and session.comm.size == 1:
         from .adapt import refine_adaptive
-        return refine_adaptive(session, tol, DEGREE)
+        return refine_adaptive(session, targets, DEGREE)
+    result, accuracy = _ladder(session, targets)
+    return result, accuracy
+
+
+def _ladder(session, targets: Targets) -> tuple[object, dict]:
+    """refine's uniform ladder, for the rows of ``targets`` against its tol."""
     from ..design import resources
     from ..design.spec import DesignError
 
+    tol, unit = targets.tol, targets.unit
+    rows = None if targets.bare else targets
     design = session.design
     dim = design.dim
     h0 = float(design.mesh.size)
@@ -56,7 +67,7 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
         if not again.converged:
             return again, answer, stop, None
         note = (f"{stop}; the answer is the level at h = {back.size:g} mm, whose estimate "
-                f"{back.estimate + b:.3g} mm met the tolerance")
+                f"{back.estimate + b:.3g} {unit} met the tolerance")
         log.warning("--tol: %s", note)
         return again, back, note, note
 
@@ -72,13 +83,13 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
             log.info("--tol: h = %g mm gives the mesh of h = %g mm again", session.design.mesh.size,
                      levels[-1].size)
             history.remove(levels.pop())
-        level = next_level(levels, session.design.mesh.size, result, time.perf_counter() - t)
+        level = next_level(levels, session.design.mesh.size, result, time.perf_counter() - t, rows)
         levels.append(level)
         untrusted = len(levels) >= 3 and not trusted(levels)
         level = levels[-1] = judged(levels)          # a first drop: r = 1; after a stall: refine on
         log.info("--tol: h = %g mm, %d DOFs: change %s, estimate %s%s", level.size, level.dofs,
-                 "-" if level.change is None else f"{level.change:.3g} mm",
-                 "-" if level.estimate is None else f"{level.estimate:.3g} mm (r = {level.rate:.2f})",
+                 "-" if level.change is None else f"{level.change:.3g} {unit}",
+                 "-" if level.estimate is None else f"{level.estimate:.3g} {unit} (r = {level.rate:.2f})",
                  f" (the observed rate {level.observed:.2f} is not trusted)" if untrusted else "")
         answer = level
         history.append(level)
@@ -87,7 +98,7 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
         rigid = rigid_variant(design) if len(history) == 1 else None
         if rigid is not None:
             use, probe, _, bones = choose_bones(session, at_size(rigid, level.size), level,
-                                                None if zones is None else zones.scaled(level.size / h0), tol)
+                                                None if zones is None else zones.scaled(level.size / h0), tol, rows)
             if use:
                 design, b = rigid, bones["difference"]
                 levels[-1] = history[-1] = answer = probe
@@ -95,7 +106,7 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
         if may_stop(levels) and MARGIN * (level.estimate + b) <= tol:
             def edit(f, h=level.size):
                 session.edit(at_size(design, f * h), size=None if zones is None else zones.scaled(f * h / h0))
-            twin, result = solve_twin(session, level, edit)
+            twin, result = solve_twin(session, level, edit, rows)
             if twin is None:
                 result, answer, stop, warning = fall_back(
                     result, f"the twin solve at h = {session.design.mesh.size:g} mm failed ({result.status})")
@@ -103,8 +114,8 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
                 break
             answer = twin
             history.append(answer)
-            log.info("--tol: twin h = %g mm, %d DOFs: scatter %.3g mm, estimate %.3g mm", answer.size,
-                     answer.dofs, answer.scatter, answer.estimate)
+            log.info("--tol: twin h = %g mm, %d DOFs: scatter %.3g, estimate %.3g (%s)", answer.size,
+                     answer.dofs, answer.scatter, answer.estimate, unit)
             if MARGIN * (answer.estimate + b) <= tol:
                 break
             level = replace(level, estimate=answer.estimate)     # go on with what the twin measured
@@ -124,12 +135,13 @@ def refine(session, tol: float, adaptive: bool = False) -> tuple[object, dict]:
         session.edit(at_size(design, answer.size), size=None if zones is None else zones.scaled(answer.size / h0))
         result = session.solve()
     if not levels:
-        return result, {"tol": tol, "met": False, "stop": stop, "levels": []}
+        return result, {"tol": targets.spec(), "met": False, "stop": stop, "levels": []}
     last = answer
     estimate = None if last.estimate is None else last.estimate + b
     met = bool(result.converged and ((last.twin and may_stop(levels)) or warning is not None)
                and estimate is not None and MARGIN * estimate <= tol)
-    accuracy = {"tol": tol, "degree": DEGREE, "size": last.size, "dofs": last.dofs,
+    accuracy = {"tol": targets.spec(), "unit": targets.unit, "targets": targets.per_target(estimate),
+                "degree": DEGREE, "size": last.size, "dofs": last.dofs,
                 "estimated_error": estimate, "rate": last.rate, "scatter": last.scatter, "met": met,
                 "bones": bones,
                 "stop": stop, "warning": warning, "levels": [lv.to_dict() for lv in history],

@@ -140,6 +140,14 @@ class Linearization:
         """g = grad l of a cable on its DOFs, zero on Dirichlet DOFs."""
         return term.cable.length_gradient(self.model.u.x.array) * self.model._free(term, term.cable.dofs)
 
+    def tension_gradient(self, term) -> PETSc.Vec:
+        """dT/du of a cable's tension (the pulled end's) on the free DOFs: the tendon's dR/du_c (k g, or the
+        holding tension zone's with friction); a ligament's k g where taut, else zero."""
+        if term in self.tendons:
+            return self._dR_du(self.tendons.index(term))
+        taut = stretch(term, self.model.u.x.array) > 0.0
+        return global_vector(self.model, term, term.cable.k * self._masked_g(term) * float(taut))
+
     def _dR_du(self, i: int) -> PETSc.Vec:
         """dR/du_c = k g_c on the free DOFs of a taut (or kinked) tendon, else zero; with cable friction
         g_z / C_z of the tension zone that holds the actuated end (skelfem.terms.cable_slip)."""

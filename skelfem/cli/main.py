@@ -43,13 +43,17 @@ def _parser() -> argparse.ArgumentParser:
     s = sub.add_parser("simulate", help="static equilibrium of a design (a run in time if it has [dynamics])")
     common_arguments(s)
     s.add_argument("--no-picture", action="store_true", help="skip deformed.png (motion.gif with [dynamics])")
-    s.add_argument("--tol", type=float, default=None, metavar="ABS_MM",
-                   help="refine the mesh (P2, from twice [mesh] size) until the design's own marker error "
-                        "estimate (Richardson over the meshes) is below ABS_MM mm; result.json reports it "
-                        "under accuracy")
+    s.add_argument("--tol", action="append", default=None, metavar="ABS_MM|NAME=TOL",
+                   help="refine the mesh (P2, from twice [mesh] size) until the design's own error estimate "
+                        "(Richardson over the meshes) is below ABS_MM mm for every marker, or below TOL for the "
+                        "observable NAME (e.g. cables.flexor.tension=0.05, markers.tip=0.1; repeat for several); "
+                        "result.json reports it under accuracy")
     s.add_argument("--adaptive", action="store_true",
                    help="with --tol: graded meshes refined where element indicators of the marker error are "
                         "large, instead of uniform ones (serial runs)")
+    s.add_argument("--estimate", action="store_true",
+                   help="estimate the error of every observable (the same equilibrium one degree richer on the "
+                        "same mesh); result.json reports them under errors")
     s.set_defaults(handler=simulate)
     f = sub.add_parser("fabricate", help="printable bones (STL, STEP) and a two-part mould for casting the body, "
                                          "or one multi-material 3MF",

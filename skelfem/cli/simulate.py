@@ -16,9 +16,9 @@ def simulate(args) -> int:
     from ..jobs.run import write_results
 
     t0 = time.perf_counter()
-    if args.tol is not None and not (0 < args.tol < float("inf")):
-        raise InputError(f"--tol: must be a finite number > 0, got {args.tol:g}")
     design = load(args)
+    targets = parse_tol(args.tol, design)
+    args.tol = targets
     if args.tol is not None and design.dynamics is not None:
         raise InputError(f"{args.design}: --tol chooses the mesh of a static run; a design with [dynamics] "
                          "sets [mesh] by hand")
@@ -27,14 +27,23 @@ def simulate(args) -> int:
     if args.tol is not None and design.stages:
         raise InputError(f"{args.design}: --tol refines the mesh of one static solve; a design with [[stages]] "
                          "sets [mesh] by hand")
-    if args.tol is not None and not design.markers:
-        raise InputError(f"{args.design}: --tol needs at least one marker (its error is what --tol bounds)")
+    if getattr(args, "estimate", False) and design.dynamics is not None:
+        raise InputError(f"{args.design}: --estimate: a run in time ([dynamics]) has no error estimate yet; "
+                         "it estimates static equilibria")
+    if getattr(args, "estimate", False) and design.stages:
+        raise InputError(f"{args.design}: --estimate: a design with [[stages]] has no error estimate from the "
+                         "command line yet (Session.estimate() estimates the state after a stage)")
+    if args.tol is not None and args.tol.bare and not design.markers:
+        raise InputError(f"{args.design}: --tol ABS_MM needs at least one marker (its error is what it bounds); "
+                         "name an observable instead (--tol cables.NAME.tension=TOL)")
     args.out = reserve_output(args, design)           # before any work: a bad --out is bad input
     extra = {}
     if args.tol is not None:
         design, session = prepare_tol(args, design)
         with session:
             solved, extra["accuracy"] = refine_to_tol(session, args.tol, getattr(args, "adaptive", False))
+            if getattr(args, "estimate", False) and solved.converged:
+                extra.update(session.estimate())
             result = write_results(session, solved, args.out, t0, picture=not args.no_picture, extra=extra)
     else:
         design, session = prepare(args)
@@ -43,7 +52,7 @@ def simulate(args) -> int:
         if design.stages:
             return _simulate_stages(args, design, session, t0, extra)
         with session:
-            solved = session.solve()
+            solved = session.solve(estimate=getattr(args, "estimate", False))
             result = write_results(session, solved, args.out, t0, picture=not args.no_picture, extra=extra)
     if not solved.converged:
         error(f"{design.name}: solve failed ({solved.status}) after {solved.load_steps} load step(s); "
@@ -52,6 +61,34 @@ def simulate(args) -> int:
     if not args.quiet and MPI.COMM_WORLD.rank == 0:
         _summary(result, args.out)
     return EXIT_OK
+
+
+def parse_tol(values: list[str] | None, design):
+    """--tol's values: a bare ABS_MM (every marker) and/or NAME=TOL (observables), checked against the
+    design before anything is meshed; Targets (skelfem.accuracy.targets) or None."""
+    import math
+
+    from ..accuracy.targets import Targets, check
+    if not values:
+        return None
+    items, seen = [], set()
+    for text in values:
+        name, eq, number = str(text).rpartition("=")
+        name = name.strip() if eq else None
+        where = "--tol" if name is None else f"--tol {name}"
+        try:
+            tol = float(number)
+        except ValueError:
+            raise InputError(f"{where}: invalid float value {number!r} (give ABS_MM, or NAME=TOL)") from None
+        if not (0 < tol < math.inf):
+            raise InputError(f"{where}: must be a finite number > 0, got {number}")
+        if name is not None and (why := check(design, name)):
+            raise InputError(f"--tol {text}: {why}")
+        if name in seen:
+            raise InputError(f"--tol {text}: {'a bare tolerance' if name is None else name} is given twice")
+        seen.add(name)
+        items.append((name, tol))
+    return Targets(tuple(items), design.dim)
 
 
 def prepare_tol(args, design):
@@ -65,14 +102,14 @@ def prepare_tol(args, design):
 
     try:
         first = ladder.first_level(design)
-        log.info("--tol %g mm: P%d from h = %g mm, refined until the estimate meets it",
-                 args.tol, ladder.DEGREE, first.mesh.size)
+        log.info("--tol %s: P%d from h = %g mm, refined until the estimate meets it",
+                 args.tol.spec(), ladder.DEGREE, first.mesh.size)
         return first, open_session(first, MPI.COMM_WORLD)
     except (DesignError, MeshingError) as exc:
         raise InputError(str(exc)) from None
 
 
-def refine_to_tol(session, tol: float, adaptive: bool = False):
+def refine_to_tol(session, tol, adaptive: bool = False):
     """skelfem.accuracy.tol.refine, with mesh failures of a finer level as one-line input errors."""
     from ..accuracy import tol as accuracy
     from ..design.spec import DesignError
@@ -152,9 +189,16 @@ def _summary(result: dict, out: Path) -> None:
         if bones:
             where += (f", {'rigid' if bones['rigid'] else 'elastic'} bones (rigid ones move the markers by "
                       f"{bones['difference']:.2g} mm)")
-        print(f"  --tol {a['tol']:g} mm: P{a.get('degree', 2)}, {where} "
-              f"after {len(a['levels'])} meshes, estimated marker error {est}"
+        asked = (f"{a['tol']:g} mm" if not isinstance(a["tol"], dict)
+                 else ", ".join(f"{k} {v:g}" for k, v in a["tol"].items()))
+        if isinstance(a["tol"], dict) and a.get("estimated_error") is not None:
+            est = f"{a['estimated_error']:.3g} of each tolerance"
+        print(f"  --tol {asked}: P{a.get('degree', 2)}, {where} "
+              f"after {len(a['levels'])} meshes, estimated {'marker ' if not isinstance(a['tol'], dict) else ''}"
+              f"error {est}"
               + ("" if a["met"] else f" (NOT met: {a['stop']})"))
+        for name, t in (a.get("targets") or {}).items():
+            print(f"    {name}: estimated error {t['estimated_error']:.3g} (tolerance {t['tol']:g})")
         if a.get("warning"):
             print(f"  warning: {a['warning']}")
     for stage in result.get("stages", []):
@@ -166,11 +210,22 @@ def _summary(result: dict, out: Path) -> None:
               "steps or a run in time ([dynamics])")
     if hist:
         print("  last step |R|: " + " ".join(f"{r:.1e}" for r in hist[-5:]))
+    if "estimate" in result:
+        e = result["estimate"]
+        print(f"  --estimate: P{e['degree']} on the same mesh ({e['dofs']} DOFs), {e.get('status', '-')}; "
+              "errors of every observable under errors in result.json")
+    errors = result.get("errors") or {}
+
+    def pm(name: str, fmt: str) -> str:           # " +- e" where the observable has an estimate
+        e = (errors.get(name) or {}).get("error")
+        return "" if e is None else f" +- {e:{fmt}}"
     for name, m in (result["markers"] or {}).items():
-        print(f"  marker {name}: ({', '.join(f'{p:.2f}' for p in m['position'])}) mm, "
+        bars = [pm(f"markers.{name}.{a}", ".2g") for a in "xyz"[:len(m["position"])]]
+        print(f"  marker {name}: ({', '.join(f'{p:.2f}{e}' for p, e in zip(m['position'], bars))}) mm, "
               f"moved ({', '.join(f'{d:+.2f}' for d in m['displacement'])}) mm")
     for name, c in (result["cables"] or {}).items():
-        print(f"  {c['kind']} {name}: tension {c['tension']:.3f} N, length {c['length']:.2f} mm")
+        print(f"  {c['kind']} {name}: tension {c['tension']:.3f}{pm(f'cables.{name}.tension', '.2g')} N, "
+              f"length {c['length']:.2f} mm")
     files = "result.json, solution.xdmf, deformed.png" + (", stages.xdmf" if result.get("stages") else "")
     print(f"  results in {out}/ ({files}), "
           f"{result['timings']['total']:.1f} s")

@@ -63,7 +63,7 @@ def locate_cells(mesh, points: np.ndarray, below: int | None = None) -> np.ndarr
 @functools.lru_cache(maxsize=None)
 def _lagrange(cell: str, degree: int):
     return basix.create_element(basix.ElementFamily.P, _BASIX_CELL[cell], degree,
-                                basix.LagrangeVariant.equispaced)
+                                basix.LagrangeVariant.gll_warped)     # DOLFINx's "Lagrange" (equispaced to P2)
 
 
 def reference_coordinates(mesh, points: np.ndarray, cells: np.ndarray) -> np.ndarray:

@@ -37,6 +37,7 @@ from __future__ import annotations
 import numpy as np
 import ufl
 from dolfinx import fem
+import basix
 from mpi4py import MPI
 
 from .base import Context, Term, constant, touched
@@ -51,6 +52,18 @@ _TRIANGLE_NODES = {
 }
 
 
+def _interpolatory(degree: int) -> tuple[np.ndarray, np.ndarray]:
+    """The nodes of DOLFINx's P_degree triangle with weights = the integrals of their basis functions
+    (all positive from P3 on, unlike P2's vertices): the richer space of the error estimate."""
+    element = basix.create_element(basix.ElementFamily.P, basix.CellType.triangle, degree,
+                                   basix.LagrangeVariant.gll_warped)
+    q, w = basix.make_quadrature(basix.CellType.triangle, 2 * degree + 2)
+    weights = w @ element.tabulate(0, q)[0, :, :, 0]
+    if np.any(weights <= 0):
+        raise ValueError(f"no positive nodal rule of degree {degree} on a ground's triangles")
+    return element.points, weights
+
+
 def nodal_ds(u):
     """Boundary measure with points at the nodes of u's element on each facet: Gauss-Lobatto on the
     edges of a 2D boundary, the nodal rule above on the triangles of a 3D one."""
@@ -59,7 +72,7 @@ def nodal_ds(u):
     if mesh.topology.dim == 2:
         metadata = {"quadrature_rule": "GLL", "quadrature_degree": 2 * degree - 1}
     else:
-        points, weights = _TRIANGLE_NODES[degree]
+        points, weights = _TRIANGLE_NODES[degree] if degree in _TRIANGLE_NODES else _interpolatory(degree)
         metadata = {"quadrature_rule": "custom", "quadrature_degree": degree,
                     "quadrature_points": np.array(points), "quadrature_weights": np.array(weights)}
     return ufl.Measure("ds", domain=mesh, metadata=metadata)

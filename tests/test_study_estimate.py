@@ -1,0 +1,36 @@
+"""studies/estimate_effectivity.py, goal_oriented.py and tol_targets.py, tiny."""
+import json
+
+import pytest
+from _studies import load_study
+
+pytestmark = pytest.mark.slow
+
+
+def test_estimate_effectivity_tiny(tmp_path, monkeypatch):
+    study = load_study("estimate_effectivity")
+    monkeypatch.setattr(study, "CASES", {"tiny": (lambda: study.strip(size=5.0, contraction=1.0), 2)})
+    assert study.main(["--cases", "tiny", "--out", str(tmp_path)]) == 0
+    d = json.loads((tmp_path / "estimate_effectivity.json").read_text())
+    rows = {r["observable"]: r for r in d["rows"]}
+    assert rows["cables.flexor.tension"]["estimate"] > 0 and rows["markers.tip.x"]["true_error"] > 0
+    assert not rows["pins.base.reaction.x"]["measurable"]            # round-off: never counted
+    assert d["summary"]["cost"]["tiny"]["ratio"] > 0 and d["summary"]["rows"] == len(d["rows"])
+
+
+def test_goal_oriented_tiny(tmp_path, monkeypatch):
+    study = load_study("goal_oriented")
+    monkeypatch.setattr(study, "CASES", {"tiny": (study.strip2d, 8.0, 2.0, 2, (2.0, 1.5), 8.0)})
+    assert study.main(["--cases", "tiny", "--rounds", "1", "--out", str(tmp_path)]) == 0
+    (res,) = json.loads((tmp_path / "goal_oriented.json").read_text())
+    assert len(res["uniform"]) == 2 and len(res["goal"]) >= 3
+    assert all(r["error"] >= 0 and r["dofs"] > 0 for r in res["uniform"] + res["goal"])
+    assert study.dofs_to_reach([{"dofs": 100, "error": 1.0}, {"dofs": 400, "error": 0.01}], 0.1) == pytest.approx(200)
+
+
+def test_tol_targets_tiny(tmp_path):
+    study = load_study("tol_targets")
+    res = study.run("thumb", ("mesh.size=3",), h_ref=1.5, out=tmp_path, tols=("2",), tension_share=0.2)
+    assert [r["tol"].split("=")[0] for r in res["rows"]] == ["2", "cables.flexor.tension"]
+    for r in res["rows"]:
+        assert r["exit"] == 0 and r["tip_error"] >= 0 and r["tension_error"] >= 0
