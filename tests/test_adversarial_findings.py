@@ -195,3 +195,30 @@ def test_calibration_bounds_beyond_the_modulus_range_are_refused():
     data = {"cables.flexor.contraction": [2.0, 4.0], "markers.tip.x": [-2.0, -13.9]}
     with pytest.raises(DataError, match="1e-300 is not a valid value"):
         prepare_data(design, data, ["materials.ecoflex.E"], bounds={"materials.ecoflex.E": (1e-300, 1.0)})
+
+
+# == 7. An interrupt during start-up left Open MPI's session folder in TMPDIR ===============================
+# Before: SIGINT while the command imported its modules (after MPI_Init) ended it with os._exit, without
+# MPI_Finalize, and `TMPDIR/ompi.HOST.UID/jf.N` stayed (the pass's "SIGINT while validating 3000 objects").
+@pytest.mark.slow
+def test_an_interrupt_during_start_up_leaves_no_mpi_session_folder(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import time
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    left = []
+    for delay in (0.4, 0.7):
+        proc = subprocess.Popen([adversarial.SKELFEM, "simulate", str(adversarial.GEOMETRY / "finger.toml"),
+                                 "--out", str(tmp_path / "out"), "-q"], cwd=tmp_path, stderr=subprocess.PIPE,
+                                env={**adversarial.ENV, "TMPDIR": str(tmp)})
+        time.sleep(delay)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+        assert proc.returncode == 130 and err.decode().strip().splitlines() == ["error: interrupted"], err
+        time.sleep(3)                         # Open MPI's daemon removes its own folder a moment later
+        left += [str(p.relative_to(tmp)) for p in tmp.rglob("*")]
+        for p in sorted(tmp.rglob("*"), reverse=True):
+            p.rmdir() if p.is_dir() else os.unlink(p)
+    assert left == []
