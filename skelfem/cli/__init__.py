@@ -45,11 +45,11 @@ def _finalise_alone() -> None:
     interrupt during the imports left it behind)."""
     import sys
     from ..runtime.mpiguard import world_size_hint
-    MPI = getattr(sys.modules.get("mpi4py.MPI"), "Is_initialized", None) and sys.modules["mpi4py.MPI"]
-    if MPI and world_size_hint() == 1 and MPI.Is_initialized() and not MPI.Is_finalized():
+    mpi = sys.modules.get("mpi4py.MPI")         # imported (and MPI initialised) by then, or not at all
+    if mpi is not None and world_size_hint() == 1 and mpi.Is_initialized() and not mpi.Is_finalized():
         try:
             with _interrupts.held():
-                MPI.Finalize()
+                mpi.Finalize()
         except Exception:  # noqa: BLE001 - leaving anyway
             pass
 
