@@ -86,3 +86,27 @@ def test_a_3d_cube_s_per_node_fields_sum_to_the_pair(tmp_path):
     assert [e["name"] for e in r.to_dict()["stages"]] == ["land", "tilt"]
     state = _sums_match(tmp_path / "s.xdmf", tags, "cube", pair)
     assert (state == STICKING).any()
+
+
+@pytest.mark.mpi
+@pytest.mark.slow
+def test_the_per_node_fields_agree_across_two_ranks(tmp_path, mpirun):
+    """The gripper closed and weighed under `mpirun -n 2`: the same per-node fields as the serial run."""
+    import meshio
+
+    from _designs import toml_text
+    d = tomllib.loads((GEOMETRY / "gripper_stages.toml").read_text())
+    d["stages"] = d["stages"][:2]
+    path = tmp_path / "g.toml"
+    path.write_text(toml_text(d))
+    fields = {}
+    for ranks in (1, 2):
+        res = mpirun.run([mpirun.skelfem, "simulate", str(path), "--out", str(tmp_path / str(ranks)), "-q",
+                          "--no-picture"], ranks)
+        assert res.returncode == 0, res.stdout + res.stderr
+        m = meshio.read(tmp_path / str(ranks) / "solution.xdmf")
+        order = np.lexsort(m.points.T[::-1])                # the nodes by position (the ranks number them apart)
+        fields[ranks] = {k: v[order] for k, v in m.point_data.items()}
+    for name in ("contact_normal_force", "contact_friction_force", "contact_state"):
+        a, b = fields[1][name], fields[2][name]
+        assert np.abs(a).sum() > 0 and np.allclose(a, b, atol=1e-9), name
