@@ -437,6 +437,7 @@ class Session:
         stages = self.design.stages
         if not stages:
             raise DesignError(f"{self.design.source}: stages: the design has no [[stages]]")
+        self.solved = False                 # the first stage from rest, as skelfem simulate runs it
         t0 = time.perf_counter()
         entries, events, result = [], [], None
         iterations = load_steps = 0

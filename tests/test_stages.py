@@ -148,3 +148,21 @@ def test_every_key_a_stage_may_change_is_a_live_parameter_of_the_model(name):
     with Session(design) as s:
         model_keys = set(s.model.parameters())
     assert set(live_keys(design)) <= model_keys, sorted(set(live_keys(design)) - model_keys)
+
+
+def test_run_stages_starts_from_rest_whatever_the_session_solved_before():
+    """A Session that solved the first stage's values already still runs that stage from rest (as skelfem
+    simulate does), not as a re-solve with nothing changed (0 iterations); a stage's steps = 3 takes 3."""
+    from skelfem import Session
+
+    from _designs import strip
+    d = strip(contraction=0.0)
+    d["stages"] = [{"name": "pull", "set": {"cables.flexor.contraction": 1.0}},
+                   {"name": "more", "set": {"cables.flexor.contraction": 2.0}, "steps": 3}]
+    with Session(d) as s:
+        s.set({"cables.flexor.contraction": 1.0})
+        assert s.solve().converged
+        r = s.run_stages()
+    pull, more = r.stages
+    assert pull["newton_iterations"] > 0 and pull["load_steps"] == 1 and more["load_steps"] == 3
+    assert r.converged and r.cables["flexor"]["contraction"] == 2.0

@@ -128,8 +128,9 @@ def read_stages(tables: list, design, parse) -> tuple:
             text = text[len(source) + 2:] if text.startswith(f"{source}: ") else text
             raise DesignError(f"{source}: {t.where}: {text}") from None
         values = {k: _value(staged, k) for k in changes}
-        if all(before.get(k, _value(design, k)) == v for k, v in values.items()):
-            t.fail("set", "changes nothing: every value is the one before this stage")
+        unset = object()        # a key no earlier stage set changes (the design's own value may be --set)
+        if all(before.get(k, unset) == v for k, v in values.items()):
+            t.fail("set", "changes nothing: an earlier stage set every value to this already")
         before.update(values)
         out.append(StageSpec(name, changes, steps, staged))
     return tuple(out)
