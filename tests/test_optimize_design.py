@@ -99,3 +99,46 @@ def test_a_turned_pin_is_refused_before_meshing(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 1 and len(err) == 1 and "pins.base.rotate: design gradients do not cover turned pins" in err[0], err
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_trial_designs_the_rules_refuse_send_the_line_search_back(tmp_path, capsys):
+    """Wide bounds: L-BFGS-B's first step pushes the distal bone through the outline (a design the rules
+    refuse); the run steps back and improves instead of stopping at the start."""
+    task = GOOD.split("[[variables]]")[0] + """
+[[variables]]
+key = "bones.distal.offset.x"
+bounds = [-20.0, 20.0]
+
+[[objectives]]
+kind = "reach"
+marker = "tip"
+targets = [{ set = { "cables.flexor.contraction" = 8.0 }, at = [-60.0, 60.0] }]
+
+[optimizer]
+max_evaluations = 8
+"""
+    rc, out = _run(tmp_path, task)
+    assert rc == 0
+    res = json.loads((out / "optimize_design.json").read_text())
+    assert res["optimum"] < 0.95 * res["start"], res
+    assert res["variables"][0]["final"] != 0.0
+
+
+def test_a_refused_move_leaves_the_session_on_its_mesh():
+    """A design value the morph or the rules refuse raises ValueError before the session is edited: the
+    mesh stays the start mesh moved (no re-mesh behind the gradient's back) and the next gradient works."""
+    import numpy as np
+
+    from skelfem.analysis.design_gradient import DesignGradient, MarkerTarget
+    from skelfem.session import Session
+    with Session(FINGER) as session:
+        dg = DesignGradient(session, ["bones.distal.offset.x"])
+        dg.solve()
+        x = session.model.mesh.geometry.x.copy()
+        with pytest.raises(ValueError):
+            dg.solve(np.array([15.0]))
+        assert np.array_equal(session.model.mesh.geometry.x, x)
+        dg.check_mesh()
+        J, g = dg.gradient(MarkerTarget("tip", (-20.0, 80.0)))
+        assert np.isfinite(g).all()

@@ -36,6 +36,10 @@ from .shape_points import MaterialPoints
 from .smooth_step import smooth_step
 
 
+class MeshDegrades(ValueError):
+    """The morph cannot move the mesh to these design values (a triangle would turn over or flatten)."""
+
+
 # -- a cable's own parameters -----------------------------------------------------------------------------
 def cable_parameter(model, name: str, kind: str, z: np.ndarray) -> tuple[float, float]:
     """(z^T dR/dq, dT/dq) for q a frictionless cable's stiffness k or pretension p at fixed u, T its tension.
@@ -159,11 +163,15 @@ class DesignGradient:
         """Move the design to p (the mesh by the morph, same topology), with --set overrides (live parameters:
         a target's contraction), and solve; returns the Result."""
         if p is not None or overrides:
+            from ..design.parse import parse_design
             p = self.p if p is None else np.asarray(p, dtype=float)
-            how = self.session.edit(self.handles.raw(p), overrides=list(overrides), morph=True)
+            design = parse_design(self.handles.raw(p), self.session.design.source, list(overrides))  # DesignError
+            if self.morph.moved(design) is None:          # asked first: a refused morph would re-mesh the session
+                raise MeshDegrades("the moved mesh degrades at these design values (the morph refused it): "
+                                   "re-mesh and start again from there")
+            how = self.session.edit(design, morph=True)
             if how == "re-meshed":
-                raise ValueError("the moved mesh degrades at these design values (the morph refused it): "
-                                 "re-mesh and start again from there")
+                raise MeshDegrades("the session re-meshed the moved design: the gradient's mesh is gone")
             self.p = p.copy()
         t0 = time.perf_counter()
         result = self.session.solve()

@@ -28,7 +28,15 @@ from .design_gradient import DesignGradient, MarkerTarget, Tension
 
 
 class Stop(Exception):
-    """The optimisation cannot go on (a degraded mesh, a failed solve); the best design so far stands."""
+    """The optimisation cannot go on (a failed solve, the budget spent); the best design so far stands."""
+
+
+class Refused(Stop):
+    """A trial design the design rules or the morph refuse (a bone through the outline, a flattened
+    triangle): L-BFGS-B's line search is sent back with a worse value; MAX_REFUSED in a row stop the run."""
+
+
+MAX_REFUSED = 8
 
 
 @dataclass
@@ -70,8 +78,8 @@ class TaskObjective:
             for target in objective.targets:
                 try:
                     result = dg.solve(p, overrides=[override_text(k, v) for k, v in target.set])
-                except ValueError as exc:
-                    raise Stop(str(exc)) from None
+                except ValueError as exc:          # DesignError, MeshDegrades: the session is as it was
+                    raise Refused(str(exc)) from None
                 self.evaluations += 1
                 if not result.converged:
                     raise Stop(f"the solve failed at evaluation {self.evaluations} ({result.status})")
@@ -111,14 +119,25 @@ def optimize_design(session, task, progress=None) -> DesignOptimum:
 
     per_call = _targets(task)
 
+    refused = {"row": 0, "last": None}
+
     def fun(x):
         if f.evaluations + per_call > task.max_evaluations:
             raise Stop(f"the budget of {task.max_evaluations} solves is spent")
         p = x * width
-        J, g = f(p)
+        try:
+            J, g = f(p)
+        except Refused as exc:
+            refused["row"] += 1
+            if not np.isfinite(best["J"]) or refused["row"] > MAX_REFUSED:
+                raise
+            refused["last"] = str(exc)
+            # worse than anything seen, with the best point's slope: the line search steps back
+            return 2.0 * abs(best["J"]) + 1.0 + history[0][1], best["g"] * width
+        refused["row"] = 0
         history.append((f.evaluations, float(J), float(np.linalg.norm(g * width))))
         if J < best["J"]:
-            best.update(J=float(J), p=p.copy())
+            best.update(J=float(J), p=p.copy(), g=g.copy())
         if progress is not None:
             progress(f.evaluations, J)
         return J, g * width
@@ -131,6 +150,8 @@ def optimize_design(session, task, progress=None) -> DesignOptimum:
         status = str(res.message)
     except Stop as exc:
         status = f"stopped: {exc}"
+    if refused["last"] and not status.startswith("stopped"):
+        status += f" (trial designs refused on the way: {refused['last']})"
     start_objective = history[0][1] if history else float("nan")
     return DesignOptimum([v.key for v in task.variables], start, start + best["p"], start_objective,
                          best["J"], f.evaluations, history, status, dg.handles.raw(best["p"]),
