@@ -17,7 +17,15 @@ solve runs are merged into the next request (latest wins, never queued): the
 time from *every* input event to the first picture that includes it is
 reported too ("every event"). Finally `POST /api/solve` is timed from a
 script for a one-vertex change (a bone vertex moved 0.5 mm, alternately) and
-a contraction change. Prints p50 / p95 and writes latency.json to `out`.
+a contraction change. Prints p50 / p95 and writes latency.json to `out`, with
+the host's load average (os.getloadavg) when the run ended.
+
+While dragging, the page sends drafts; the server stops each draft's Newton
+steps at the frame budget (skelfem.editor.engine.FRAME_SECONDS) and the page
+asks again for the same design until it is converged ("go on" in the server
+times). Every answer's certificate is counted: previews, converged ones, and
+converged ones whose residual is above the batch tolerance (never, if the
+page is right).
 
     python studies/editor_latency.py [DESIGN] [--moves 30] [--drags 4] [--api 20] [--out DIR]
 """
@@ -27,6 +35,7 @@ import argparse
 import copy
 import http.client
 import json
+import os
 import shutil
 import tempfile
 import time
@@ -46,7 +55,7 @@ def _pct(values) -> dict:
 
 
 def _reset(page) -> None:
-    page.js("(() => { S.latency = {rendered: [], events: []}; S.server = []; S.renderMs = [];"
+    page.js("(() => { S.latency = {rendered: [], events: []}; S.server = []; S.renderMs = []; S.certificates = [];"
             " performance.clearMarks(); performance.clearMeasures(); return 1; })()")
 
 
@@ -54,8 +63,16 @@ def _collect(page) -> dict:
     measures = page.js("performance.getEntriesByType('measure').map(m => [m.name, m.duration])")
     events = page.js("S.latency.events.map(e => [e.kind, e.ms])")
     server = page.js("S.server.map(e => [e.how, 1000 * e.s, e.rtt])")
+    certs = page.js("S.certificates")
     out: dict = {"rendered": {}, "every_event": {}, "server_ms": {}, "round_trip_ms": {},
-                 "render_ms": _pct(page.js("S.renderMs"))}
+                 "render_ms": _pct(page.js("S.renderMs")),
+                 "certificates": {"converged": sum(c["state"] == "converged" for c in certs),
+                                  "preview": sum(c["state"] == "preview" for c in certs),
+                                  # the page never says converged above the batch tolerance: this stays 0
+                                  "converged_above_tolerance": sum(c["state"] == "converged" and
+                                                                   not (c["ratio"] is not None and c["ratio"] <= 1)
+                                                                   for c in certs),
+                                  "last": certs[-1]["state"] if certs else None}}
     kinds = sorted({name.split("-")[1] for name, _ in measures} | {k for k, _ in events})
     for kind in kinds:
         out["rendered"][kind] = _pct([ms for name, ms in measures if name.split("-")[1] == kind])
@@ -125,6 +142,7 @@ def run(design="geometry/finger.toml", moves: int = 30, drags: int = 4, api: int
     import tomllib
 
     from skelfem.editor.browser import Page, chrome
+    from skelfem.editor.engine import FRAME_SECONDS
     from skelfem.editor.server import Editor
 
     design = Path(design)
@@ -161,7 +179,8 @@ def run(design="geometry/finger.toml", moves: int = 30, drags: int = 4, api: int
         shutil.rmtree(work, ignore_errors=True)
     res = {"design": str(design.name), "dofs": answer["dofs"], "cells": answer["cells"], "moves": moves,
            "drags": drags, "step_ms": step_ms, "contraction": contraction, "vertex": vertex, "api": api_times,
-           "browser_seconds": browser_seconds}
+           "browser_seconds": browser_seconds, "load_average": list(os.getloadavg()),
+           "frame_budget_ms": 1000 * FRAME_SECONDS}
     if out is not None:
         Path(out).mkdir(parents=True, exist_ok=True)
         (Path(out) / "latency.json").write_text(json.dumps(res, indent=2) + "\n")
@@ -198,6 +217,10 @@ def main(argv=None) -> dict:
     for how, v in {**res["contraction"]["round_trip_ms"], **res["vertex"]["round_trip_ms"]}.items():
         print(_row(f"{how}, round trip", v))
     print(_row("drawing the answer (JavaScript)", res["vertex"]["render_ms"]))
+    for kind in ("contraction", "vertex"):
+        c = res[kind]["certificates"]
+        print(f"  certificates of the {kind} drags: {c['preview']} preview, {c['converged']} converged "
+              f"({c['converged_above_tolerance']} of them above the batch tolerance), the last {c['last']}")
     print("POST /api/solve from a script:")
     print(_row("one bone vertex moved 0.5 mm", res["api"]["one_vertex_ms"]))
     print(_row("contraction changed 0.5 mm", res["api"]["contraction_ms"]))

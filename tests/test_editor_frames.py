@@ -154,3 +154,18 @@ def test_the_solver_thread_runs_openblas_on_one_thread():
     finally:
         w.close()
     assert counts == [1] * len(libs)
+
+
+@pytest.mark.slow
+def test_frames_of_one_design_stop_being_budgeted_past_the_solvers_iteration_limit(design):
+    eng = Engine(copy.deepcopy(design), "finger.toml", frame_budget=1e-6)
+    try:
+        eng.session.solver.max_iterations = 2            # a Newton that needs more steps than its limit
+        d = copy.deepcopy(design)
+        d["cables"][0]["contraction"] = float(d["cables"][0].get("contraction", 0.0)) + 3.0
+        statuses = [eng.solve(d, draft=True)["status"] for _ in range(4)]
+        # two one-step frames reach the limit; the third is solved to the end (whatever it ends with), and
+        # the page, which asks again only after a frame_budget answer, stops asking
+        assert statuses[:2] == ["frame_budget"] * 2 and statuses[2] != "frame_budget"
+    finally:
+        eng.close()

@@ -141,6 +141,7 @@ class Engine:
         self.flat, self.draft, self.answer, self.good = flatten(d.raw), False, None, d
         self.frame_budget = frame_budget
         self.preview = False                  # the state is a draft frame stopped at its budget (not converged)
+        self.preview_steps = 0                # Newton steps of the frames since the last converged state
         self.initial = d                      # recovery's last resort: the design the editor started with
         self.first = self._answer(self.session.solve(), time.perf_counter(), "built")
 
@@ -174,6 +175,7 @@ class Engine:
     def _answer(self, result, t0: float, how: str) -> dict:
         from ..fem.report import BUDGET_SPENT
         self.preview = result.status == BUDGET_SPENT
+        self.preview_steps = self.preview_steps + result.newton_iterations if self.preview else 0
         payload = result.to_dict()
         payload["mesh"] = mesh_payload(self.session.model) if result.converged or self.preview else None
         payload["certificate"] = self.certificate(result.converged)
@@ -228,7 +230,10 @@ class Engine:
                 self.draft = draft
             self.flat = flat
         solver = self.session.solver
-        solver.deadline = start + self.frame_budget if draft and self.frame_budget is not None else None
+        # frames of one design go on until converged, or failed: past the solver's own iteration limit the
+        # next is solved to the end (a Newton that never converges is not asked again for ever)
+        budget = draft and self.frame_budget is not None and self.preview_steps < solver.max_iterations
+        solver.deadline = start + self.frame_budget if budget else None
         try:
             result = self.session.solve()
         finally:

@@ -304,7 +304,9 @@ function showStatus() {
     `${e.how}, ${fmt(1000 * (e.seconds || 0), 0)} ms`, false);
   const rows = [];
   const row = (what, value) => rows.push(html("tr", {}, [html("td", {}, [what]), html("td", {}, [value])]));
-  for (const [n, m] of Object.entries(a.markers || {})) row(`marker ${n}`, `(${m.position.map((v) => fmt(v)).join(", ")}) mm`);
+  // a preview has no read-outs of its own (they are an equilibrium's): its markers come from its mesh
+  const markers = a.markers || Object.fromEntries(Object.entries((a.mesh || {}).markers || {}).map(([n, p]) => [n, { position: p }]));
+  for (const [n, m] of Object.entries(markers)) row(`marker ${n}`, `(${m.position.map((v) => fmt(v)).join(", ")}) mm`);
   for (const [n, c] of Object.entries(a.cables || {})) row(`${c.kind} ${n}`, c.tension > 0 ? fmt(c.tension, 3) + " N" : "slack");
   for (const [n, p] of Object.entries(a.pins || {})) row(`pin ${n}`, `(${p.reaction.map((v) => fmt(v, 3)).join(", ")}) N`);
   for (const [n, g] of Object.entries(a.grounds || {})) row(`ground ${n}`, `(${g.force.map((v) => fmt(v, 3)).join(", ")}) N`);
