@@ -197,11 +197,11 @@ def test_calibration_bounds_beyond_the_modulus_range_are_refused():
         prepare_data(design, data, ["materials.ecoflex.E"], bounds={"materials.ecoflex.E": (1e-300, 1.0)})
 
 
-# == 7. An interrupt during start-up left Open MPI's session folder in TMPDIR ===============================
-# Before: SIGINT while the command imported its modules (after MPI_Init) ended it with os._exit, without
-# MPI_Finalize, and `TMPDIR/ompi.HOST.UID/jf.N` stayed (the pass's "SIGINT while validating 3000 objects").
-@pytest.mark.slow
-def test_an_interrupt_during_start_up_leaves_no_mpi_session_folder(tmp_path):
+# == 7. Interrupts that leave with os._exit left Open MPI's session folder in TMPDIR =======================
+# Before: SIGINT while the command imported its modules (after MPI_Init), or while Gmsh meshed in its
+# thread, ended it with os._exit, without MPI_Finalize, and `TMPDIR/ompi.HOST.UID/jf.N` stayed (the pass's
+# "SIGINT while validating 3000 objects" and "SIGINT while solving the gripper" on a loaded host).
+def _interrupted_leaves_no_session_folder(tmp_path, args: list, delays) -> None:
     import os
     import signal
     import subprocess
@@ -209,10 +209,9 @@ def test_an_interrupt_during_start_up_leaves_no_mpi_session_folder(tmp_path):
     tmp = tmp_path / "tmp"
     tmp.mkdir()
     left = []
-    for delay in (0.4, 0.7):
-        proc = subprocess.Popen([adversarial.SKELFEM, "simulate", str(adversarial.GEOMETRY / "finger.toml"),
-                                 "--out", str(tmp_path / "out"), "-q"], cwd=tmp_path, stderr=subprocess.PIPE,
-                                env={**adversarial.ENV, "TMPDIR": str(tmp)})
+    for delay in delays:
+        proc = subprocess.Popen([adversarial.SKELFEM, *args, "--out", str(tmp_path / "out"), "-q"], cwd=tmp_path,
+                                stderr=subprocess.PIPE, env={**adversarial.ENV, "TMPDIR": str(tmp)})
         time.sleep(delay)
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=60)
@@ -222,3 +221,15 @@ def test_an_interrupt_during_start_up_leaves_no_mpi_session_folder(tmp_path):
         for p in sorted(tmp.rglob("*"), reverse=True):
             p.rmdir() if p.is_dir() else os.unlink(p)
     assert left == []
+
+
+@pytest.mark.slow
+def test_an_interrupt_during_start_up_leaves_no_mpi_session_folder(tmp_path):
+    _interrupted_leaves_no_session_folder(tmp_path, ["simulate", str(adversarial.GEOMETRY / "finger.toml")],
+                                          (0.4, 0.7))
+
+
+@pytest.mark.slow
+def test_an_interrupt_inside_gmsh_leaves_no_mpi_session_folder(tmp_path):
+    _interrupted_leaves_no_session_folder(tmp_path, ["simulate", str(adversarial.GEOMETRY / "finger3d.toml"),
+                                                     "--set", "mesh.size=0.6", "--force"], (8.0,))

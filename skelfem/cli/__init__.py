@@ -35,23 +35,9 @@ def _start_up() -> None:
         sys.stdout.flush()
         sys.stderr.write("error: interrupted\n")
         sys.stderr.flush()
-        _finalise_alone()
+        from ..runtime.mpiguard import finalise_alone
+        finalise_alone()
         _os._exit(exc.code)
-
-
-def _finalise_alone() -> None:
-    """Finalise MPI before leaving with os._exit when this process is alone (no other rank waits for it,
-    and no thread runs yet during start-up): Open MPI removes its session folder from TMPDIR then (an
-    interrupt during the imports left it behind)."""
-    import sys
-    from ..runtime.mpiguard import world_size_hint
-    mpi = sys.modules.get("mpi4py.MPI")         # imported (and MPI initialised) by then, or not at all
-    if mpi is not None and world_size_hint() == 1 and mpi.Is_initialized() and not mpi.Is_finalized():
-        try:
-            with _interrupts.held():
-                mpi.Finalize()
-        except Exception:  # noqa: BLE001 - leaving anyway
-            pass
 
 
 _start_up()

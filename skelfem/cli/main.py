@@ -199,6 +199,7 @@ def main(argv=None) -> int:
             if interrupts.abandoned():        # a Gmsh call still runs in its thread: leave without finalisers
                 sys.stdout.flush()
                 sys.stderr.flush()
+                mpiguard.finalise_alone()     # but MPI's (Gmsh uses none): no session folder left in TMPDIR
                 os._exit(status)
         else:
             interrupts.uninstall()            # called in process (tests): Python's defaults again

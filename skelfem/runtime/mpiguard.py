@@ -38,6 +38,21 @@ def world_size_hint() -> int:
     return 1
 
 
+def finalise_alone() -> None:
+    """Finalise MPI before a process alone (no mpirun: no other rank waits for it) leaves with os._exit,
+    so Open MPI removes its session folder from TMPDIR (an interrupt during start-up or inside a Gmsh
+    call left ``ompi.HOST.UID/jf.N`` behind). Nothing under mpirun, or when MPI never started."""
+    from . import interrupts
+    mpi = sys.modules.get("mpi4py.MPI")         # imported (and MPI initialised) by then, or not at all
+    if mpi is None or world_size_hint() != 1 or not mpi.Is_initialized() or mpi.Is_finalized():
+        return
+    try:
+        with interrupts.held():
+            mpi.Finalize()
+    except Exception:  # noqa: BLE001 - leaving anyway
+        pass
+
+
 def rank_hint() -> int:
     for var in ("OMPI_COMM_WORLD_RANK", "PMI_RANK", "PMIX_RANK"):
         v = os.environ.get(var)
