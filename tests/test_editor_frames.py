@@ -169,3 +169,13 @@ def test_frames_of_one_design_stop_being_budgeted_past_the_solvers_iteration_lim
         assert statuses[:2] == ["frame_budget"] * 2 and statuses[2] != "frame_budget"
     finally:
         eng.close()
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_the_cell_maps_are_inverted_without_lapack_as_lapack_does(dim):
+    from skelfem.io.xdmf import small_inverses
+    rng = np.random.default_rng(dim)
+    A = rng.normal(size=(500, dim, dim)) + 3 * np.eye(dim)
+    assert np.allclose(small_inverses(A), np.linalg.inv(A), rtol=1e-12, atol=1e-12)
+    flat = np.zeros((1, dim, dim))                           # a degenerate cell: no error, no finite inverse
+    assert not np.isfinite(small_inverses(flat)).all()

@@ -301,7 +301,7 @@ class Engine:
         """
         from ..session import Session
         old, self.session = self.session, None
-        self.draft, self.answer, self.flat, self.preview = False, None, None, False
+        self.draft, self.answer, self.flat, self.preview, self.preview_steps = False, None, None, False, 0
         if old is not None:
             try:
                 old.close()

@@ -235,7 +235,27 @@ def cell_gradients(x: np.ndarray, y: np.ndarray, cells: np.ndarray) -> np.ndarra
     onto the deformed one y, (n, dim, dim) (exact for P1)."""
     A = np.stack([x[cells[:, k]] - x[cells[:, 0]] for k in range(1, cells.shape[1])], axis=2)
     B = np.stack([y[cells[:, k]] - y[cells[:, 0]] for k in range(1, cells.shape[1])], axis=2)
-    return B @ np.linalg.inv(A)
+    return B @ small_inverses(A)
+
+
+def small_inverses(A: np.ndarray) -> np.ndarray:
+    """The inverse of every 2x2 or 3x3 matrix in (n, d, d), written out (adjugate over determinant).
+
+    np.linalg.inv calls LAPACK once per matrix: 12-58 ms for finger.toml's 1,356 cells on a loaded
+    two-core host, against well under a millisecond here. A singular matrix gives inf or nan, not an error.
+    """
+    d = A.shape[-1]
+    if d == 2:
+        a, b, c, e = A[:, 0, 0], A[:, 0, 1], A[:, 1, 0], A[:, 1, 1]
+        adj = np.stack([np.stack([e, -b], axis=-1), np.stack([-c, a], axis=-1)], axis=1)
+    elif d == 3:
+        r0, r1, r2 = A[:, 0], A[:, 1], A[:, 2]
+        adj = np.stack([np.cross(r1, r2), np.cross(r2, r0), np.cross(r0, r1)], axis=2)  # columns: row crosses
+    else:
+        return np.linalg.inv(A)
+    det = np.einsum("nij,nji->n", A, adj) / d                 # tr(A adj A) = d det A
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return adj / det[:, None, None]
 
 
 def largest_stretch(F: np.ndarray) -> np.ndarray:
