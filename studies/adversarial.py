@@ -706,6 +706,17 @@ def _sane(out: Path, args: list) -> str:
     return ""
 
 
+def _settled(new, grace: float = 3.0) -> list:
+    """new() once it stays empty, or after grace seconds: Open MPI's daemon removes its session folder
+    from TMPDIR a moment after the process it served has gone."""
+    t_end = time.monotonic() + grace
+    found = new()
+    while found and time.monotonic() < t_end:
+        time.sleep(0.25)
+        found = new()
+    return found
+
+
 def run_command(probe: Probe, sandbox: Path) -> dict:
     """Run one command-line probe in sandbox; its record."""
     inp, work, tmp, out = sandbox / "in", sandbox / "a" / "b" / "c", sandbox / "tmp", sandbox / "out"
@@ -764,8 +775,7 @@ def run_command(probe: Probe, sandbox: Path) -> dict:
     if "Traceback" in stdout + stderr:
         findings.append(("traceback", "a traceback was printed"))
     errors = [line for line in stderr.splitlines() if line.startswith("error:")]
-    after = listing(sandbox)
-    outside = sorted(p for p in after - before if p != "out" and not p.startswith("out/"))
+    outside = _settled(lambda: sorted(p for p in listing(sandbox) - before if p != "out" and not p.startswith("out/")))
     if outside and not killed:                   # SIGKILL leaves its lock and MPI's session folder
         findings.append(("write_outside", f"written outside the output folder: {outside[:5]}"))
     if not hung:
@@ -928,7 +938,7 @@ def run_request(probe: Probe, ed: LiveEditor) -> dict:
                 "hang" if took is None else f"exit {rc}")
             if took is None:
                 findings.append(("signal", f"the editor still ran {SIGNAL_DEADLINE:g} s after SIGINT"))
-            left = ed.outside(running=False)
+            left = _settled(lambda: ed.outside(running=False))
             if left and took is not None:
                 findings.append(("write_outside", f"left outside the design's folder: {left[:5]}"))
             if "Traceback" in ed.log():
@@ -1054,7 +1064,7 @@ def merge(parts: list) -> dict:
     """One result from the results of runs over disjoint groups (run side by side: --only, then --merge)."""
     records = [r for part in parts for r in part["results"]]
     skipped = next((p["stages_skipped"] for p in parts if p.get("stages_skipped")), "")
-    return {"probes": len(records), "seconds": round(max(p["seconds"] for p in parts), 1),
+    return {"probes": len(records), "seconds": round(sum(p["seconds"] for p in parts), 1),
             "stages_skipped": skipped, **summarise(records), "results": records}
 
 

@@ -489,9 +489,9 @@ def adversarial(_: dict) -> Table:
     found = ", ".join(f"{k} {v}" for k, v in sorted(d["findings_by_class"].items())) or "none"
     slowest = d.get("slowest_signal_s")
     caption = (f"Findings by class: {found}. The slowest end after a SIGINT: "
-               f"{'–' if slowest is None else secs(slowest)}; the whole pass took {secs(d['seconds'])}."
+               f"{'–' if slowest is None else secs(slowest)}; its probes ran for {secs(d['seconds'])} in all."
                + (f" Stages were skipped: {d['stages_skipped']}" if d.get("stages_skipped") else ""))
-    return Table(["group", "probes", "clean", "exit 0 / 200", "exit 1 / 4xx (bad input)", "exit 2 / 503 (failed)",
+    return Table(["group", "probes", "clean", "exit 0 / 200", "exit 1 / 4xx (bad input)", "exit 2 / 503 / not converged (failed)",
                   "interrupted", "other (exit 3, 500, hang, slow)"], rows, caption, [path])
 
 
