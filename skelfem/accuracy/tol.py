@@ -6,6 +6,8 @@ import logging
 import time
 from dataclasses import replace
 
+from ..design import resources
+from ..design.spec import DesignError
 from .targets import Targets
 from .ladder import (DEGREE, Level, MARGIN, MAX_LEVELS, RATIO, at_size, choose_bones, judged, ladder_zones, may_stop,
                      next_level, next_size, rigid_variant, solve_level, solve_twin, trusted)
@@ -34,14 +36,10 @@ def refine(session, tol, adaptive: bool = False) -> tuple[object, dict]:
 
 def _ladder(session, targets: Targets) -> tuple[object, dict]:
     """refine's uniform ladder, for the rows of ``targets`` against its tol."""
-    from ..design import resources
-    from ..design.spec import DesignError
-
     tol, unit = targets.tol, targets.unit
     rows = None if targets.bare else targets
     design = session.design
-    dim = design.dim
-    h0 = float(design.mesh.size)
+    dim, h0 = design.dim, float(design.mesh.size)
     zones = ladder_zones(session.model, design, h0)
     if zones is not None:
         session.edit(design, size=zones)
@@ -52,9 +50,8 @@ def _ladder(session, targets: Targets) -> tuple[object, dict]:
     stale = False                      # the session does not hold the first level's elastic solve
     t0 = time.perf_counter()
     stop = "estimate met the tolerance"
-    result = None
+    result = warning = None
     met_before = None                  # the last level whose estimate met tol (a finer level that fails returns it)
-    warning = None
 
     def fall_back(failed, stop: str):
         """(result, answer, stop, warning) after a failed solve: the last level whose estimate met tol,
@@ -87,10 +84,7 @@ def _ladder(session, targets: Targets) -> tuple[object, dict]:
         levels.append(level)
         untrusted = len(levels) >= 3 and not trusted(levels)
         level = levels[-1] = judged(levels)          # a first drop: r = 1; after a stall: refine on
-        log.info("--tol: h = %g mm, %d DOFs: change %s, estimate %s%s", level.size, level.dofs,
-                 "-" if level.change is None else f"{level.change:.3g} {unit}",
-                 "-" if level.estimate is None else f"{level.estimate:.3g} {unit} (r = {level.rate:.2f})",
-                 f" (the observed rate {level.observed:.2f} is not trusted)" if untrusted else "")
+        _log_level(level, unit, untrusted)
         answer = level
         history.append(level)
         if level.estimate is not None and MARGIN * (level.estimate + b) <= tol:
@@ -136,14 +130,26 @@ def _ladder(session, targets: Targets) -> tuple[object, dict]:
         result = session.solve()
     if not levels:
         return result, {"tol": targets.spec(), "met": False, "stop": stop, "levels": []}
-    last = answer
-    estimate = None if last.estimate is None else last.estimate + b
-    met = bool(result.converged and ((last.twin and may_stop(levels)) or warning is not None)
-               and estimate is not None and MARGIN * estimate <= tol)
-    accuracy = {"tol": targets.spec(), "unit": targets.unit, "targets": targets.per_target(estimate),
-                "degree": DEGREE, "size": last.size, "dofs": last.dofs,
-                "estimated_error": estimate, "rate": last.rate, "scatter": last.scatter, "met": met,
-                "bones": bones,
-                "stop": stop, "warning": warning, "levels": [lv.to_dict() for lv in history],
-                "time": round(time.perf_counter() - t0, 4)}
-    return result, accuracy
+    return result, _report(targets, result, levels, history, answer, b, bones, stop, warning,
+                           time.perf_counter() - t0)
+
+
+def _log_level(level: Level, unit: str, untrusted: bool) -> None:
+    log.info("--tol: h = %g mm, %d DOFs: change %s, estimate %s%s", level.size, level.dofs,
+             "-" if level.change is None else f"{level.change:.3g} {unit}",
+             "-" if level.estimate is None else f"{level.estimate:.3g} {unit} (r = {level.rate:.2f})",
+             f" (the observed rate {level.observed:.2f} is not trusted)" if untrusted else "")
+
+
+def _report(targets: Targets, result, levels: list[Level], history: list[Level], answer: Level, b: float,
+            bones, stop: str, warning: str | None, seconds: float) -> dict:
+    """result.json's ``accuracy`` of a ladder that ended on ``answer`` (b: the rigid bones' difference,
+    added to its estimate; met only by a twin that may stop, or a fall-back to a level that met tol)."""
+    estimate = None if answer.estimate is None else answer.estimate + b
+    met = bool(result.converged and ((answer.twin and may_stop(levels)) or warning is not None)
+               and estimate is not None and MARGIN * estimate <= targets.tol)
+    return {"tol": targets.spec(), "unit": targets.unit, "targets": targets.per_target(estimate),
+            "degree": DEGREE, "size": answer.size, "dofs": answer.dofs,
+            "estimated_error": estimate, "rate": answer.rate, "scatter": answer.scatter, "met": met,
+            "bones": bones, "stop": stop, "warning": warning, "levels": [lv.to_dict() for lv in history],
+            "time": round(seconds, 4)}
