@@ -233,3 +233,36 @@ def test_an_interrupt_during_start_up_leaves_no_mpi_session_folder(tmp_path):
 def test_an_interrupt_inside_gmsh_leaves_no_mpi_session_folder(tmp_path):
     _interrupted_leaves_no_session_folder(tmp_path, ["simulate", str(adversarial.GEOMETRY / "finger3d.toml"),
                                                      "--set", "mesh.size=0.6", "--force"], (8.0,))
+
+
+# == the kept run and its tables ============================================================================
+def _kept():
+    import json
+    return json.loads(adversarial.OUT.read_text())
+
+
+def test_the_kept_pass_meets_the_floor():
+    """At least 150 probes over every group; no exit 3, no 500, no traceback, no write outside the output
+    folder, no editor that stopped answering (the hang and the slow input it found are in the guide)."""
+    kept = _kept()
+    assert kept["probes"] >= 150 and set(kept["groups"]) == set(adversarial.GROUPS)
+    assert not set(kept["findings_by_class"]) & {"exit3", "exit", "http500", "traceback", "write_outside", "dead",
+                                                 "dropped", "error_lines", "wrong_class", "wrong_reason"}
+    assert kept["clean"] == sum(not r["findings"] for r in kept["results"])
+
+
+def test_the_guide_tables_come_from_the_kept_run():
+    import importlib.util
+    import sys
+    path = adversarial.ROOT / "docs" / "_ext" / "studytables.py"
+    spec = importlib.util.spec_from_file_location("studytables", path)
+    tables = importlib.util.module_from_spec(spec)
+    sys.modules.setdefault("studytables", tables)
+    spec.loader.exec_module(tables)
+    kept = _kept()
+    summary = tables.TABLES["adversarial"]({})
+    assert summary.rows[-1][:3] == ["**all**", f"**{kept['probes']}**", f"**{kept['clean']}**"]
+    assert sum(int(r[1]) for r in summary.rows[:-1]) == kept["probes"]
+    assert all(sum(int(c) for c in r[3:]) == int(r[1]) for r in summary.rows[:-1])
+    found = tables.TABLES["adversarial_findings"]({})
+    assert len(found.rows) == kept["probes"] - kept["clean"]
