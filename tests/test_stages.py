@@ -166,3 +166,17 @@ def test_run_stages_starts_from_rest_whatever_the_session_solved_before():
     pull, more = r.stages
     assert pull["newton_iterations"] > 0 and pull["load_steps"] == 1 and more["load_steps"] == 3
     assert r.converged and r.cables["flexor"]["contraction"] == 2.0
+
+
+@pytest.mark.slow
+def test_a_command_that_does_not_run_stages_says_so_once(tmp_path):
+    """skelfem ik on a staged design works on the design as written and says so in one warning line."""
+    from _designs import strip
+    d = strip(contraction=0.0)
+    d["stages"] = [{"name": "pull", "set": {"cables.flexor.contraction": 1.0}}]
+    path = tmp_path / "staged.toml"
+    path.write_text(toml_text(d))
+    run = subprocess.run([SKELFEM, "ik", str(path), "--marker", "tip", "--target", "3", "59", "--out",
+                          str(tmp_path / "ik"), "-q"], capture_output=True, text=True, env=MPI_ENV, timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert run.stderr.count("skelfem ik works on the design as written, before its [[stages]]") == 1

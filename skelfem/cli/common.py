@@ -99,7 +99,15 @@ def load(args):
         resources.check(design, force=getattr(args, "force", False))
     except DesignError as exc:
         raise InputError(str(exc)) from None
+    command = getattr(args, "command", None)
+    if design.stages and command not in RUNS_STAGES and not getattr(args, "stages_noted", False):
+        log.warning("%s: skelfem %s works on the design as written, before its [[stages]] (skelfem simulate "
+                    "runs them)", design.name, command)
+        args.stages_noted = True                # once, however often the command loads its design
     return design
+
+
+RUNS_STAGES = ("simulate", "sweep", "fabricate")   # the commands a design's [[stages]] concern (fabricate: none)
 
 
 def reserve_output(args, design, kind: str = "simulate") -> Path:
