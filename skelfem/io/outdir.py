@@ -315,8 +315,11 @@ def open_folder(out, comm=None) -> bool:
     error = None
     if comm.rank == 0:
         try:
+            made = not target.exists()
             target.mkdir(exist_ok=True)
-            _HELD[target].created = []        # keep the folder and its parents from now on
+            # its parents are kept from now on; the folder itself goes with the lock while it is empty (a
+            # run interrupted before its first result left an empty folder behind)
+            _HELD[target].created = [target] if made else []
             for e in os.listdir(target):
                 if re.match(r"^\..+\.(tmp|old)-\d+-[0-9a-f]+$", e) or STALE_FILE.match(e):
                     _remove(target / e)
