@@ -147,3 +147,21 @@ def test_two_hash_seeds_make_the_same_state_bit_for_bit(design, tmp_path):
         runs.append(p.stdout.strip().splitlines()[-1])
     assert '"how": "same mesh"' in runs[0] and '"status": "converged"' in runs[0], runs[0]
     assert runs[0] == runs[1]
+
+
+# == a friction solve that does not settle says why ======================================================
+# Before: a tendon zigzagging through 90-degree turns with mu = 0.3 (finger_friction's flexor, h = 2 mm)
+# exited 2 with "friction_not_converged ... try more [solver].steps or a finer mesh", after cutting the
+# load to 1/256 (3481 Newton iterations): advice that does not help. The rounds are forced to fail here.
+@pytest.mark.slow
+def test_friction_that_does_not_settle_says_why(tmp_path, capsys, monkeypatch):
+    from skelfem.cli.main import main
+    from skelfem.fem import newton
+    monkeypatch.setattr(newton, "MAX_LAG_UPDATES", 1)
+    out = tmp_path / "out"
+    code = main(["simulate", str(GEOMETRY / "finger_friction.toml"), "--set", "mesh.size=4", "--set",
+                 "solver.steps=1", "--out", str(out), "-q", "--no-picture"])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+    assert code == 2 and len(err) == 1, err
+    assert "friction_not_converged" in err[0] and "the friction limits did not settle" in err[0], err
+    assert "try more [solver].steps" not in err[0]

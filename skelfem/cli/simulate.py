@@ -56,7 +56,7 @@ def simulate(args) -> int:
             result = write_results(session, solved, args.out, t0, picture=not args.no_picture, extra=extra)
     if not solved.converged:
         error(f"{design.name}: solve failed ({solved.status}) after {solved.load_steps} load step(s); "
-              f"try more [solver].steps or a finer mesh; details in {args.out / 'result.json'}")
+              f"{ADVICE.get(solved.status, ADVICE[None])}; details in {args.out / 'result.json'}")
         return EXIT_SOLVE
     if not args.quiet and MPI.COMM_WORLD.rank == 0:
         _summary(result, args.out)
@@ -89,6 +89,15 @@ def parse_tol(values: list[str] | None, design):
         seen.add(name)
         items.append((name, tol))
     return Targets(tuple(items), design.dim)
+
+
+ADVICE = {   # what to try after a failed solve, by its status
+    None: "try more [solver].steps or a finer mesh",
+    "friction_not_converged": "the friction limits did not settle (the stick/slip pattern of a tendon's via "
+                              "points or of a contact kept changing, at every load step tried: more steps "
+                              "rarely help); a smaller friction coefficient or gentler bends of the tendon's "
+                              "path settle",
+}
 
 
 def prepare_tol(args, design):
