@@ -47,16 +47,17 @@ def _dropped(gap: float) -> dict:
 
 @pytest.mark.slow
 def test_a_box_pushed_over_is_reported_as_a_jump():
-    """Pushed 12 mm, the box tips past its balance in the second load step and the solve converges with it
-    fallen onto its side: one jump of the box at load factor 0.5, turning by more than a radian."""
+    """Pushed 12 mm, the box tips past its balance (0.29 rad) in the second load step and the solve converges
+    with it fallen, against the wall or onto its side (which one is the static answer's choice, and is what the
+    event warns of): one jump of the box at load factor 0.5, turning by more than half a radian."""
     with Session(_pushing(12.0)) as s:
         r = s.solve()
     assert r.converged, r.status
     d = r.to_dict()
     (event,) = d["events"]
     assert event["kind"] == "jump" and event["piece"] == "box" and event["load_factor"] == 0.5
-    assert event["step"] == 2 and abs(event["rotation"]) > 1.0
-    assert abs(d["objects"]["box"]["rotation"]) > 1.0
+    assert event["step"] == 2 and abs(event["rotation"]) > 0.5
+    assert abs(d["objects"]["box"]["rotation"]) > 0.5
     assert any("a jump within a load step: box" in w and "[dynamics]" in w for w in d["warnings"])
 
 
