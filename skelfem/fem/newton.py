@@ -260,6 +260,7 @@ class NewtonSolver(LineSearch):
         self.model.sync(self.x)
         reason = self.snes.getConvergedReason()
         its = self.snes.getIterationNumber()
+        self._stop_at = None            # a deadline covers this one SNES solve, never the re-solves below
         if self._budget_spent:          # the deadline came: the state is the last accepted Newton iterate
             return False, BUDGET_SPENT, its
         if self._event:                 # stopped where contacts formed (anchored there): go on with them
