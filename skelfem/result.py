@@ -211,8 +211,9 @@ class Result:
         return values[name]
 
     def error(self, name: str) -> float | None:
-        """The estimated error |exact - computed| of one observable, in its unit (``Session.solve(estimate=True)``
-        or ``--estimate``); None where it could not be estimated; ValueError without an estimate."""
+        """The estimated error of one observable (the exact value's distance from the computed one), in its
+        unit (``Session.solve(estimate=True)`` or ``--estimate``); None where it could not be estimated;
+        ValueError without an estimate."""
         errors = self._data.get("errors")
         if errors is None:
             raise ValueError(f"{self.design}: no error estimate (solve with estimate=True, or --estimate)")
