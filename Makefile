@@ -1,6 +1,7 @@
 # skelfem: two commands do everything on a fresh Debian 12 / Ubuntu machine.
 #   make demo   install what is missing, simulate geometry/finger.toml into results/finger
 #   make test   install what is missing, run the test suite
+#   make lint   ruff and mypy (the rules: pyproject.toml; CI runs it first)
 # and one more builds the documentation:
 #   make docs   install what is missing, build docs/ into docs/_build/html (runs the examples)
 SHELL := /bin/bash
@@ -33,7 +34,7 @@ export OPENBLAS_NUM_THREADS := 1
 export OMP_NUM_THREADS := 1
 export MPLBACKEND := Agg
 
-.PHONY: demo test test-fast docs setup system clean
+.PHONY: demo test test-fast lint docs setup system clean
 
 demo: setup
 	$(VENV)/bin/skelfem simulate geometry/finger.toml --out results/finger
@@ -48,6 +49,12 @@ test: setup
 
 test-fast: setup
 	$(PY) -m pytest -q -n 2 -m "not slow and not mpi" --durations=10
+
+# Lint and types, pinned in pyproject.toml's lint extra: ruff over the repository, mypy over the public
+# API and the core layers (both configured in pyproject.toml).
+lint: setup
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/mypy
 
 # The documentation: MyST pages, the gallery of examples (each one runs), the API
 # from the docstrings and tables read from studies/output/; warnings are errors.
@@ -72,7 +79,7 @@ $(STAMP): pyproject.toml | system
 	@$(SYSPY) -c "import numpy, scipy, matplotlib; \
 		print(f'numpy=={numpy.__version__}\nscipy=={scipy.__version__}\nmatplotlib=={matplotlib.__version__}')" \
 		> $(VENV)/constraints.txt
-	$(PY) -m pip install -q --no-build-isolation -c $(VENV)/constraints.txt -e ".[test,study]"
+	$(PY) -m pip install -q --no-build-isolation -c $(VENV)/constraints.txt -e ".[test,study,lint]"
 	@$(PY) -c "import dolfinx, skelfem; print('skelfem ready: dolfinx', dolfinx.__version__)"
 	@touch $@
 

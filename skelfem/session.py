@@ -22,6 +22,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from typing import Any
 
 import numpy as np
 
@@ -133,7 +134,8 @@ class Session:
             self._release(self.model)
         self.model, self.solver, self.solved = model, solver, False
         if fresh:
-            self._meshed, self._morph = self.design, None     # the design the mesh was made for
+            self._meshed = self.design                        # the design the mesh was made for
+            self._morph: Any = None                           # Morph of that mesh, made on the first move
         self.timings = {"mesh": t1 - t0, "compile": time.perf_counter() - t1}
 
     @staticmethod
@@ -439,7 +441,9 @@ class Session:
             raise DesignError(f"{self.design.source}: stages: the design has no [[stages]]")
         self.solved = False                 # the first stage from rest, as skelfem simulate runs it
         t0 = time.perf_counter()
-        entries, events, result = [], [], None
+        entries: list = []
+        events: list = []
+        result: Any = None
         iterations = load_steps = 0
         for stage in stages:
             self.set(stage.changes, design=stage.design)

@@ -491,8 +491,9 @@ def adversarial(_: dict) -> Table:
     caption = (f"Findings by class: {found}. The slowest end after a SIGINT: "
                f"{'–' if slowest is None else secs(slowest)}; its probes ran for {secs(d['seconds'])} in all."
                + (f" Stages were skipped: {d['stages_skipped']}" if d.get("stages_skipped") else ""))
-    return Table(["group", "probes", "clean", "exit 0 / 200", "exit 1 / 4xx (bad input)", "exit 2 / 503 / not converged (failed)",
-                  "interrupted", "other (exit 3, 500, hang, slow)"], rows, caption, [path])
+    return Table(["group", "probes", "clean", "exit 0 / 200", "exit 1 / 4xx (bad input)",
+                  "exit 2 / 503 / not converged (failed)", "interrupted", "other (exit 3, 500, hang, slow)"],
+                 rows, caption, [path])
 
 
 def adversarial_findings(_: dict) -> Table:

@@ -160,7 +160,7 @@ def marker_adjoint(model, solver, direction: np.ndarray, index: int) -> np.ndarr
         d = model.dim
         rhs = np.asarray(markers.S[index * d:(index + 1) * d].T @ direction).ravel()
         v = global_vector(model, markers, rhs)
-        free = lin._dirichlet_free(v)
+        free = lin.dirichlet_free(v)
         z = lin.solve(free)
         out = local_values(z)
         for vec in (v, free, z):

@@ -62,6 +62,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from petsc4py import PETSc
@@ -102,6 +103,45 @@ def _bracket(step_times: np.ndarray, t: float) -> tuple[int, int, float]:
     return i, j, float(np.clip(w, 0.0, 1.0))
 
 
+def _gradient_through_anchors(session, targets: list[TimedTarget], rep, forward_time: float) -> GradientResult:
+    """J and its gradient from the forward sensitivities (one tangent sweep of every knot together),
+    where friction's anchors carry the history the reverse sweep cannot."""
+    t1 = time.perf_counter()
+    design, model = session.design, session.model
+    r, J, _ = schedule_sensitivities(session, targets, report=rep)
+    grad, j = {}, 0
+    for t in model.actuators():              # the columns: each scheduled tendon's knots, in design order
+        knots = design.cable(t.name).schedule
+        if knots is not None:
+            grad[t.name] = 2.0 * J[:, j:j + len(knots)].T @ r
+            j += len(knots)
+    d = model.dim
+    positions = [r[i * d:(i + 1) * d] + np.asarray(tt.target, float) for i, tt in enumerate(targets)]
+    return GradientResult(float(r @ r), grad, positions, rep, False, forward_time, time.perf_counter() - t1)
+
+
+def _target_sources(model, targets: list[TimedTarget], rep) -> tuple[float, list, list]:
+    """J's target part, the marker positions at the targets' times, and dJ/dx_n for every stored state
+    (local arrays; the marker interpolation acts on gathered global DOFs)."""
+    markers = model.term("markers")
+    names, d, states = list(markers.names), model.dim, rep.states
+    step_times = np.array([0.0] + [s[0] for s in rep.steps])
+    xbar = [np.zeros(model.n_local) for _ in range(len(rep.steps) + 1)]
+    value, positions = 0.0, []
+    for tt in targets:
+        i, j, w = _bracket(step_times, tt.time)
+        k = names.index(tt.marker)
+        S = markers.S[k * d:(k + 1) * d]
+        y = (1 - w) * markers.positions(states[i])[k] + w * markers.positions(states[j])[k]
+        r = y - np.asarray(tt.target, float)
+        value += float(r @ r)
+        positions.append(y)
+        g = _on_local(model, markers, 2.0 * (S.T @ r))
+        xbar[i] += (1 - w) * g
+        xbar[j] += w * g
+    return value, positions, xbar
+
+
 def schedule_gradient(session, targets: list[TimedTarget]) -> GradientResult:
     """J and dJ/d(schedule knots) of every tendon with a schedule, by one forward run and one reverse sweep."""
     from ..fem.dynamics import Dynamics
@@ -119,41 +159,12 @@ def schedule_gradient(session, targets: list[TimedTarget]) -> GradientResult:
         raise RuntimeError(f"{design.name}: the forward run failed ({rep.status}) at t = {rep.t_end:g} s")
     t1 = time.perf_counter()
     if model.path_dependent and follows_anchors(model):       # friction: tangents through the anchors
-        r, J, _ = schedule_sensitivities(session, targets, report=rep)
-        grad, j = {}, 0
-        for t in model.actuators():              # the columns: each scheduled tendon's knots, in design order
-            knots = design.cable(t.name).schedule
-            if knots is not None:
-                grad[t.name] = 2.0 * J[:, j:j + len(knots)].T @ r
-                j += len(knots)
-        d = model.dim
-        positions = [r[i * d:(i + 1) * d] + np.asarray(tt.target, float) for i, tt in enumerate(targets)]
-        return GradientResult(float(r @ r), grad, positions, rep, False, t1 - t0, time.perf_counter() - t1)
+        return _gradient_through_anchors(session, targets, rep, t1 - t0)
     inertia = model.term("dynamics")
-    markers = model.term("markers")
-    names = list(markers.names)
-    d = model.dim
     states = rep.states
-    step_times = np.array([0.0] + [s[0] for s in rep.steps])
     N = len(rep.steps)
-    n_local = model.n_local
-
-    # J and dJ/dx_n (local arrays; the marker interpolation acts on gathered global DOFs)
-    xbar = [np.zeros(n_local) for _ in range(N + 1)]
-    vbar = [np.zeros(n_local) for _ in range(N + 1)]
-    value, positions = 0.0, []
-    for tt in targets:
-        i, j, w = _bracket(step_times, tt.time)
-        k = names.index(tt.marker)
-        S = markers.S[k * d:(k + 1) * d]
-        y = (1 - w) * markers.positions(states[i])[k] + w * markers.positions(states[j])[k]
-        r = y - np.asarray(tt.target, float)
-        value += float(r @ r)
-        positions.append(y)
-        g = _on_local(model, markers, 2.0 * (S.T @ r))
-        xbar[i] += (1 - w) * g
-        xbar[j] += w * g
-
+    value, positions, xbar = _target_sources(model, targets, rep)
+    vbar = [np.zeros(model.n_local) for _ in range(N + 1)]
     tendons = model.actuators()
     scheduled = {t.name: design.cable(t.name).schedule for t in tendons if design.cable(t.name).schedule is not None}
     grad = {name: np.zeros(len(s)) for name, s in scheduled.items()}
@@ -340,22 +351,14 @@ def schedule_sensitivities(session, targets: list[TimedTarget], report=None) -> 
     rep = report if report is not None else dyn.run(store=True)
     if not rep.converged:
         raise RuntimeError(f"{design.name}: the forward run failed ({rep.status}) at t = {rep.t_end:g} s")
-    inertia, markers = model.term("dynamics"), model.term("markers")
-    names, d = list(markers.names), model.dim
+    inertia = model.term("dynamics")
     tendons = model.actuators()
     scheduled = [(t.name, design.cable(t.name).schedule) for t in tendons if design.cable(t.name).schedule is not None]
     columns = [(n, k) for n, sched in scheduled for k in range(len(sched))]
     P = len(columns)
     n_owned = len(model.u.vector.array_r)
     N = len(rep.steps)
-    step_times = np.array([0.0] + [s[0] for s in rep.steps])
-    need = {}                                           # step index -> targets using that state
-    for i, tt in enumerate(targets):
-        a, b, w = _bracket(step_times, tt.time)
-        need.setdefault(a, []).append((i, 1 - w))
-        need.setdefault(b, []).append((i, w))
-    r = np.zeros(len(targets) * d)
-    J = np.zeros((len(targets) * d, P))
+    residuals = _TargetResiduals(model, targets, rep, P)
     xs = [np.zeros((n_owned, P)), np.zeros((n_owned, P))]        # x'_n, x'_{n-1}
     vs = [np.zeros((n_owned, P)), np.zeros((n_owned, P))]
     M = inertia.mass_matrix()
@@ -364,20 +367,9 @@ def schedule_sensitivities(session, targets: list[TimedTarget], report=None) -> 
     a_mass = spec.damping_mass
     through = model.path_dependent and follows_anchors(model)       # friction: its anchors followed exactly
     saved = model.history() if through else None
-    anchors = AnchorTangents(model, P) if through else None
-
-    def record(n, xdot):
-        for i, w in need.get(n, []):
-            k = names.index(targets[i].marker)
-            S = markers.S[k * d:(k + 1) * d]
-            y = markers.positions(rep.states[n])[k]
-            r[i * d:(i + 1) * d] += w * (y - np.asarray(targets[i].target, float))
-            if P:
-                cols = np.column_stack([markers.gather(_full(model, xdot[:, p])) for p in range(P)])
-                J[i * d:(i + 1) * d] += w * (S @ cols)
-
+    anchors: Any = AnchorTangents(model, P) if through else None
     try:
-        record(0, xs[0])
+        residuals.record(0, xs[0])
         for n in range(N):
             t_next, h, (a0, a1, a2) = rep.steps[n]
             model.u.x.array[:] = rep.states[n + 1]
@@ -413,7 +405,7 @@ def schedule_sensitivities(session, targets: list[TimedTarget], report=None) -> 
                 xs, vs = [xdot, xs[0]], [vdot, vs[0]]
             finally:
                 lin.destroy()
-            record(n + 1, xs[0])
+            residuals.record(n + 1, xs[0])
     finally:
         inertia.stop()
         dyn.set_time(rep.t_end)
@@ -423,7 +415,37 @@ def schedule_sensitivities(session, targets: list[TimedTarget], report=None) -> 
             model.set_history(saved)
         vec.destroy()
         out.destroy()
-    return r, J, [f"cables.{n}.schedule[{k}]" for n, k in columns]
+    return residuals.r, residuals.J, [f"cables.{n}.schedule[{k}]" for n, k in columns]
+
+
+class _TargetResiduals:
+    """r = y(t_i) - y'_i and dr/du, filled state by state: each target takes its share of the two stored
+    states (and their tangents) its time falls between."""
+
+    def __init__(self, model, targets: list[TimedTarget], rep, columns: int):
+        self.model, self.targets, self.rep, self.columns = model, targets, rep, columns
+        self.markers = model.term("markers")
+        self.names, self.d = list(self.markers.names), model.dim
+        step_times = np.array([0.0] + [s[0] for s in rep.steps])
+        self.need: dict[int, list] = {}                     # step index -> (target, weight) using that state
+        for i, tt in enumerate(targets):
+            a, b, w = _bracket(step_times, tt.time)
+            self.need.setdefault(a, []).append((i, 1 - w))
+            self.need.setdefault(b, []).append((i, w))
+        self.r = np.zeros(len(targets) * self.d)
+        self.J = np.zeros((len(targets) * self.d, columns))
+
+    def record(self, n: int, xdot: np.ndarray) -> None:
+        """Add state n and its tangents xdot (owned rows, one column per parameter) to the targets."""
+        markers, d = self.markers, self.d
+        for i, w in self.need.get(n, []):
+            k = self.names.index(self.targets[i].marker)
+            S = markers.S[k * d:(k + 1) * d]
+            y = markers.positions(self.rep.states[n])[k]
+            self.r[i * d:(i + 1) * d] += w * (y - np.asarray(self.targets[i].target, float))
+            if self.columns:
+                cols = np.column_stack([markers.gather(_full(self.model, xdot[:, p])) for p in range(self.columns)])
+                self.J[i * d:(i + 1) * d] += w * (S @ cols)
 
 
 def _full(model, owned: np.ndarray) -> np.ndarray:

@@ -138,7 +138,7 @@ class Linearization:
     # -- H and dR/du ------------------------------------------------------------------------
     def _masked_g(self, term) -> np.ndarray:
         """g = grad l of a cable on its DOFs, zero on Dirichlet DOFs."""
-        return term.cable.length_gradient(self.model.u.x.array) * self.model._free(term, term.cable.dofs)
+        return term.cable.length_gradient(self.model.u.x.array) * self.model.free_of(term, term.cable.dofs)
 
     def tension_gradient(self, term) -> PETSc.Vec:
         """dT/du of a cable's tension (the pulled end's) on the free DOFs: the tendon's dR/du_c (k g, or the
@@ -154,7 +154,7 @@ class Linearization:
         t = self.tendons[i]
         if t.cable.friction:
             u = self.model.u.x.array
-            values = t.cable.contraction_gradient(u, t.rest_length) * self.model._free(t, t.cable.dofs)
+            values = t.cable.contraction_gradient(u, t.rest_length) * self.model.free_of(t, t.cable.dofs)
             return global_vector(self.model, t, values)
         taut = stretch(t, self.model.u.x.array) > 0.0 or i in self.kinked
         return global_vector(self.model, t, t.cable.k * self._g[i] if taut else 0.0 * self._g[i])
@@ -237,14 +237,14 @@ class Linearization:
         (J is not symmetric there, and there are few controls)."""
         if self.lagged:
             return self.forward(dO_dx)
-        lam = self.solve(self._dirichlet_free(dO_dx))
+        lam = self.solve(self.dirichlet_free(dO_dx))
         grad = np.array([-b.dot(lam) for b in self.dR_du])
         lam.destroy()
         return grad
 
     def forward(self, dO_dx: PETSc.Vec) -> np.ndarray:
         """dO/du = dO/dx . dx*/du_c, one solve per tendon (for checking the adjoint)."""
-        rhs = self._dirichlet_free(dO_dx)
+        rhs = self.dirichlet_free(dO_dx)
         dxs = self.state_sensitivities()
         grad = np.array([rhs.dot(dx) for dx in dxs])
         for v in dxs + [rhs]:
@@ -269,7 +269,7 @@ class Linearization:
         rows = [self.adjoint(global_vector(self.model, markers, S[j].toarray().ravel())) for j in range(d)]
         return np.array(rows).reshape(d, self.m)
 
-    def _dirichlet_free(self, v: PETSc.Vec) -> PETSc.Vec:
+    def dirichlet_free(self, v: PETSc.Vec) -> PETSc.Vec:
         """Copy of v with the Dirichlet rows zeroed."""
         w = v.copy()
         with w.localForm() as local:
@@ -318,16 +318,16 @@ def friction_sensitivity(lin: Linearization, name: str, h: float = 1e-6, tol: fl
         raise ValueError(f"cables.{name}.friction: sensitivities need one coefficient > 0 for the whole cable")
     u = model.u.x.array.copy()
     terms = [t for t in model.terms_in("cables") if t.cable.friction]
-    frozen = {id(t): (t.cable._state(u, t.rest_length)[4].copy(), t.cable.F.copy()) for t in terms}
+    frozen = {id(t): (t.cable.tensions(u, t.rest_length), t.cable.F.copy()) for t in terms}
     for t in terms:              # the step's own anchors: its slips are part of what mu moves
         t.cable.s_hat, t.cable.s_prev = t.cable.s_prev, t.cable.s_hat
-        t.cable._version += 1
+        t.cable.changed()
     try:
         return _friction_solve(lin, model, target, terms, frozen, u, h, tol)
     finally:
         for t in terms:
             t.cable.s_hat, t.cable.s_prev = t.cable.s_prev, t.cable.s_hat
-            t.cable._version += 1
+            t.cable.changed()
 
 
 def _friction_solve(lin, model, target, terms, frozen, u, h, tol) -> np.ndarray:
@@ -336,12 +336,12 @@ def _friction_solve(lin, model, target, terms, frozen, u, h, tol) -> np.ndarray:
     def gradient_with(t, F) -> np.ndarray:
         saved = t.cable.F
         t.cable.F = F
-        t.cable._version += 1
+        t.cable.changed()
         try:
-            return t.cable.gradient(u, t.rest_length) * model._free(t, t.cable.dofs)
+            return t.cable.gradient(u, t.rest_length) * model.free_of(t, t.cable.dofs)
         finally:
             t.cable.F = saved
-            t.cable._version += 1
+            t.cable.changed()
 
     def limits_at(t, x, scale: float = 1.0) -> np.ndarray:
         cab = t.cable

@@ -136,13 +136,68 @@ async def read_json(request):
 
 
 # -- the app ----------------------------------------------------------------------------------------------
+def _live_endpoint(run, error_response):
+    """The websocket endpoint: each JSON message a job answered by its id, as the worker finishes it
+    (a newer message from the same page supersedes an older one); run(channel, job) hands a job to the
+    worker, error_response(exc) is the HTTP answer an exception would get."""
+    from starlette.websockets import WebSocketDisconnect
+
+    from .worker import Superseded
+
+    async def live(ws):
+        await ws.accept()
+        channel = ("ws", id(ws))
+        lock = asyncio.Lock()
+        tasks = set()
+
+        async def reply(message):
+            async with lock:
+                try:
+                    await ws.send_text(dumps(message))
+                except Exception:  # noqa: BLE001 - the page went away
+                    pass
+
+        async def answer(mid, job):
+            try:
+                result = await run(channel, job)
+                await reply({"id": mid, "ok": True, "answer": result})
+            except Superseded:
+                await reply({"id": mid, "dropped": True})
+            except Exception as exc:  # noqa: BLE001
+                resp = error_response(exc)
+                await reply({"id": mid, "ok": False, "status": resp.status_code, **json.loads(resp.body)})
+
+        try:
+            while True:
+                message = await ws.receive()
+                if message["type"] == "websocket.disconnect":
+                    break
+                text = message.get("text")
+                if text is None:
+                    await reply({"id": None, "ok": False, "status": 400, "key": "",
+                                 "error": "binary frames are not accepted: send each message as JSON text"})
+                    continue
+                try:
+                    msg = loads(text)
+                    mid, job = _live_job(msg)
+                except ApiError as exc:
+                    await reply({"id": None, "ok": False, "status": exc.status, "error": exc.message, "key": ""})
+                    continue
+                task = asyncio.create_task(answer(mid, job))
+                tasks.add(task)
+                task.add_done_callback(tasks.discard)
+        except (WebSocketDisconnect, RuntimeError):
+            pass
+
+    return live
+
+
 def create_app(editor):
     """The Starlette app of an Editor (its worker, design file and port)."""
     from starlette.applications import Starlette
     from starlette.middleware import Middleware
     from starlette.responses import Response
     from starlette.routing import Route, WebSocketRoute
-    from starlette.websockets import WebSocketDisconnect
 
     from .engine import EditError
     from .savefile import SaveError
@@ -218,50 +273,7 @@ def create_app(editor):
         return json_response(await run(("api", "save"), lambda e: editor.save(body["design"], body.get("name"),
                                                                      bool(body.get("overwrite", False)))))
 
-    async def live(ws):
-        await ws.accept()
-        channel = ("ws", id(ws))
-        lock = asyncio.Lock()
-        tasks = set()
-
-        async def reply(message):
-            async with lock:
-                try:
-                    await ws.send_text(dumps(message))
-                except Exception:  # noqa: BLE001 - the page went away
-                    pass
-
-        async def answer(mid, job):
-            try:
-                result = await run(channel, job)
-                await reply({"id": mid, "ok": True, "answer": result})
-            except Superseded:
-                await reply({"id": mid, "dropped": True})
-            except Exception as exc:  # noqa: BLE001
-                resp = error_response(exc)
-                await reply({"id": mid, "ok": False, "status": resp.status_code, **json.loads(resp.body)})
-
-        try:
-            while True:
-                message = await ws.receive()
-                if message["type"] == "websocket.disconnect":
-                    break
-                text = message.get("text")
-                if text is None:
-                    await reply({"id": None, "ok": False, "status": 400, "key": "",
-                                 "error": "binary frames are not accepted: send each message as JSON text"})
-                    continue
-                try:
-                    msg = loads(text)
-                    mid, job = _live_job(msg)
-                except ApiError as exc:
-                    await reply({"id": None, "ok": False, "status": exc.status, "error": exc.message, "key": ""})
-                    continue
-                task = asyncio.create_task(answer(mid, job))
-                tasks.add(task)
-                task.add_done_callback(tasks.discard)
-        except (WebSocketDisconnect, RuntimeError):
-            pass
+    live = _live_endpoint(run, error_response)
 
     async def favicon(request):
         return Response(b"", 204, headers=headers)

@@ -197,7 +197,18 @@ def openings(planner, blockers: list) -> tuple[list[Tool], dict, list[str]]:
         chosen.append(cand[int(np.argmax(far))])
         entry["vented_by"] = "vent"
         report["high_points"].append(entry)
-    # more vents, up to spec.vents, as far from the pour and from each other as possible
+    _more_vents(planner, sites, vgood, pour, chosen)
+    for i in chosen:
+        t = vtops[index[i]]
+        tools.append(Tool("vent", f.world([[*sites[i], t], [*sites[i], f.hi[2]]]), r_vent, extend=(0.0, 1.0)))
+        report["vents"].append([float(v) for v in sites[i]])
+    return tools, report, notes
+
+
+def _more_vents(planner, sites: np.ndarray, vgood: np.ndarray, pour: np.ndarray, chosen: list) -> None:
+    """Add vents to chosen (site indices), up to spec.vents, each as far from the pour and from the
+    other vents as possible among the sites vgood that fit one."""
+    spec = planner.spec
     d_pour = np.linalg.norm(sites[vgood] - pour, axis=1) if len(vgood) else np.zeros(0)
     d_vent = np.full(len(vgood), np.inf)
     for i in chosen:
@@ -211,11 +222,6 @@ def openings(planner, blockers: list) -> tuple[list[Tool], dict, list[str]]:
         j = int(np.flatnonzero(ok)[np.argmax(np.minimum(d_pour, d_vent)[ok])])
         chosen.append(int(vgood[j]))
         d_vent = np.minimum(d_vent, np.linalg.norm(sites[vgood] - sites[vgood[j]], axis=1))
-    for i in chosen:
-        t = vtops[index[i]]
-        tools.append(Tool("vent", f.world([[*sites[i], t], [*sites[i], f.hi[2]]]), r_vent, extend=(0.0, 1.0)))
-        report["vents"].append([float(v) for v in sites[i]])
-    return tools, report, notes
 
 
 def ceilings(planner) -> tuple[dict, list[str]]:

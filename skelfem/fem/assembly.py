@@ -226,7 +226,7 @@ class MatrixAssembly:
         A.setPreallocationNNZ((np.minimum(d, n).astype(PETSc.IntType),
                                np.minimum(o, N - n).astype(PETSc.IntType)))
 
-    def _free(self, term, dofs) -> np.ndarray:
+    def free_of(self, term, dofs) -> np.ndarray:
         """Which of a term's DOFs are not Dirichlet DOFs."""
         if term.gather is None:
             return ~self.fixed[dofs]
@@ -244,7 +244,7 @@ class MatrixAssembly:
 
     def _block_map(self, term, dofs, row, col) -> tuple:
         """Which entries of a term's COO block this rank adds (owned, free rows and columns), and where."""
-        free = self._free(term, dofs)
+        free = self.free_of(term, dofs)
         pos, grow = self._owned_rows(term, dofs)
         keep = np.zeros(len(dofs), dtype=bool)
         keep[pos] = True

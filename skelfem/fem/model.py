@@ -29,6 +29,8 @@ place or are built anew, and the Newton matrix is kept while its pattern holds.
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import scipy.sparse as sp
 import ufl
@@ -79,7 +81,7 @@ class Model(MatrixAssembly):
         release_cell_tree(mesh)       # a big mesh's cell tree: made again if a later build needs it
         self.global_dofs = global_dof_numbers(V).astype(PETSc.IntType)   # local -> global, unrolled
         self._constraints()
-        self.border = None            # the linear solver's Border at the last jacobian (rigid bodies)
+        self.border: Any = None       # the linear solver's Border at the last jacobian (rigid bodies)
         self._last_gradient = None    # (state, grad Pi) of the last residual (rigid bodies)
         self._pattern_keys = None     # node pairs (row * nodes + column) of the last matrix made (serial)
         self._extra_keys = np.zeros(0, np.int64)  # node pairs of terms replaced by refresh, kept in new matrices
@@ -411,7 +413,7 @@ class Model(MatrixAssembly):
         bones; the state elsewhere stays as it was. Returns the sweeps made
         (0: x was admissible).
         """
-        def inverted() -> np.ndarray:
+        def inverted() -> np.ndarray | None:
             bad = np.concatenate([v.min(axis=1) <= 0.0 for v in cell_value_chunks(self.detF, self.num_cells)]
                                  or [np.zeros(0, bool)])
             return bad if self.comm.allreduce(bool(bad.any()), op=MPI.LOR) else None
@@ -553,10 +555,13 @@ class Model(MatrixAssembly):
         part, zero on Dirichlet DOFs). A cable's g touches only its via points' cells: no vector of the
         mesh's size is made per part (arm3d has 17 parts)."""
         u = self.u.x.array if x is None else self.sync(x)
-        c, rows, cols, vals = [], [], [], []
+        c: list = []
+        rows: list = []
+        cols: list = []
+        vals: list = []
         for term in self.terms:
             for ci, dofs, g in term.low_rank(u):
-                g = np.asarray(g, float) * self._free(term, dofs)
+                g = np.asarray(g, float) * self.free_of(term, dofs)
                 if term.gather is None:
                     dofs = np.asarray(dofs)
                     pos = np.flatnonzero(dofs < self.n_owned)
@@ -580,8 +585,10 @@ class Model(MatrixAssembly):
         out: dict = {}
         for term in self.terms:
             values = term.readout(self)
-            section = out.setdefault(term.section, {}) if values else None
-            for name, value in (values or {}).items():      # two terms may report on one entry (friction)
+            if not values:
+                continue
+            section = out.setdefault(term.section, {})
+            for name, value in values.items():      # two terms may report on one entry (friction)
                 both = isinstance(value, dict) and isinstance(section.get(name), dict)
                 section[name] = {**section[name], **value} if both else value
         return out

@@ -32,6 +32,7 @@ import secrets
 import shutil
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 from ..runtime import interrupts
 
@@ -165,7 +166,7 @@ class Reservation:
     def __init__(self, target: Path, kind: str):
         self.target, self.kind = target, kind
         self.lock_path = target.parent / f".{target.name}.lock"
-        self.fd = None
+        self.fd: int | None = None
         self.created: list[Path] = []     # parent folders this run made
 
     def acquire(self, shown: str) -> None:
@@ -283,7 +284,8 @@ def reserve(out, comm=None, kind: str = "simulate") -> Path:
     is held until publish() commits or release() is called.
     """
     comm = _comm(comm)
-    error, target = None, None
+    error: str | None = None
+    target: Any = None                    # rank 0's checked path, then every rank's
     if comm.rank == 0:
         try:
             target = check_path(out, kind)
@@ -402,20 +404,20 @@ def _carry_over(old: Path, new: Path, kind: str) -> None:
 
 def _commit(stage: Path, target: Path, kind: str) -> None:
     _carry_over(target, stage, kind)
+    old_content: Path | None = stage          # where the old content ends up (None: there was none)
     with interrupts.critical():
         if target.exists():
             if not _exchange(stage, target):
-                old = target.parent / f".{target.name}.old-{os.getpid()}-{secrets.token_hex(4)}"
-                os.rename(target, old)
+                old_content = target.parent / f".{target.name}.old-{os.getpid()}-{secrets.token_hex(4)}"
+                os.rename(target, old_content)
                 os.rename(stage, target)
-                stage = old
         else:
             os.rename(stage, target)
-            stage = None
+            old_content = None
         if ON_COMMIT is not None:
             ON_COMMIT()
-    if stage is not None:
-        _remove(stage)                        # the old content, now in the staging name
+    if old_content is not None:
+        _remove(old_content)                  # the old content, in the staging name or beside it
 
 
 @contextmanager
@@ -432,7 +434,8 @@ def publish(out, comm=None, kind: str = "simulate"):
     comm = _comm(comm)
     target = reserve(out, comm, kind)
     res = _HELD.get(target) if comm.rank == 0 else None
-    path, error = None, None
+    path: Any = None                      # the staging folder (rank 0 makes it, every rank gets it)
+    error = None
     committed = False
     try:
         if comm.rank == 0:

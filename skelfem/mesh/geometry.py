@@ -8,9 +8,13 @@ each bone. Only rank 0 talks to Gmsh; gmshio distributes the mesh.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from mpi4py import MPI
+
+if TYPE_CHECKING:
+    from dolfinx import mesh as dmesh
 
 from ..runtime import interrupts, memory
 from ..design.occ import MeshingError, add_polygon, add_solid, ensure_gmsh, forget_array_types, fuse, gmsh_model  # noqa: F401
@@ -67,8 +71,8 @@ def region_names(design) -> tuple:
 class TaggedMesh:
     """A DOLFINx mesh with its cell tags and the names of the tags."""
 
-    mesh: object
-    cell_tags: object
+    mesh: dmesh.Mesh
+    cell_tags: Any                   # dolfinx MeshTags (its stub lists no find, indices, values)
     tags: dict          # physical name -> integer tag, e.g. {"body": 1, "bone:proximal": 2}
 
     @property
@@ -92,15 +96,15 @@ def add_design_solids(occ, design, bone_depth: float | None = None, bones=None,
     if not body:
         return [], _bone_solids(occ, design, wanted, bone_depth)
     if design.dim == 3:
-        body = fuse(occ, 3, [add_solid(occ, s) for s in design.body.solids])
-        return body, _bone_solids(occ, design, wanted, bone_depth)
+        solids = fuse(occ, 3, [add_solid(occ, s) for s in design.body.solids])
+        return solids, _bone_solids(occ, design, wanted, bone_depth)
     t = float(design.thickness)
-    body = [add_solid(occ, {"extrude": {"outline": design.body.outline, "z": [0.0, t]}})]
+    solids = [add_solid(occ, {"extrude": {"outline": design.body.outline, "z": [0.0, t]}})]
     if design.body.holes:
         holes = [(3, add_solid(occ, {"extrude": {"outline": h, "z": [-1.0, t + 1.0]}})) for h in design.body.holes]
-        out, _ = occ.cut([(3, body[0])], holes)
-        body = [tag for d, tag in out if d == 3]
-    return body, _bone_solids(occ, design, wanted, bone_depth)
+        out, _ = occ.cut([(3, solids[0])], holes)
+        solids = [tag for d, tag in out if d == 3]
+    return solids, _bone_solids(occ, design, wanted, bone_depth)
 
 
 def _bone_solids(occ, design, wanted: list, bone_depth: float | None) -> dict:
@@ -140,7 +144,7 @@ def _build_model(gmsh, design) -> dict:
     body_list = [(name, t) for name, tags in bodies.items() for t in tags]
     _, children = occ.fragment([(dim, t) for _, t in body_list], [(dim, t) for _, t in bone_list])
     occ.synchronize()
-    groups = {bone_tag_name(name): [] for name in bones}
+    groups: dict = {bone_tag_name(name): [] for name in bones}
     for (name, _), kids in zip(bone_list, children[len(body_list):]):
         groups[bone_tag_name(name)] += [t for _, t in kids]
     in_bones = {t for tags in groups.values() for t in tags}
@@ -259,6 +263,7 @@ def _apply_size(gmsh, size, h: float) -> tuple:
     bound becomes the field's smallest size (or 0.1 h, whichever is smaller).
     Returns what to undo after meshing.
     """
+    undo: tuple                         # how to take the size field off again
     if isinstance(size, SizeField):
         low = size.smallest
         view = gmsh.view.add("size")

@@ -113,7 +113,7 @@ def via_points(mesh, path: np.ndarray, pieces: int = 1) -> np.ndarray:
     out = []
     for p, q, t in zip(path[:-1], path[1:], cuts):
         t = np.unique(np.concatenate([[0.0], t]))
-        seg_len = np.linalg.norm(q - p)
+        seg_len = float(np.linalg.norm(q - p))
         keep = np.concatenate([[True], np.diff(t) * seg_len > 1e-9 * max(seg_len, 1.0)])
         t = _subdivide(np.append(t[keep], 1.0), pieces)[:-1]
         out.append(p + t[:, None] * (q - p))
@@ -219,7 +219,9 @@ def anchored_interpolation(V, X: np.ndarray, anchors: dict):
     n = len(X)
     for i in range(n):
         if i not in anchored:
-            rows.append(i), cols.append(i), vals.append(1.0)
+            rows.append(i)
+            cols.append(i)
+            vals.append(1.0)
     offset = n
     for i, r in anchored.items():
         samples = anchor_samples(X[i], r, lattice_density(mesh, X[i], r))
@@ -261,10 +263,9 @@ def default_anchor_radius(ctx: Context) -> float:
     """1 % of the body's bounding-box diagonal (about a knot or bead on a finger-sized body): the box of
     the soft bodies' cells (bones lie inside them), never of the objects, which are not the robot (an
     object 10 m away made the radius 100 mm, and the anchors of a 60 mm tendon swallowed it whole)."""
-    radius = getattr(ctx, "_anchor_radius", None)
-    if radius is None:
-        radius = ctx._anchor_radius = _one_percent_of_diagonal(ctx)
-    return radius
+    if ctx.anchor_radius is None:
+        ctx.anchor_radius = _one_percent_of_diagonal(ctx)
+    return ctx.anchor_radius
 
 
 def _one_percent_of_diagonal(ctx: Context) -> float:

@@ -198,6 +198,11 @@ class Cable:
         self.s_prev = self.s_hat.copy()
         self._version += 1
 
+    def changed(self) -> None:
+        """Its history (anchors s_hat, s_prev, friction limits F) was set from outside: the state kept for
+        the last (u, L) no longer holds."""
+        self._version += 1
+
     @classmethod
     def build(cls, V, spec, anchors: dict | None = None) -> "Cable":
         """The cable through its via points; anchors = {sketch vertex index: radius} makes that vertex
@@ -518,7 +523,7 @@ class CableTerm(Term):
         c = self.cable
         for k, v in (history or {}).items():
             setattr(c, k, v.copy() if hasattr(v, "copy") else v)
-        c._version += 1
+        c.changed()
 
     def energy(self, u):
         return self.cable.energy(u, self.rest_length)

@@ -66,6 +66,8 @@ without contact).
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import scipy.sparse as sp
 import ufl
@@ -126,8 +128,8 @@ class GroundFriction(Term):
         self.T = tangent_basis(self.normal)
         self._ready = False
         self._notes: dict = {}     # take_notes: {key: warning} for the next result
-        self._report = None        # read-out at the last accepted step
-        self.nodal = None          # (nodes, friction force on the plane, slipping, N) at the last accepted step
+        self._report: Any = None   # read-out at the last accepted step
+        self.nodal: Any = None     # (nodes, friction force on the plane, slipping, N) at the last accepted step
         if self.active:
             self._setup()
 

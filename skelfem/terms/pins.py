@@ -54,7 +54,7 @@ class Pin(Term):
         self.k = constant(ctx.mesh, float(spec.stiffness))
         self.X = V.tabulate_dof_coordinates()[self.nodes, :bs]
         self.g = fem.Function(V) if self.kind == "fixed" else None       # the prescribed displacement
-        self.bc = fem.dirichletbc(self.g, self.nodes) if self.kind == "fixed" else None
+        self.bc = fem.dirichletbc(self.g, self.nodes) if self.g is not None else None
         self.factor = 0.0
         self._force_form = None
 
