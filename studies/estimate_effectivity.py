@@ -8,7 +8,7 @@ Each case is a design that is not one of the bundled files (built here):
 ``strip_p2`` (2D, P2, estimated with P3; ``strip_p2_coarse``: the same at
 h = 4 mm, 2.5 cells across the strip, where it fails), ``pinch`` (2D, the bundled
 gripper's fingers closed 3.5 mm on its box with contact friction mu 0.8 and
-a 1.5 mm mesh), ``block3d`` (3D, a soft block with a bone and a
+a 2 mm mesh, references 2x and 4x finer), ``block3d`` (3D, a soft block with a bone and a
 tendon), ``block3d_buried`` (3D, the tendon ends in silicone).
 
 For each: the solve at the case's mesh with ``estimate=True`` (skelfem.estimate),
@@ -98,7 +98,7 @@ CASES = {   # name: (design dict at the case's mesh, reference refinement ratio 
     "strip_buried": (lambda: strip(size=2.0, end=40.0, bones=False), 4),
     "strip_p2": (lambda: strip(size=2.0, degree=2), 4),
     "strip_p2_coarse": (lambda: strip(size=4.0, degree=2), 4),     # 2.5 cells across: where the estimate fails
-    "pinch": (lambda: _gripper(1.5, 1), 2),
+    "pinch": (lambda: _gripper(2.0, 1), 2),
     "block3d": (lambda: block3d(size=3.0), 2),
     "block3d_buried": (lambda: block3d(size=3.0, end=35.0), 2),
 }
