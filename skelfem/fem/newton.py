@@ -450,12 +450,12 @@ class NewtonSolver(LineSearch):
         Such a solve stops at max(atol, rtol |R_0|), |R_0| the largest first residual of its load steps;
         the first is |R| at rest (pins at their first load factor's moves), so tol = max(atol, rtol x that)
         is at most its tolerance: a state with |R| <= tol is converged as a batch solve is. Two residual
-        assemblies; the state, load factor and parameters are left as they were.
+        assemblies; the state, load factor, parameters and history (friction's) are left as they were.
         """
         model = self.model
         x = model.u.vector.copy()
         rest, b = x.duplicate(), x.duplicate()
-        factor = model.factor
+        factor, committed = model.factor, model.history()    # set_factor moves friction's trial states
         try:
             rest.set(0.0)
             model.set_factor(1.0 / max(int(steps), 1))
@@ -467,6 +467,7 @@ class NewtonSolver(LineSearch):
             return float(b.norm()), tol
         finally:
             model.set_factor(factor)
+            model.set_history(committed)
             model.sync(x)
             for v in (x, rest, b):
                 v.destroy()
