@@ -31,9 +31,6 @@ REACH_INS = {
     ("skelfem/terms/cable_route.py", "_mesh"): "DOLFINx 0.5.2's entities_to_geometry takes the C++ mesh",
     ("skelfem/accuracy/ladder.py", "_mesh"): "DOLFINx 0.5.2's entities_to_geometry takes the C++ mesh",
     ("skelfem/analysis/cable_shape.py", "_mesh"): "DOLFINx 0.5.2's entities_to_geometry takes the C++ mesh",
-    ("skelfem/mesh/points.py", "_skelfem_cell_tree"): "a cache kept on the DOLFINx mesh, which it lives and dies with",
-    ("skelfem/mesh/points.py", "_skelfem_global_dofs"): "a cache kept on the DOLFINx space, which it lives and dies with",
-    ("skelfem/terms/cable_route.py", "_skelfem_facets"): "a cache kept on the DOLFINx mesh, which it lives and dies with",
 }
 
 

@@ -71,17 +71,17 @@ def test_big_blocks_are_mapped_on_their_own_after_mpi_init():
 
 def test_a_big_mesh_drops_its_cell_tree_once_the_model_is_built(monkeypatch):
     from _designs import strip
-    from skelfem.mesh import points
+    from skelfem.mesh import keep, points
     from skelfem.session import Session
     monkeypatch.setattr(points, "TREE_CELLS", 0)
     with Session(strip(size=3.0)) as s:
-        assert not hasattr(s.model.mesh, "_skelfem_cell_tree")
+        assert keep.peek(s.model.mesh, "cell_tree") is None
         x = s.model.mesh.geometry.x[:3, :2].mean(axis=0)
         assert points.locate_cells(s.model.mesh, x[None])[0] >= 0       # made again when needed
         assert s.solve().converged
     monkeypatch.setattr(points, "TREE_CELLS", 10**9)
     with Session(strip(size=3.0)) as s:
-        assert hasattr(s.model.mesh, "_skelfem_cell_tree")
+        assert keep.peek(s.model.mesh, "cell_tree") is not None
 
 
 def test_the_jacobian_leaves_no_packed_coefficients_behind():

@@ -28,6 +28,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from . import keep
+
 MIN_QUALITY = 0.25        # smallest shape ratio 2 r / R of a moved triangle (1: equilateral)
 
 
@@ -155,6 +157,4 @@ class Morph:
     def apply(self, x: np.ndarray) -> None:
         """Put the node coordinates x into the mesh and forget what was computed from the old ones."""
         self.mesh.geometry.x[:, :2] = x
-        for cache in ("_skelfem_cell_tree", "_skelfem_facets"):
-            if hasattr(self.mesh, cache):
-                delattr(self.mesh, cache)
+        keep.forget(self.mesh, "cell_tree", "facets")

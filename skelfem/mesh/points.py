@@ -16,16 +16,14 @@ import scipy.sparse as sp
 from dolfinx import geometry
 from mpi4py import MPI
 
+from . import keep
+
 _BASIX_CELL = {"triangle": basix.CellType.triangle, "tetrahedron": basix.CellType.tetrahedron}
 
 
 def _cell_tree(mesh) -> geometry.BoundingBoxTree:
     """The mesh's bounding box tree of cells, built once per mesh."""
-    tree = getattr(mesh, "_skelfem_cell_tree", None)
-    if tree is None:
-        tree = geometry.BoundingBoxTree(mesh, mesh.topology.dim)
-        mesh._skelfem_cell_tree = tree
-    return tree
+    return keep.kept(mesh, "cell_tree", lambda: geometry.BoundingBoxTree(mesh, mesh.topology.dim))
 
 
 TREE_CELLS = 200_000     # a mesh with more cells (on this rank) drops its cell tree once a model is built on it
@@ -35,8 +33,8 @@ def release_cell_tree(mesh) -> None:
     """Forget the cell tree of a big mesh (more than TREE_CELLS cells on this rank; 30 MB, 0.25 KB per DOF,
     on arm3d at 118k DOFs): the model's points are all located by the time it is built, and a later
     search makes the tree again. A small mesh keeps it for the next edit."""
-    if mesh.topology.index_map(mesh.topology.dim).size_local > TREE_CELLS and hasattr(mesh, "_skelfem_cell_tree"):
-        del mesh._skelfem_cell_tree
+    if mesh.topology.index_map(mesh.topology.dim).size_local > TREE_CELLS:
+        keep.forget(mesh, "cell_tree")
 
 
 def locate_cells(mesh, points: np.ndarray, below: int | None = None) -> np.ndarray:
@@ -111,11 +109,11 @@ def interpolation_entries(V, points: np.ndarray, cells: np.ndarray | None = None
 # -- material points under MPI ------------------------------------------------------------------
 def global_dof_numbers(V) -> np.ndarray:
     """Global (unrolled) DOF number of every local DOF, owned and ghost (computed once per space)."""
-    out = getattr(V, "_skelfem_global_dofs", None)
-    if out is None:
-        out = V._skelfem_global_dofs = _global_dof_numbers(V)
+    def make() -> np.ndarray:
+        out = _global_dof_numbers(V)
         out.flags.writeable = False
-    return out
+        return out
+    return keep.kept(V, "global_dofs", make)
 
 
 def _global_dof_numbers(V) -> np.ndarray:

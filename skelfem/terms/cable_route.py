@@ -15,6 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 from mpi4py import MPI
 
+from ..mesh import keep
 from ..mesh.geometry import body_box, body_tags
 from ..mesh.points import DofGather, cell_sizes, global_interpolation, locate_cells, owner_ranks
 from .base import Context
@@ -25,11 +26,10 @@ _EPS = 1e-10
 def _mesh_facets(mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(vertex coordinates of every facet (n_facets, tdim, gdim), their bounding boxes' lower and
     upper corners), computed once per mesh."""
-    facets = getattr(mesh, "_skelfem_facets", None)
-    if facets is None:
+    def make() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         x = _facet_vertices(mesh)
-        facets = mesh._skelfem_facets = (x, x.min(axis=1), x.max(axis=1))
-    return facets
+        return x, x.min(axis=1), x.max(axis=1)
+    return keep.kept(mesh, "facets", make)
 
 
 FACET_CACHE_BYTES = 64 * 2**20   # a mesh keeps its facets' corners (for the next edit's cables) up to this size
@@ -38,9 +38,9 @@ FACET_CACHE_BYTES = 64 * 2**20   # a mesh keeps its facets' corners (for the nex
 def release_facets(mesh) -> None:
     """Forget the facet corners via_points cached on a big mesh (5M facets of a 3D mesh hold 0.6 GB:
     more than the Newton matrix); a small mesh keeps them for the next edit."""
-    facets = getattr(mesh, "_skelfem_facets", None)
+    facets = keep.peek(mesh, "facets")
     if facets is not None and sum(a.nbytes for a in facets) > FACET_CACHE_BYTES:
-        del mesh._skelfem_facets
+        keep.forget(mesh, "facets")
 
 
 def _facet_vertices(mesh) -> np.ndarray:
