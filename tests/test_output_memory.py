@@ -101,3 +101,27 @@ def test_the_jacobian_leaves_no_packed_coefficients_behind():
         m.residual(x, b1)
         assert np.array_equal(b0.array, b1.array)
         A.destroy()
+
+
+def test_kept_values_go_with_their_object_and_when_forgotten():
+    """mesh/keep.py holds values beside an object, not on it: made once, dropped when forgotten and
+    when the object is collected (nothing outlives a mesh)."""
+    import gc
+
+    from skelfem.mesh import keep
+
+    class Thing:
+        pass
+    a, b, made = Thing(), Thing(), []
+    assert keep.kept(a, "x", lambda: made.append(1) or "value") == "value"
+    assert keep.kept(a, "x", lambda: made.append(1) or "other") == "value" and made == [1]
+    keep.kept(a, "y", lambda: 2)
+    keep.kept(b, "x", lambda: 3)
+    keep.forget(a, "x")
+    assert keep.peek(a, "x") is None and keep.peek(a, "y") == 2 and keep.peek(b, "x") == 3
+    key = (id(b), "x")
+    del b
+    gc.collect()
+    assert key not in keep._KEPT
+    keep.forget(a)
+    assert keep.peek(a, "y") is None
