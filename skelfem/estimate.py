@@ -31,7 +31,9 @@ at u_h (one solve with K at u_h):
 
     e_a(J) = |J(u_h + du) - J(u_h)|,   K du = -R(u_h),
 
-and ``error`` = e_d + e_a. Friction histories move across when their
+and ``error`` = e_d + e_a; ``change`` is J(u_{p+1}) - J(u_h) with its sign (the
+direction of the correction, for a caller that shifts data by it: calibration).
+Friction histories move across when their
 arrays fit the richer space (cable friction: per via point); contact
 friction keeps per-node anchors, so the richer solve anchors its nodes
 where u_h puts them (stuck; the first lag gives each its limit mu N) and
@@ -99,6 +101,16 @@ def _carry_history(model, rich) -> bool:
     return fitted
 
 
+def _same_parameters(model, rich) -> None:
+    """Give the richer model the live parameter values the model holds: they may have been set in place
+    (Model.set_parameter: a calibration's rows) and differ from the design's."""
+    now = rich.parameters()
+    for key, value in model.parameters().items():
+        if key in now and not np.array_equal(np.asarray(now[key], float), np.asarray(value, float)):
+            rich.set_parameter(key, value)
+    rich.changes.clear()
+
+
 def algebraic(session, J: dict[str, float]) -> dict[str, float]:
     """e_a of every observable: the change one more Newton correction at u_h would make (state restored)."""
     model, solver = session.model, session.solver
@@ -122,7 +134,7 @@ def algebraic(session, J: dict[str, float]) -> dict[str, float]:
 
 
 def estimate(session) -> dict:
-    """{"errors": {observable: {"error", "discretisation", "algebraic"}}, "estimate": {how, cost}}.
+    """{"errors": {observable: {"error", "discretisation", "algebraic", "change"}}, "estimate": {how, cost}}.
 
     Needs a converged static equilibrium in ``session`` (Session.solve). The
     session's state and history are left as they were.
@@ -144,6 +156,7 @@ def estimate(session) -> dict:
     info = {"method": METHOD, "degree": int(design.mesh.degree),
             "dofs": int(rich.V.dofmap.index_map.size_global * rich.bs)}
     try:
+        _same_parameters(model, rich)
         rich.u.interpolate(model.u)
         rich.set_factor(1.0)
         if not _carry_history(model, rich):
@@ -165,9 +178,10 @@ def estimate(session) -> dict:
     errors: dict[str, dict[str, float | None]] = {}
     loose = []                        # observables whose solver error is not below a tenth of the mesh's
     for name, value in J.items():
-        e_d = abs(J_rich[name] - value) if name in J_rich else None
+        change = J_rich[name] - value if name in J_rich else None
+        e_d = None if change is None else abs(change)
         errors[name] = {"error": None if e_d is None else e_d + e_a[name], "discretisation": e_d,
-                        "algebraic": e_a[name]}
+                        "algebraic": e_a[name], "change": change}
         if e_d is not None and e_a[name] > ALGEBRAIC_SHARE * e_d + ROUND_OFF * (abs(value) + 1.0):
             loose.append(name)
     info["algebraic_below_discretisation"] = not loose

@@ -15,6 +15,8 @@ STIFFNESSES = ["materials.ecoflex.E", "materials.pla.E", "cables.flexor.stiffnes
                "cables.lig1_palmar.stiffness", "cables.lig1_dorsal.stiffness",
                "cables.lig2_palmar.stiffness", "cables.lig2_dorsal.stiffness"]
 TIP = ["markers.tip.x", "markers.tip.y"]
+SAME_MESH = "ignore"    # these data come from the fitted model's own mesh: it has no error against them
+                        # (test_calibrate_model_error.py fits data from another mesh)
 
 
 def heavy_finger(size=4.0):
@@ -176,7 +178,7 @@ def test_noise_free_recovery_from_twice_off(finger, finger_data):
     true = np.array([finger.model.parameters()[k] for k in keys])
     try:
         finger.set(dict(zip(keys, true * np.array([2.0, 0.5, 2.0]))))
-        cal = calibrate(finger, finger_data, keys)
+        cal = calibrate(finger, finger_data, keys, model_error=SAME_MESH)
     finally:
         finger.set(dict(zip(keys, true)))
     assert cal.converged and cal.iterations <= 10, (cal.iterations, cal.status)
@@ -190,19 +192,19 @@ ACTIVE = ["materials.ecoflex.E", "materials.pla.E", "cables.flexor.stiffness",
 
 def test_scaling_every_stiffness_is_unidentifiable_from_positions(finger, finger_data):
     positions = {k: v for k, v in finger_data.items() if k != "cables.flexor.tension"}
-    cal = calibrate(finger, positions, STIFFNESSES)
+    cal = calibrate(finger, positions, STIFFNESSES, model_error=SAME_MESH)
     # the scaling direction: every taut cable and both materials; the slack palmar ligaments do nothing
     assert sorted(map(sorted, cal.unidentifiable)) == sorted(
         [sorted(ACTIVE), ["cables.lig1_palmar.stiffness"], ["cables.lig2_palmar.stiffness"]])
     assert all(cal.to_dict()["parameters"][k]["std"] is None for k in STIFFNESSES)
     # one tension column fixes the scale
-    cal = calibrate(finger, finger_data, ACTIVE)
+    cal = calibrate(finger, finger_data, ACTIVE, model_error=SAME_MESH)
     assert cal.unidentifiable == [] and np.all(np.isfinite(cal.std))
     assert np.max(np.abs(cal.values / cal.initial - 1)) < 1e-6
 
 
 def test_holdout_and_calibrated_design(finger, finger_data):
-    cal = calibrate(finger, finger_data, ["materials.ecoflex.E"], holdout=0.25)
+    cal = calibrate(finger, finger_data, ["materials.ecoflex.E"], holdout=0.25, model_error=SAME_MESH)
     assert cal.holdout["rows"] == 1 and cal.data.train.sum() == 3
     assert cal.holdout["weighted_rms"] < 1e-6
     assert set(cal.overrides(finger.design)) == {"materials.ecoflex.E"}
@@ -224,7 +226,7 @@ def _coverage(finger, seeds, rows=8):
         for c in TIP:
             data[c] = clean[c] + rng.normal(0, 0.2, rows)
         data["cables.flexor.tension"] = clean["cables.flexor.tension"] + rng.normal(0, 0.05, rows)
-        cal = calibrate(finger, data, keys, sigma=sigma)
+        cal = calibrate(finger, data, keys, sigma=sigma, model_error=SAME_MESH)
         est.append(cal.values)
         std.append(cal.std)
         inside.append((cal.ci95[:, 0] <= true) & (true <= cal.ci95[:, 1]))
@@ -252,7 +254,7 @@ def test_noise_coverage_over_twenty_seeds(finger):
     ("markers.tip.x,experiment\n1,a\n2,b\n3,a\n", ["materials.ecoflex.E"], {}, "consecutive"),
     ("markers.tip.x\n1\n2\n", ["materials.*.E"], {}, "start at different values (materials.ecoflex.E=0.1"),
     ("markers.tip.x\n1\n2\n", ["cables.nope*.stiffness"], {}, "matches no live parameter"),
-    ("markers.tip.x\n1\n2\n", ["cables.flexor.friction"], {}, "a cable's friction cannot be fitted yet"),
+    ("markers.tip.x\n1\n2\n", ["cables.flexor.friction"], {}, "starts at 0, a cable without friction"),
 ])
 def test_bad_data_is_one_line(data, fit, kw, message):
     design = load_design(FINGER)
@@ -290,7 +292,8 @@ def test_solve_many_is_solve_column_by_column(finger):
 
 def test_the_session_gets_its_design_values_back(finger, finger_data):
     before = finger.model.parameters()
-    cal = calibrate(finger, finger_data, ["materials.ecoflex.E"], sigma={"markers.*": 0.1})
+    cal = calibrate(finger, finger_data, ["materials.ecoflex.E"], sigma={"markers.*": 0.1},
+                    model_error=SAME_MESH)
     after = finger.model.parameters()
     assert all(np.array_equal(np.asarray(before[k]), np.asarray(after[k])) for k in before)
     finger.set(cal.overrides(finger.design))
@@ -305,7 +308,7 @@ def test_3d_design_recovery():
         cols = ["markers.tip.x", "markers.tip.y", "markers.tip.z", "cables.flexor.tension"]
         data = synthesize(s, {"cables.flexor.contraction": [3.0, 6.0]}, cols)
         s.set({"materials.ecoflex.E": 0.2})
-        cal = calibrate(s, data, ["materials.ecoflex.E"])
+        cal = calibrate(s, data, ["materials.ecoflex.E"], model_error=SAME_MESH)
     assert cal.converged and cal.values[0] == pytest.approx(0.1, rel=1e-6)
 
 
@@ -325,7 +328,7 @@ def _from(session, keys, start, **kw):
     true = {k: session.model.parameters()[k] for k in keys}
     try:
         session.set(dict(zip(keys, start)))
-        return calibrate(session, **kw, fit=keys)
+        return calibrate(session, **kw, fit=keys, model_error=SAME_MESH)
     finally:
         session.set(true)
 
@@ -368,7 +371,8 @@ def test_intervals_of_positive_parameters_are_positive(finger, finger_data):
     data = {k: (np.asarray(v) + rng.normal(0, 0.2, len(v)) if k.startswith("markers") else v)
             for k, v in finger_data.items()}
     keys = ["materials.ecoflex.E", "cables.flexor.stiffness", "cables.lig*.stiffness"]
-    cal = calibrate(finger, data, keys, sigma={"markers.*": 0.2, "cables.flexor.tension": 0.05})
+    cal = calibrate(finger, data, keys, sigma={"markers.*": 0.2, "cables.flexor.tension": 0.05},
+                    model_error=SAME_MESH)
     assert cal.converged and np.all(np.isfinite(cal.std))
     assert np.all(cal.ci95[:, 0] > 0), cal.ci95
     assert np.allclose(cal.ci95[:, 0] * cal.factor, cal.values) and np.allclose(cal.values * cal.factor,
@@ -381,7 +385,7 @@ def test_intervals_of_positive_parameters_are_positive(finger, finger_data):
 
 
 def test_multiple_starts_keep_the_lowest_misfit(finger, finger_data):
-    cal = calibrate(finger, finger_data, ["materials.ecoflex.E"], starts=3, seed=1)
+    cal = calibrate(finger, finger_data, ["materials.ecoflex.E"], starts=3, seed=1, model_error=SAME_MESH)
     assert len(cal.starts) == 3 and sum(s["best"] for s in cal.starts) == 1
     assert cal.cost == min(s["cost"] for s in cal.starts)
     assert cal.values[0] == pytest.approx(0.1, rel=1e-6)
@@ -430,4 +434,4 @@ def test_a_failed_sensitivity_solve_is_a_solve_error(finger, finger_data, monkey
     monkeypatch.setattr(Linearization, "solve_many", stalled)
     with pytest.raises(SolveError, match="at the start: row 1: the equilibrium converged but its sensitivity "
                                          "solve failed .*GMRES did not converge"):
-        calibrate(finger, finger_data, ["materials.ecoflex.E"])
+        calibrate(finger, finger_data, ["materials.ecoflex.E"], model_error=SAME_MESH)

@@ -24,7 +24,7 @@ def test_calibrate_writes_every_file(tmp_path, capsys):
     code = main(["calibrate", str(FINGER), "--set", "mesh.size=4.0", "--set", "materials.ecoflex.E=0.2",
                  "--data", str(data), "--fit", "materials.ecoflex.E", "--fit", "cables.flexor.stiffness",
                  "--sigma", "markers.*=0.1", "--sigma", "cables.flexor.tension=0.01", "--holdout", "0.25",
-                 "--out", str(out), "-q"])
+                 "--model-error", "ignore", "--out", str(out), "-q"])     # the data are this mesh's own
     assert code == 0, capsys.readouterr().err
     assert sorted(p.name for p in out.iterdir()) == ["calibrated.toml", "calibration.json", "fit.csv", "fit.png",
                                                      "parameters.png", "residuals.png"]
@@ -52,12 +52,15 @@ BAD = [
     (HEADER + ROWS, ["--sigma", "markers.*=1e-200"], "must lie within 1e-09 and 1e+09 times that"),
     (HEADER + ROWS.replace("97.65964934214473", "97_659"), [], "'97_659' is not a number"),
     (HEADER + ROWS, ["--starts", "0"], "--starts 0"),
+    (HEADER + ROWS, ["--max-dofs", "0"], "--max-dofs 0"),
+    (HEADER + ROWS, ["--model-error", "maybe"], "--model-error"),
 ]
 
 
 @pytest.mark.parametrize("text, extra, message", BAD,
                          ids=["unknown column", "non-numeric", "too few rows", "not live", "bounds", "holdout",
-                              "negative stiffness bound", "nu bound", "tiny sigma", "underscore", "starts"])
+                              "negative stiffness bound", "nu bound", "tiny sigma", "underscore", "starts",
+                              "max dofs", "model error mode"])
 def test_bad_input_one_line_nothing_written_no_meshing(tmp_path, capsys, monkeypatch, text, extra, message):
     import skelfem.jobs.run as run
 

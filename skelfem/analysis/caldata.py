@@ -117,6 +117,12 @@ def scalar_keys(design) -> dict:
     return out
 
 
+def is_path_parameter(key: str) -> bool:
+    """A cable's friction coefficient: its measurements depend on the whole load path (hysteresis), so a
+    calibration differences them over the path re-solved, not at one row's equilibrium."""
+    return key.startswith("cables.") and key.endswith(".friction")
+
+
 def split_key(key: str) -> tuple[str, int | None]:
     """("loads.pull.force", 1) for "loads.pull.force.y"; (key, None) for a scalar key."""
     base, _, last = key.rpartition(".")
@@ -350,10 +356,10 @@ def prepare_data(design, data, fit, sigma=None, bounds=None, holdout: float = 0.
                             f"(live: {', '.join(live) or 'none'})")
     targets_of = {k: tied.get(k, [k]) for k in keys}
     flat = [t for k in keys for t in targets_of[k]]
-    unfit = [t for t in flat if t.startswith("cables.") and t.endswith(".friction")]
-    if unfit:
-        raise DataError(f"fit: {unfit[0]!r}: a cable's friction cannot be fitted yet (no derivatives with respect "
-                        "to it; fit the others with it set, or compare runs over a few values)")
+    frictionless = [t for t in flat if is_path_parameter(t) and not scalar_keys(design)[t] > 0.0]
+    if frictionless:
+        raise DataError(f"fit: {frictionless[0]!r}: starts at 0, a cable without friction; start it above 0 "
+                        f"(--set {frictionless[0]}=0.1)")
     if len(set(flat)) != len(flat):
         raise DataError("fit: a parameter is named twice")
     bounds = parse_pairs(bounds.items() if isinstance(bounds, dict) else bounds, "bounds")
@@ -536,6 +542,8 @@ class Calibration:
     groups_end: list = field(default_factory=list)
     identify_with: list = field(default_factory=list)  # per unidentifiable group: measurements that would fix it
     starts: list = field(default_factory=list)        # per start: its values, cost, iterations, converged
+    model_error: dict | None = None   # the model's own error per column and what the fit did with it (calerror)
+    model_errors: np.ndarray | None = None    # (rows, columns) its estimate e_ij at the estimate (NaN: none)
 
     def to_dict(self) -> dict:
         params = {}
@@ -563,6 +571,7 @@ class Calibration:
             "starts": self.starts,
             "residual_rms": {c: v for c, v in self.rms.items()},
             "holdout": self.holdout,
+            "model_error": self.model_error,
             "variance_factor": float(self.s2),
             "rows": int(self.data.rows), "fitted_rows": int(self.data.train.sum()),
             "sigma": {c: float(s) for c, s in zip(self.columns, self.data.sigma)},

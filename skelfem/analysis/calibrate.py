@@ -53,6 +53,7 @@ import time
 import numpy as np
 
 from .caldata import Calibration, Data, DataError, prepare_data  # noqa: F401 (Calibration re-exported)
+from .calerror import DEFAULT as MODEL_ERROR, MAX_DOFS, ModelError, check_mode
 from .calrows import Rows  # noqa: F401 (re-exported)
 from ..fem.newton import SolveError
 
@@ -67,21 +68,26 @@ STARTS_SPREAD = math.log(10.0)   # further starts: within a decade of the design
                                  # half their scale (the others)
 SETTLED = 1e-3       # converged when the next Gauss-Newton step is below this of every standard deviation
 MAX_TRIALS = 10       # trial steps allowed per iteration (least_squares' evaluation budget)
+CORRECTIONS = 5       # refits to the data less the model's estimated error, at most
+SETTLED_Z = 1e-3      # ... until the estimate moves by less than this (in z: a relative change for log ones)
 
 
 # -- the fit ---------------------------------------------------------------------------------------
-def _weighted(data: Data, Y, J):
-    """r and J_r of the fitted rows' measured cells, weighted by 1/sigma (J in raw parameters)."""
+def _weighted(data: Data, Y, J, sigma=None):
+    """r and J_r of the fitted rows' measured cells, weighted by 1/sigma (J in raw parameters); sigma:
+    (rows, columns) of each cell (default: its column's)."""
     mask = np.isfinite(data.values) & data.train[:, None]
-    R = (Y - data.values) / data.sigma
+    sigma = np.broadcast_to(data.sigma if sigma is None else sigma, data.values.shape)
+    R = (Y - data.values) / sigma
     r = R[mask]
-    Jr = (J / data.sigma[None, :, None])[mask] if J is not None else None
+    Jr = (J / sigma[:, :, None])[mask] if J is not None else None
     return r, Jr
 
 
 def calibrate(session, data, fit=None, sigma=None, bounds=None, holdout: float = 0.0, *,
               max_iterations: int = 20, starts: int = 1, xtol: float = 1e-8, ftol: float = 1e-8,
-              gtol: float = 1e-8, rcond: float = RCOND, progress=None, seed: int = 0) -> Calibration:
+              gtol: float = 1e-8, rcond: float = RCOND, progress=None, seed: int = 0,
+              model_error: str = MODEL_ERROR, max_dofs: int = MAX_DOFS) -> Calibration:
     """Fit the live parameters `fit` of the session's design to `data` (see the module doc).
 
     data: a CSV path, CSV text, {column: values} or a prepared Data (then fit,
@@ -92,17 +98,31 @@ def calibrate(session, data, fit=None, sigma=None, bounds=None, holdout: float =
     design's parameter values (its state is the last row's equilibrium, from
     which the next solve warm-starts); apply the estimate with
     ``session.set(cal.overrides(session.design))``. A fit that does not
-    converge returns its best state with ``converged`` False.
+    converge returns its best state with ``converged`` False. model_error: what the fit does
+    with the model's own discretisation error, estimated in every cell at the start and at the
+    estimate (skelfem.analysis.calerror: "inflate", "refine" (re-meshes the session, up to
+    max_dofs; the session keeps the finer mesh) or "ignore"); reported in ``model_error``.
     """
     t0 = time.perf_counter()
     if session.comm.size > 1:
         raise ValueError(f"calibration runs on one MPI process (got {session.comm.size})")
     if not 1 <= int(starts) <= MAX_STARTS:
         raise DataError(f"starts {starts}: must be >= 1 and <= {MAX_STARTS}")
+    check_mode(model_error)
     if not isinstance(data, Data):
         data = prepare_data(session.design, data, fit, sigma, bounds, holdout, seed)
-    with Rows(session, data, progress) as rows:
-        return _fit(rows, data, t0, max_iterations, int(starts), seed, xtol, ftol, gtol, rcond)
+    err = ModelError(data, model_error, max_dofs)
+    theta0 = np.array([p.initial for p in data.parameters], float)
+    while True:                         # refine: re-mesh until the model's error is below the target
+        with Rows(session, data, progress) as rows:
+            err.start = err.estimate(rows, theta0)[0]
+            finer = err.wants_finer(session, err.start)
+            if not finer:
+                cal = _fit(rows, data, t0, max_iterations, int(starts), seed, xtol, ftol, gtol, rcond, err)
+                finer = err.wants_finer(session, err.end)
+        if not finer:
+            return cal
+        err.halve(session)
 
 
 class _Stop(Exception):
@@ -124,8 +144,8 @@ class _Objective:
     tolerances are relative to the start's misfit whatever the sigmas.
     """
 
-    def __init__(self, rows, data: Data, max_iterations: int):
-        self.rows, self.data, self.P = rows, data, data.parameters
+    def __init__(self, rows, data: Data, max_iterations: int, sigma=None):
+        self.rows, self.data, self.P, self.sigma = rows, data, data.parameters, sigma
         self.max_iterations = max_iterations
         self.trials: dict = {}
         self.accepted = None            # (z, Y, r, Jz) of the last accepted point
@@ -139,7 +159,7 @@ class _Objective:
         """(Y, states, r, Jz) at z; SolveError if a row fails."""
         theta = self.theta(z)
         Y, J, states = self.rows.run(theta)
-        r, Jr = _weighted(self.data, Y, J)
+        r, Jr = _weighted(self.data, Y, J, self.sigma)
         Jz = Jr * np.array([p.dvalue_dz(v) for p, v in zip(self.P, theta)])
         if not (np.all(np.isfinite(r)) and np.all(np.isfinite(Jz))):
             raise SolveError("the weighted residuals or their derivatives are not finite")
@@ -199,10 +219,12 @@ class _Objective:
         return Jz
 
 
-def _one_fit(rows, data: Data, z0, max_iterations: int, xtol: float, ftol: float, gtol: float) -> dict:
-    """One trust-region fit (least_squares 'trf': a step on a bound moves along it) from z0."""
+def _one_fit(rows, data: Data, z0, max_iterations: int, xtol: float, ftol: float, gtol: float,
+             sigma=None) -> dict:
+    """One trust-region fit (least_squares 'trf': a step on a bound moves along it) from z0; sigma: the
+    cells' (rows, columns), default their columns'."""
     from scipy.optimize import least_squares
-    obj = _Objective(rows, data, max_iterations)
+    obj = _Objective(rows, data, max_iterations, sigma)
     J0 = obj.start(z0)
     lo, hi = np.array([p.z_bounds() for p in data.parameters]).T.reshape(2, -1)
     converged, status = False, "max_iterations"
@@ -224,7 +246,7 @@ def _one_fit(rows, data: Data, z0, max_iterations: int, xtol: float, ftol: float
 
 
 def _fit(rows, data: Data, t0: float, max_iterations: int, starts: int, seed: int, xtol: float, ftol: float,
-         gtol: float, rcond: float) -> Calibration:
+         gtol: float, rcond: float, err: ModelError) -> Calibration:
     """The trust-region fits from every start and the uncertainty at the best estimate (see calibrate)."""
     from scipy.stats import t as student
 
@@ -237,15 +259,17 @@ def _fit(rows, data: Data, t0: float, max_iterations: int, starts: int, seed: in
     for _ in range(starts - 1):
         z = rng.uniform(-1.0, 1.0, m) * spread
         z0s.append(np.clip(z, zlo + 1e-9 * np.abs(zlo), zhi - 1e-9 * np.abs(zhi)))
+    sig = err.sigma()
     for k, z0 in enumerate(z0s):
         try:
-            fits.append(_one_fit(rows, data, z0, max_iterations, xtol, ftol, gtol))
+            fits.append(_one_fit(rows, data, z0, max_iterations, xtol, ftol, gtol, sig))
         except SolveError as exc:
             if k == 0:
                 raise SolveError(f"at the start: {exc}") from None
             log.info("calibrate: start %d failed (%s)", k + 1, exc)
             fits.append(None)
-    best = min((f for f in fits if f is not None), key=lambda f: f["cost"])
+    best = _corrected(rows, min((f for f in fits if f is not None), key=lambda f: f["cost"]), err,
+                      max_iterations, xtol, ftol, gtol, sig)
     z, Y, r, A, cost = best["z"], best["Y"], best["r"], best["Jz"], best["cost"]
     theta = np.array([p.from_z(v) for p, v in zip(P, z)], float)
     dz = np.array([p.dvalue_dz(v) for p, v in zip(P, theta)], float)     # d theta / d z
@@ -261,7 +285,7 @@ def _fit(rows, data: Data, t0: float, max_iterations: int, starts: int, seed: in
     inv = (Vt[keep].T / svals[keep] ** 2) @ Vt[keep] if m else np.zeros((0, 0))
     all_given = bool(np.all(data.sigma_given))
     s2 = 1.0 if all_given else (2.0 * cost / (n - m) if n > m else math.nan)
-    cov_z = s2 * inv
+    cov_z = err.covariance(A, inv, s2, np.isfinite(data.values) & data.train[:, None], sig)
     std_z = np.sqrt(np.maximum(np.diag(cov_z), 0.0))
     bad = sorted({i for g in groups for i in g})
     std_z[bad] = math.inf
@@ -312,7 +336,37 @@ def _fit(rows, data: Data, t0: float, max_iterations: int, starts: int, seed: in
         solves=rows.solves, newton_iterations=rows.newton_iterations, time=time.perf_counter() - t0,
         factor=factor, identified=identified, reasons=reasons,
         groups_start=[[P[i].key for i in g] for g in g0], groups_end=[[P[i].key for i in g] for g in g1],
-        identify_with=hints, starts=runs)
+        identify_with=hints, starts=runs, model_error=err.report(dz),
+        model_errors=err.end)
+
+
+def _corrected(rows, fit: dict, err: ModelError, max_iterations: int, xtol: float, ftol: float, gtol: float,
+               sig) -> dict:
+    """The fit to the data less the model's estimated error (calerror), refitted from `fit` with the error
+    estimated again at each new estimate until z moves by less than SETTLED_Z (at most CORRECTIONS times);
+    `fit` itself when the error is ignored. Sets err.end and err.change (the last estimate) and err.shift
+    (how far z moved; None if the first refit failed)."""
+    P = rows.data.parameters
+    out, err.shift = fit, None
+    err.uncorrected = np.array([p.from_z(v) for p, v in zip(P, fit["z"])], float)
+    for _ in range(CORRECTIONS):
+        theta = np.array([p.from_z(v) for p, v in zip(P, out["z"])], float)
+        err.end, err.change = err.estimate(rows, theta, rows.states)
+        if err.mode == "ignore" or not len(P):
+            break
+        states = rows.states
+        try:
+            new = _one_fit(rows, err.corrected(), out["z"], max_iterations, xtol, ftol, gtol, sig)
+        except SolveError as exc:
+            log.info("calibrate: the refit to the data less the model's error failed (%s)", exc)
+            rows.states = states
+            break
+        moved = float(np.max(np.abs(new["z"] - out["z"])))
+        out, err.shift = new, new["z"] - fit["z"]
+        err.corrections += 1
+        if moved < SETTLED_Z:
+            break
+    return out
 
 
 def _null_groups(A, rcond: float):

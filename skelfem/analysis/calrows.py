@@ -38,12 +38,14 @@ row's Newton solve and factorisation (studies/calibration.py --bench-only:
 """
 from __future__ import annotations
 
+import contextlib
+import logging
 import math
 
 import numpy as np
 from petsc4py import PETSc
 
-from .caldata import AXES, Data, DataError
+from .caldata import AXES, Data, DataError, is_path_parameter
 from .sensitivity import Linearization
 from ..fem.newton import SolveError
 
@@ -53,6 +55,18 @@ LINEAR = ("E", "stiffness", "density", "acceleration", "force", "traction", "con
 # parameters that move where a contact starts (a node's gap changes sign within 1e-4 of a ground's
 # position): differenced with 1e-3 of the usual step
 KINKED = ("point",)
+
+
+@contextlib.contextmanager
+def _quiet():
+    """skelfem's log at ERROR and above only, for the duration."""
+    logger = logging.getLogger("skelfem")
+    level = logger.level
+    logger.setLevel(max(level, logging.ERROR))
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
 
 
 # -- the forward model over all rows ------------------------------------------------------------
@@ -90,6 +104,9 @@ class Rows:
         self._linear = np.array([c.startswith("markers.") for c in data.columns])   # y = X + S x
         self._nonlinear = [sec for sec in self._sections if sec != "markers"]
         self.iteration = 0
+        # a cable's friction: its Jacobian column is a central difference over the load paths re-solved
+        self._path = [j for j, p in enumerate(data.parameters) if is_path_parameter(p.base)]
+        self.path_step = 1e-3          # of the coefficient: the rows' Newton tolerance is far below its effect
 
     # parameters of a row
     def _values(self, theta, i: int) -> dict:
@@ -146,6 +163,8 @@ class Rows:
     def _solve(self, i: int, theta, start) -> None:
         model, solver = self.model, self.solver
         self._apply(self._values(theta, i))
+        if model.path_dependent:     # friction: the history is the path's, so each path is followed from rest
+            start = None
         if start is not None:
             model.u.x.array[:] = start
             model.changes.clear()                    # no predictor from another row's factorisation
@@ -178,6 +197,8 @@ class Rows:
         dR, dG, steps = np.zeros((n, m)), np.zeros((n, m)), np.zeros(m)
         try:
             for j, p in enumerate(params):
+                if j in self._path:                       # differenced over the paths (run)
+                    continue
                 value = vals[p.base] if p.component is None else vals[p.base][p.component]
                 h = self.h * max(abs(value), p.scale)
                 if p.base.rsplit(".", 1)[-1] in KINKED:   # contact switches within a step: a tiny one
@@ -219,6 +240,8 @@ class Rows:
             DX = dG - lin.solve_many(dR) if m else dR      # dx*/dp, every parameter (owned entries)
             x0a = x0.array_r.copy()
             for j, p in enumerate(params):
+                if j in self._path:
+                    continue
                 h, ys = steps[j], []
                 for s in (h, -h):                        # markers are linear in x: one side suffices
                     self._set(p, vals, s)
@@ -291,6 +314,28 @@ class Rows:
     def __exit__(self, *exc):
         self.restore()
 
+    def errors(self, theta, states=None) -> tuple[np.ndarray, np.ndarray]:
+        """(E, S), each (rows, columns): every measured column's estimated model error |exact - computed|
+        (skelfem.estimate) and the richer degree's signed change at each row's equilibrium for theta, the
+        rows solved in order from states (default: their load paths from rest); NaN where a row's estimate
+        failed. SolveError if a row fails."""
+        from ..estimate import estimate
+        theta = np.asarray(theta, float)
+        states = [None] * self.data.rows if states is None else states
+        E = np.full((self.data.rows, len(self.data.columns)), math.nan)
+        S = E.copy()
+        for i in range(self.data.rows):
+            self._solve(i, theta, states[i])
+            with _quiet():                        # its advice on the solver's tolerance is for a run
+                found = estimate(self.session)["errors"] or {}
+            for j, c in enumerate(self.data.columns):
+                e = found.get(c) or {}
+                if e.get("error") is not None:
+                    E[i, j], S[i, j] = e["error"], e["change"]
+            if self.progress is not None:
+                self.progress(self.iteration, i + 1, self.data.rows)
+        return E, S
+
     def run(self, theta, jacobian: bool = True, states=None):
         """(Y, J, states): every row solved for theta; J (rows, columns, parameters) or None.
 
@@ -305,7 +350,7 @@ class Rows:
         for i in range(n):
             self._solve(i, theta, states[i])
             Y[i] = self.measure()
-            if jacobian:
+            if jacobian and len(self._path) < len(theta):
                 try:
                     J[i] = self._sensitivities(i, theta, Y[i])
                 except (RuntimeError, np.linalg.LinAlgError, PETSc.Error) as exc:   # GMRES through friction...
@@ -315,4 +360,22 @@ class Rows:
             new[i] = self.model.u.x.array.copy()
             if self.progress is not None:
                 self.progress(self.iteration, i + 1, n)
+        if jacobian:
+            for j in self._path:
+                J[:, :, j] = self._path_column(theta, j)
         return Y, J, new
+
+    def _path_column(self, theta, j: int) -> np.ndarray:
+        """dY/dtheta_j (rows, columns) by central differences of the measurements over every load path
+        solved from rest at theta_j +- h: a friction coefficient moves the history the rows carry."""
+        h = self.path_step * max(abs(float(theta[j])), self.data.parameters[j].scale)
+        Ys = []
+        for s in (h, -h):
+            t = np.array(theta, float)
+            t[j] += s
+            Y = np.empty((self.data.rows, len(self.data.columns)))
+            for i in range(self.data.rows):
+                self._solve(i, t, None)
+                Y[i] = self.measure()
+            Ys.append(Y)
+        return (Ys[0] - Ys[1]) / (2.0 * h)

@@ -2,12 +2,13 @@
 
     skelfem calibrate DESIGN --data DATA.csv --fit KEY [--fit KEY ...] [--sigma COLUMN=VALUE ...]
                       [--bounds KEY=LO,HI ...] [--holdout FRACTION] [--max-iterations N] [--starts N]
-                      [--out DIR]
+                      [--model-error inflate|refine|ignore] [--max-dofs N] [--out DIR]
 
 The CSV has one row per measured state (the contract: skelfem.analysis.caldata
 and docs/guide/calibration.md). Writes calibration.json (estimates, initial
 values, std, 95 % intervals, correlations, unidentifiable groups, iterations,
-residual RMS per column, the held-out error), calibrated.toml (the design file
+residual RMS per column, the held-out error, the model's own error per column and
+what the fit did with it), calibrated.toml (the design file
 with the fitted values, its comments kept), fit.csv (data and model per row),
 fit.png, residuals.png and parameters.png. Bad input: one ``error:`` line,
 exit 1, nothing written, before any meshing. A row that does not converge at
@@ -24,11 +25,13 @@ import time
 from pathlib import Path
 
 from . import common as cli
+from ..analysis.calerror import DEFAULT as MODEL_ERROR, MAX_DOFS, MODES
 from ..io import outdir
 from ..io.files import FORMAT, write_csv, write_json, write_text
 
 MAX_ITERATIONS = 1000
 MAX_STARTS = 100
+MAX_DOFS_LIMIT = 100_000_000
 
 
 def add_parsers(subparsers) -> None:
@@ -52,6 +55,12 @@ def add_parsers(subparsers) -> None:
     p.add_argument("--starts", type=int, default=1, metavar="N",
                    help="fit from N starts: the design's values and N - 1 drawn within a decade of them "
                         "(seeded); the lowest misfit wins (default 1)")
+    p.add_argument("--model-error", choices=MODES, default=MODEL_ERROR,
+                   help="the model's own discretisation error, estimated in every cell: 'inflate' weighs each "
+                        "cell by sigma^2 + e^2 and carries the error into the intervals (default), 'refine' "
+                        "halves [mesh] size until it is below sigma/3 (up to --max-dofs), 'ignore' only reports it")
+    p.add_argument("--max-dofs", type=int, default=MAX_DOFS, metavar="N",
+                   help=f"--model-error refine: no mesh above N degrees of freedom (default {MAX_DOFS})")
     p.set_defaults(handler=calibrate_command)
 
 
@@ -104,6 +113,8 @@ def calibrate_command(args) -> int:
         raise cli.InputError(f"--max-iterations {args.max_iterations}: must be >= 1 and <= {MAX_ITERATIONS}")
     if not 1 <= args.starts <= MAX_STARTS:
         raise cli.InputError(f"--starts {args.starts}: must be >= 1 and <= {MAX_STARTS}")
+    if not 1 <= args.max_dofs <= MAX_DOFS_LIMIT:
+        raise cli.InputError(f"--max-dofs {args.max_dofs}: must be >= 1 and <= {MAX_DOFS_LIMIT}")
     if not (math.isfinite(args.holdout) and 0.0 <= args.holdout < 1.0):
         raise cli.InputError(f"--holdout {args.holdout:g}: must be a fraction in [0, 1)")
     design = cli.load(args)
@@ -121,7 +132,8 @@ def calibrate_command(args) -> int:
     with session:
         try:
             cal = calibrate(session, data, max_iterations=args.max_iterations, starts=args.starts,
-                            progress=_progress(not args.quiet and sys.stderr.isatty()))
+                            progress=_progress(not args.quiet and sys.stderr.isatty()),
+                            model_error=args.model_error, max_dofs=args.max_dofs)
         except SolveError as exc:
             cli.error(f"{design.name}: {exc}; nothing written to {args.out}")
             return cli.EXIT_SOLVE
@@ -130,10 +142,12 @@ def calibrate_command(args) -> int:
         result = {"format": FORMAT, "design": design.name, "data": str(args.data), **cal.to_dict(),
                   "calibrated": fitted, "timings": {k: round(float(v), 4) for k, v in timings.items()}}
         text = calibrated_text(args.design, fitted, args.overrides)
-        header = ["row", "experiment", "fitted"] + [f"{c}{s}" for c in cal.columns for s in ("", ":model")]
+        header = ["row", "experiment", "fitted"] + [f"{c}{s}" for c in cal.columns
+                                                    for s in ("", ":model", ":model_error")]
         rows = [dict(zip(header, [i + 1, data.experiments[i], int(data.train[i])]
                          + [v for j in range(len(cal.columns))
-                            for v in (_cell(data.values[i, j]), float(cal.model_values[i, j]))]))
+                            for v in (_cell(data.values[i, j]), float(cal.model_values[i, j]),
+                                      _cell(cal.model_errors[i, j]))]))
                 for i in range(data.rows)]
         design_file = "calibrated.toml" if cal.converged else "partial.toml"     # a partial result: its best state
         with outdir.publish(args.out, kind="calibrate") as stage:    # every file or none
@@ -149,6 +163,7 @@ def calibrate_command(args) -> int:
             print(f"  {k} = {cal.values[i]:.6g} (start {cal.initial[i]:.6g}), {_interval(cal, i)}")
         for group, ways in zip(cal.unidentifiable, cal.identify_with):
             print(f"  the data cannot separate: {', '.join(group)}; measure as well: {'; or '.join(ways)}")
+        _print_model_error(cal)
         if cal.holdout:
             print(f"  held-out rows: {cal.holdout['rows']}, weighted RMS {cal.holdout['weighted_rms']:.3g}")
         print(f"  results in {args.out}/ (calibration.json, {design_file}, fit.csv, fit.png, residuals.png, "
@@ -158,6 +173,18 @@ def calibrate_command(args) -> int:
                   f"its best state is in {args.out}/partial.toml, not calibrated")
         return cli.EXIT_SOLVE
     return cli.EXIT_OK
+
+
+def _print_model_error(cal) -> None:
+    """The model error's line: what was done, and each column's largest e / sigma at the estimate."""
+    me = cal.model_error
+    if not me:
+        return
+    worst = ", ".join(f"{c} {v.get('max_over_sigma_at_estimate', math.nan):.3g}" for c, v in me["columns"].items())
+    print(f"  model error (max e/sigma): {worst}; {me['mode']}: {me['how']}")
+    if me["too_coarse"] and me["mode"] == "ignore":
+        print("  the model's error is above a third of sigma: its intervals do not hold it (--model-error inflate "
+              "or refine)")
 
 
 def _interval(cal, i: int) -> str:
