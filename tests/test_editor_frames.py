@@ -203,3 +203,40 @@ def test_the_certificate_leaves_a_frictional_state_and_its_history_as_they_were(
         assert _same(s.model.history(), history)          # friction's anchors, slips and trial states
     finally:
         s.close()
+
+
+@pytest.mark.slow
+def test_the_page_asks_again_after_a_frame_out_of_time_until_converged(tmp_path):
+    """In Chromium: every slider frame outruns the solver (a budget of 1 us); the page asks again for the
+    same design (answers "go on" still out of time), shows "preview" meanwhile and "converged" at the end."""
+    import shutil
+
+    from skelfem.editor.browser import BrowserMissing, Page, chrome
+    from skelfem.editor.server import Editor
+    shutil.copy(GEOMETRY / "finger.toml", tmp_path / "finger.toml")
+    ed = Editor(tmp_path / "finger.toml", port=0).start()
+    driver = None
+    try:
+        try:
+            driver = chrome()
+        except BrowserMissing as exc:
+            pytest.fail(f"this test needs Debian's Chromium: {exc}", pytrace=False)
+        page = Page(driver, ed.url)
+        ed.engine.frame_budget = 1e-6
+        css = "#sliders input[data-cable=flexor]"
+        x, y = page.center(css)
+        width = page.js("document.querySelector(arguments[0]).getBoundingClientRect().width", css)
+        page.drag((x, y), [(x - k * 0.03 * width, y) for k in range(1, 5)], hold=True)     # held: drafts only
+        page.idle()
+        server = page.js("S.server")
+        assert any(e["how"] == "go on" and e["status"] == "frame_budget" for e in server)   # asked again
+        assert server[-1]["status"] == "converged"                  # ... until converged, still held
+        certs = page.js("S.certificates")
+        assert "preview" in [c["state"] for c in certs] and certs[-1]["state"] == "converged"
+        assert all(c["ratio"] <= 1 for c in certs if c["state"] == "converged")
+        assert page.js("document.getElementById('certificate').dataset.state") == "converged"
+        assert not page.console_errors()
+    finally:
+        if driver is not None:
+            driver.quit()
+        ed.stop()

@@ -98,7 +98,8 @@ function onAnswer(data) {
     if (a.new_design && req.kind === "ik") adoptContractions(a.new_design);
     if (a.ik) S.ik.info = a.ik;
     S.answer = a; S.failed = null; S.solves += 1;
-    S.server.push({ how: a.editor.how, draft: a.editor.draft, s: a.editor.seconds, rtt: performance.now() - req.sent });
+    S.server.push({ how: a.editor.how, draft: a.editor.draft, status: a.status, s: a.editor.seconds,
+      rtt: performance.now() - req.sent });
     clearError();
     render();
     painted(req.input);
