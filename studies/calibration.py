@@ -3,6 +3,7 @@
     python studies/calibration.py [--size-data 1.0] [--size-fit 2.0] [--seeds 20] [--bench-size 1.0]
                                   [--out studies/output/calibration] [--figures studies/figures] [--csv]
     python studies/calibration.py --bench-only [--bench-size 1.0]     # the cost per iteration, printed
+    python studies/calibration.py --model-error-only [--model-error-seeds 20] [--model-error-rows 8]
 
 The "real" finger is geometry/finger.toml with other material values than the
 design file says (TRUE: silicone E 0.125 MPa instead of 0.1, flexor 16 N/mm
@@ -33,6 +34,13 @@ and the spread of the estimates against the reported std.
 Bench: the cost of one Levenberg-Marquardt iteration (every row solved, with
 its sensitivities) for 2 and for 20 fitted parameters (bench_size).
 
+Model error (--model-error-only): a thumb changed from the bundled one (nu 0.40,
+so not a design of the repository) measured on a 1.25 mm P2 mesh (truth E 0.065
+MPa, flexor 11 N/mm; tip sigma 0.1 mm, tension 0.05 N), fitted on 2.5 mm P1
+from the design's values with --model-error inflate and ignore, over seeded
+noise: how often each 95 % interval holds the truth, the mean bias against the
+mean reported std; studies/output/calibration/model_error.json.
+
 run(**params) returns the numbers; main(argv) also writes
 studies/output/calibration/{calibration,coverage,bench}.json and
 studies/figures/calibration.png, and with --csv the bundled example
@@ -53,6 +61,13 @@ TRUE = {"materials.ecoflex.E": 0.125, "cables.flexor.stiffness": 16.0, "cables.l
 FIT = list(TRUE)          # the four ligaments: one shared stiffness (one rubber band stock)
 NOISE = {"markers.*": 0.05, "cables.flexor.tension": 0.02, "grounds.fsr.force.y": 0.005}
 PULL_POINTS = 5
+# the model's own error: a thumb changed from the bundled one (nu 0.40), its data on a finer P2 mesh
+THUMB = ROOT / "geometry" / "thumb.toml"
+THUMB_SET = ["materials.ecoflex.nu=0.40"]
+THUMB_TRUE = {"materials.ecoflex.E": 0.065, "cables.flexor.stiffness": 11.0}
+THUMB_COLUMNS = ["markers.tip.x", "markers.tip.y", "cables.flexor.tension"]
+THUMB_NOISE = {"markers.*": 0.1, "cables.flexor.tension": 0.05}
+THUMB_DATA = (1.25, 2)                  # the data's mesh size and degree (the fit's: 2.5 mm, P1)
 FAR = 1.0e4                    # the sensor's y when it is not in use, mm
 BENCH20 = ["materials.ecoflex.E", "materials.ecoflex.nu", "materials.pla.E", "materials.pla.nu",
            "cables.flexor.stiffness", *[f"cables.{n}.stiffness" for n in LIGAMENTS],
@@ -121,14 +136,15 @@ def subset(data: dict, labels) -> dict:
             for k, v in data.items() if k == "experiment" or np.isfinite(np.asarray(v, float)[keep]).any()}
 
 
-def fit(size: float, data: dict, keys, sigma=NOISE) -> dict:
-    """Calibrate `keys` on the rig at `size` from the design's values; the numbers."""
+def fit(size: float, data: dict, keys, sigma=NOISE, model_error: str = "ignore") -> dict:
+    """Calibrate `keys` on the rig at `size` from the design's values; the numbers. model_error: "ignore"
+    (these parts measure the bias a fit absorbs; --model-error-only measures what inflate does)."""
     from fnmatch import fnmatchcase
 
     from skelfem import Session, calibrate
     sigma = {pat: v for pat, v in sigma.items() if any(fnmatchcase(c, pat) for c in data)}
     with Session(rig(size)) as s:
-        cal = calibrate(s, data, keys, sigma=sigma)
+        cal = calibrate(s, data, keys, sigma=sigma, model_error=model_error)
     out = cal.to_dict()
     for k in keys:
         p = out["parameters"][k]
@@ -159,7 +175,7 @@ def coverage(size: float, seeds: int, rows: int) -> dict:
             rng = np.random.default_rng(1000 + seed)
             data = {k: (v + rng.normal(0.0, 0.2 if k.startswith("markers") else 0.05, rows)
                         if k in cols else v) for k, v in clean.items()}
-            cal = calibrate(s, data, keys, sigma=sigma)
+            cal = calibrate(s, data, keys, sigma=sigma, model_error="ignore")      # data of the fit's own mesh
             est.append(cal.values)
             std.append(cal.std)
             inside.append((cal.ci95[:, 0] <= true) & (true <= cal.ci95[:, 1]))
@@ -172,6 +188,81 @@ def coverage(size: float, seeds: int, rows: int) -> dict:
             "spread_over_std": (spread / std.mean(axis=0)).tolist(),
             "mean_bias": (est.mean(axis=0) / true - 1).tolist(), "iterations_max": int(max(its)),
             "estimates": est.tolist(), "std": std.tolist()}
+
+
+def thumb_data(rows: int, size: float = THUMB_DATA[0], degree: int = THUMB_DATA[1]) -> dict:
+    """The changed thumb's noise-free measurements at THUMB_TRUE on a mesh of `size` and `degree`."""
+    from skelfem import Session
+    from skelfem.analysis.calibrate import synthesize
+    with Session(THUMB, THUMB_SET + [f"mesh.size={size}", f"mesh.degree={degree}"]) as s:
+        s.set(THUMB_TRUE)
+        return synthesize(s, {"cables.flexor.contraction": np.linspace(0.8, 8.0, rows)}, THUMB_COLUMNS)
+
+
+def model_error_coverage(seeds: int, rows: int = 10, modes=("inflate", "ignore"), size_fit: float = 2.5,
+                         data_mesh=None, first_seed: int = 0) -> dict:
+    """Coverage with the model's own error: the changed thumb's data on a finer P2 mesh plus noise, the fit
+    on a coarse P1 mesh from the design's values, with each --model-error mode: how often the 95 %
+    interval holds the truth, the mean bias against the mean reported std, the model error / sigma.
+    Seeds first_seed ... first_seed + seeds - 1 (merge() joins runs over other seeds)."""
+    from skelfem import Session, calibrate
+    keys = list(THUMB_TRUE)
+    clean = thumb_data(rows, *(data_mesh or THUMB_DATA))
+    out = {"keys": keys, "true": [THUMB_TRUE[k] for k in keys], "seeds": seeds, "rows": rows,
+           "noise": THUMB_NOISE, "design": f"thumb.toml with {', '.join(THUMB_SET)}",
+           "data_mesh": list(data_mesh or THUMB_DATA), "fit_mesh": [size_fit, 1], "modes": {}}
+    with Session(THUMB, THUMB_SET + [f"mesh.size={size_fit}", "mesh.degree=1"]) as s:
+        out["fit_dofs"] = s.dofs
+        for mode in modes:
+            runs, t0 = [], time.perf_counter()
+            for seed in range(first_seed, first_seed + seeds):
+                rng = np.random.default_rng(2000 + seed)
+                data = {k: (v + rng.normal(0.0, THUMB_NOISE["markers.*" if k.startswith("markers") else k], rows)
+                            if k in THUMB_COLUMNS else v) for k, v in clean.items()}
+                cal = calibrate(s, data, keys, sigma=THUMB_NOISE, model_error=mode)
+                runs.append({"seed": seed, "values": cal.values.tolist(), "std": cal.std.tolist(),
+                             "ci95": cal.ci95.tolist(), "max_over_sigma": cal.model_error["max_over_sigma"],
+                             "corrections": cal.model_error["corrections"], "iterations": cal.iterations,
+                             "converged": bool(cal.converged)})
+            out["modes"][mode] = {"runs": runs, "seconds": time.perf_counter() - t0}
+    return summarise(out)
+
+
+def summarise(out: dict) -> dict:
+    """Each mode's coverage numbers from its runs: truth inside the 95 % interval (count per parameter),
+    mean bias, mean reported std and their ratio, relative bias."""
+    true = np.array(out["true"])
+    for v in out["modes"].values():
+        runs = v["runs"]
+        est = np.array([r["values"] for r in runs])
+        std = np.array([r["std"] for r in runs])
+        ci = np.array([r["ci95"] for r in runs])
+        inside = (ci[:, :, 0] <= true) & (true <= ci[:, :, 1])
+        bias = est.mean(axis=0) - true
+        v.update({"seeds": len(runs), "inside": inside.sum(axis=0).tolist(),
+                  "inside_fraction": inside.mean(axis=0).tolist(), "mean_bias": bias.tolist(),
+                  "mean_relative_bias": (bias / true).tolist(), "mean_std": std.mean(axis=0).tolist(),
+                  "bias_over_std": (np.abs(bias) / std.mean(axis=0)).tolist(),
+                  "model_error_over_sigma_max": float(max(r["max_over_sigma"] for r in runs)),
+                  "iterations_max": int(max(r["iterations"] for r in runs)),
+                  "corrections_max": int(max(r["corrections"] for r in runs)),
+                  "converged": int(sum(r["converged"] for r in runs))})
+    out["seeds"] = max(len(v["runs"]) for v in out["modes"].values())
+    return out
+
+
+def merge(parts) -> dict:
+    """One model_error_coverage result from runs over disjoint seeds (their runs joined per mode)."""
+    out = {k: v for k, v in parts[0].items() if k != "modes"}
+    out["modes"] = {}
+    for part in parts:
+        for mode, v in part["modes"].items():
+            m = out["modes"].setdefault(mode, {"runs": [], "seconds": 0.0})
+            m["runs"] += v["runs"]
+            m["seconds"] += v["seconds"]
+    for m in out["modes"].values():
+        m["runs"].sort(key=lambda r: r["seed"])
+    return summarise(out)
 
 
 def bench(size: float, rows: int = 8, counts=(2, 20), repeats: int = 5) -> dict:
@@ -320,7 +411,21 @@ def main(argv=None) -> int:
     p.add_argument("--bench-size", type=float, default=1.0, help="mesh size of the bench (0: no bench)")
     p.add_argument("--csv", action="store_true", help="also write geometry/finger_calibration.csv")
     p.add_argument("--bench-only", action="store_true", help="only time an iteration for 2 and 20 parameters")
+    p.add_argument("--model-error-only", action="store_true",
+                   help="only the coverage with the model's own error (the changed thumb)")
+    p.add_argument("--model-error-seeds", type=int, default=20)
+    p.add_argument("--model-error-rows", type=int, default=8)
     a = p.parse_args(argv)
+    if a.model_error_only:
+        m = model_error_coverage(a.model_error_seeds, a.model_error_rows)
+        a.out.mkdir(parents=True, exist_ok=True)
+        write_json(a.out / "model_error.json", m)
+        for mode, v in m["modes"].items():
+            say(f"{mode}: inside {v['inside']} of {v['seeds']}; bias / std "
+                + ", ".join(f"{b:.2f}" for b in v["bias_over_std"])
+                + "; relative bias " + ", ".join(f"{100 * b:+.1f} %" for b in v["mean_relative_bias"]))
+        say(f"wrote {a.out / 'model_error.json'}")
+        return 0
     if a.bench_only:
         b = bench(a.bench_size or 1.0)
         say(_bench_line(b))

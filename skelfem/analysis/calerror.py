@@ -16,7 +16,7 @@ at the start and at the estimate, reports max_i e_ij / sigma_j per column, and
   (the start's estimate: a cell the model cannot match counts less); then it is
   *corrected*: refitted, from the estimate, to the data less the model's estimated
   error, d_ij - c_ij, with c estimated again at each new estimate, until the estimate
-  moves by less than 1e-3 in the fit's coordinates (at most 5 refits; the fixed
+  moves by less than 1e-2 in the fit's coordinates (at most 5 refits; the fixed
   point is the fit of the degree p + 1 model, at the cost of the degree p one plus
   one richer solve per row and refit). The correction is carried into the
   covariance as what it is, a systematic error, not noise: the estimate's

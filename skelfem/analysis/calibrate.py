@@ -69,7 +69,8 @@ STARTS_SPREAD = math.log(10.0)   # further starts: within a decade of the design
 SETTLED = 1e-3       # converged when the next Gauss-Newton step is below this of every standard deviation
 MAX_TRIALS = 10       # trial steps allowed per iteration (least_squares' evaluation budget)
 CORRECTIONS = 5       # refits to the data less the model's estimated error, at most
-SETTLED_Z = 1e-3      # ... until the estimate moves by less than this (in z: a relative change for log ones)
+SETTLED_Z = 1e-2      # ... until the estimate moves by less than this (in z: a relative change for log ones;
+                      # far below the correction's own share of the std, which is the whole correction)
 
 
 # -- the fit ---------------------------------------------------------------------------------------
