@@ -33,7 +33,7 @@ the end.
 
 Every answer carries a ``certificate``: the residual |R| of the state shown,
 the tolerance a batch solve (``skelfem simulate``) of the design holds its
-answer to (at least: :meth:`skelfem.fem.newton.NewtonSolver.certificate`), their
+answer to (at least: :func:`skelfem.fem.certificate.certificate`), their
 ratio, and ``state``: "converged" only for a state on the design's own mesh
 (not a draft's moved nodes) with |R| at or below that tolerance, else
 "preview" and ``why``.
@@ -187,7 +187,8 @@ class Engine:
 
     def certificate(self, converged: bool) -> dict:
         """What the shown state is worth: its residual against the batch tolerance (see the module doc)."""
-        residual, tol = self.session.solver.certificate(self.session.design.solver.steps)
+        from ..fem.certificate import certificate
+        residual, tol = certificate(self.session.solver, self.session.design.solver.steps)
         ratio = residual / tol if tol > 0 else math.inf
         if self.preview:
             why = "the frame's time was spent; the solve goes on"

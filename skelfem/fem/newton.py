@@ -443,35 +443,6 @@ class NewtonSolver(LineSearch):
         report.time = time.perf_counter() - t0
         return report
 
-    def certificate(self, steps: int = 1) -> tuple[float, float]:
-        """(|R|, tol): the residual at the model's current state, and the tolerance a solve from rest of
-        the same model in ``steps`` load steps holds it to at least.
-
-        Such a solve stops at max(atol, rtol |R_0|), |R_0| the largest first residual of its load steps;
-        the first is |R| at rest (pins at their first load factor's moves), so tol = max(atol, rtol x that)
-        is at most its tolerance: a state with |R| <= tol is converged as a batch solve is. Two residual
-        assemblies; the state, load factor, parameters and history (friction's) are left as they were.
-        """
-        model = self.model
-        x = model.u.vector.copy()
-        rest, b = x.duplicate(), x.duplicate()
-        factor, committed = model.factor, model.history()    # set_factor moves friction's trial states
-        try:
-            rest.set(0.0)
-            model.set_factor(1.0 / max(int(steps), 1))
-            model.apply_bcs(rest)
-            model.residual(rest, b)
-            tol = max(float(self.atol), float(self.rtol) * float(b.norm()))
-            model.set_factor(factor)
-            model.residual(x, b)
-            return float(b.norm()), tol
-        finally:
-            model.set_factor(factor)
-            model.set_history(committed)
-            model.sync(x)
-            for v in (x, rest, b):
-                v.destroy()
-
     def _tangent_predictor(self) -> float:
         """Euler predictor from the last equilibrium u_0 to the changed parameters p_1.
 
