@@ -90,6 +90,7 @@ def live_keys(design) -> dict:
                 out["contact.friction_static"] = float(c.static)
     objects = getattr(design, "objects", ())
     if objects:                                      # free rigid objects: their densities, [contact]'s friction
+        assert friction is not None                  # read with the objects
         out["contact.friction"] = float(friction.default.kinetic)
         out["contact.friction_static"] = float(friction.default.static)
         for o in objects:
@@ -290,6 +291,22 @@ def prepare_data(design, data, fit, sigma=None, bounds=None, holdout: float = 0.
     fit: live keys to fit; sigma: {column or pattern: std} or ["COL=VALUE"]; bounds:
     {key: (lo, hi)} or ["KEY=LO,HI"]; holdout: the fraction of rows kept out of the fit.
     """
+    header, rows, source = _rows(data, max_bytes)
+    names, values, conds, experiments = _columns(design, header, rows, source)
+    _check_condition_values(design, conds, source)
+    keys, targets_of = _fitted_keys(design, fit, conds)
+    params = _parameters(design, keys, targets_of, conds, bounds)
+    sig, given = _weights(names, values, sigma)
+    train = _training_rows(len(rows), holdout, seed)
+    count = int(np.isfinite(values[train]).sum())
+    if count < len(params) or train.sum() < 1:
+        raise DataError(f"{source}: {int(train.sum())} fitted rows hold {count} measurements, fewer than the "
+                        f"{len(params)} parameters to fit")
+    return Data(names, values, sig, given, conds, experiments, params, train, source, header)
+
+
+def _rows(data, max_bytes: int | None) -> tuple[list, list, str]:
+    """(header, rows of strings, source name) of a CSV path, CSV text or {column: values}."""
     if isinstance(data, dict):
         header = list(data)
         n = len(next(iter(data.values()))) if data else 0
@@ -301,19 +318,26 @@ def prepare_data(design, data, fit, sigma=None, bounds=None, holdout: float = 0.
         source = str(data) if not (isinstance(data, str) and "\n" in data) else "<data>"
     if not rows:
         raise DataError(f"{source}: no rows (expected one row per measured state)")
+    return header, rows, source
+
+
+def _columns(design, header: list, rows: list, source: str) -> tuple[list, np.ndarray, dict, list]:
+    """(measurement column names, their values (rows, columns), {condition key: values}, experiment
+    label of each row); DataError on a column that names nothing or an experiment split in two."""
     live = scalar_keys(design)
     vectors = {k for k, v in live_keys(design).items() if np.ndim(v) > 0}
     measures = measurement_columns(design)
-    cols, conds = [], {}
+    cols: list = []
+    conds: dict = {}
     for j, h in enumerate(header):
         if h == EXPERIMENT:
             continue
-        values = [_number(r[j], f"{source}: row {i + 1}, column {h!r}", h in measures)
+        column = [_number(r[j], f"{source}: row {i + 1}, column {h!r}", h in measures)
                   for i, r in enumerate(rows)]
         if h in measures:
-            cols.append((h, values))
+            cols.append((h, column))
         elif h in live:
-            conds[h] = np.array(values)
+            conds[h] = np.array(column)
         elif h in vectors:
             raise DataError(f"{source}: column {h!r}: a vector; give its components ({h}.x, {h}.y...)")
         else:
@@ -328,9 +352,13 @@ def prepare_data(design, data, fit, sigma=None, bounds=None, holdout: float = 0.
             raise DataError(f"{source}: experiment {lab!r}: its rows must be consecutive (one load path)")
     names = [c for c, _ in cols]
     values = np.array([v for _, v in cols], float).T
-    _check_condition_values(design, conds, source)
+    return names, values, conds, experiments
 
-    # fitted parameters
+
+def _fitted_keys(design, fit, conds: dict) -> tuple[list, dict]:
+    """(the fitted keys, {key: the live keys it sets}): plain keys, vectors by component, patterns tied."""
+    live = scalar_keys(design)
+    vectors = {k for k, v in live_keys(design).items() if np.ndim(v) > 0}
     fit = list(fit or [])
     if not fit:
         raise DataError("fit: no parameter to fit (give --fit KEY)")
@@ -362,6 +390,12 @@ def prepare_data(design, data, fit, sigma=None, bounds=None, holdout: float = 0.
                         f"(--set {frictionless[0]}=0.1)")
     if len(set(flat)) != len(flat):
         raise DataError("fit: a parameter is named twice")
+    return keys, targets_of
+
+
+def _parameters(design, keys: list, targets_of: dict, conds: dict, bounds) -> list:
+    """A Parameter per fitted key: its start, bounds (defaults, or given and checked) and log scaling."""
+    live = scalar_keys(design)
     bounds = parse_pairs(bounds.items() if isinstance(bounds, dict) else bounds, "bounds")
     for b in bounds:
         if b not in keys:
@@ -393,8 +427,11 @@ def prepare_data(design, data, fit, sigma=None, bounds=None, holdout: float = 0.
             if not offset:
                 _check_bound_values(design, key, targets, lo, hi, vector_keys)
         params.append(Parameter(key, base, comp, float(initial), float(lo), float(hi), offset, targets, log))
+    return params
 
-    # weights
+
+def _weights(names: list, values: np.ndarray, sigma) -> tuple[np.ndarray, np.ndarray]:
+    """(each column's sigma, whether it was given) from {column or pattern: std} or ["COL=VALUE"]."""
     sig = np.ones(len(names))
     given = np.zeros(len(names), bool)
     for pattern, text in parse_pairs(sigma.items() if isinstance(sigma, dict) else sigma, "sigma").items():
@@ -410,21 +447,20 @@ def prepare_data(design, data, fit, sigma=None, bounds=None, holdout: float = 0.
                 raise DataError(f"sigma {pattern}={text}: column {names[j]!r} has values up to {scale:g}; a sigma "
                                 f"must lie within {1 / SIGMA_RANGE:g} and {SIGMA_RANGE:g} times that")
         sig[hit], given[hit] = v, True
+    return sig, given
 
-    # hold-out rows
+
+def _training_rows(n_rows: int, holdout: float, seed: int) -> np.ndarray:
+    """Which rows the fit uses: all but a random fraction holdout (at least one row if holdout > 0)."""
     if not 0.0 <= float(holdout) < 1.0:
         raise DataError(f"holdout {holdout}: must be a fraction in [0, 1)")
-    train = np.ones(len(rows), bool)
-    k = int(round(float(holdout) * len(rows)))
+    train = np.ones(n_rows, bool)
+    k = int(round(float(holdout) * n_rows))
     if holdout > 0 and k == 0:
         k = 1
     if k:
-        train[np.random.default_rng(seed).choice(len(rows), size=k, replace=False)] = False
-    count = int(np.isfinite(values[train]).sum())
-    if count < len(params) or train.sum() < 1:
-        raise DataError(f"{source}: {int(train.sum())} fitted rows hold {count} measurements, fewer than the "
-                        f"{len(params)} parameters to fit")
-    return Data(names, values, sig, given, conds, experiments, params, train, source, header)
+        train[np.random.default_rng(seed).choice(n_rows, size=k, replace=False)] = False
+    return train
 
 
 def _bounds(key: str, value) -> tuple[float, float]:
@@ -583,7 +619,7 @@ class Calibration:
     def overrides(self, design) -> dict:
         """{--set key: value} of the fitted design parameters (offsets excluded), vectors merged."""
         base = {k: (np.array(v, float) if np.ndim(v) else float(v)) for k, v in live_keys(design).items()}
-        out = {}
+        out: dict = {}
         for p, v in zip(self.data.parameters, self.values):
             if p.offset:
                 continue

@@ -42,6 +42,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+from typing import Any
 
 import numpy as np
 
@@ -70,12 +71,12 @@ class ModelError:
 
     def __init__(self, data, mode: str = DEFAULT, max_dofs: int = MAX_DOFS):
         self.data, self.mode, self.max_dofs = data, check_mode(mode), int(max_dofs)
-        self.start = None            # (rows, columns) e_ij at the start, NaN where not estimated
-        self.end = None              # ... at the estimate
-        self.change = None           # (rows, columns) the richer degree's signed change at the estimate
-        self.shift = None            # (parameters,) how far the correction moved the estimate, in z
+        self.start: Any = None       # (rows, columns) e_ij at the start, NaN where not estimated
+        self.end: Any = None         # ... at the estimate
+        self.change: Any = None      # (rows, columns) the richer degree's signed change at the estimate
+        self.shift: Any = None       # (parameters,) how far the correction moved the estimate, in z
         self.corrections = 0         # refits to the corrected data made
-        self.uncorrected = None      # the estimate before the correction
+        self.uncorrected: Any = None  # the estimate before the correction
         self.refinements: list = []  # [{"size", "dofs", "max_over_sigma"}] of every mesh tried (refine)
         self.capped = False          # refine: the target not met within max_dofs
         self.std = None              # (parameters,) the model error's share of each std (in the fit's units)

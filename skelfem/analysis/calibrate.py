@@ -49,6 +49,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from typing import Any
 
 import numpy as np
 
@@ -149,8 +150,9 @@ class _Objective:
         self.rows, self.data, self.P, self.sigma = rows, data, data.parameters, sigma
         self.max_iterations = max_iterations
         self.trials: dict = {}
-        self.accepted = None            # (z, Y, r, Jz) of the last accepted point
-        self.iterations, self.history, self.failed = -1, [], 0
+        self.accepted: Any = None       # (z, Y, r, Jz) of the last accepted point
+        self.iterations, self.failed = -1, 0
+        self.history: list = []
         self.norm = 1.0
 
     def theta(self, z) -> np.ndarray:
@@ -255,7 +257,8 @@ def _fit(rows, data: Data, t0: float, max_iterations: int, starts: int, seed: in
     m = len(P)
     zlo, zhi = (np.array([p.z_bounds()[k] for p in P]) for k in (0, 1))
     rng = np.random.default_rng(seed)
-    fits, z0s = [], [np.zeros(m)]
+    fits: list = []                  # one per start: its fit, or None where it failed
+    z0s = [np.zeros(m)]
     spread = np.array([STARTS_SPREAD if p.log else 0.5 for p in P])
     for _ in range(starts - 1):
         z = rng.uniform(-1.0, 1.0, m) * spread

@@ -41,6 +41,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
+from typing import Any
 
 import numpy as np
 from petsc4py import PETSc
@@ -345,7 +346,7 @@ class Rows:
         states = self.states if states is None else states
         n = self.data.rows
         Y = np.empty((n, len(self.data.columns)))
-        J = np.zeros((n, len(self.data.columns), len(theta))) if jacobian else None
+        J: Any = np.zeros((n, len(self.data.columns), len(theta))) if jacobian else None
         new = [None] * n
         for i in range(n):
             self._solve(i, theta, states[i])
