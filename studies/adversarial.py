@@ -358,6 +358,9 @@ def body_probes() -> list[Probe]:
     body("E of 1e-300 MPa", {"materials.ecoflex.E": 1e-300})
     body("E of 1e-6 MPa (1 Pa)", {"materials.ecoflex.E": 1e-6}, SOLVED)
     body("nu of 0.5", {"materials.ecoflex.nu": 0.5})
+    body("gravity of 1e300 m/s^2", {"gravity": {"acceleration": [0.0, -1e300]},
+                                     "materials.ecoflex.density": 1070.0, "materials.dragonskin.density": 1070.0,
+                                     "materials.pla.density": 1240.0})
     for label, kv, expect in [("material switch", "bodies.left.material=dragonskin", SOLVED),
                               ("material unknown", "bodies.left.material=rubber", BAD),
                               ("a missing body", "bodies.middle.material=pla", BAD),

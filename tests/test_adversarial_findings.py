@@ -302,3 +302,17 @@ def test_the_rigid_border_is_formed_without_a_dense_product(monkeypatch):
     assert border.E.shape == (model.n_owned, 36) and border.C.shape == (36, 36)
     assert np.allclose(border.C, border.C.T) and np.all(np.isfinite(border.E))
     s.close()
+
+
+# == 9. Gravity without a bound ===============================================================================
+# Before: `--set gravity.acceleration=[0,-1e300]` on gripper.toml printed numpy's "RuntimeWarning: overflow
+# encountered in multiply" on stderr above its error line and ended in a diverged solve (exit 2). The
+# acceleration is at most 1e5 m/s^2 (about 10,000 g), refused before meshing.
+@pytest.mark.parametrize("g", [[0.0, -1e300], [3e5, 0.0]])
+def test_gravity_beyond_ten_thousand_g_is_refused(g):
+    d = adversarial.load("gripper.toml")
+    d["gravity"]["acceleration"] = g
+    with pytest.raises(DesignError, match=r"^x.toml: gravity.acceleration: must be at most 100000 m/s\^2"):
+        parse_design(d, "x.toml")
+    d["gravity"]["acceleration"] = [0.0, -9.81 * 1000]
+    assert parse_design(d, "x.toml").gravity[1] == pytest.approx(-9810.0)

@@ -231,11 +231,19 @@ def read_tractions(top: Table, dim: int) -> tuple:
     return tuple(out)
 
 
+MAX_GRAVITY = 1e5      # m/s^2: about 10,000 g
+
+
 def read_gravity(top: Table, dim: int, materials: dict, used: list) -> np.ndarray | None:
+    """[gravity]: an acceleration of at most MAX_GRAVITY (1e300 m/s^2 overflowed into a numpy warning
+    on stderr and a diverged solve)."""
     t = Table(top.take("gravity", "table", {}), "gravity", top.source)
     if not t.data:
         return None
     g = t.take("acceleration", "vector", dim=dim)
+    if float(np.linalg.norm(g)) > MAX_GRAVITY:
+        t.fail("acceleration", f"must be at most {MAX_GRAVITY:g} m/s^2 (about 10,000 g; check the units: m/s^2), "
+                               f"got {float(np.linalg.norm(g)):g}")
     t.done()
     for name in used:
         if materials[name].density is None:
