@@ -13,10 +13,7 @@ ROOT = Path(__file__).resolve().parents[1] / "skelfem"
 
 MAX_FUNCTION_LINES = 100
 # (module path, function name): reason it holds one idea at its length, until it is split
-LONG_FUNCTIONS: dict[tuple[str, str], str] = {
-    ("skelfem/accuracy/adapt.py", "refine_adaptive"):
-        "the rounds of --adaptive: solve, estimate, mark, re-mesh, decide; to be split into its steps",
-}
+LONG_FUNCTIONS: dict[tuple[str, str], str] = {}
 
 # (module path, attribute): why the module reads another's private attribute
 REACH_INS = {

@@ -372,12 +372,10 @@ def refine_adaptive(session, tol, degree: int = accuracy.DEGREE, weighted: bool 
     h_cap = float(base.mesh.size) / factors[0]    # the first round's finest size: rounds only refine
     zones = accuracy.ladder_zones(session.model, base, float(base.mesh.size)) if graded else None
     records, rounds = [], []
-    field = None
+    field = result = level = None
     before = before_last = None           # the observed rate of the round before (and of the one before it)
     bones, b = None, 0.0                  # accuracy.bones; b: the rigid bones' difference (added to estimates)
     stop = "estimate met the tolerance"
-    result = None
-    level = None
     for rnd in range(max_rounds):
         ladder: list[Level] = []
         coarse = None
@@ -402,16 +400,10 @@ def refine_adaptive(session, tol, degree: int = accuracy.DEGREE, weighted: bool 
                     break
             level = ladder[-1] = round_judged(ladder, before) if i == len(factors) - 1 else ladder[-1]
             if rounds and i == len(factors) - 1:
-                cross = cross_round(rounds[-1], level, dim)
-                if cross > level.estimate:
-                    log.info("--tol (adaptive) round %d: %.3g mm from the last round's answer", rnd + 1, cross)
-                    level = ladder[-1] = replace(level, estimate=cross)
+                level = ladder[-1] = _bounded_by(rounds[-1], level, dim, rnd)
             rec = _record(rnd + 1, i + 1, level, result, session)
             records.append(rec)
-            log.info("--tol (adaptive) round %d mesh %d: %d DOFs, h %.3g..%.3g mm: change %s, estimate %s",
-                     rnd + 1, i + 1, level.dofs, rec["min_size"], rec["max_size"],
-                     "-" if level.change is None else f"{level.change:.3g} mm",
-                     "-" if level.estimate is None else f"{level.estimate:.3g} mm (r = {level.rate:.2f})")
+            _log_level(rnd + 1, i + 1, level, rec)
             if on_level is not None:
                 on_level(dict(rec), session)
         else:
@@ -420,19 +412,12 @@ def refine_adaptive(session, tol, degree: int = accuracy.DEGREE, weighted: bool 
             if round_may_stop(ladder, before) and MARGIN * (level.estimate + b) <= tol:
                 size = field if field is not None else zones
                 scale = 1.0 if field is not None else 1.0 / factors[0]
-
-                def edit(f):
-                    session.edit(_design(base, f * h_cap, degree),
-                                 size=None if size is None else size.scaled(f * scale))
-                twin, result = accuracy.solve_twin(session, level, edit, rows)
+                twin, result = _twin(session, level, rows, rnd, records,
+                                     lambda f: session.edit(_design(base, f * h_cap, degree),
+                                                            size=None if size is None else size.scaled(f * scale)))
                 if twin is None:
                     stop = f"the twin solve of round {rnd + 1} failed ({result.status})"
                     break
-                rec = _record(rnd + 1, "twin", twin, result, session)
-                rec["scatter"] = twin.scatter
-                records.append(rec)
-                log.info("--tol (adaptive) round %d twin: %d DOFs: scatter %.3g mm, estimate %.3g mm", rnd + 1,
-                         twin.dofs, twin.scatter, twin.estimate)
                 ladder.append(twin)
                 if MARGIN * (twin.estimate + b) <= tol:
                     break
@@ -441,21 +426,10 @@ def refine_adaptive(session, tol, degree: int = accuracy.DEGREE, weighted: bool 
             if rnd + 1 >= max_rounds:
                 stop = f"{max_rounds} rounds"
                 break
-            # indicators of M_2's error on M_1's cells, and the next field
-            model = session.model
-            m1, m2 = [lv for lv in ladder if not lv.twin][-2:][::-1]
-            i_max = int(np.argmax(np.linalg.norm(m1.markers - m2.markers, axis=1)))
-            g = m1.markers[i_max] - m2.markers[i_max]
-            g = g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else np.eye(dim)[0]
-            z = target_adjoint(model, session.solver, targets, i_max, g) if weighted else None
-            eta = indicators(model, coarse[0], coarse[1], z)
-            eta *= (level.change + level.estimate) / max(float(np.sum(eta)), 1e-300)
             goal = tol / (MARGIN * AIM) if reduction is None else reduction * level.estimate
-            target = (factors[-2] / factors[-1]) ** level.rate * goal
-            h_cells = cell_sizes(model.mesh)
-            cap = first_sizes(zones, h_cap, model.mesh)
-            floor = max(1e-3 * h_design, anchor_spacing(model) or 0.0)
-            new = equidistribute(h_cells, eta, target, level.rate, dim, cap, np.minimum(floor, cap))
+            model = session.model
+            new = _next_sizes(session, targets, ladder, level, coarse, weighted,
+                              (factors[-2] / factors[-1]) ** level.rate * goal, zones, h_cap, h_design)
             dofs = predicted_dofs(model, new)
             if dofs * 1.05 > resources.limit(base, dofs * 1.05)[0] and not resources.FORCED:
                 stop = f"the next round's finest mesh (about {dofs:.3g} DOFs) would pass the DOF limit"
@@ -466,17 +440,72 @@ def refine_adaptive(session, tol, degree: int = accuracy.DEGREE, weighted: bool 
         break
     if not rounds:
         return result, {"tol": targets.spec(), "adaptive": True, "met": False, "stop": stop, "levels": records}
+    return result, _summary(session, targets, rounds, records, result, before_last, b, bones, stop, degree, t0)
+
+
+def _bounded_by(last_round: list, level, dim: int, rnd: int):
+    """level, its estimate raised to its distance from the last round's answer if that is larger."""
+    cross = cross_round(last_round, level, dim)
+    if cross > level.estimate:
+        log.info("--tol (adaptive) round %d: %.3g mm from the last round's answer", rnd + 1, cross)
+        return replace(level, estimate=cross)
+    return level
+
+
+def _twin(session, level, rows, rnd: int, records: list, edit):
+    """The round's twin solve (accuracy.solve_twin: meshes edited by edit(f)), recorded and logged:
+    (twin level or None if its solve failed, its Result)."""
+    twin, result = accuracy.solve_twin(session, level, edit, rows)
+    if twin is not None:
+        rec = _record(rnd + 1, "twin", twin, result, session)
+        rec["scatter"] = twin.scatter
+        records.append(rec)
+        log.info("--tol (adaptive) round %d twin: %d DOFs: scatter %.3g mm, estimate %.3g mm", rnd + 1,
+                 twin.dofs, twin.scatter, twin.estimate)
+    return twin, result
+
+
+def _next_sizes(session, targets, ladder, level, coarse, weighted: bool, target: float, zones, h_cap: float,
+                h_design: float) -> np.ndarray:
+    """The next round's cell sizes on the finest mesh: indicators of M_2's error on M_1's cells (weighted
+    by the adjoint of the marker that moved most, unless weighted is False), scaled to the round's change
+    and estimate, equidistributed to target within the first round's sizes and the anchors' floor."""
+    model, dim = session.model, session.design.dim
+    m1, m2 = [lv for lv in ladder if not lv.twin][-2:][::-1]
+    i_max = int(np.argmax(np.linalg.norm(m1.markers - m2.markers, axis=1)))
+    g = m1.markers[i_max] - m2.markers[i_max]
+    g = g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else np.eye(dim)[0]
+    z = target_adjoint(model, session.solver, targets, i_max, g) if weighted else None
+    eta = indicators(model, coarse[0], coarse[1], z)
+    eta *= (level.change + level.estimate) / max(float(np.sum(eta)), 1e-300)
+    h_cells = cell_sizes(model.mesh)
+    cap = first_sizes(zones, h_cap, model.mesh)
+    floor = max(1e-3 * h_design, anchor_spacing(model) or 0.0)
+    return equidistribute(h_cells, eta, target, level.rate, dim, cap, np.minimum(floor, cap))
+
+
+def _log_level(rnd: int, i: int, level, rec: dict) -> None:
+    log.info("--tol (adaptive) round %d mesh %d: %d DOFs, h %.3g..%.3g mm: change %s, estimate %s",
+             rnd, i, level.dofs, rec["min_size"], rec["max_size"],
+             "-" if level.change is None else f"{level.change:.3g} mm",
+             "-" if level.estimate is None else f"{level.estimate:.3g} mm (r = {level.rate:.2f})")
+
+
+def _summary(session, targets, rounds: list, records: list, result, before_last, b: float, bones, stop: str,
+             degree: int, t0: float) -> dict:
+    """The ``accuracy`` dict of result.json after the rounds: met only if the last round's twin holds
+    the estimate (plus the rigid bones' difference b) within tol."""
+    tol = targets.tol
     last = rounds[-1][-1]
     estimate = None if last.estimate is None else last.estimate + b
     three = [lv for lv in rounds[-1] if not lv.twin]
     met = bool(result.converged and last.twin and round_may_stop(three, before_last) and estimate is not None
                and MARGIN * estimate <= tol)
     h_final = cell_sizes(session.model.mesh)
-    accuracy_dict = {"tol": targets.spec(), "unit": targets.unit, "targets": targets.per_target(estimate),
-                     "adaptive": True, "degree": degree, "dofs": last.dofs,
-                     "min_size": float(h_final.min()), "max_size": float(h_final.max()),
-                     "size": float(h_final.max()), "rounds": len(rounds),
-                     "estimated_error": estimate, "rate": last.rate, "scatter": last.scatter,
-                     "met": met, "bones": bones, "stop": stop, "levels": records,
-                     "time": round(time.perf_counter() - t0, 4)}
-    return result, accuracy_dict
+    return {"tol": targets.spec(), "unit": targets.unit, "targets": targets.per_target(estimate),
+            "adaptive": True, "degree": degree, "dofs": last.dofs,
+            "min_size": float(h_final.min()), "max_size": float(h_final.max()),
+            "size": float(h_final.max()), "rounds": len(rounds),
+            "estimated_error": estimate, "rate": last.rate, "scatter": last.scatter,
+            "met": met, "bones": bones, "stop": stop, "levels": records,
+            "time": round(time.perf_counter() - t0, 4)}
