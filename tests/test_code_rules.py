@@ -77,12 +77,20 @@ def reach_ins(files: dict[str, str]) -> dict[tuple[str, str], list[str]]:
         tree = ast.parse(text, path)
         own = _defined_here(tree)
         for node in ast.walk(tree):
-            if not isinstance(node, ast.Attribute) or not node.attr.startswith("_") or node.attr.startswith("__"):
+            if isinstance(node, ast.Attribute):
+                obj, name = node.value, node.attr
+            elif (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and len(node.args) >= 2
+                  and node.func.id in ("getattr", "setattr", "hasattr", "delattr")
+                  and isinstance(node.args[1], ast.Constant) and isinstance(node.args[1].value, str)):
+                obj, name = node.args[0], node.args[1].value          # the same reach by a name in a string
+            else:
                 continue
-            if isinstance(node.value, ast.Name) and node.value.id in ("self", "cls"):
+            if not name.startswith("_") or name.startswith("__"):
                 continue
-            if node.attr not in own:
-                out.setdefault((path, node.attr), []).append(f"{ast.unparse(node)} (line {node.lineno})")
+            if isinstance(obj, ast.Name) and obj.id in ("self", "cls"):
+                continue
+            if name not in own:
+                out.setdefault((path, name), []).append(f"{ast.unparse(node)} (line {node.lineno})")
     return out
 
 
@@ -106,7 +114,8 @@ def test_the_rules_catch_a_long_function_and_a_reach_in():
     assert set(long_functions({"n.py": nested})) == {("n.py", "A.f"), ("n.py", "A.f.inner")}
     reach = ("class Mine:\n    def __init__(self):\n        self._own = 1\n\n"
              "    def same(self, other):\n        return other._own\n\n\n"
-             "def poke(model, cable):\n    cable._version += 1\n    return model._free, self_._x\n")
+             "def poke(model, cable):\n    cable._version += 1\n    return model._free, self_._x\n\n\n"
+             "def hide(mesh):\n    setattr(mesh, '_tree', 1)\n    return getattr(mesh, 'public', None)\n")
     found = reach_ins({"r.py": reach})
-    assert set(found) == {("r.py", "_version"), ("r.py", "_free"), ("r.py", "_x")}
+    assert set(found) == {("r.py", "_version"), ("r.py", "_free"), ("r.py", "_x"), ("r.py", "_tree")}
     assert found["r.py", "_version"] == ["cable._version (line 10)"]
