@@ -15,7 +15,7 @@ at the start and at the estimate, reports max_i e_ij / sigma_j per column, and
 - ``inflate`` (the default): the fit weighs cell (i, j) by 1 / sqrt(sigma_j^2 + e_ij^2)
   (the start's estimate: a cell the model cannot match counts less); then it is
   *corrected*: refitted, from the estimate, to the data less the model's estimated
-  error, d_ij - c_ij, with c estimated again at each new estimate, until the estimate
+  error, d_ij - c_ij (a converged fit only), with c estimated again at each new estimate, until the estimate
   moves by less than 1e-2 in the fit's coordinates (at most 5 refits; the fixed
   point is the fit of the degree p + 1 model, at the cost of the degree p one plus
   one richer solve per row and refit). The correction is carried into the

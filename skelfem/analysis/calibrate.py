@@ -323,9 +323,10 @@ def _fit(rows, data: Data, t0: float, max_iterations: int, starts: int, seed: in
     hints = _identify_with(rows, data, theta, dz, groups, list(basis0) + list(basis1)) if groups else []
     rms = _rms(data, Y, data.train)
     hold = None
-    if (~data.train).any():
-        Rw = ((Y - data.values) / data.sigma)[~data.train]
-        hold = {"rows": int((~data.train).sum()), "rms": _rms(data, Y, ~data.train),
+    if (~data.train).any():                 # predictions: corrected by the model's estimated error, if not ignored
+        Yp = Y + np.nan_to_num(err.change) if err.mode != "ignore" and err.change is not None else Y
+        Rw = ((Yp - data.values) / data.sigma)[~data.train]
+        hold = {"rows": int((~data.train).sum()), "rms": _rms(data, Yp, ~data.train),
                 "weighted_rms": float(np.sqrt(np.nanmean(Rw ** 2)))}
     runs = [{"initial": {p.key: float(p.from_z(v)) for p, v in zip(P, z0)},
              **({"failed": True} if f is None else
@@ -348,15 +349,15 @@ def _corrected(rows, fit: dict, err: ModelError, max_iterations: int, xtol: floa
                sig) -> dict:
     """The fit to the data less the model's estimated error (calerror), refitted from `fit` with the error
     estimated again at each new estimate until z moves by less than SETTLED_Z (at most CORRECTIONS times);
-    `fit` itself when the error is ignored. Sets err.end and err.change (the last estimate) and err.shift
-    (how far z moved; None if the first refit failed)."""
+    `fit` itself when the error is ignored or the fit did not converge. Sets err.end and err.change (the
+    last estimate) and err.shift (how far z moved; None if the first refit failed)."""
     P = rows.data.parameters
     out, err.shift = fit, None
     err.uncorrected = np.array([p.from_z(v) for p, v in zip(P, fit["z"])], float)
     for _ in range(CORRECTIONS):
         theta = np.array([p.from_z(v) for p, v in zip(P, out["z"])], float)
         err.end, err.change = err.estimate(rows, theta, rows.states)
-        if err.mode == "ignore" or not len(P):
+        if err.mode == "ignore" or not len(P) or not fit["converged"]:     # a fit that stopped: not corrected
             break
         states = rows.states
         try:
@@ -366,6 +367,7 @@ def _corrected(rows, fit: dict, err: ModelError, max_iterations: int, xtol: floa
             rows.states = states
             break
         moved = float(np.max(np.abs(new["z"] - out["z"])))
+        new["iterations"] += out["iterations"]                  # every iteration, the first fit's and the refits'
         out, err.shift = new, new["z"] - fit["z"]
         err.corrections += 1
         if moved < SETTLED_Z:
