@@ -191,6 +191,8 @@ class ModelError:
         return {"mode": self.mode, "how": how, "target_over_sigma": TARGET, "max_over_sigma": worst,
                 "too_coarse": too_coarse, "capped": self.capped, "meshes": self.refinements,
                 "columns": cols, "corrections": self.corrections, "effectivity": EFFECTIVITY,
+                "not_estimated": (int(np.sum(np.isnan(self.end) & np.isfinite(d.values)))
+                                  if self.end is not None else None),
                 "uncorrected": ({p.key: float(v) for p, v in zip(d.parameters, self.uncorrected)}
                                 if self.uncorrected is not None and self.mode != "ignore" else None),
                 "std_share": ({p.key: float(b * abs(g)) for p, b, g in zip(d.parameters, self.std, dz)}

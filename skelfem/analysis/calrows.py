@@ -70,6 +70,9 @@ def _quiet():
         logger.setLevel(level)
 
 
+log = logging.getLogger("skelfem")
+
+
 # -- the forward model over all rows ------------------------------------------------------------
 class Rows:
     """Solves every row of the data for given parameters, with measurements and their sensitivities."""
@@ -320,15 +323,19 @@ class Rows:
         (skelfem.estimate) and the richer degree's signed change at each row's equilibrium for theta, the
         rows solved in order from states (default: their load paths from rest); NaN where a row's estimate
         failed. SolveError if a row fails."""
-        from ..estimate import estimate
+        from ..estimate import EstimateError, estimate
         theta = np.asarray(theta, float)
         states = [None] * self.data.rows if states is None else states
         E = np.full((self.data.rows, len(self.data.columns)), math.nan)
         S = E.copy()
         for i in range(self.data.rows):
             self._solve(i, theta, states[i])
-            with _quiet():                        # its advice on the solver's tolerance is for a run
-                found = estimate(self.session)["errors"] or {}
+            try:
+                with _quiet():                    # its advice on the solver's tolerance is for a run
+                    found = estimate(self.session)["errors"] or {}
+            except (EstimateError, RuntimeError, np.linalg.LinAlgError, PETSc.Error) as exc:
+                log.warning("calibrate: row %d: no model error estimate (%s)", i + 1, exc)
+                found = {}
             for j, c in enumerate(self.data.columns):
                 e = found.get(c) or {}
                 if e.get("error") is not None:
