@@ -66,7 +66,7 @@ def test_inflate_covers_the_truth_where_ignore_does_not():
 
 
 @pytest.mark.slow
-def test_refine_halves_the_mesh_until_the_dof_cap():
+def test_refine_halves_the_mesh_until_the_dof_cap(caplog):
     data = thumb_data(2.5, 2, 3)
     with Session(THUMB, CHANGED + ["mesh.size=5.0"]) as s:
         cap = 4 * s.dofs + 200                   # one halving fits, the next (16x) does not
@@ -76,6 +76,8 @@ def test_refine_halves_the_mesh_until_the_dof_cap():
     assert [m["size"] for m in me["meshes"]][:2] == [5.0, 2.5] and me["capped"]
     assert me["meshes"][1]["max_over_sigma"] < me["meshes"][0]["max_over_sigma"]
     assert "would pass" in me["how"] and str(cap) in me["how"]
+    assert caplog.text.count("the error left is inflated") == 1          # said once, not at every check
+    assert [m["at"] for m in me["meshes"]][-1] == "estimate"
 
 
 @pytest.mark.slow

@@ -114,18 +114,20 @@ class ModelError:
         return s
 
     # -- refine -------------------------------------------------------------------------------
-    def wants_finer(self, session, E) -> bool:
+    def wants_finer(self, session, E, at: str = "start") -> bool:
         """Whether refine should halve the session's [mesh] size: the model error E above the target and
         the finer mesh within max_dofs (else ``capped``: the error left is inflated)."""
         worst = self.worst(E)
         self.refinements.append({"size": float(session.design.mesh.size), "dofs": int(session.dofs),
-                                 "max_over_sigma": worst})
+                                 "at": at, "max_over_sigma": worst})
         if self.mode != "refine" or worst <= TARGET:
             return False
-        if len(self.refinements) > MAX_REFINEMENTS or session.dofs * 2 ** session.design.dim > self.max_dofs:
+        halvings = len({m["size"] for m in self.refinements}) - 1
+        if halvings >= MAX_REFINEMENTS or session.dofs * 2 ** session.design.dim > self.max_dofs:
+            if not self.capped:
+                log.warning("calibrate: the model's error is %.3g sigma on %d DOFs; halving [mesh] size again "
+                            "would pass %d DOFs: the error left is inflated", worst, session.dofs, self.max_dofs)
             self.capped = True
-            log.warning("calibrate: the model's error is %.3g sigma on %d DOFs; halving [mesh] size again "
-                        "would pass %d DOFs: the error left is inflated", worst, session.dofs, self.max_dofs)
             return False
         return True
 

@@ -121,7 +121,7 @@ def calibrate(session, data, fit=None, sigma=None, bounds=None, holdout: float =
             finer = err.wants_finer(session, err.start)
             if not finer:
                 cal = _fit(rows, data, t0, max_iterations, int(starts), seed, xtol, ftol, gtol, rcond, err)
-                finer = err.wants_finer(session, err.end)
+                finer = err.wants_finer(session, err.end, "estimate")
         if not finer:
             return cal
         err.halve(session)
