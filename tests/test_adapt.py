@@ -163,8 +163,8 @@ def test_a_met_round_is_checked_by_a_twin_whose_scatter_can_send_it_on(monkeypat
     assert a["estimated_error"] == pytest.approx(max(m1["estimate"], last["scatter"]))
     real, calls = ladder_rules.twin_level, []
 
-    def twin_level(level, size, result, seconds):
-        twin = real(level, size, result, seconds)
+    def twin_level(level, size, result, seconds, targets=None):
+        twin = real(level, size, result, seconds, targets)
         calls.append(twin)
         if len(calls) == 1:
             twin.scatter = twin.estimate = 10.0                  # as if this mesh landed 10 mm away
