@@ -198,7 +198,7 @@ def _objectives(source, design, items) -> tuple:
                     raise DesignError(f"{source}: {tw}.at: expected [x, y] (mm)")
                 at = tuple(_number(source, f"{tw}.at", v) for v in t["at"])
             targets.append(TaskTarget(settings, at))
-        out.append(TaskObjective(kind, name, weight, tuple(targets)))
+        out.append(TaskObjective(kind, str(name), weight, tuple(targets)))     # name is in names: a str
     return tuple(out)
 
 
