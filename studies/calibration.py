@@ -4,6 +4,7 @@
                                   [--out studies/output/calibration] [--figures studies/figures] [--csv]
     python studies/calibration.py --bench-only [--bench-size 1.0]     # the cost per iteration, printed
     python studies/calibration.py --model-error-only [--model-error-seeds 20] [--model-error-rows 8]
+    python studies/calibration.py --hysteresis-only [--hysteresis-seeds 6]
 
 The "real" finger is geometry/finger.toml with other material values than the
 design file says (TRUE: silicone E 0.125 MPa instead of 0.1, flexor 16 N/mm
@@ -40,6 +41,11 @@ MPa, flexor 11 N/mm; tip sigma 0.1 mm, tension 0.05 N), fitted on 2.5 mm P1
 from the design's values with --model-error inflate and ignore, over seeded
 noise: how often each 95 % interval holds the truth, the mean bias against the
 mean reported std; studies/output/calibration/model_error.json.
+
+Hysteresis (--hysteresis-only): finger_friction.toml changed (nu 0.42, a 15
+N/mm tendon, 4 mm mesh), one loop of the contraction 1 -> 8 -> 1 mm (15 rows:
+tip and tension, noise 0.05 mm and 0.02 N) with the tendon's friction 0.2,
+the coefficient fitted from 0.1 per seed; studies/output/calibration/hysteresis.json.
 
 run(**params) returns the numbers; main(argv) also writes
 studies/output/calibration/{calibration,coverage,bench}.json and
@@ -265,6 +271,37 @@ def merge(parts) -> dict:
     return summarise(out)
 
 
+FRICTION = ROOT / "geometry" / "finger_friction.toml"
+FRICTION_SET = ["materials.ecoflex.nu=0.42", "cables.flexor.stiffness=15"]      # not the bundled design
+FRICTION_NOISE = {"markers.*": 0.05, "cables.flexor.tension": 0.02}
+
+
+def hysteresis(seeds: int, size: float = 4.0, first_seed: int = 0, true: float = 0.2, start: float = 0.1) -> dict:
+    """A cable's friction from one loading/unloading loop (contraction 1 -> 8 -> 1 mm, 15 rows: tip x, y and
+    the tension) of the changed finger_friction design with mu = true plus seeded noise, fitted from start on
+    the same mesh: the estimate, its interval, whether it holds the truth, per seed."""
+    from skelfem import Session, calibrate
+    from skelfem.analysis.calibrate import synthesize
+    loop = np.r_[np.linspace(1.0, 8.0, 8), np.linspace(7.0, 1.0, 7)]
+    cols = ["markers.tip.x", "markers.tip.y", "cables.flexor.tension"]
+    runs = []
+    for seed in range(first_seed, first_seed + seeds):
+        with Session(FRICTION, FRICTION_SET + [f"mesh.size={size}", f"cables.flexor.friction={true}"]) as s:
+            data = synthesize(s, {"cables.flexor.contraction": loop}, cols, noise=FRICTION_NOISE,
+                              rng=np.random.default_rng(3000 + seed))
+            s.set({"cables.flexor.friction": start})
+            t0 = time.perf_counter()
+            cal = calibrate(s, data, ["cables.flexor.friction"], sigma=FRICTION_NOISE, model_error="ignore")
+        lo, hi = (float(v) for v in cal.ci95[0])
+        runs.append({"seed": seed, "mu": float(cal.values[0]), "ci95": [lo, hi], "inside": lo <= true <= hi,
+                     "relative_error": float(cal.values[0] / true - 1), "iterations": cal.iterations,
+                     "converged": bool(cal.converged), "seconds": time.perf_counter() - t0})
+    return {"true": true, "start": start, "size": size, "rows": len(loop), "noise": FRICTION_NOISE,
+            "design": f"finger_friction.toml with {', '.join(FRICTION_SET)}", "runs": runs,
+            "max_relative_error": max(abs(r["relative_error"]) for r in runs),
+            "inside": sum(r["inside"] for r in runs)}
+
+
 def bench(size: float, rows: int = 8, counts=(2, 20), repeats: int = 5) -> dict:
     """Seconds per LM iteration (every row solved with its sensitivities) against the number of parameters."""
     from skelfem import Session
@@ -415,7 +452,17 @@ def main(argv=None) -> int:
                    help="only the coverage with the model's own error (the changed thumb)")
     p.add_argument("--model-error-seeds", type=int, default=20)
     p.add_argument("--model-error-rows", type=int, default=8)
+    p.add_argument("--hysteresis-only", action="store_true",
+                   help="only a cable's friction from a loading/unloading loop (changed finger_friction)")
+    p.add_argument("--hysteresis-seeds", type=int, default=6)
     a = p.parse_args(argv)
+    if a.hysteresis_only:
+        h = hysteresis(a.hysteresis_seeds)
+        a.out.mkdir(parents=True, exist_ok=True)
+        write_json(a.out / "hysteresis.json", h)
+        say(f"mu {h['true']:g} from {h['start']:g}: " + ", ".join(f"{r['mu']:.4f}" for r in h["runs"])
+            + f"; largest error {100 * h['max_relative_error']:.1f} %, truth inside {h['inside']} of {len(h['runs'])}")
+        return 0
     if a.model_error_only:
         m = model_error_coverage(a.model_error_seeds, a.model_error_rows)
         a.out.mkdir(parents=True, exist_ok=True)
