@@ -27,6 +27,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 SETS = ("cables.flexor.contraction=12", "mesh.size=0.75")
+REF_STEPS = 8             # the fine references' load steps (in one step P2 at h = 0.2 inverted elements)
 
 
 def reference(design: str, sets, h_ref: float) -> dict:
@@ -44,7 +45,8 @@ def reference(design: str, sets, h_ref: float) -> dict:
         for h in (h_ref, TWIN * h_ref):
             s.edit(load_design(path, list(sets) + ["mesh.degree=2", f"mesh.size={h}"]),
                    size=None if zones is None else zones.scaled(h / h0))
-            r = s.solve()
+            s.solved = False                      # each reference from rest, in more load steps than the design's
+            r = s.solve(steps=max(REF_STEPS, int(d.solver.steps)))
             if not r.converged:
                 raise RuntimeError(f"reference at h = {h}: {r.status}")
             out.append((r.marker("tip"), r.tension("flexor"), r.dofs))
