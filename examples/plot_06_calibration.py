@@ -11,8 +11,10 @@ and what the data cannot separate; ``skelfem calibrate`` does the same from the
 command line and writes a calibrated design.
 
 The mesh is coarsened to 4 mm so that the example runs in a few seconds; the
-data were measured on a finer model, so the coarse mesh's stiffness shows up
-in the estimates (see the guide's page on calibration).
+data were measured on a finer model, so the coarse mesh is off by several
+sigmas: the fit estimates that error in every cell, corrects itself by it and
+widens the intervals by the correction (``model_error``, the default
+``"inflate"``; see the guide's page on calibration).
 """
 from pathlib import Path
 
@@ -35,6 +37,9 @@ for key, value, start, (lo, hi) in zip(cal.keys, cal.values, cal.initial, cal.ci
 print(f"correlation {cal.correlation[0, 1]:+.3f}; {cal.iterations} iterations, {cal.solves} solves; "
       f"unidentifiable: {cal.unidentifiable or 'none'}")
 print("RMS misfit per column:", {c: round(v, 4) for c, v in cal.rms.items()})
+print("model error / sigma per column:", {c: round(v["max_over_sigma_at_estimate"], 2)
+                                           for c, v in cal.model_error["columns"].items()},
+      f"({cal.model_error['corrections']} corrections)")
 
 # %%
 # The model against the data
