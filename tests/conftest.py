@@ -33,6 +33,17 @@ def _collect():
     gc.collect()
 
 
+@pytest.fixture(autouse=True)
+def _fresh_log():
+    """A test starts with skelfem's logger as importing leaves it (propagating, no handler): a command run
+    by an earlier test points it at that test's captured stderr and stops propagation (cli.common), which
+    hid later tests' warnings from caplog and wrote to a closed file."""
+    log = logging.getLogger("skelfem")
+    log.handlers[:], log.propagate = [], True
+    log.setLevel(logging.NOTSET)
+    yield
+
+
 # -- designs ------------------------------------------------------------------------------------------
 @pytest.fixture(scope="session")
 def strip_design():
