@@ -54,7 +54,8 @@ def test_the_page_never_parses_strings_as_markup():
         assert not re.search(pattern, code), pattern
 
 
-MARKUP = {"material": "<form action=evil>silicone", "cable": "<u>flexor", "marker": "<s>tip",
+MARKUP = {"material": "<form>silicone",  # "<form action=...>" is refused by the name rule (no "=")
+          "cable": "<u>flexor", "marker": "<s>tip",
           "pin": "<marquee>base"}
 
 
