@@ -74,9 +74,10 @@ def toml_text(d: dict) -> str:
     return text
 
 
-def simulate_refused_before_meshing(d: dict, tmp_path, monkeypatch, capsys, *extra: str) -> str:
-    """`skelfem simulate` on design d: exit 1 with one `error: PATH: ...` line (returned), no traceback,
-    no output folder, and the design never meshed."""
+def simulate_refused_before_meshing(d: dict, tmp_path, monkeypatch, capsys, *extra: str, names_file: bool = True) -> str:
+    """`skelfem simulate` on design d: exit 1 with one `error: PATH: ...` line (returned without its prefix),
+    no traceback, no output folder, and the design never meshed. names_file=False: an argument's error
+    (`error: --tol ...`), which names no file."""
     from skelfem.mesh import geometry
     from skelfem.cli.main import main
 
@@ -89,9 +90,10 @@ def simulate_refused_before_meshing(d: dict, tmp_path, monkeypatch, capsys, *ext
     assert main(["simulate", str(path), "--out", str(out), "-q", *extra]) == 1
     err = capsys.readouterr().err
     lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith(f"error: {path}: ") and "Traceback" not in err, err
+    prefix = f"error: {path}: " if names_file else "error: "
+    assert len(lines) == 1 and lines[0].startswith(prefix) and "Traceback" not in err, err
     assert not out.exists()
-    return lines[0][len(f"error: {path}: "):]
+    return lines[0][len(prefix):]
 
 
 def land_and_tilt(design: dict, theta_deg: float, g: float = 9.81):

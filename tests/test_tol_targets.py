@@ -8,7 +8,7 @@ from skelfem.accuracy.targets import Targets, check
 from skelfem.design.parse import parse_design
 from skelfem.session import Session
 
-from _designs import strip, toml_text
+from _designs import simulate_refused_before_meshing, strip, toml_text
 
 
 def _buried(size=2.0, degree=1):
@@ -54,25 +54,8 @@ def test_rows_are_scaled_by_their_tolerances_and_know_their_owner():
     (("--tol", "cables.flexor.tension=abc"), "invalid float value"),
 ])
 def test_bad_targets_are_refused_before_meshing(args, match, tmp_path, monkeypatch, capsys):
-    line = _refused(strip(), tmp_path, monkeypatch, capsys, *args)
+    line = simulate_refused_before_meshing(strip(), tmp_path, monkeypatch, capsys, *args, names_file=False)
     assert match in line
-
-
-def _refused(d, tmp_path, monkeypatch, capsys, *args):
-    """simulate refuses before meshing with one error line (the line, without its 'error: ' prefix)."""
-    from skelfem.mesh import geometry
-    from skelfem.cli.main import main
-
-    def never(*a, **k):
-        raise AssertionError("the design was meshed")
-    monkeypatch.setattr(geometry, "mesh_design", never)
-    path = tmp_path / "design.toml"
-    path.write_text(toml_text(d))
-    out = tmp_path / "out"
-    assert main(["simulate", str(path), "--out", str(out), "-q", *args]) == 1
-    lines = capsys.readouterr().err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: ") and not out.exists(), lines
-    return lines[0]
 
 
 def _reference_tension() -> float:
