@@ -89,38 +89,9 @@ def key_of(changes: dict) -> str:
 
 
 def toml_text(d: dict) -> str:
-    """TOML text of a design dict: sections as tables, lists of tables as [[...]], the rest inline."""
-    import tomlkit
-
-    def inline(v):
-        if isinstance(v, dict):
-            t = tomlkit.inline_table()
-            t.update({k: inline(x) for k, x in v.items()})
-            return t
-        if isinstance(v, (list, tuple)):
-            a = tomlkit.array()
-            a.extend(inline(x) for x in v)
-            return a
-        return v
-
-    def section(v: dict):
-        t = tomlkit.table()
-        for k, x in v.items():
-            t.add(k, inline(x))
-        return t
-
-    doc = tomlkit.document()
-    for k, v in d.items():
-        if isinstance(v, dict):
-            doc.add(k, section(v))
-        elif isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
-            aot = tomlkit.aot()
-            for x in v:
-                aot.append(section(x))
-            doc.add(k, aot)
-        else:
-            doc.add(k, inline(v))
-    return tomlkit.dumps(doc)
+    """TOML text of a design dict (skelfem.io.files.design_toml)."""
+    from skelfem.io.files import design_toml
+    return design_toml(d)
 
 
 def load(name: str, **sets) -> dict:

@@ -35,41 +35,11 @@ def variant(d, **changes):
 
 
 def toml_text(d: dict) -> str:
-    """TOML text of a design dict, written by tomlkit (the one TOML writer of the tests and the
-    editor's Save); parsed back as a check."""
+    """TOML text of a design dict (skelfem.io.files.design_toml), parsed back as a check."""
     import tomllib
 
-    import tomlkit
-
-    def inline(v):                        # below a section's own keys: inline tables and arrays
-        if isinstance(v, dict):
-            t = tomlkit.inline_table()
-            t.update({k: inline(x) for k, x in v.items()})
-            return t
-        if isinstance(v, (list, tuple)):
-            a = tomlkit.array()
-            a.extend(inline(x) for x in v)
-            return a
-        return v
-
-    def section(v: dict):
-        t = tomlkit.table()
-        for k, x in v.items():
-            t.add(k, inline(x))
-        return t
-
-    doc = tomlkit.document()
-    for k, v in d.items():
-        if isinstance(v, dict):
-            doc.add(k, section(v))
-        elif isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
-            aot = tomlkit.aot()
-            for x in v:
-                aot.append(section(x))
-            doc.add(k, aot)
-        else:
-            doc.add(k, inline(v))
-    text = tomlkit.dumps(doc)
+    from skelfem.io.files import design_toml
+    text = design_toml(d)
     tomllib.loads(text)
     return text
 

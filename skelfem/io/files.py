@@ -1,4 +1,4 @@
-"""Files: rank-0 printing, atomic writes, strict JSON (null for non-finite), text and CSV.
+"""Files: rank-0 printing, atomic writes, strict JSON (null for non-finite), text, CSV and design TOML.
 """
 from __future__ import annotations
 
@@ -149,3 +149,39 @@ def read_bounded(path, limit: int, what: str) -> str:
     if len(raw) > limit:
         raise InputTooLarge(f"{path}: larger than {limit // 2 ** 20} MB; not a {what}")
     return raw.decode("utf-8")
+
+
+def design_toml(d: dict) -> str:
+    """TOML text of a design dict: sections as tables, lists of tables as [[...]], the rest inline (studies
+    and tests write designs with it; the editor's Save edits a file in place instead)."""
+    import tomlkit
+
+    def inline(v):                        # below a section's own keys: inline tables and arrays
+        if isinstance(v, dict):
+            t = tomlkit.inline_table()
+            t.update({k: inline(x) for k, x in v.items()})
+            return t
+        if isinstance(v, (list, tuple)):
+            a = tomlkit.array()
+            a.extend(inline(x) for x in v)
+            return a
+        return v
+
+    def section(v: dict):
+        t = tomlkit.table()
+        for k, x in v.items():
+            t.add(k, inline(x))
+        return t
+
+    doc = tomlkit.document()
+    for k, v in d.items():
+        if isinstance(v, dict):
+            doc.add(k, section(v))
+        elif isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
+            aot = tomlkit.aot()
+            for x in v:
+                aot.append(section(x))
+            doc.add(k, aot)
+        else:
+            doc.add(k, inline(v))
+    return tomlkit.dumps(doc)
