@@ -141,6 +141,7 @@ def estimate(session) -> dict:
     """
     from .fem.model import Model
     from .fem.newton import NewtonSolver
+    from .fem.release import release_vectors
 
     model = session.model
     if not session.solved:
@@ -168,7 +169,7 @@ def estimate(session) -> dict:
         J_rich = observables_of(rich) if report.converged else None
     finally:
         solver.destroy()
-        del rich
+        release_vectors(rich)         # as a re-meshing Session drops its old model (calibration estimates per row)
     t3 = time.perf_counter()
     info["seconds"] = {"algebraic": round(t1 - t0, 4), "compile": round(t2 - t1, 4), "solve": round(t3 - t2, 4)}
     if J_rich is None:
