@@ -18,11 +18,12 @@ and the enriched solve is the dual-weighted residual with the enriched
 adjoint solved exactly: to first order J(u_{p+1}) - J(u_h) =
 -J'(u_h) K_{p+1}^{-1} R_{p+1}(u_h) = -z_{p+1} . R_{p+1}(u_h), for every J at
 once (one solve for all observables instead of one adjoint each). The
-enriched solve is Newton to the solver's own tolerance, not one linearised
+enriched solve is Newton (to RICH_RTOL of its first residual), not one linearised
 step: reactions and contact forces are read from the residual on fixed and
 contact DOFs, which only balance at an equilibrium (one step left a pin's
 reaction 1 N off on finger3d). The saturation constant s is what limits the
-effectivity (s of 0.15-0.35 measured, see docs/verification.md); near a
+effectivity (measured in docs/guide/accuracy.md: 0.60-1.51 where the mesh
+resolves the body, far lower where a part has a few cells across); near a
 point-like quantity (a tendon ending in silicone) p + 1 on the same mesh
 gains less than near smooth ones, and the estimate is lower.
 
