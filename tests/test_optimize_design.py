@@ -48,7 +48,7 @@ def _run(tmp_path, task_text, design=FINGER):
     (('"cables.flexor.contraction" = 8.0', '"bones.distal.outline" = [[6, 74], [14, 74], [14, 90]]'), "a target sets loads only"),
     (('set = { "cables.flexor.contraction" = 8.0 }', 'set = 8.0'), "objectives[0].targets[0].set: expected a table"),
     (("max_evaluations = 6", "max_evaluations = 0"), "optimizer.max_evaluations: expected an integer from 1"),
-    (("[optimizer]", "[constraints]\nmin_wall = 1.0\n[optimizer]"), "task.constraints: unknown key"),
+    (("[optimizer]", "[constraints]\nmin_wall = 1.0\n[optimizer]\nmethod = 1"), "optimizer.method: unknown key"),
 ])
 def test_bad_task_is_one_error_line_before_meshing(tmp_path, capsys, edit, message):
     rc, out = _run(tmp_path, GOOD.replace(*edit))
@@ -86,7 +86,7 @@ def test_short_run_improves_and_writes_a_valid_design(tmp_path):
     assert best.cable("flexor").path[2][0] == pytest.approx(final["cables.flexor.path[2].x"]
                                                              + final["bones.distal.offset.x"])
     assert "# A cable-driven finger" in (out / "optimized.toml").read_text()     # the file's comments kept
-    assert (out / "history.csv").read_text().splitlines()[0] == "evaluation,objective,gradient_norm"
+    assert (out / "history.csv").read_text().splitlines()[0] == "solves,objective,gradient_norm,constraint_violation"
 
 
 def test_a_turned_pin_is_refused_before_meshing(tmp_path, capsys):

@@ -17,20 +17,30 @@ cable = "flexor"
 weight = 0.01
 targets = [{ set = { "cables.flexor.contraction" = 8.0 } }]   # default: one target, the design as it is
 
+[constraints]                   # fabrication clearances, mm (skelfem.design.clearances); optional
+min_wall = 1.5                  # silicone between every bone and the body's outline and holes
+min_gap = 3.0                   # between any two bones
+min_cable_wall = 1.5            # between a cable's sketch vertices in the silicone and the outline
+min_cable_gap = 2.0             # between any two cables' sketches
+
 [optimizer]
 max_evaluations = 30            # forward solves (each with its gradient), 1 to 1000
 ```
 
 Every problem is one DesignError naming the task file and the key: a variable that does not exist,
 bounds that exclude the start, a task with no objective, a marker or cable the design lacks, a
-``set`` the design refuses, and a design whose ingredients the design gradient does not cover.
+``set`` the design refuses, a constraint the start design does not meet, and a design whose
+ingredients the design gradient does not cover.
 """
 from __future__ import annotations
 
 import math
 import re
+
+import numpy as np
 from dataclasses import dataclass
 
+from .clearances import KEYS as CONSTRAINT_KEYS, Clearances, cable_gap_floor, start_points
 from .parse import parse_design, read_toml
 from .spec import DesignError
 from .variables import Variable, parse_variable, start_value
@@ -72,6 +82,7 @@ class Task:
     variables: tuple
     objectives: tuple
     max_evaluations: int = 30
+    constraints: tuple = ()     # ((key, mm), ...) of [constraints]: skelfem.design.clearances
 
 
 def uncovered(design) -> str | None:
@@ -202,9 +213,38 @@ def _objectives(source, design, items) -> tuple:
     return tuple(out)
 
 
+def _constraints(source, design, value) -> tuple:
+    """[constraints] as ((key, mm), ...), each met by the start design."""
+    table = _table(source, "constraints", value, CONSTRAINT_KEYS)
+    extent = float(max(max(p[:, i].max() - p[:, i].min() for i in (0, 1))
+                       for p in (np.asarray(loop, dtype=float) for loop in design.body_loops)))
+    out = {}
+    for key, v in table.items():
+        v = _number(source, f"constraints.{key}", v)
+        if not 0.0 < v <= extent:
+            raise DesignError(f"{source}: constraints.{key}: expected a length in (0, {extent:.4g}] mm (the body's "
+                              f"extent), got {v:g}")
+        out[key] = v
+    floor = cable_gap_floor(design)
+    if out.get("min_cable_gap", floor) < floor:
+        raise DesignError(f"{source}: constraints.min_cable_gap: {out['min_cable_gap']:g} mm is less than the "
+                          f"{floor:g} mm skelfem fabricate needs between two cables' holes in a bone (their radii + "
+                          "fabrication.min_wall)")
+    if out:
+        clear = Clearances(design, out)
+        bad = clear.worst(start_points(design))
+        if bad:
+            group, least = bad[0]
+            key = group.key if group.key in CONSTRAINT_KEYS else "fabrication"
+            raise DesignError(f"{source}: constraints.{key}: {group.what} are {least:.3g} mm apart in the start "
+                              f"design, less than the {group.need:g} mm needed: the optimiser starts from a design "
+                              "that meets its constraints")
+    return tuple(out.items())
+
+
 def parse_task(data: dict, source: str, design) -> Task:
     """The Task of a task file's data, for design; DesignError for any problem (nothing meshed)."""
-    _table(source, "task", data, ("variables", "objectives", "optimizer"))
+    _table(source, "task", data, ("variables", "objectives", "constraints", "optimizer"))
     why = uncovered(design)
     if why:
         raise DesignError(f"{design.source}: {why}")
@@ -219,7 +259,8 @@ def parse_task(data: dict, source: str, design) -> Task:
     if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= MAX_EVALUATIONS:
         raise DesignError(f"{source}: optimizer.max_evaluations: expected an integer from 1 to "
                           f"{MAX_EVALUATIONS}, got {n!r}")
-    return Task(source, variables, objectives, int(n))
+    constraints = _constraints(source, design, data.get("constraints", {}))
+    return Task(source, variables, objectives, int(n), constraints)
 
 
 def load_task(path, design) -> Task:

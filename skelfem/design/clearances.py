@@ -1,0 +1,203 @@
+"""Fabrication clearances of a 2D design as smooth inequalities with exact gradients (an optimize-design task's
+``[constraints]``).
+
+=====================  ==========================================================================
+``min_wall``           silicone between every bone and the body's outline and holes (mm)
+``min_gap``            between any two bones: the joint gap (mm)
+``min_cable_wall``     silicone between every cable sketch vertex that lies in the silicone (not on
+                       the outline, not in a bone) and the body's outline, holes and bones (mm): a
+                       channel's way into a bone neither grazes it nor runs along under its side
+``min_cable_gap``      between the sketches of any two cables (mm): where both run in a bone,
+                       ``skelfem fabricate`` needs their holes' radii + ``fabrication.min_wall``
+                       (``cable_gap_floor``), and a smaller value is refused
+(always, with any)     every cable end in a bone keeps its hole's radius (a ligament's
+                       ``fabrication.anchor_diameter / 2``, a tendon's ``channel_diameter / 2``) +
+                       ``fabrication.min_wall`` from the bone's outline: the wall ``skelfem
+                       fabricate`` demands round an anchor hole or a channel
+=====================  ==========================================================================
+
+Each is a set of distances d(x, [a, b]) − need ≥ 0 between a point and a segment: for two
+polygons, every vertex of one against every edge of the other, both ways (the least of these is
+the distance between two boundaries that do not cross). A point's distance to a segment is its
+distance to a convex set, continuously differentiable wherever it is not zero: with c = a + t (b − a)
+the nearest point and n = (x − c) / d, dd/dx = n, dd/da = −(1 − t) n, dd/db = −t n. So every
+constraint is C¹ in the points, and through the design handles' exact velocities in the design
+variables (skelfem.analysis.design_optimize).
+
+The points are those of ``points_of``: the body's loops and the bones' outlines (the order of
+``Design.body_loops`` then ``Design.bones``), then every cable's sketch. Numpy only: the task is
+checked at its start before anything is meshed.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import polygons as poly_tools
+
+KEYS = ("min_wall", "min_gap", "min_cable_wall", "min_cable_gap")
+ANCHOR = "end_wall"            # the wall skelfem fabricate demands round a cable end's hole in a bone
+
+
+@dataclass(frozen=True)
+class Group:
+    key: str            # "min_wall", "min_gap", "min_cable_wall" or "anchor_wall"
+    what: str           # "bone 'distal' and the body's outline"
+    need: float         # mm
+
+
+def points_of(polys, paths) -> np.ndarray:
+    """One (n, 2) array of the design's loops and bones (``polys``) and cable sketches (``paths``, in order)."""
+    return np.vstack([np.asarray(p, dtype=float) for p in list(polys) + list(paths)]) if polys else np.zeros((0, 2))
+
+
+def _ranges(sizes) -> list[np.ndarray]:
+    out, k = [], 0
+    for n in sizes:
+        out.append(np.arange(k, k + n))
+        k += n
+    return out
+
+
+class Clearances:
+    """The constraints of a ``[constraints]`` table on a 2D design: ``values(X)`` and ``jacobian(X)``."""
+
+    def __init__(self, design, constraints: dict):
+        loops = [np.asarray(p, dtype=float) for p in design.body_loops]
+        bones = [np.asarray(b.outline, dtype=float) for b in design.bones]
+        paths = [np.asarray(c.path, dtype=float) for c in design.cables]
+        idx = _ranges([len(p) for p in loops + bones + paths])
+        loop_idx, bone_idx, path_idx = idx[:len(loops)], idx[len(loops):len(loops) + len(bones)], \
+            idx[len(loops) + len(bones):]
+        tol = 1e-9 * (1.0 + max(float(np.abs(p).max()) for p in loops))
+        loop_names = ["the body's outline" if k == 0 or len(loops) == 1 else f"hole {k - 1} of the body"
+                      for k in range(len(loops))]
+        if len(design.bodies) > 1:
+            loop_names = [f"loop {k} of the bodies" for k in range(len(loops))]
+        self.groups: list[Group] = []
+        rows: list[tuple] = []              # (point, a, b, group)
+
+        def polygon_pair(i_a, i_b, group):
+            for P, Q in ((i_a, i_b), (i_b, i_a)):
+                for x in P:
+                    for a, b in zip(Q, np.roll(Q, -1)):
+                        rows.append((x, a, b, group))
+
+        def polyline_pair(i_a, i_b, group):
+            for P, Q in ((i_a, i_b), (i_b, i_a)):
+                for x in P:
+                    for a, b in zip(Q[:-1], Q[1:]):
+                        rows.append((x, a, b, group))
+
+        def add(key, what, need, pairs_of):
+            self.groups.append(Group(key, what, float(need)))
+            pairs_of(len(self.groups) - 1)
+
+        if "min_wall" in constraints:
+            for j, bone in enumerate(design.bones):
+                for k, name in enumerate(loop_names):
+                    add("min_wall", f"bone {bone.name!r} and {name}", constraints["min_wall"],
+                        lambda g, j=j, k=k: polygon_pair(bone_idx[j], loop_idx[k], g))
+        if "min_gap" in constraints:
+            for j in range(len(bones)):
+                for i in range(j):
+                    add("min_gap", f"bones {design.bones[i].name!r} and {design.bones[j].name!r}",
+                        constraints["min_gap"], lambda g, i=i, j=j: polygon_pair(bone_idx[i], bone_idx[j], g))
+        if "min_cable_wall" in constraints:
+            walls = [(name, loop_idx[k]) for k, name in enumerate(loop_names)] + \
+                [(f"bone {b.name!r}", bone_idx[j]) for j, b in enumerate(design.bones)]
+            for c, cable in enumerate(design.cables):
+                for v, x in enumerate(paths[c]):
+                    if not self._in_silicone(design, loops, bones, x, tol):
+                        continue
+                    for name, ring in walls:
+                        add("min_cable_wall", f"cables.{cable.name}.path[{v}] and {name}",
+                            constraints["min_cable_wall"],
+                            lambda g, x=path_idx[c][v], ring=ring: rows.extend(
+                                (x, a, b, g) for a, b in zip(ring, np.roll(ring, -1))))
+        if "min_cable_gap" in constraints:
+            for j in range(len(paths)):
+                for i in range(j):
+                    add("min_cable_gap", f"cables {design.cables[i].name!r} and {design.cables[j].name!r}",
+                        constraints["min_cable_gap"],
+                        lambda g, i=i, j=j: polyline_pair(path_idx[i], path_idx[j], g))
+        if constraints:
+            spec = design.fabrication
+            for c, cable in enumerate(design.cables):
+                hole = spec.anchor_diameter if cable.kind == "ligament" else spec.channel_diameter
+                size = "anchor_diameter" if cable.kind == "ligament" else "channel_diameter"
+                for v in (0, len(paths[c]) - 1):
+                    for j, bone in enumerate(design.bones):
+                        if poly_tools.strictly_inside(bones[j], paths[c][v:v + 1], tol)[0]:
+                            add(ANCHOR, f"the end cables.{cable.name}.path[{v}] and the outline of bone "
+                                f"{bone.name!r} (fabrication.{size} / 2 + fabrication.min_wall)",
+                                hole / 2 + spec.min_wall,
+                                lambda g, x=path_idx[c][v], j=j: rows.extend(
+                                    (x, a, b, g) for a, b in zip(bone_idx[j], np.roll(bone_idx[j], -1))))
+        table = np.array(rows, dtype=int).reshape(-1, 4)
+        self.point, self.a, self.b, self.group = table.T
+        self.need = np.array([self.groups[g].need for g in self.group])
+
+    @staticmethod
+    def _in_silicone(design, loops, bones, x, tol) -> bool:
+        inside = poly_tools.region_contains(loops, x[None, :], tol)[0] \
+            and not poly_tools.near_boundary(x[None, :], loops, tol)[0]
+        return bool(inside and not any(poly_tools.contains(b, x[None, :], tol)[0] for b in bones))
+
+    def __len__(self) -> int:
+        return len(self.point)
+
+    def _nearest(self, X):
+        x, a, b = X[self.point], X[self.a], X[self.b]
+        e = b - a
+        ee = np.einsum("ij,ij->i", e, e)
+        t = np.clip(np.einsum("ij,ij->i", x - a, e) / np.where(ee > 0, ee, 1.0), 0.0, 1.0)
+        r = x - (a + t[:, None] * e)
+        return t, r, np.linalg.norm(r, axis=1)
+
+    def values(self, X: np.ndarray) -> np.ndarray:
+        """d − need for every point-segment pair (≥ 0 where the design keeps its clearances), mm."""
+        return self._nearest(np.asarray(X, dtype=float))[2] - self.need
+
+    def jacobian(self, X: np.ndarray) -> np.ndarray:
+        """d(values)/dX, (constraints, points, 2)."""
+        t, r, d = self._nearest(np.asarray(X, dtype=float))
+        n = r / np.maximum(d, 1e-300)[:, None]
+        J = np.zeros((len(self), len(X), 2))
+        rows = np.arange(len(self))
+        np.add.at(J, (rows, self.point), n)
+        np.add.at(J, (rows, self.a), -(1.0 - t)[:, None] * n)
+        np.add.at(J, (rows, self.b), -t[:, None] * n)
+        return J
+
+    def worst(self, X: np.ndarray) -> list[tuple[Group, float]]:
+        """[(group, its least distance)] of the groups whose least distance falls short of their need, worst
+        first."""
+        d = self._nearest(np.asarray(X, dtype=float))[2]
+        out = []
+        for g, group in enumerate(self.groups):
+            least = float(d[self.group == g].min())
+            if least < group.need:
+                out.append((group, least))
+        return sorted(out, key=lambda item: item[1] - item[0].need)
+
+    def least(self, X: np.ndarray) -> dict:
+        """{key: the least (distance − need) over its pairs} (mm), for reports."""
+        v = self.values(X)
+        return {key: float(min(v[self.group == g].min() for g, grp in enumerate(self.groups) if grp.key == key))
+                for key in dict.fromkeys(grp.key for grp in self.groups)}
+
+
+def cable_gap_floor(design) -> float:
+    """The least min_cable_gap that keeps ``skelfem fabricate``'s rule for two cables' holes in one bone:
+    the two largest holes' radii + fabrication.min_wall."""
+    spec = design.fabrication
+    radii = sorted((spec.anchor_diameter if c.kind == "ligament" else spec.channel_diameter) / 2
+                   for c in design.cables)
+    return sum(radii[-2:]) + spec.min_wall if len(radii) > 1 else 0.0
+
+
+def start_points(design) -> np.ndarray:
+    """The design's points in ``Clearances`` order."""
+    return points_of(list(design.body_loops) + [b.outline for b in design.bones], [c.path for c in design.cables])

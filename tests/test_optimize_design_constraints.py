@@ -1,0 +1,155 @@
+"""optimize-design's fabrication constraints (skelfem.design.clearances) and its resumable runs."""
+import json
+import os
+import signal
+import subprocess
+import time
+
+import numpy as np
+import pytest
+
+from _hardening import ENV, ROOT, SKELFEM
+from skelfem.cli.main import main
+
+FINGER = str(ROOT / "geometry" / "finger.toml")
+CONSTRAINTS = {"min_wall": 3.5, "min_gap": 5.0, "min_cable_wall": 1.5, "min_cable_gap": 2.0}
+# one variable the reach wants well past the silicone skin's limit: the distal bone to the dorsal side,
+# where min_wall = 3.5 mm (of the 6 the hand-made finger keeps) stops it at +2.5 mm
+PUSH = """
+[[variables]]
+key = "bones.distal.offset.x"
+bounds = [-6.0, 6.0]
+
+[[objectives]]
+kind = "reach"
+marker = "tip"
+targets = [{ set = { "cables.flexor.contraction" = 8.0 }, at = [-30.0, 80.0] }]
+
+[constraints]
+min_wall = 3.5
+
+[optimizer]
+max_evaluations = 12
+"""
+
+
+def _design():
+    from skelfem.design.parse import load_design
+    return load_design(FINGER)
+
+
+def test_clearances_are_exact_derivatives_of_their_distances():
+    """Every point-segment distance's Jacobian against central differences at a design off the symmetric
+    places (where a nearest point changes from a segment's inside to its end, d is C1, not C2): the
+    difference falls as h^2."""
+    from skelfem.design.clearances import Clearances, start_points
+    d = _design()
+    c = Clearances(d, CONSTRAINTS)
+    rng = np.random.default_rng(1)
+    X = start_points(d) + 0.05 * rng.normal(size=start_points(d).shape)
+    dX = rng.normal(size=X.shape)
+    exact = np.einsum("mij,ij->m", c.jacobian(X), dX)
+    errors = [np.abs((c.values(X + h * dX) - c.values(X - h * dX)) / (2 * h) - exact).max() for h in (1e-3, 1e-4)]
+    assert errors[1] < 1e-6 and errors[1] < errors[0] / 50, errors
+    assert {g.key for g in c.groups} == {*CONSTRAINTS, "end_wall"}
+
+
+def test_constraint_jacobian_in_the_design_variables_matches_finite_differences():
+    """Through the handles (a bone's turn moves its points nonlinearly) and the scaling to the bounds."""
+    from skelfem.analysis.design_optimize import DesignConstraints
+    from skelfem.analysis.handles import DesignHandles
+    from skelfem.design.design_task import parse_task
+    d = _design()
+    keys = ["bones.middle.angle", "bones.distal.offset.x", "bones.distal.angle", "cables.flexor.path[1].y",
+            "cables.flexor.path[2].x", "bones.proximal.outline[1].x"]
+    data = {"variables": [{"key": k, "bounds": [-40.0, 100.0]} for k in keys],
+            "objectives": [{"kind": "reach", "marker": "tip", "targets": [{"at": [0.0, 0.0]}]}],
+            "constraints": CONSTRAINTS}
+    data["variables"][-1]["bounds"] = [10.0, 16.0]
+    task = parse_task(data, "task.toml", d)
+    width = np.array([v.upper - v.lower for v in task.variables])
+    con = DesignConstraints(task, DesignHandles(d, keys), width)
+    rng = np.random.default_rng(2)
+    x = 0.01 * rng.normal(size=len(keys))
+    dx = rng.normal(size=len(keys))
+    exact = con.jacobian(x) @ dx
+    h = 1e-5
+    fd = (con.values(x + h * dx) - con.values(x - h * dx)) / (2 * h)
+    assert np.abs(fd - exact).max() < 1e-5 * (1 + np.abs(exact).max()), np.abs(fd - exact).max()
+
+
+@pytest.mark.parametrize("constraints, message", [
+    ("min_wall = 6.5", "constraints.min_wall: bone 'proximal' and the body's outline are 6 mm apart in the start "
+                       "design, less than the 6.5 mm needed"),
+    ("min_gap = 6.5", "constraints.min_gap: bones 'proximal' and 'middle' are 6 mm apart"),
+    ("min_cable_wall = 3.5", "constraints.min_cable_wall: cables.flexor.path[1] and the body's outline are 3 mm apart"),
+    ("min_cable_gap = 1.0", "constraints.min_cable_gap: 1 mm is less than the 1.9 mm skelfem fabricate needs"),
+    ("min_wall = -1.0", "constraints.min_wall: expected a length in (0, 100] mm"),
+    ("min_wall = nan", "constraints.min_wall: expected a finite number"),
+    ("thickness = 1.0", "constraints.thickness: unknown key"),
+])
+def test_constraints_the_start_cannot_meet_are_one_error_line(tmp_path, capsys, constraints, message):
+    task = tmp_path / "task.toml"
+    task.write_text(PUSH.replace("min_wall = 3.5", constraints))
+    out = tmp_path / "out"
+    rc = main(["optimize-design", FINGER, "--task", str(task), "--out", str(out), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and len(err) == 1 and err[0].startswith("error: ") and message in err[0], err
+    assert not out.exists() and os.listdir(tmp_path) == ["task.toml"]
+
+
+def _run(tmp_path, text, out="out", *extra):
+    task = tmp_path / "task.toml"
+    task.write_text(text)
+    return main(["optimize-design", FINGER, "--task", str(task), "--out", str(tmp_path / out), "-q", *extra])
+
+
+@pytest.mark.slow
+def test_the_fabrication_constraint_is_what_stops_the_optimiser(tmp_path):
+    """Without [constraints] the reach pushes the distal bone past +2.5 mm (the bound is 6); with min_wall
+    = 3.5 SLSQP stops it on the constraint, and the result keeps every clearance."""
+    assert _run(tmp_path, PUSH.replace("min_wall = 3.5", ""), "free") == 0
+    free = json.loads((tmp_path / "free" / "optimize_design.json").read_text())
+    assert free["variables"][0]["final"] > 2.6 and free["clearances"] == {}
+    assert _run(tmp_path, PUSH) == 0
+    res = json.loads((tmp_path / "out" / "optimize_design.json").read_text())
+    assert res["variables"][0]["final"] == pytest.approx(2.5, abs=1e-4)
+    assert -1e-6 <= res["clearances"]["min_wall"] < 1e-4          # on the constraint, to SLSQP's precision
+    assert res["optimum"] < res["start"]
+
+
+@pytest.mark.slow
+def test_an_interrupted_run_resumes_from_its_checkpoint(tmp_path):
+    """SIGINT after two evaluations: exit 130, no output folder, the checkpoint beside it; the rerun reads the
+    evaluations back without solving them, goes on, publishes, and removes the checkpoint."""
+    task = tmp_path / "task.toml"
+    task.write_text(PUSH)
+    out = tmp_path / "out"
+    args = [SKELFEM, "optimize-design", FINGER, "--task", str(task), "--out", str(out), "-q"]
+    checkpoint = tmp_path / ".out.optimize-design-partial.json"
+    proc = subprocess.Popen(args, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None:
+        try:
+            if len(json.loads(checkpoint.read_text())["entries"]) >= 2:
+                break
+        except (OSError, ValueError, KeyError):
+            pass
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    if proc.returncode == 0:
+        pytest.skip("the run finished before it could be interrupted")
+    assert proc.returncode == 130 and err.strip().splitlines() == ["error: interrupted"], err
+    assert not out.exists()
+    done = json.loads(checkpoint.read_text())["entries"]
+    assert len(done) >= 2
+    res = subprocess.run(args[:-1], env=ENV, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert f"resuming: {len(done)} evaluations of an interrupted run are read back" in res.stdout
+    summary = json.loads((out / "optimize_design.json").read_text())
+    assert summary["resumed_after"] == len(done)
+    assert summary["variables"][0]["final"] == pytest.approx(2.5, abs=1e-4)
+    assert not checkpoint.exists()
+    history = (out / "history.csv").read_text().splitlines()
+    assert [float(v) for v in history[1].split(",")[:2]] == [1.0, pytest.approx(done[0]["J"], rel=1e-12)]
