@@ -153,3 +153,30 @@ def test_an_interrupted_run_resumes_from_its_checkpoint(tmp_path):
     assert not checkpoint.exists()
     history = (out / "history.csv").read_text().splitlines()
     assert [float(v) for v in history[1].split(",")[:2]] == [1.0, pytest.approx(done[0]["J"], rel=1e-12)]
+
+
+def test_a_checkpoint_of_another_task_or_a_broken_one_is_ignored(tmp_path):
+    from skelfem.cli.optimize_design import Checkpoint
+    from skelfem.design.design_task import parse_task
+    from skelfem.design.parse import read_toml
+    task_file = tmp_path / "task.toml"
+    task_file.write_text(PUSH)
+    d = _design()
+    task = parse_task(read_toml(task_file, "task file"), str(task_file), d)
+    out = tmp_path / "out"
+    first = Checkpoint(out, d, task)
+    assert first.entries == [] and first.path == tmp_path / ".out.optimize-design-partial.json"
+    entry = {"x": [0.125], "J": 3.0, "g": [1.5], "refused": None, "solves": 1}
+    first.add(entry)
+    first.add({"x": [0.25], "J": None, "g": None, "refused": "the morph refused it", "solves": 0})
+    assert Checkpoint(out, d, task).resumed == 2 and Checkpoint(out, d, task).entries[0] == entry
+    other = parse_task(read_toml(task_file, "task file"), str(task_file), d)
+    other = other.__class__(other.source, other.variables, other.objectives, 99, (("min_wall", 3.0),))
+    assert Checkpoint(out, d, other).entries == []                    # other constraints: start afresh
+    assert Checkpoint(out, d, task.__class__(task.source, task.variables, task.objectives, 99,
+                                             task.constraints)).resumed == 2     # a larger budget goes on
+    for broken in ("{", '{"key": 1}', json.dumps({"key": first.key, "entries": [{"x": [1.0, 2.0]}]})):
+        first.path.write_text(broken)
+        assert Checkpoint(out, d, task).entries == [], broken
+    first.remove()
+    assert not first.path.exists()
