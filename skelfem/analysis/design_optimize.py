@@ -1,21 +1,28 @@
-"""Optimising a 2D design with its exact gradients: L-BFGS-B over a task's variables (skelfem optimize-design).
+"""Optimising a 2D design with its exact gradients over a task's variables (skelfem optimize-design).
 
-The task (skelfem.design.design_task) names design variables with bounds and
+The task (skelfem.design.design_task) names design variables with bounds,
 objectives, each a sum over targets (a set of live parameters, e.g. a
-contraction, and for a reach a marker's target point):
+contraction, and for a reach a marker's target point), and fabrication
+constraints:
 
-    J(p) = sum_objectives weight * sum_targets J_t(u_t(p); p),
+    J(p) = sum_objectives weight * sum_targets J_t(u_t(p); p),    c(p) >= 0,
 
 each J_t solved on the design at p (the mesh moved by the morph) and
 differentiated by the adjoint (skelfem.analysis.design_gradient): one solve
-and one back-substitution per target, whatever the number of variables.
-SciPy's L-BFGS-B runs on the variables scaled to their bounds' widths.
-When the morph refuses a moved mesh (it would degrade) or a solve fails, the
-run stops there with the best design found and says why.
+per distinct target setting and one back-substitution per target, whatever
+the number of variables. c are point-segment clearances of the design's
+polygons and sketches (skelfem.design.clearances), exact in p through the
+handles' velocities. SciPy's SLSQP runs on the variables scaled to their
+bounds' widths when there are constraints (they are smooth and the optimum
+lies on them: SLSQP meets them to ~1e-6 mm), L-BFGS-B when there are bounds
+only. A trial design the morph or the design rules refuse sends the line
+search back; a failed solve stops the run with the best design found
+(the best that meets the constraints) and says why.
 
-At the end the best design is meshed anew and solved fresh (``fresh``): its
-objective beside the optimiser's value measures what the moved mesh's
-discretisation changed.
+Every evaluation can be handed to a recorder and read back (``known``): the
+optimisers are deterministic given the same values, so a run resumed from
+an interrupted one's evaluations retraces its path through them without
+solving and goes on from where it stopped.
 """
 from __future__ import annotations
 
@@ -34,7 +41,7 @@ class Stop(Exception):
 
 class Refused(Stop):
     """A trial design the design rules or the morph refuse (a bone through the outline, a flattened
-    triangle): L-BFGS-B's line search is sent back with a worse value; MAX_REFUSED in a row stop the run."""
+    triangle): the optimiser's line search is sent back with a worse value; MAX_REFUSED in a row stop the run."""
 
 
 MAX_REFUSED = 8
