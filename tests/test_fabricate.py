@@ -206,6 +206,9 @@ def test_every_part_is_a_closed_oriented_solid(name, fabricated):
         r = solid_report(out / entry["stl"])
         count, volume = step_solids(out / entry["step"])        # the STEP file holds exactly its part
         assert count == 1 and volume == pytest.approx(r["volume"], rel=1e-3), (part, count, volume, r["volume"])
+        # no edge further off its faces than the 1e-7 mm a STEP reader gives it (FreeCAD's BOP check clean)
+        assert 0 < entry["step_tolerance"] <= 1e-7, (part, entry["step_tolerance"])
+        assert entry["print"]["bed_area"] > 0, (part, entry["print"])          # flat on a face
         # written as printed: on the bed at z = 0, in the orientation that needs the least support
         from skelfem.fabricate.orientation import best_pose
         tris, points = read_stl(out / entry["stl"])
@@ -536,6 +539,8 @@ def test_the_bundled_arm_fabricates(tmp_path):
     # every part prints flat on a face; the radius and the ulna, tilted in the design, on an end cap (or a
     # larger face), not on its rim
     assert all(item["print"]["bed_area"] > 0 for item in report["parts"].values()), report["parts"]
+    # every STEP file's edges within the 1e-7 mm a reader gives them (FreeCAD's BOP check finds nothing)
+    assert report["checks"]["step_tolerances"]["within"], report["checks"]["step_tolerances"]
     for bone in ("radius", "ulna"):
         entry = report["parts"][f"bone_{bone}"]["print"]
         assert entry["bed_area"] >= 0.99 * math.pi * 3.5 ** 2, (bone, entry)

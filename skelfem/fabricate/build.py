@@ -1,4 +1,5 @@
-"""The build pass: each part in its own OCC model (cuts and fuses), volume measured, STL and STEP written and checked.
+"""The build pass: each part in its own OCC model (cuts and fuses, in micrometres: micrometres.py), volume
+measured, STL and STEP written and checked.
 """
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 from .meshing import generate_surface_mesh, quiet_gmsh, triangle_surface
+from .micrometres import Z, MicrometreOCC, in_millimetres, largest_tolerance, scratch_file
 from .orientation import PrintPose, best_pose, move_into_pose
 from .parts import Frame, Plan, Tool
 from .surfaces import CURVATURE, Surface, orient, signed_volume
@@ -29,6 +31,7 @@ class Part:
     cad_volume: float
     info: dict = field(default_factory=dict)
     pose: PrintPose | None = None    # how it lies on the print bed (STL and STEP are written so)
+    step_tolerance: float | None = None   # mm: the largest tolerance of the STEP file's shape (if written)
 
 
 def tool_shapes(occ, tool: Tool) -> list:
@@ -96,10 +99,12 @@ def write_step(gmsh, path: Path) -> None:
 
 
 def _finish(gmsh, name: str, kind: str, volumes: list[int], plan: Plan, folder: Path | None, info: dict) -> Part:
-    """Measure and triangulate the part in the current model, choose how it lies on the print bed, and (if
-    folder) write its STEP file so."""
+    """Bring the part in the current model (built in micrometres) to millimetres, measure and triangulate it,
+    choose how it lies on the print bed, and (if folder) write its STEP file so, with the largest tolerance
+    of its shape."""
     occ = gmsh.model.occ
-    occ.synchronize()
+    with scratch_file(folder, f"{name}.brep") as scratch:
+        volumes = in_millimetres(gmsh, scratch)          # the model holds the part alone: all of it
     if len(volumes) != 1:
         raise RuntimeError(f"{name}: the geometry kernel made {len(volumes)} solids instead of one")
     cad = float(occ.getMass(3, volumes[0]))
@@ -111,20 +116,23 @@ def _finish(gmsh, name: str, kind: str, volumes: list[int], plan: Plan, folder: 
         if abs(signed_volume(surface.points, surface.tris) - cad) <= STL_VOLUME_TOLERANCE * cad:
             break
     pose = best_pose(surface.points, surface.tris)
+    tolerance = None
     if folder is not None:
         move_into_pose(occ, [(3, volumes[0])], pose)
         occ.synchronize()
         write_step(gmsh, folder / f"{name}.step")
-    return Part(name, kind, surface, cad, info, pose)
+        tolerance = largest_tolerance(gmsh, folder / f".{name}.brep")
+    return Part(name, kind, surface, cad, info, pose, tolerance)
 
 
-def build_bone(plan: Plan, bone, folder: Path | None = None) -> Part:
+def build_bone(plan: Plan, bone, folder: Path | None = None, pole_axis=Z) -> Part:
     """A bone with its sheaths (sheaths.py) minus its channels, anchor holes and sockets.
 
     The added and removed volumes are measured on their own (the sheaths'
     volume outside the bone; the OCC intersection of the fused cutting tools
     with an un-cut copy of the bone and its sheaths), so that the bone's
     volume can be checked against (un-cut volume) + (added) - (removed).
+    pole_axis: where balls have their poles (micrometres.py).
     """
     import gmsh
 
@@ -132,7 +140,7 @@ def build_bone(plan: Plan, bone, folder: Path | None = None) -> Part:
     from ..mesh.geometry import add_design_solids
     design = plan.design
     with gmsh_model(f"skelfem-fabricate-bone-{bone.name}"):
-        occ = gmsh.model.occ
+        occ = MicrometreOCC(gmsh.model.occ, pole_axis)
         _, tags = add_design_solids(occ, design, plan.spec.bone_depth or None, bones=[bone.name], body=False)
         solid = [(3, t) for t in tags[bone.name]]
         added = 0.0
@@ -183,17 +191,17 @@ def _block(occ, frame: Frame, n0: float, n1: float) -> tuple[int, float]:
     return tag, float(np.prod(hi - lo))
 
 
-def build_half(plan: Plan, side: str, folder: Path | None = None) -> Part:
+def build_half(plan: Plan, side: str, folder: Path | None = None, pole_axis=Z) -> Part:
     """One mould half: its slab of the block minus the body, with pins or pin holes, its pegs and guide
     posts, the tendon exits, the pry slots, the removable rods' holes, the clamp bolts' holes and (top) the
-    pour hole and vents."""
+    pour hole and vents. pole_axis: where balls have their poles (micrometres.py)."""
     import gmsh
 
     from ..design.occ import gmsh_model
     from ..mesh.geometry import add_design_solids
     f = plan.frame
     with gmsh_model(f"skelfem-fabricate-mould-{side}"):
-        occ = gmsh.model.occ
+        occ = MicrometreOCC(gmsh.model.occ, pole_axis)
         body, _ = add_design_solids(occ, plan.design, bones=[])
         n0, n1 = (f.lo[2], f.c) if side == "bottom" else (f.c, f.hi[2])
         box, block = _block(occ, f, n0, n1)
