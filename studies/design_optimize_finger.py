@@ -13,8 +13,9 @@ each method needed (a solve is one equilibrium of one contraction; an evaluation
 contraction), the solves COBYLA needed to first reach the gradient run's optimum at a design that
 meets the constraints (None: never within its budget), the constraints' margins at the optimum, the
 optimum meshed anew and solved fresh with its error estimate, and whether ``skelfem fabricate``'s
-planning pass accepts the optimum. `python studies/design_optimize_finger.py [--out DIR]` writes
-design_optimize_finger.json and optimized.toml there.
+planning pass accepts the optimum. `python studies/design_optimize_finger.py [--min-entry-angle 30]
+[--out DIR]` writes design_optimize_finger.json and optimized.toml there (``--min-entry-angle``: the task
+with that constraint too, which keeps fabricate from sheathing the flexor's channel).
 """
 from __future__ import annotations
 
@@ -57,18 +58,20 @@ def _gradient_free(d, t, max_evaluations: int, target: float) -> dict:
                     return 2.0 * worst[0]
                 total += sum(o.weight * objective_of(o, tg).value(session.model) for o, tg in members)
             worst[0] = max(worst[0], total)
-            trace.append((solves[0], total, float(clear.values(x).min())))
+            trace.append((solves[0], total, float(clear.values(x).min()), x * width))
             return total
 
         cons = [{"type": "ineq", "fun": clear.values},
                 {"type": "ineq", "fun": lambda x: x - lower}, {"type": "ineq", "fun": lambda x: upper - x}]
         res = minimize(f, np.zeros(len(start)), method="COBYLA", constraints=cons,
                        options={"maxiter": max_evaluations, "rhobeg": 0.05, "tol": 1e-6})
-    feasible = [(s, j) for s, j, c in trace if c >= -FEASIBLE]
-    best = min((j for _, j in feasible), default=float("nan"))
-    return {"objective": best, "solves": solves[0], "evaluations": len(trace), "status": str(res.message),
+    feasible = [(s, j, p) for s, j, c, p in trace if c >= -FEASIBLE]
+    best = min(feasible, key=lambda item: item[1], default=(0, float("nan"), np.zeros(len(start))))
+    return {"objective": best[1], "solves": solves[0], "evaluations": len(trace), "status": str(res.message),
             "time_s": time.perf_counter() - t0,
-            "solves_to_reach_gradient_optimum": next((s for s, j in feasible if j <= target), None)}
+            "solves_to_reach_gradient_optimum": next((s for s, j, _ in feasible if j <= target), None),
+            "variables": {v.key: float(v.start + dp) for v, dp in zip(t.variables, best[2])},
+            "raw": dg.handles.raw(best[2])}
 
 
 def _fabricates(raw, source) -> dict:
@@ -83,7 +86,7 @@ def _fabricates(raw, source) -> dict:
 
 
 def run(design="geometry/finger.toml", task="studies/finger_reach_task.toml", max_gradient_free: int = 400,
-        out=None, max_evaluations: int | None = None) -> dict:
+        out=None, max_evaluations: int | None = None, min_entry_angle: float | None = None) -> dict:
     from skelfem import Session
     from skelfem.analysis.design_optimize import TaskObjective, optimize_design
     from skelfem.design.design_task import load_task
@@ -93,6 +96,8 @@ def run(design="geometry/finger.toml", task="studies/finger_reach_task.toml", ma
     t = load_task(task, d)
     if max_evaluations is not None:
         t = dataclasses.replace(t, max_evaluations=max_evaluations)
+    if min_entry_angle is not None:          # the task as if its [constraints] had min_entry_angle too
+        t = dataclasses.replace(t, constraints=t.constraints + (("min_entry_angle", float(min_entry_angle)),))
     t0 = time.perf_counter()
     with Session(d) as session:
         opt = optimize_design(session, t)
@@ -100,9 +105,10 @@ def run(design="geometry/finger.toml", task="studies/finger_reach_task.toml", ma
     with Session(parse_design(opt.raw, str(design))) as fresh_session:
         fresh, fresh_error = TaskObjective(None, t).value(fresh_session, estimate=True)
     free = _gradient_free(d, t, max_gradient_free, opt.objective)
+    free["fabricate"] = _fabricates(free.pop("raw"), str(design))
     free["improvement"] = 1.0 - free["objective"] / opt.start_objective
     out_data = {
-        "design": str(design), "task": str(task), "start": opt.start_objective,
+        "design": str(design), "task": str(task), "constraints": dict(t.constraints), "start": opt.start_objective,
         "gradient": {"objective": opt.objective, "solves": opt.evaluations, "evaluations": len(opt.history),
                      "status": opt.status, "improvement": 1.0 - opt.objective / opt.start_objective,
                      "time_s": grad_time, "clearances": opt.clearances,
@@ -125,9 +131,11 @@ def main(argv=None) -> None:
     ap.add_argument("--design", default="geometry/finger.toml")
     ap.add_argument("--task", default="studies/finger_reach_task.toml")
     ap.add_argument("--max-gradient-free", type=int, default=400)
+    ap.add_argument("--min-entry-angle", type=float, default=None,
+                    help="add this [constraints] min_entry_angle (degrees) to the task")
     ap.add_argument("--out", default="studies/output/design_optimize_finger")
     args = ap.parse_args(argv)
-    r = run(args.design, args.task, args.max_gradient_free, args.out)
+    r = run(args.design, args.task, args.max_gradient_free, args.out, min_entry_angle=args.min_entry_angle)
     g, f = r["gradient"], r["gradient_free"]
     print(f"start objective {r['start']:.6g}")
     print(f"gradient (SLSQP): {g['objective']:.6g} ({100 * g['improvement']:.1f} % better) in {g['evaluations']} "

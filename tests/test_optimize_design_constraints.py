@@ -12,7 +12,7 @@ from _hardening import ENV, ROOT, SKELFEM
 from skelfem.cli.main import main
 
 FINGER = str(ROOT / "geometry" / "finger.toml")
-CONSTRAINTS = {"min_wall": 3.5, "min_gap": 5.0, "min_cable_wall": 1.5, "min_cable_gap": 2.0}
+CONSTRAINTS = {"min_wall": 3.5, "min_gap": 5.0, "min_cable_wall": 1.5, "min_cable_gap": 2.0, "min_entry_angle": 30.0}
 # one variable the reach wants well past the silicone skin's limit: the distal bone to the dorsal side,
 # where min_wall = 3.5 mm (of the 6 the hand-made finger keeps) stops it at +2.5 mm
 PUSH = """
@@ -51,7 +51,7 @@ def test_clearances_are_exact_derivatives_of_their_distances():
     exact = np.einsum("mij,ij->m", c.jacobian(X), dX)
     errors = [np.abs((c.values(X + h * dX) - c.values(X - h * dX)) / (2 * h) - exact).max() for h in (1e-3, 1e-4)]
     assert errors[1] < 1e-6 and errors[1] < errors[0] / 50, errors
-    assert {g.key for g in c.groups} == {*CONSTRAINTS, "end_wall"}
+    assert {g.key for g in c.groups} == {*CONSTRAINTS, "end_wall", "entry_corners"}
 
 
 def test_constraint_jacobian_in_the_design_variables_matches_finite_differences():
@@ -86,6 +86,7 @@ def test_constraint_jacobian_in_the_design_variables_matches_finite_differences(
     ("min_cable_gap = 1.0", "constraints.min_cable_gap: 1 mm is less than the 1.9 mm skelfem fabricate needs"),
     ("min_wall = -1.0", "constraints.min_wall: expected a length in (0, 100] mm"),
     ("min_wall = nan", "constraints.min_wall: expected a finite number"),
+    ("min_entry_angle = 95", "constraints.min_entry_angle: expected an angle in (0, 90) degrees, got 95"),
     ("thickness = 1.0", "constraints.thickness: unknown key"),
 ])
 def test_constraints_the_start_cannot_meet_are_one_error_line(tmp_path, capsys, constraints, message):
@@ -180,3 +181,19 @@ def test_a_checkpoint_of_another_task_or_a_broken_one_is_ignored(tmp_path):
         assert Checkpoint(out, d, task).entries == [], broken
     first.remove()
     assert not first.path.exists()
+
+
+def test_a_grazing_channel_at_the_start_is_refused_at_fabricates_angle(tmp_path, capsys):
+    """The flexor entering the distal bone at 17 degrees (fabricate would print a sheath): one error line."""
+    import math
+
+    from skelfem.design.clearances import GRAZING_ANGLE
+    from skelfem.fabricate.surfaces import GRAZING
+    assert math.sin(math.radians(GRAZING_ANGLE)) == pytest.approx(GRAZING)
+    rc = _run(tmp_path, PUSH.replace("min_wall = 3.5", "min_wall = 3.5\nmin_entry_angle = 30.0"), "out",
+              "--set", "cables.flexor.path=[[3, 0], [2, 70], [7, 86]]")
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and len(err) == 1, err
+    assert "constraints.min_entry_angle: the channel of cables.flexor enters bone 'distal' at 17.4 degrees in the " \
+           "start design, less than the 30 needed" in err[0], err
+    assert not (tmp_path / "out").exists()

@@ -47,6 +47,11 @@ def test_the_kept_run_meets_the_floor_and_the_guide_quotes_it():
            f"{f['objective']:.3f} ({100 * f['improvement']:.1f} % lower) |" in guide
     assert f"| evaluations / solves | {g['evaluations']} / {g['solves']} | {f['evaluations']} / {f['solves']} |" in guide
     assert f"gives {g['fresh']:.3f} ± {g['fresh_error_estimate']:.3g}" in guide
+    entry = json.loads((kept / "min_entry_angle_30" / "design_optimize_finger.json").read_text())
+    assert entry["constraints"]["min_entry_angle"] == 30.0 and abs(entry["gradient"]["clearances"]["min_entry_angle"]) < 1e-4
+    assert f"SLSQP converges at {entry['gradient']['objective']:.3f} ({100 * entry['gradient']['improvement']:.1f} % lower) " \
+           f"in {entry['gradient']['evaluations']} evaluations ({entry['gradient']['solves']} solves)" in " ".join(guide.split())
+    assert f"after {entry['gradient_free']['solves_to_reach_gradient_optimum']} solves" in guide
 
 
 def test_the_kept_optimum_fabricates():
@@ -57,5 +62,8 @@ def test_the_kept_optimum_fabricates():
     from skelfem.design.parse import load_design
     from skelfem.fabricate.plan import plan
     root = Path(__file__).resolve().parents[1]
-    p = plan(load_design(root / "studies" / "output" / "design_optimize_finger" / "optimized.toml"))
+    kept = root / "studies" / "output" / "design_optimize_finger"
+    p = plan(load_design(kept / "optimized.toml"))
     assert any("sheath" in note for note in p.notes)      # the guide says so
+    p = plan(load_design(kept / "min_entry_angle_30" / "optimized.toml"))
+    assert not any("sheath" in note for note in p.notes)  # min_entry_angle = 30 keeps the channel unsheathed

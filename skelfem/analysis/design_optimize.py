@@ -252,11 +252,10 @@ def _key(x) -> bytes:
     return np.asarray(x, dtype=float).tobytes()
 
 
-def _minimize(run: Evaluations, task, width, lower, upper, constraints):
-    """SciPy's L-BFGS-B (bounds only) or SLSQP (with fabrication constraints) from the start (x = 0)."""
+def _minimize(run: Evaluations, task, width, lower, upper, constraints, x0):
+    """SciPy's L-BFGS-B (bounds only) or SLSQP (with fabrication constraints) from x0 (scaled)."""
     from scipy.optimize import minimize
 
-    x0 = np.zeros(len(width))
     bounds = list(zip(lower / width, upper / width))
     if constraints is None:
         return minimize(run, x0, jac=True, method="L-BFGS-B", bounds=bounds,
@@ -283,10 +282,8 @@ def optimize_design(session, task, progress=None, known=(), record=None) -> Desi
     upper = np.array([v.upper for v in task.variables]) - start
     constraints = DesignConstraints(task, dg.handles, width) if task.constraints else None
     run = Evaluations(TaskObjective(dg, task), task, width, constraints, known, record, progress)
-    status = ""
     try:
-        res = _minimize(run, task, width, lower, upper, constraints)
-        status = str(res.message)
+        status = str(_minimize(run, task, width, lower, upper, constraints, np.zeros(len(width))).message)
     except Stop as exc:
         status = f"stopped: {exc}"
     if run.refused_last and not status.startswith("stopped"):

@@ -10,10 +10,13 @@
 ``min_cable_gap``      between the sketches of any two cables (mm): where both run in a bone,
                        ``skelfem fabricate`` needs their holes' radii + ``fabrication.min_wall``
                        (``cable_gap_floor``), and a smaller value is refused
+``min_entry_angle``    a tendon's channel into a bone (its last segment) crosses the bone's edge
+                       at this angle or more (degrees; fabricate sheathes a channel below 30) and
+                       keeps its radius + ``fabrication.min_wall`` from the bone's corners
 (always, with any)     every cable end in a bone keeps its hole's radius (a ligament's
                        ``fabrication.anchor_diameter / 2``, a tendon's ``channel_diameter / 2``) +
                        ``fabrication.min_wall`` from the bone's outline: the wall ``skelfem
-                       fabricate`` demands round an anchor hole or a channel
+                       fabricate`` demands round an anchor hole or a channel's end
 =====================  ==========================================================================
 
 Each is a set of distances d(x, [a, b]) − need ≥ 0 between a point and a segment: for two
@@ -30,21 +33,37 @@ checked at its start before anything is meshed.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from . import polygons as poly_tools
 
-KEYS = ("min_wall", "min_gap", "min_cable_wall", "min_cable_gap")
+KEYS = ("min_wall", "min_gap", "min_cable_wall", "min_cable_gap", "min_entry_angle")
+ANGLES = ("min_entry_angle",)  # degrees; the other keys are lengths (mm)
 ANCHOR = "end_wall"            # the wall skelfem fabricate demands round a cable end's hole in a bone
+CORNERS = "entry_corners"      # min_entry_angle's channel kept off the corners of the bone it enters
+GRAZING_ANGLE = 30.0           # degrees: below it skelfem fabricate sheathes a channel (its GRAZING = sin 30)
 
 
 @dataclass(frozen=True)
 class Group:
-    key: str            # "min_wall", "min_gap", "min_cable_wall" or "anchor_wall"
+    key: str            # one of KEYS, "end_wall" or "entry_corners"
     what: str           # "bone 'distal' and the body's outline"
-    need: float         # mm
+    need: float         # mm; for min_entry_angle the sine of the least angle
+
+    def shortfall(self, least: float) -> str:
+        """Why the start design fails this group, its least value being ``least``."""
+        if self.key in ANGLES:
+            angle, need = (math.degrees(math.asin(min(max(v, -1.0), 1.0))) for v in (least, self.need))
+            return f"{self.what} at {angle:.3g} degrees in the start design, less than the {need:.3g} needed"
+        return f"{self.what} are {least:.3g} mm apart in the start design, less than the {self.need:g} mm needed"
+
+    @property
+    def asked_by(self) -> str:
+        """The [constraints] key that asks for this group (fabrication: any key asks for the end walls)."""
+        return {ANCHOR: "fabrication", CORNERS: "min_entry_angle"}.get(self.key, self.key)
 
 
 def points_of(polys, paths) -> np.ndarray:
@@ -76,7 +95,8 @@ class Clearances:
         if len(design.bodies) > 1:
             loop_names = [f"loop {k} of the bodies" for k in range(len(loops))]
         self.groups: list[Group] = []
-        rows: list[tuple] = []              # (point, a, b, group)
+        rows: list[tuple] = []              # (point, a, b, group): d(point, [a, b]) >= need
+        entries: list[tuple] = []           # (a, b, c, d, sign, group): sign sin(b - a, d - c) >= need
 
         def polygon_pair(i_a, i_b, group):
             for P, Q in ((i_a, i_b), (i_b, i_a)):
@@ -123,21 +143,47 @@ class Clearances:
                         constraints["min_cable_gap"],
                         lambda g, i=i, j=j: polyline_pair(path_idx[i], path_idx[j], g))
         if constraints:
-            spec = design.fabrication
-            for c, cable in enumerate(design.cables):
-                hole = spec.anchor_diameter if cable.kind == "ligament" else spec.channel_diameter
-                size = "anchor_diameter" if cable.kind == "ligament" else "channel_diameter"
-                for v in (0, len(paths[c]) - 1):
-                    for j, bone in enumerate(design.bones):
-                        if poly_tools.strictly_inside(bones[j], paths[c][v:v + 1], tol)[0]:
-                            add(ANCHOR, f"the end cables.{cable.name}.path[{v}] and the outline of bone "
-                                f"{bone.name!r} (fabrication.{size} / 2 + fabrication.min_wall)",
-                                hole / 2 + spec.min_wall,
-                                lambda g, x=path_idx[c][v], j=j: rows.extend(
-                                    (x, a, b, g) for a, b in zip(bone_idx[j], np.roll(bone_idx[j], -1))))
+            self._end_walls(design, constraints, (paths, bones, path_idx, bone_idx), tol, add, rows, entries)
         table = np.array(rows, dtype=int).reshape(-1, 4)
-        self.point, self.a, self.b, self.group = table.T
+        self.point, self.a, self.b, group = table.T
+        self.entries = np.array(entries, dtype=int).reshape(-1, 6)
+        self.group = np.concatenate([group, self.entries[:, 5]])
         self.need = np.array([self.groups[g].need for g in self.group])
+
+    @staticmethod
+    def _end_walls(design, constraints, where, tol, add, rows, entries) -> None:
+        """skelfem fabricate's wall round a cable end's hole in a bone: the end keeps its hole's radius +
+        fabrication.min_wall from the bone's outline. With min_entry_angle, a tendon's last segment, the
+        channel into the bone, crosses the bone's edge at that angle or more and keeps the hole's radius +
+        min_wall from the bone's corners: kept off them, it goes on entering through the edge it crossed at
+        the start, whose angle is the constraint (below fabricate's 30 degrees its channel would open the
+        bone's side where it enters, and fabricate would print a sheath the simulation does not have)."""
+        paths, bones, path_idx, bone_idx = where
+        spec = design.fabrication
+        for c, cable in enumerate(design.cables):
+            hole = spec.anchor_diameter if cable.kind == "ligament" else spec.channel_diameter
+            size = "anchor_diameter" if cable.kind == "ligament" else "channel_diameter"
+            for v, w in ((0, 1), (len(paths[c]) - 1, len(paths[c]) - 2)):
+                for j, bone in enumerate(design.bones):
+                    if not poly_tools.strictly_inside(bones[j], paths[c][v:v + 1], tol)[0]:
+                        continue
+                    x, ring = path_idx[c][v], bone_idx[j]
+                    need = hole / 2 + spec.min_wall
+                    add(ANCHOR, f"the end cables.{cable.name}.path[{v}] and the outline of bone {bone.name!r} "
+                        f"(fabrication.{size} / 2 + fabrication.min_wall)", need,
+                        lambda g, x=x, ring=ring: rows.extend((x, a, b, g) for a, b in zip(ring, np.roll(ring, -1))))
+                    entry = _entry_edge(bones[j], paths[c][w], paths[c][v], tol)
+                    if cable.kind != "tendon" or "min_entry_angle" not in constraints or entry is None:
+                        continue
+                    k, sign = entry
+                    y = path_idx[c][w]
+                    edge = (ring[k], ring[(k + 1) % len(ring)], y, x, sign)
+                    add(CORNERS, f"the channel of cables.{cable.name} and the corners of bone {bone.name!r} "
+                        "(fabrication.channel_diameter / 2 + fabrication.min_wall)", need,
+                        lambda g, x=x, y=y, ring=ring: rows.extend((corner, y, x, g) for corner in ring))
+                    add("min_entry_angle", f"the channel of cables.{cable.name} enters bone {bone.name!r}",
+                        math.sin(math.radians(constraints["min_entry_angle"])),
+                        lambda g, edge=edge: entries.append((*edge, g)))
 
     @staticmethod
     def _in_silicone(design, loops, bones, x, tol) -> bool:
@@ -146,7 +192,7 @@ class Clearances:
         return bool(inside and not any(poly_tools.contains(b, x[None, :], tol)[0] for b in bones))
 
     def __len__(self) -> int:
-        return len(self.point)
+        return len(self.group)
 
     def _nearest(self, X):
         x, a, b = X[self.point], X[self.a], X[self.b]
@@ -156,25 +202,47 @@ class Clearances:
         r = x - (a + t[:, None] * e)
         return t, r, np.linalg.norm(r, axis=1)
 
+    def _sines(self, X):
+        a, b, c, d, sign = (self.entries[:, i] for i in range(5))
+        u, v = X[b] - X[a], X[d] - X[c]
+        lu, lv = np.linalg.norm(u, axis=1), np.linalg.norm(v, axis=1)
+        cross = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+        return sign * cross / (lu * lv), u, v, lu, lv, cross, sign
+
+    def _raw(self, X) -> np.ndarray:
+        """Every constraint's distance (mm) or sine, before its need is taken off."""
+        X = np.asarray(X, dtype=float)
+        return np.concatenate([self._nearest(X)[2], self._sines(X)[0]])
+
     def values(self, X: np.ndarray) -> np.ndarray:
-        """d − need for every point-segment pair (≥ 0 where the design keeps its clearances), mm."""
-        return self._nearest(np.asarray(X, dtype=float))[2] - self.need
+        """d − need for every point-segment pair (mm), sin − sin(min_entry_angle) for every channel's entry: ≥ 0
+        where the design keeps its clearances."""
+        return self._raw(X) - self.need
 
     def jacobian(self, X: np.ndarray) -> np.ndarray:
         """d(values)/dX, (constraints, points, 2)."""
-        t, r, d = self._nearest(np.asarray(X, dtype=float))
+        X = np.asarray(X, dtype=float)
+        t, r, d = self._nearest(X)
         n = r / np.maximum(d, 1e-300)[:, None]
         J = np.zeros((len(self), len(X), 2))
-        rows = np.arange(len(self))
+        rows = np.arange(len(self.point))
         np.add.at(J, (rows, self.point), n)
         np.add.at(J, (rows, self.a), -(1.0 - t)[:, None] * n)
         np.add.at(J, (rows, self.b), -t[:, None] * n)
+        _, u, v, lu, lv, cross, sign = self._sines(X)
+        k = len(self.point) + np.arange(len(self.entries))
+        du = sign[:, None] * (np.column_stack([v[:, 1], -v[:, 0]]) / (lu * lv)[:, None]
+                              - (cross / (lu ** 3 * lv))[:, None] * u)
+        dv = sign[:, None] * (np.column_stack([-u[:, 1], u[:, 0]]) / (lu * lv)[:, None]
+                              - (cross / (lu * lv ** 3))[:, None] * v)
+        for col, grad in ((0, -du), (1, du), (2, -dv), (3, dv)):
+            np.add.at(J, (k, self.entries[:, col]), grad)
         return J
 
     def worst(self, X: np.ndarray) -> list[tuple[Group, float]]:
         """[(group, its least distance)] of the groups whose least distance falls short of their need, worst
         first."""
-        d = self._nearest(np.asarray(X, dtype=float))[2]
+        d = self._raw(X)
         out = []
         for g, group in enumerate(self.groups):
             least = float(d[self.group == g].min())
@@ -183,10 +251,24 @@ class Clearances:
         return sorted(out, key=lambda item: item[1] - item[0].need)
 
     def least(self, X: np.ndarray) -> dict:
-        """{key: the least (distance − need) over its pairs} (mm), for reports."""
+        """{key: the least (distance − need) over its pairs} (mm; min_entry_angle: sin − its need), for reports."""
         v = self.values(X)
         return {key: float(min(v[self.group == g].min() for g, grp in enumerate(self.groups) if grp.key == key))
                 for key in dict.fromkeys(grp.key for grp in self.groups)}
+
+
+def _entry_edge(bone: np.ndarray, outside: np.ndarray, end: np.ndarray, tol: float):
+    """(k, sign) of the one edge bone[k] -> bone[k + 1] that the segment outside -> end crosses, and the sign of
+    sin(edge, segment); None if the segment starts in the bone too, or crosses at a corner or more than once."""
+    if poly_tools.contains(bone, outside[None, :], tol)[0]:
+        return None
+    a, b = bone, np.roll(bone, -1, axis=0)
+    hit = poly_tools.segments_intersect(outside[None, :], end[None, :], a, b, tol)
+    if hit.sum() != 1:
+        return None
+    k = int(np.argmax(hit))
+    u, v = b[k] - a[k], end - outside
+    return k, (1 if u[0] * v[1] - u[1] * v[0] > 0 else -1)
 
 
 def cable_gap_floor(design) -> float:

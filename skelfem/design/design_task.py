@@ -22,6 +22,7 @@ min_wall = 1.5                  # silicone between every bone and the body's out
 min_gap = 3.0                   # between any two bones
 min_cable_wall = 1.5            # between a cable's sketch vertices in the silicone and the outline
 min_cable_gap = 2.0             # between any two cables' sketches
+min_entry_angle = 30.0          # degrees: a tendon's channel into a bone, against the bone's edge
 
 [optimizer]
 max_evaluations = 30            # forward solves (each with its gradient), 1 to 1000
@@ -40,7 +41,7 @@ import re
 import numpy as np
 from dataclasses import dataclass
 
-from .clearances import KEYS as CONSTRAINT_KEYS, Clearances, cable_gap_floor, start_points
+from .clearances import ANGLES, KEYS as CONSTRAINT_KEYS, Clearances, cable_gap_floor, start_points
 from .parse import parse_design, read_toml
 from .spec import DesignError
 from .variables import Variable, parse_variable, start_value
@@ -221,7 +222,9 @@ def _constraints(source, design, value) -> tuple:
     out = {}
     for key, v in table.items():
         v = _number(source, f"constraints.{key}", v)
-        if not 0.0 < v <= extent:
+        if key in ANGLES and not 0.0 < v < 90.0:
+            raise DesignError(f"{source}: constraints.{key}: expected an angle in (0, 90) degrees, got {v:g}")
+        if key not in ANGLES and not 0.0 < v <= extent:
             raise DesignError(f"{source}: constraints.{key}: expected a length in (0, {extent:.4g}] mm (the body's "
                               f"extent), got {v:g}")
         out[key] = v
@@ -235,10 +238,8 @@ def _constraints(source, design, value) -> tuple:
         bad = clear.worst(start_points(design))
         if bad:
             group, least = bad[0]
-            key = group.key if group.key in CONSTRAINT_KEYS else "fabrication"
-            raise DesignError(f"{source}: constraints.{key}: {group.what} are {least:.3g} mm apart in the start "
-                              f"design, less than the {group.need:g} mm needed: the optimiser starts from a design "
-                              "that meets its constraints")
+            raise DesignError(f"{source}: constraints.{group.asked_by}: {group.shortfall(least)}: the optimiser "
+                              "starts from a design that meets its constraints")
     return tuple(out.items())
 
 
