@@ -62,3 +62,32 @@ def test_a_balls_poles_lie_on_the_axis_asked_for(axis):
     assert len(poles) == 2
     assert sorted(np.round((poles - centre) @ a, 9)) == pytest.approx([-r, r], abs=1e-6)
     assert box.mean(axis=0) == pytest.approx(centre, abs=1e-3)
+
+
+def test_a_part_whose_step_tolerance_is_too_large_is_built_again_with_its_poles_on_z(monkeypatch, tmp_path):
+    """files.build: each part with its balls' poles on the parting plane's normal first, again with them on z
+    only when its largest tolerance exceeds a reader's (a vent drilled next to a pole); no STEP file, no retry."""
+    from types import SimpleNamespace
+
+    from skelfem.fabricate import files
+    from skelfem.fabricate.build import Part
+    n = np.array([1.0, 0.0, 0.0])
+    plan = SimpleNamespace(design=SimpleNamespace(bones=[SimpleNamespace(name="b")]), frame=SimpleNamespace(n=n))
+    made = []
+
+    def fake(kind, loose_side):
+        def make(plan, what, folder, pole_axis):
+            name = what if isinstance(what, str) else what.name
+            made.append((name, tuple(pole_axis)))
+            loose = name == loose_side and tuple(pole_axis) != (0.0, 0.0, 1.0)
+            return Part(name, kind, None, 1.0, step_tolerance=None if folder is None else 4e-6 if loose else 1e-9)
+        return make
+    monkeypatch.setattr(files, "build_bone", fake("bone", None))
+    monkeypatch.setattr(files, "build_half", fake("mould", "top"))
+    parts = files.build(plan, tmp_path)
+    assert [p.step_tolerance for p in parts] == [1e-9, 1e-9, 1e-9]
+    assert made == [("b", (1.0, 0.0, 0.0)), ("bottom", (1.0, 0.0, 0.0)), ("top", (1.0, 0.0, 0.0)),
+                    ("top", (0.0, 0.0, 1.0))]
+    made.clear()
+    files.build(plan, None)
+    assert [axis for _, axis in made] == [(1.0, 0.0, 0.0)] * 3
