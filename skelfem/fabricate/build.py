@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from .meshing import generate_surface_mesh, quiet_gmsh, triangle_surface
+from .meshing import generate_surface_mesh, triangle_surface, write_file
 from .micrometres import Z, MicrometreOCC, in_millimetres, largest_tolerance, scratch_file
 from .orientation import PrintPose, best_pose, move_into_pose
 from .parts import Frame, Plan, Tool
@@ -76,26 +76,8 @@ def cut_solids(occ, objects: list, tools: list) -> list:
 
 
 def write_step(gmsh, path: Path) -> None:
-    """gmsh.write, whose failures (a full disk: a plain Exception) become the OSError of the file."""
-    import errno
-    import os
-    try:
-        with quiet_gmsh():
-            gmsh.write(str(path))
-    except Exception as exc:  # noqa: BLE001 - Gmsh raises Exception for every failure
-        probe = None
-        try:                                   # why: the same write from Python names the errno
-            with open(path, "ab") as f:
-                f.write(b"\0")
-                f.flush()
-                os.fsync(f.fileno())
-        except OSError as err:
-            probe = err
-        if probe is not None:
-            raise probe from None
-        raise OSError(errno.EIO, f"Gmsh could not write it ({exc})", str(path)) from None
-    if not path.is_file() or path.stat().st_size == 0:
-        raise OSError(errno.EIO, "Gmsh wrote nothing", str(path))
+    """The current model as a STEP file (meshing.write_file: a full disk is the file's OSError)."""
+    write_file(gmsh, path)
 
 
 def _finish(gmsh, name: str, kind: str, volumes: list[int], plan: Plan, folder: Path | None, info: dict) -> Part:

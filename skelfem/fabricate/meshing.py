@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import sys
 from contextlib import contextmanager
+from pathlib import Path
 
 import numpy as np
 from .surfaces import MIN_EDGE, Surface
@@ -60,3 +61,24 @@ def triangle_surface(gmsh, volumes) -> Surface:
     return Surface(coords.reshape(-1, 3)[used], inv.reshape(-1, 3), np.concatenate(owner))
 
 
+def write_file(gmsh, path: Path) -> None:
+    """gmsh.write (quiet), whose failures (a full disk: a plain Exception) become the OSError of the file."""
+    import errno
+    import os
+    try:
+        with quiet_gmsh():
+            gmsh.write(str(path))
+    except Exception as exc:  # noqa: BLE001 - Gmsh raises Exception for every failure
+        probe = None
+        try:                                   # why: the same write from Python names the errno
+            with open(path, "ab") as f:
+                f.write(b"\0")
+                f.flush()
+                os.fsync(f.fileno())
+        except OSError as err:
+            probe = err
+        if probe is not None:
+            raise probe from None
+        raise OSError(errno.EIO, f"Gmsh could not write it ({exc})", str(path)) from None
+    if not path.is_file() or path.stat().st_size == 0:
+        raise OSError(errno.EIO, "Gmsh wrote nothing", str(path))

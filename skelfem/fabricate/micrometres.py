@@ -30,6 +30,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
+from .meshing import write_file
 
 UM_PER_MM = 1000.0
 READER_TOLERANCE = 1e-7      # mm: the tolerance a STEP reader gives every vertex, edge and face
@@ -105,7 +106,7 @@ def in_millimetres(gmsh, scratch: Path) -> list[int]:
     occ.synchronize()
     saved = gmsh.option.getNumber("Geometry.OCCScaling")
     try:
-        gmsh.write(str(scratch))
+        write_file(gmsh, scratch)
         occ.remove(gmsh.model.getEntities(), recursive=True)
         gmsh.option.setNumber("Geometry.OCCScaling", 1.0 / UM_PER_MM)
         out = occ.importShapes(str(scratch), highestDimOnly=True)
@@ -137,7 +138,7 @@ def largest_tolerance(gmsh, scratch: Path) -> float:
     """The largest tolerance of an edge or face of the current model, in its unit: written as a BREP file at
     scratch (removed after)."""
     try:
-        gmsh.write(str(scratch))
+        write_file(gmsh, scratch)
         text = scratch.read_text()
     finally:
         scratch.unlink(missing_ok=True)
