@@ -209,8 +209,9 @@ def test_ik_through_a_sticking_pinch_matches_central_differences():
 
 @pytest.mark.slow
 def test_ik_through_the_grippers_sticking_grasp_matches_central_differences():
-    """The gripper holds its box by friction; gravity eased from 9.81 to 9 m/s^2 leaves every contact
-    node sticking. Both flexors' columns of the box marker's Jacobian match whole-solve central
+    """The gripper holds its box by friction; gravity eased from 9.81 to 9 and 8.5 m/s^2 leaves every
+    contact node sticking (at 9: 97 % of the normal force; the box's contacts hold from where they
+    formed as the fingers closed on it). Both flexors' columns of the box marker's Jacobian match whole-solve central
     differences to 1e-5 (h = 1e-4 mm: at 1e-3 mm some nodes near their limit slip)."""
     import tomllib
 
@@ -224,7 +225,7 @@ def test_ik_through_the_grippers_sticking_grasp_matches_central_differences():
     with Session(parse_design(d, "gripper.toml")) as s:
         s.set({"cables.left_flexor.contraction": 4.0, "cables.right_flexor.contraction": 4.0})
         assert s.solve().converged
-        for g in (9.81, 9.0):
+        for g in (9.81, 9.0, 8.5):
             s.set({"gravity.acceleration": [0.0, -g], "materials.box_pla.density": 620.0})
             r = s.solve()
             assert r.converged, r.status

@@ -161,6 +161,8 @@ def test_no_private_names_cross_modules():
 SOFT_LINES, HARD_LINES = 600, 800
 LONG_MODULES = {
     "skelfem.fem.linear": "the direct and the iterative solve share the low-rank (Woodbury) and border algebra",
+    "skelfem.terms.object_friction": "the potential, its lag, the anchors' return map and the landing of objects "
+                                     "all read and write the one per-vertex anchor state (facet, b, T, N, fresh)",
 }
 
 

@@ -556,6 +556,21 @@ def grasp(_: dict) -> Table:
     return Table(["W (N)", "mu_min = W / sum N"] + [f"mu = {short(m)}" for m in mus], rows, "", [path])
 
 
+def landing(_: dict) -> Table:
+    d, path = load_json("landing/landing.json", "python studies/landing.py")
+    families = {"slope": "box above a ground", "block": "box above the soft block",
+                "stack": "two boxes above the block", "slope3d": "3D cube above a ground",
+                "block3d": "3D cube above a block"}
+    rows = []
+    for r in d["rows"]:
+        where = f"held, {num(r['along_slope'])} mm along the slope" if r["held"] else r["status"]
+        rows.append([families.get(r["family"], r["family"]), short(r["theta"]), short(r["gap"]), short(r["mu"]),
+                     str(r["steps"]), where, num(r["fall_along_slope"]), str(r["newton_iterations"]),
+                     secs(r["time"]), thousands(r["dofs"])])
+    return Table(["object", "theta (deg)", "gap (mm)", "mu", "steps", "from rest", "gap tan theta (mm)",
+                  "Newton its", "solve", "DOFs"], rows, "", [path])
+
+
 def grasp3d(_: dict) -> Table:
     d, path = load_json("grasp3d/grasp3d.json", "python studies/grasp3d.py")
     c = d["close"]
@@ -797,7 +812,7 @@ TABLES = {f.__name__: f for f in (estimate_effectivity, estimate_cost, goal_orie
                                   editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
                                   tol_check, tol_check_adaptive, scatter, adaptive_reach, adaptive_tol_runs,
                                   stability, stability_slender, friction_stability, peer, pull_test, dynamics_checks,
-                                  grasp, grasp3d, hand_grasp, grasp_bench,
+                                  grasp, grasp3d, hand_grasp, grasp_bench, landing,
                                   cable_friction, capstan, cable_friction_cost, adversarial, adversarial_findings)}
 
 

@@ -360,13 +360,17 @@ class Model(MatrixAssembly):
     def contact_event(self) -> bool:
         """Whether some term took up a contact that formed at the present iterate (friction anchoring
         it, ObjectFriction.contact_event): the energy changed, so Newton ends the solve there and starts
-        again from it (same answer on every rank)."""
+        again from it (same answer on every rank). Terms are told if the solve is static (``in_time``)."""
         watch = [t for t in self.terms if getattr(t, "contact_event", None) is not None]
         if not watch:
             return False
         u = self.u.x.array
-        event = any(t.contact_event(u) for t in watch)
+        event = any([t.contact_event(u, not self.in_time) for t in watch])     # every term sees the iterate
         return self.comm.allreduce(event, op=MPI.LOR) if self.comm.size > 1 else event
+
+    @property
+    def in_time(self) -> bool:     # a run in time is going on (an inertia term is active)
+        return any(getattr(t, "active", False) for t in self.terms_in("dynamics"))
 
     # -- state ----------------------------------------------------------------------------------
     def sync(self, x: PETSc.Vec) -> np.ndarray:

@@ -282,10 +282,11 @@ class NewtonSolver(LineSearch):
         if self._history:                       # the re-solves keep the first solve's force scale
             self.reference_residual = max(self.reference_residual, self._history[0])
         loose, failed, rounds, events = LAG_LOOSE, 0, 0, 0
+        tight = self._event                     # the round that takes up new contacts is solved fully
         while rounds < MAX_LAG_UPDATES and events < MAX_CONTACT_EVENTS:
             self._failure, self._newton_step, self._decrement_converged = None, np.inf, False
             self._watch, self._watch_allowed, self._last_trial = None, True, None
-            self._loose = loose
+            self._loose = 0.0 if tight else loose
             try:
                 ok, status, more = self._newton_once()
             finally:
@@ -294,8 +295,9 @@ class NewtonSolver(LineSearch):
             if not ok and status.startswith("no equilibrium"):   # an object gone: new lags cannot hold it
                 return False, status, its
             if status == "contact_event":          # not a failure: the new contacts are held from here
-                failed, events = 0, events + 1
+                failed, events, tight = 0, events + 1, True
                 continue
+            tight = False
             changed = self.model.update_lag()
             rounds += 1
             failed = 0 if ok else failed + 1

@@ -57,6 +57,25 @@ first micro-slip instead lets the few micrometres of partial slip that an
 elastic body shows at its edges well below the threshold drop those nodes
 to mu_k, and the load they shed breaks the rest away.)
 
+Landing (static solves). A free object that touches this ground nowhere
+when a step begins lands on it in the step: a contact of its nodes that
+forms during the solve is taken up at once (``contact_event``), anchored
+where the node crossed the plane along the last Newton step and held stuck,
+like the contacts a step starts with, until the lag gives its N. A piece is
+placed, not thrown: it reaches its support with no speed, and from then on
+its normal and tangential loads grow together, so it slips only if their
+ratio exceeds mu. (Without this a free object placed a gap above a tilted
+ground slid along it under the tangential load, which only its tether
+resists, before its contact carried a normal force, and no load step
+converged.) A Newton step also stops where a node of such an object that is
+off the plane first reaches it (``max_step``; in a run in time too, for an
+object that touched the plane nowhere when the time step began): a free
+object's first step, which only its tether resists, would otherwise sink it
+a quarter of its size into the penalty, and the force of that overshoot
+became the solve's force scale. Other new contacts (bodies, objects
+already on the ground, any node in a run in time) are taken up when the
+solve has converged, anchored where their nodes were when the step began.
+
 Parameters ``grounds.NAME.friction`` (mu_k) and ``.friction_static`` (mu_s)
 change live (with ``.point`` and ``.stiffness``, shared with the ground).
 Read-out beside the ground's ``force``: ``friction_force`` (the tangential
@@ -114,7 +133,8 @@ class GroundFriction(Term):
     slip_length = 1e-6         # eps, as a fraction of the body's size
     project = False            # True: Newton's Hessian of a slipping node is its secant F / r along d too
     breakaway = 1e-4           # D_c: slip (fraction of the body's size) after which mu_s drops to mu_k
-    history_fields = ("anchor", "run", "sliding", "trial", "N", "fresh", "_report", "nodal")
+    history_fields = ("anchor", "run", "sliding", "trial", "N", "fresh", "_report", "nodal", "_y_last", "landing",
+                      "caught")
 
     def __init__(self, ctx: Context, spec, coulomb):
         self.ctx, self.name = ctx, spec.name
@@ -128,6 +148,11 @@ class GroundFriction(Term):
         self.T = tangent_basis(self.normal)
         self._ready = False
         self._notes: dict = {}     # take_notes: {key: warning} for the next result
+        self._y_last: Any = None   # node positions at the last iterate seen (contact_event: where contacts form)
+        self.owner: Any = None     # per node: the index of the free object it lies on, -1 on a body
+        self.landing: Any = None   # per node: its object touched this ground nowhere when the step began
+        self.caught: Any = None    # per node: taken up by contact_event in this step
+        self.bounds_steps = bool(ctx.design.objects)          # max_step: free objects land on the plane
         self._report: Any = None   # read-out at the last accepted step
         self.nodal: Any = None     # (nodes, friction force on the plane, slipping, N) at the last accepted step
         if self.active:
@@ -162,12 +187,39 @@ class GroundFriction(Term):
         self.trial = self.sliding.copy()                              # this step's kinetic nodes
         self.N = np.zeros(len(self.nodes))                            # lagged normal forces
         self.fresh = self._touching(self.ctx.u.x.array)                # stuck in a step's first solve
+        self._y_last = self.positions(u)
+        self.owner = self._object_nodes()
+        self.landing = self._landing(self.fresh)
+        self.caught = np.zeros(len(self.nodes), bool)      # taken up by contact_event in this step
         self._ready = True
         self._unknown_history = not ctx.comm.allreduce(bool(np.any(u)), op=MPI.LOR)   # built at u = 0
 
     @property
     def active(self) -> bool:
         return self.mu_s > 0.0 or self.mu_k > 0.0
+
+    def _object_nodes(self) -> np.ndarray:
+        """Per node: the index of the free object (region ``object:NAME``) it lies on, -1 on a body."""
+        from ..mesh.geometry import object_tag_name
+        ctx = self.ctx
+        tm = ctx.tagged
+        owner = np.full(len(self.nodes), -1)
+        for k, spec in enumerate(ctx.design.objects):
+            cells = tm.cell_tags.find(tm.tags[object_tag_name(spec.name)])
+            owner[np.isin(self.nodes, fem.locate_dofs_topological(ctx.V, ctx.mesh.topology.dim, cells))] = k
+        return owner
+
+    def _landing(self, touching: np.ndarray) -> np.ndarray:
+        """Per node: whether it lies on a free object none of whose nodes touches the plane (same on every
+        rank: an object's nodes may lie on several)."""
+        count = len(self.ctx.design.objects)
+        if not count:
+            return np.zeros(len(self.nodes), bool)
+        down = np.zeros(count, bool)
+        down[self.owner[touching & (self.owner >= 0)]] = True
+        if self.ctx.comm.size > 1:
+            down = self.ctx.comm.allreduce(down.astype(np.int64)) > 0
+        return (self.owner >= 0) & ~down[np.maximum(self.owner, 0)]
 
     # -- kinematics ----------------------------------------------------------------------------
     def positions(self, u: np.ndarray) -> np.ndarray:
@@ -193,8 +245,54 @@ class GroundFriction(Term):
         """Nodes that touch or cross the plane at u. A step's first solve holds them stuck (a lagged N
         from the last step would let a contact whose load grows slide off before N catches up); the
         lag iteration then limits them to mu N."""
-        gap = (self.positions(u) - self.point) @ self.normal
-        return gap <= self.touch_tol * max(1.0, self.eps / self.slip_length)
+        return self._gaps(self.positions(u)) <= self._touch()
+
+    def _gaps(self, y: np.ndarray) -> np.ndarray:
+        return (y - self.point) @ self.normal
+
+    def _touch(self) -> float:
+        """The gap (mm) at or below which a node touches the plane."""
+        return self.touch_tol * max(1.0, self.eps / self.slip_length)
+
+    # -- landing (static solves) -------------------------------------------------------------------
+    def max_step(self, u0: np.ndarray, p: np.ndarray) -> float:
+        """alpha <= 1 at which the first node of a landing object (touching this ground nowhere when the
+        step began) that is off the plane at u0 reaches it: the object lands on the plane (its contact
+        then forms stuck, contact_event) instead of sinking into the penalty by as far as its trust
+        region lets its first step go."""
+        if not (self.active and self._ready and self.landing.any()):
+            return 1.0
+        gap = self._gaps(self.positions(u0))[self.landing]
+        rate = p[self.dofs[self.landing]] @ self.normal
+        falling = (gap > self._touch()) & (rate < 0.0)
+        if not falling.any():
+            return 1.0
+        return float(min(1.0, (gap[falling] / -rate[falling]).min()))
+
+    def contact_event(self, u: np.ndarray, static: bool = True) -> bool:
+        """In a static solve, take up the nodes of landing objects (touching this ground nowhere when the
+        step began) that press on the plane at u and carry no friction yet: anchored where they crossed
+        the plane along the step from the last iterate seen, held stuck until the next lag update gives
+        their N (as the contacts a step starts with). True if there were any: Newton stops there and
+        goes on with them (Model.contact_event). Other nodes, and every node in a run in time, are taken
+        up when the solve has converged (update_lag), anchored where they were when the step began:
+        Newton's iterates can stray far (a nearly free body's first one turned it through the plane),
+        and anchoring there held the body there."""
+        if not (static and self.active and self._ready and self.landing.any()):
+            return False
+        y = self.positions(u)
+        last, self._y_last = self._y_last, y
+        gap = self._gaps(y)
+        new = self.landing & (gap <= self._touch()) & ~self.fresh & ~(self.N > 0.0) & ~self.caught
+        if not new.any():
+            return False
+        before = self._gaps(last[new])
+        s = np.where(before > gap[new], np.clip(before / np.where(before > gap[new], before - gap[new], 1.0),
+                                                 0.0, 1.0), 1.0)       # the crossing along the step
+        self.anchor[new] = (last[new] + s[:, None] * (y[new] - last[new])) @ self.T
+        self.fresh |= new
+        self.caught |= new
+        return True
 
     def _parts(self, u: np.ndarray):
         """(active nodes, d, r, K, F, sticking) at u for the nodes with F > 0 (F finite where slipping)."""
@@ -266,6 +364,9 @@ class GroundFriction(Term):
                 self._setup()
             self.trial = self.sliding.copy()
             self.fresh = self._touching(u)
+            self._y_last = self.positions(u)
+            self.landing = self._landing(self.fresh)
+            self.caught = np.zeros(len(self.nodes), bool)
 
     def rest(self) -> None:
         """No history: every node anchored at its rest place, none slipped (a run in time from rest)."""
@@ -277,6 +378,9 @@ class GroundFriction(Term):
                 np.zeros(len(self.nodes), bool)
             self.trial = self.sliding.copy()
             self.fresh = self._touching(self.ctx.u.x.array)
+            self._y_last = self.positions(self.ctx.u.x.array)
+            self.landing = self._landing(self.fresh)
+            self.caught = np.zeros(len(self.nodes), bool)
 
     def update_lag(self, model) -> bool:
         """Lagged normal forces (and breakaways past mu_s) to the state u; True if a re-solve is needed."""
@@ -348,6 +452,9 @@ class GroundFriction(Term):
         self.sliding = self.run > self.dc
         self.trial = self.sliding.copy()
         self.fresh = self._touching(u)
+        self._y_last = self.positions(u)
+        self.landing = self._landing(self.fresh)          # the next step's (a run in time sets no factor)
+        self.caught = np.zeros(len(self.nodes), bool)
 
     # -- parameters, following, read-out -------------------------------------------------------------
     def parameters(self) -> dict:

@@ -51,6 +51,15 @@ jumps when two facing nodes swap roles, and the lag then cycles between
 two states (measured on the gripper: a 2-cycle of period 2 rounds that
 never ended); the nodal force is continuous in the positions. Pairs of objects rub too (their coefficient
 from their materials).
+
+Landing (static solves, 2D and 3D). An object that touches no other piece
+when a step begins lands in it: a contact it makes during the solve is
+taken up at once (``contact_event``), anchored where it formed (only a
+vertex that faces the other piece's facet), held stuck until the lag gives
+its N, and then anchored again where it settled in the barrier
+(``_settle``). The object meets its support with no slip and is held
+unless its tangential load exceeds mu N (the guide's Objects and friction,
+Landing). Other contacts keep the rules above.
 """
 from __future__ import annotations
 
@@ -72,9 +81,10 @@ class ObjectFriction(Term):
     breakaway = 1e-4        # D_c, as a fraction of the body's size
     candidates = 16         # 3D: facets of each other piece tried per vertex (nearest by centroid)
     tie_break = 1e-3        # facets ranked by distance + this x its part along the facet (see _closest)
+    facing_reach = 1e-2     # a vertex faces a facet if its projection lies on it or this x dhat beside it at most
     lag_step = 1e-7         # the barrier's N(u) is smooth: a larger step than a ground's, less round-off
     history_fields = ("facet", "b", "T", "N", "fresh", "sliding", "trial", "run", "_report", "_relax",
-                      "_lag_change", "_N_step", "_y0", "_start_facet")
+                      "_lag_change", "_N_step", "_y0", "_start_facet", "_landing")
 
     def __init__(self, ctx, contact, objects):
         design = ctx.design
@@ -126,6 +136,7 @@ class ObjectFriction(Term):
         self._N_step = self.N.copy()                         # N at the last accepted step
         self._y0 = contact.X.copy()                          # vertex positions at the step's start
         self._start_facet = self.facet.copy()                 # the anchors the step started with
+        self._landing = np.zeros(len(contact.pieces), bool)  # objects that start the step touching nothing
         self._converged = None   # (u, friction forces, vertex states) of the last accepted step (keyed by u)
 
     @property
@@ -137,10 +148,19 @@ class ObjectFriction(Term):
         """closest_facet among the facets of the other pieces, at the positions self._y."""
         return closest_facet(P, piece, self._y, self.facets, self.facet_piece, self.candidates, self.tie_break)
 
-    def _anchor_new(self, y: np.ndarray, which: np.ndarray | None = None, start: np.ndarray | None = None) -> None:
+    def _anchor_new(self, y: np.ndarray, which: np.ndarray | None = None, start: np.ndarray | None = None,
+                    landing: np.ndarray | None = None, only_landing: bool = False) -> None:
         """Anchor the unanchored vertices (of which, default all) within dhat of another piece's facet:
         where they are, or (start: the positions at the step's start) where they were relative to that
-        facet when the step began -- a contact made during a step has not slipped yet."""
+        facet when the step began -- a contact made during a step has not slipped yet.
+
+        landing (a flag per piece, see _begin_step): a contact of a landing piece is anchored where it
+        is, and only if its vertex faces the facet (its projection onto the facet's line or plane lies
+        on it, or within facing_reach x dhat of it: corners placed in line are told apart by round-off);
+        a vertex beside a corner of the other piece is left to that corner, which anchors on this
+        piece's facets (anchored on a side facet, its stuck spring held a landing box along the
+        contact's normal, and the pair's barrier force grew to 6,000 times the weight it carried).
+        only_landing: anchor no other contact."""
         if not len(self.facets):
             return
         self._y = y
@@ -149,10 +169,22 @@ class ObjectFriction(Term):
             return
         j, b, dist = self._closest(y[self.body_vertices[free]], self.vertex_piece[free])
         near = dist <= self.c.dhat
-        idx = free[near]
-        if start is not None and len(idx):
+        lands = np.zeros(len(free), bool) if landing is None \
+            else near & (landing[self.vertex_piece[free]] | landing[self.facet_piece[j]])
+        if only_landing:
+            near &= lands
+        rest = near & ~lands
+        if start is not None and rest.any():
             b = b.copy()
-            b[near] = closest_on_facets(start[self.body_vertices[idx]], start, self.facets[j[near]])
+            b[rest] = closest_on_facets(start[self.body_vertices[free[rest]]], start, self.facets[j[rest]])
+        if lands.any():
+            b = b.copy()
+            P, F = y[self.body_vertices[free[lands]]], self.facets[j[lands]]
+            b[lands] = plane_coordinates(P, y, F)
+            on_plane = np.einsum("nj,njk->nk", b[lands], y[F])
+            on_facet = np.einsum("nj,njk->nk", closest_on_facets(P, y, F), y[F])
+            near[lands] = np.linalg.norm(on_plane - on_facet, axis=1) <= self.facing_reach * self.c.dhat
+        idx = free[near]
         self.facet[idx], self.b[idx] = j[near], b[near]
         self.T[idx] = tangents(y, self.facets[j[near]])
 
@@ -337,14 +369,33 @@ class ObjectFriction(Term):
         self._anchor_new(self._y0)
         self.fresh = self.facet >= 0
         self._start_facet = self.facet.copy()
+        # the objects that start the step touching no other piece: in a static solve they land in it
+        touching = np.zeros(len(self.c.pieces), bool)
+        on = self.facet >= 0
+        touching[self.vertex_piece[on]] = True
+        touching[self.facet_piece[self.facet[on]]] = True
+        self._landing = ~touching
+        self._landing[:self.c.bodies] = False
 
-    def contact_event(self, u: np.ndarray) -> bool:
+    def contact_event(self, u: np.ndarray, static: bool = True) -> bool:
         """Anchor the vertices the barrier presses at u that have no anchor yet (a contact formed during
-        the solve) where they were, relative to the other side, when the step began, held by a spring
-        that cannot slip until the next lag update gives their N (as the contacts a step starts with);
-        True if there were any. Newton stops there and goes on with them (Model.contact_event): a
-        frictionless squeeze of a free object has no equilibrium, and Newton wandered off with it."""
-        if not (self.anchor_during_solve and self.active) or not (self.facet < 0).any():
+        the solve), held by a spring that cannot slip until the next lag update gives their N (as the
+        contacts a step starts with); True if there were any. Newton stops there and goes on with them
+        (Model.contact_event): a frictionless squeeze of a free object has no equilibrium, and Newton
+        wandered off with it.
+
+        Landing (a static solve, 2D and 3D): a contact of an object that started the step touching no
+        other piece is anchored where it formed, at u. A piece is placed, not thrown: it meets its
+        support with no slip, and its normal and tangential loads grow together from there. (A free
+        object placed a gap above a tilted support slid off before its contacts carried a normal
+        force; anchored where it was when the step began, before it fell, the stuck spring pulled it
+        back and that pull became the solve's force scale.) Other contacts (3D only) are anchored
+        where they were, relative to the other side, when the step began: in a warm re-solve Newton's
+        iterates can stray far (a pinched box 2.3 mm down), and anchoring there held the box there."""
+        landing = self._landing if static else None
+        if not self.active or not (self.facet < 0).any():
+            return False
+        if not self.anchor_during_solve and (landing is None or not landing.any()):
             return False
         y = self.c.positions(u)
         cs = self.c.collisions(y)
@@ -355,7 +406,7 @@ class ObjectFriction(Term):
         if not new.any():
             return False
         before = self.facet >= 0
-        self._anchor_new(y, new, start=self._y0)
+        self._anchor_new(y, new, start=self._y0, landing=landing, only_landing=not self.anchor_during_solve)
         added = (self.facet >= 0) & ~before
         self.fresh |= added
         return bool(added.any())
@@ -369,6 +420,10 @@ class ObjectFriction(Term):
         scale = float(N.max()) if len(N) else 0.0
         change = float(np.abs(N - self.N).max()) if len(N) else 0.0
         changed = change > 1e-7 * scale or bool(self.fresh.any())
+        # landing: a contact that formed in this step (held stuck, no N yet) has settled into the barrier's
+        # reach; it is anchored where it settled (see _settle)
+        landing = None if model.in_time else self._landing
+        settled = self.fresh & ~(self.N > 0) & (self.facet >= 0) & self._lands(landing)
         if not self.fresh.any():
             # the lag map can cycle (two nodes passing load back and forth) or crawl: Aitken's relaxation
             # N <- N + w (N_measured - N), w from the last two rounds (same fixed point; a 2-cycle gets
@@ -382,16 +437,17 @@ class ObjectFriction(Term):
             self._lag_change = d
             N = np.maximum(self.N + self._relax * d, 0.0)
         self.N, self.fresh = N, np.zeros_like(self.fresh)
-        new = (N > 0) & (self.facet < 0)              # came into contact during the solve: stuck where they are
-        if new.any():
+        new = (N > 0) & (self.facet < 0)              # came into contact during the solve: stuck where they were
+        if new.any():                                 # when the step began (landing: where they are)
             before = int(np.count_nonzero(self.facet >= 0))
-            self._anchor_new(y, new, start=self._y0)
+            self._anchor_new(y, new, start=self._y0, landing=landing)
             changed = changed or int(np.count_nonzero(self.facet >= 0)) > before
         on = self.facet >= 0
         if on.any():
             T = tangents(y, self.facets[self.facet[on]])
             changed = changed or bool(np.abs(T - self.T[on]).max() > 1e-9)
             self.T[on] = T
+        self._settle(y, settled & on)
         if (self.mu_s_pair > self.mu_k_pair).any():
             idx, d = self._slip(y)
             broke = np.zeros(len(N), bool)
@@ -401,6 +457,27 @@ class ObjectFriction(Term):
                 self.trial |= broke
                 changed = True
         return changed
+
+    def _lands(self, landing: np.ndarray | None) -> np.ndarray:
+        """Per vertex: whether its anchor joins it to a landing piece (False without an anchor)."""
+        if landing is None:
+            return np.zeros(len(self.facet), bool)
+        on = self.facet >= 0
+        return on & (landing[self.vertex_piece] | landing[self.facet_piece[np.maximum(self.facet, 0)]])
+
+    def _settle(self, y: np.ndarray, which: np.ndarray) -> None:
+        """Anchor the vertices `which` where they are now, on their facet's line or plane (no slip).
+
+        A landing contact is anchored where it formed (contact_event), inside the barrier's reach, and
+        held stuck while it settles to its distance in the barrier. The facets under it turn as the
+        pieces settle (a soft block dented by a box), and a stuck vertex a distance h off its facet
+        then shows a slip of h x the turn that no surface made (the barrier's reach stands for a zero
+        gap): measured with the turned tangents, every node of a gel block landed on a soft block
+        slipped and the block wandered 1 mm before it came back. So once the lag gives the new contact
+        its N, it is anchored where it settled."""
+        if which.any():
+            idx = np.flatnonzero(which)
+            self.b[idx] = plane_coordinates(y[self.body_vertices[idx]], y, self.facets[self.facet[idx]])
 
     def lags(self):
         if not (self.active and self.N.any()):
