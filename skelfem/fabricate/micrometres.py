@@ -7,8 +7,8 @@ its tolerance: 1.1e-7 to 1.7e-7 mm on the bundled arm's parts. A STEP file
 cannot carry an edge's tolerance: a reader gives every edge the 1e-7 mm
 OpenCASCADE calls confusion, and a CAD program's check (FreeCAD's BOP check)
 then finds such an edge off its face (BOPAlgo_InvalidCurveOnSurface). Built
-in micrometres the same operations leave edges within about 1e-6 um = 1e-9 mm
-of their faces. A ball's surface degenerates at its poles; a plane through
+in micrometres the same operations leave edges within 1e-10 to 1.5e-8 mm of
+their faces (the arm's parts). A ball's surface degenerates at its poles; a plane through
 them (a mould's parting plane through a joint's centre, as arm3d's) leaves an
 edge there that such a check finds off its face, and so does a vent drilled
 near a pole. A part is built with its balls' poles on the parting plane's
