@@ -161,6 +161,25 @@ def test_step_bound_stops_the_faces_before_they_cross():
     assert contact.min_distance(u0 + alpha * p) == pytest.approx(0.8 * (1 - 0.5 - 0.9 * alpha), rel=0.05)
 
 
+def test_collision_detection_is_bounded_and_stays_conservative_when_it_stops_early():
+    """Each CCD query runs at most CCD_MAX_ITERATIONS refinements (Tight Inclusion's default of 1e7 let one
+    grazing query run for over an hour); one stopped early returns a time no later than the first contact."""
+    import ipctk
+    from skelfem.terms.contact import CCD_MAX_ITERATIONS
+    sc = _model(_slot_design(1))
+    assert _contact(sc).ccd.max_iterations == CCD_MAX_ITERATIONS <= 10**6
+    tri = [np.array(v, float) for v in ([0, 0, 0], [1, 0, 0], [0, 1, 0])]
+    p0, p1 = np.array([0.2, 0.3, 1.0]), np.array([0.25, 0.3, -1.0])        # crosses the face at t = 0.5
+    times = []
+    for iterations in (10**7, CCD_MAX_ITERATIONS, 3):
+        hit, toi = ipctk.TightInclusionCCD(tolerance=1e-9, max_iterations=iterations).point_triangle_ccd(
+            p0, *tri, p1, *tri, min_distance=0.0, tmax=1.0)
+        assert hit
+        times.append(toi)
+    assert times[0] == pytest.approx(0.5, abs=1e-3)
+    assert 0.0 <= times[2] <= times[1] <= times[0] + 1e-12
+
+
 def test_designs_contact_cannot_honour_are_refused():
     """dhat against the mesh's rest distances; the line search when the design is read, and the term
     still refuses a Design whose line search was changed after reading."""

@@ -70,6 +70,10 @@ from ..mesh.geometry import body_tag_name, object_tag_name
 from .base import Context, Term
 
 CCD_TOLERANCE = 1e-3    # continuous collision detection brackets the time of first contact to this x dhat
+# Tight Inclusion's breadth-first search of one query may run this many refinements; past them it returns
+# the earliest time it could not exclude (conservative: never past first contact). Its default, 1e7, let
+# one grazing face-vertex query of a 3D gripper run for over an hour and grow to 3 GB.
+CCD_MAX_ITERATIONS = 100_000
 PATTERN_REACH = 2.0     # the matrix pattern holds node pairs that may collide after moving this x dhat more
 
 
@@ -171,7 +175,7 @@ class SelfContact(Term):
         self.barrier = ipctk.BarrierPotential(self.dhat, self.kappa, True)
         # the time of first contact is bracketed conservatively (never past it) to CCD_TOLERANCE x dhat:
         # ipctk's default of 1e-6 (mm) took seconds for a face landing flat on a face
-        self.ccd = ipctk.TightInclusionCCD(tolerance=CCD_TOLERANCE * self.dhat)
+        self.ccd = ipctk.TightInclusionCCD(tolerance=CCD_TOLERANCE * self.dhat, max_iterations=CCD_MAX_ITERATIONS)
         self.outgrown = False       # a Hessian needed node pairs the pattern had not (see the module note)
         self._pairs: Any = None     # the node pairs the pattern holds (on first use: _near_pairs at rest)
 
