@@ -39,6 +39,29 @@ def test_chain_tensions_are_the_exact_projection_and_the_slips_recover_the_prima
         assert abs(primal - cable_slip.value(b, c, T)) < 1e-9              # strong duality
 
 
+def test_the_vectorised_chain_solve_is_the_programme_s_answer_from_any_pattern(monkeypatch):
+    """From any start pattern (the last solve's, a wrong one, zero and locked limits, slack optima) the
+    active-set passes end at the dynamic programme's tensions; from its own pattern a chain solve is
+    certified without the programme (the hot path has no loop along the chain)."""
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        m = int(rng.integers(1, 30))
+        b, c = rng.normal(size=m) + rng.uniform(-0.5, 1.5), rng.uniform(0.2, 2.0, size=m)
+        F = rng.uniform(0, 1, size=m - 1) * (rng.random(m - 1) > 0.2)
+        if rng.random() < 0.2 and m > 1:
+            F[rng.integers(0, m - 1)] = cable_slip.LOCKED
+        exact = cable_slip.chain_programme(b, c, F)
+        guess = rng.integers(-1, 2, size=m - 1).astype(float)
+        T, s = cable_slip.chain_solve(b, c, F, guess)
+        assert np.allclose(T, exact, rtol=1e-10, atol=1e-12)
+        assert np.allclose(cable_slip.chain_solve(b, c, F, s)[0], exact, rtol=1e-10, atol=1e-12)
+    b, c, mu_tan = _arc_chain(200, 2 * np.pi, 0.3)
+    F, T = cable_slip.coulomb_limits(b, c, mu_tan, np.zeros(200))
+    s = cable_slip.pattern(T, F)
+    monkeypatch.setattr(cable_slip, "chain_programme", None)           # the programme is not called
+    assert np.allclose(cable_slip.chain_solve(b * 1.01, c, F * 1.01, s)[0], 1.01 * T, rtol=1e-12)
+
+
 def test_no_friction_gives_the_uniform_spring_tension():
     rng = np.random.default_rng(1)
     b, c = rng.normal(size=30) + 0.2, rng.uniform(0.1, 1.0, size=30)

@@ -59,11 +59,91 @@ import numpy as np
 LOCKED = np.inf      # the friction limit of a bend that locks (mu tan(theta / 2) >= 1)
 
 
-def tensions(b: np.ndarray, c: np.ndarray, F: np.ndarray) -> np.ndarray:
+ACTIVE_SET_PASSES = 12    # pattern updates the vectorised chain solve tries before the dynamic programme
+KKT_RTOL = 1e-12          # the optimality certificate's tolerance, relative to the largest tension / stretch
+
+
+def tensions(b: np.ndarray, c: np.ndarray, F: np.ndarray, guess: np.ndarray | None = None) -> np.ndarray:
     """The segment tensions T maximising sum T b - c T^2 / 2 subject to T >= 0 and
     |T_j - T_{j-1}| <= F_{j-1} (F: one limit per interior via point, len(b) - 1 of them).
 
-    Exact, by dynamic programming along the chain: H_i(T) is the least value of
+    The problem is strictly concave, so its maximiser is unique: :func:`chain_solve` finds it by
+    whole-chain (vectorised) passes over stick/slip patterns and certifies it; a chain whose pattern
+    it does not settle (or whose optimum has slack segments) goes to the dynamic programme
+    :func:`chain_programme`. ``guess``: a pattern to start from (a previous solve's, :func:`pattern`)."""
+    return chain_solve(b, c, F, guess)[0]
+
+
+def chain_solve(b: np.ndarray, c: np.ndarray, F: np.ndarray,
+                guess: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(T, pattern) of :func:`tensions`. A pattern s gives each interior via point 0 (it sticks) or the
+    sign of T_{j-1} - T_j at its limit (it slips); for a pattern, the taut tensions are closed-form
+    (:func:`pattern_tensions`). A primal-dual active-set iteration (a semi-smooth Newton step on the
+    complementarity |T_{j-1} - T_j| <= F_j, slip = 0 below the limit) moves a sticking via point past
+    its limit to slipping and a slipping one whose slip has the wrong sign to sticking, until the
+    Karush-Kuhn-Tucker conditions hold: then T is the maximiser."""
+    b = np.asarray(b, dtype=float)
+    c = np.asarray(c, dtype=float)
+    F = np.asarray(F, dtype=float)
+    free, bound = np.isfinite(F), F == 0.0               # a zero limit joins its segments, either way
+    if _all_slack(b, F):
+        return np.zeros(len(b)), np.zeros(len(F))
+    if guess is None or len(guess) != len(F):           # no pattern to start from: the exact programme
+        T = chain_programme(b, c, F)
+        return T, pattern(T, F)
+    s = np.where(free, np.where(bound, 1.0, guess), 0.0)
+    for _ in range(ACTIVE_SET_PASSES):
+        T, lam = pattern_tensions(b, c, F, s)
+        tol_T = KKT_RTOL * max(float(np.abs(T).max()), 1e-300)
+        tol_lam = KKT_RTOL * max(float(np.abs(b).max()), float(np.abs(c * T).max()), 1e-300)
+        d = T[:-1] - T[1:]
+        over = (s == 0) & free & (np.abs(d) > F + tol_T)
+        wrong = (s != 0) & ~bound & (s * lam < -tol_lam)
+        if not over.any() and not wrong.any():
+            if T.min() >= -tol_T:
+                return np.maximum(T, 0.0), s
+            break                                          # slack segments: the dynamic programme
+        s = np.where(over, np.sign(d), np.where(wrong, 0.0, s))
+    T = chain_programme(b, c, F)
+    return T, pattern(T, F)
+
+
+def _all_slack(b: np.ndarray, F: np.ndarray) -> bool:
+    """Whether T = 0 is the maximiser: no feasible direction T >= 0 raises sum T b, i.e. every run of
+    segments joined by zero limits has sum b <= 0."""
+    label = np.concatenate(([0], np.cumsum(F != 0.0)))
+    return bool(np.all(np.bincount(label, weights=b) <= 0.0))
+
+
+def pattern(T: np.ndarray, F: np.ndarray, rtol: float = 1e-9) -> np.ndarray:
+    """The stick/slip pattern of tensions T: the sign of T_{j-1} - T_j at a via point at its limit, else 0."""
+    scale = max(float(T.max()) if len(T) else 0.0, 1e-300)
+    d = T[:-1] - T[1:]
+    return np.where(np.isfinite(F) & (np.abs(d) >= F - rtol * scale), np.sign(d), 0.0)
+
+
+def pattern_tensions(b: np.ndarray, c: np.ndarray, F: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(T, slips) of the pattern s with every segment taut: a zone (segments joined by slipping via
+    points) has T_i = tau_z + o_i, the offsets o stepping by -s_j F_j across its via points, and its
+    level tau_z from its material balance sum c_i T_i = sum b_i; the slip through via point j is the
+    excess stretch b_i - c_i T_i summed over the zone's segments before it. Vectorised along the chain."""
+    m = len(b)
+    joined = s != 0
+    step = np.where(joined, -s * np.where(joined, F, 0.0), 0.0)
+    o = np.concatenate(([0.0], np.cumsum(step)))
+    start = np.concatenate(([True], ~joined))
+    base = np.maximum.accumulate(np.where(start, np.arange(m), 0))      # each segment's zone start
+    o = o - o[base]
+    label = np.cumsum(start) - 1
+    tau = (np.bincount(label, weights=b) - np.bincount(label, weights=c * o)) / np.bincount(label, weights=c)
+    T = tau[label] + o
+    cs = np.concatenate(([0.0], np.cumsum(b - c * T)))
+    lam = np.where(joined, cs[1:m] - cs[base[:-1]], 0.0)
+    return T, lam
+
+
+def chain_programme(b: np.ndarray, c: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """:func:`tensions` by dynamic programming along the chain: H_i(T) is the least value of
     sum_{k<=i} (c_k T_k^2 / 2 - b_k T_k) with T_i = T; its derivative is a
     non-decreasing piecewise-linear function of T >= 0 (knots x, values v, slope
     beyond the last knot), and H_i = f_i + (H_{i-1} minimised over a window of
@@ -194,11 +274,13 @@ def limits(mu_tan: np.ndarray, T: np.ndarray) -> np.ndarray:
 
 
 def coulomb_limits(b: np.ndarray, c: np.ndarray, mu_tan: np.ndarray, F: np.ndarray,
-                   rtol: float = 1e-12, max_iterations: int = 200) -> tuple[np.ndarray, np.ndarray]:
+                   rtol: float = 1e-12, max_iterations: int = 200,
+                   guess: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The fixed point F = limits(mu_tan, tensions(b, c, F)) at fixed stretches b, from F: the limits
-    whose lagged solve satisfies (1) with its own tensions. Returns (F, T)."""
+    whose lagged solve satisfies (1) with its own tensions (each chain solve starts from the last one's
+    pattern, or from ``guess``). Returns (F, T)."""
     F = np.array(F, dtype=float)
-    T = tensions(b, c, F)
+    T, s = chain_solve(b, c, F, guess)
     for _ in range(max_iterations):
         F_new = limits(mu_tan, T)
         scale = max(float(T.max()), 1e-300)
@@ -206,7 +288,7 @@ def coulomb_limits(b: np.ndarray, c: np.ndarray, mu_tan: np.ndarray, F: np.ndarr
         done = np.array_equal(~finite, ~np.isfinite(F)) and \
             (not finite.any() or float(np.abs(F_new[finite] - F[finite]).max()) <= rtol * scale)
         F = F_new
-        T = tensions(b, c, F)
+        T, s = chain_solve(b, c, F, s)
         if done:
             break
     return F, T

@@ -63,15 +63,6 @@ def _normals(t: np.ndarray) -> np.ndarray:
     return np.array([n1, np.cross(t, n1)])
 
 
-def _block_diagonal(blocks: np.ndarray) -> sp.csr_matrix:
-    """Sparse block-diagonal matrix from stacked (n, b, b) blocks, no Python loop."""
-    n, b, _ = blocks.shape
-    base = (np.arange(n) * b)[:, None, None]
-    rows = np.broadcast_to(base + np.arange(b)[None, :, None], blocks.shape)
-    cols = np.broadcast_to(base + np.arange(b)[None, None, :], blocks.shape)
-    return sp.csr_matrix((blocks.ravel(), (rows.ravel(), cols.ravel())), shape=(n * b, n * b))
-
-
 @dataclass(eq=False)
 class Cable:
     """One tendon or ligament, with its via points bound to the mesh."""
@@ -107,6 +98,7 @@ class Cable:
         self._version = 0
         self._mixing: list = []
         self._cache: Any = None
+        self._pattern = None                    # the last chain solve's stick/slip pattern (its warm start)
 
     @property
     def friction(self) -> bool:
@@ -133,7 +125,7 @@ class Cable:
         s = self.s_hat.copy()
         s[0], s[-1] = self.L0 - L, 0.0                  # the actuator pulls s_0 out; the far end is tied
         b = norm - (self.seg0 + s[1:] - s[:-1])
-        T = cable_slip.tensions(b, self.compliances(), self.F)
+        T, self._pattern = cable_slip.chain_solve(b, self.compliances(), self.F, self._pattern)
         T[T < TENSION_FLOOR * self.k * self.L0] = 0.0          # round-off of a slack cable, not a force
         out = (d, norm, t, b, T)
         self._cache = (key, v.copy(), out)
@@ -157,7 +149,7 @@ class Cable:
             return False
         _, _, t, b, _ = self._state(u, L)
         G, T = cable_slip.coulomb_limits(b, self.compliances(), self.coefficients() * cable_slip.bend_tangents(t),
-                                         self.F)
+                                         self.F, guess=self._pattern)
         G[G < TENSION_FLOOR * self.k * self.L0] = 0.0
         scale = max(float(T.max()), 1e-300)
         same = np.array_equal(np.isfinite(G), np.isfinite(self.F))
