@@ -49,8 +49,16 @@ def test_the_gripper_closes_then_weighs_and_holds_the_box_from_the_command_line(
     assert -1.0 < weigh["objects"]["box"]["displacement"][1] < close["objects"]["box"]["displacement"][1]
     assert d["objects"] == turn["objects"] and d["markers"] == turn["markers"]      # the last stage's read-outs
     assert d["newton_iterations"] == sum(s["newton_iterations"] for s in d["stages"])
+    # On the body: the contact carries the box's weight, and friction carries what the weight added. The
+    # grip squeezes the box's corners, so the closed grip already holds a self-balanced pair (normal and
+    # friction, 4e-4 N up and down, about 0.15 % of the weight: where the contacts formed sets it) that the
+    # weighed state keeps.
+    W = weigh["objects"]["box"]["weight"][1]
     pair = next(c for c in weigh["contacts"] if c["between"] == ["body", "box"])
-    assert pair["friction_force"][1] == pytest.approx(weigh["objects"]["box"]["weight"][1], rel=1e-3)   # on the body
+    grip = next(c for c in close["contacts"] if c["between"] == ["body", "box"])
+    assert pair["friction_force"][1] + pair["normal_force"][1] == pytest.approx(W, rel=1e-6)
+    assert grip["friction_force"][1] + grip["normal_force"][1] == pytest.approx(0.0, abs=1e-6 * abs(W))
+    assert pair["friction_force"][1] - grip["friction_force"][1] == pytest.approx(W, rel=1e-3)
     xdmf = (tmp_path / "out" / "stages.xdmf").read_text()
     assert xdmf.count('<Time Value="') == 4 and (tmp_path / "out" / "solution.xdmf").exists()
 
