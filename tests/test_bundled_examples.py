@@ -47,7 +47,7 @@ def test_a_bundled_design_runs_at_a_small_size(name, tmp_path):
 @pytest.mark.slow
 def test_the_bundled_calibration_data_calibrates(tmp_path):
     p = _run(["calibrate", str(GEOMETRY / "finger.toml"), "--data", str(GEOMETRY / "finger_calibration.csv"),
-              "--fit", "materials.ecoflex.E", "--set", "mesh.size=3", "--sigma", "markers.*=0.05",
+              "--fit", "materials.ecoflex.E", "--set", "mesh.size=4", "--sigma", "markers.*=0.05",
               "--sigma", "cables.flexor.tension=0.02", "--out", str(tmp_path / "cal"), "-q"], tmp_path)
     assert p.returncode == 0, p.stderr[-2000:]
     out = json.loads((tmp_path / "cal" / "calibration.json").read_text())
