@@ -48,8 +48,8 @@ def _solve(path, overrides):
     pytest.param("geometry/pillar3d.toml", [], False, marks=pytest.mark.slow),
     pytest.param("geometry/arm3d.toml", ["mesh.size=8"], False, marks=pytest.mark.slow),
     pytest.param("geometry/post3d.toml", [], False, marks=pytest.mark.slow),
-    pytest.param("geometry/finger3d.toml", ["mesh.size=6", "mesh.degree=2"], False, marks=pytest.mark.slow),
-    pytest.param("geometry/finger3d.toml", ["mesh.size=6", "mesh.degree=2"] + RIGID, True, marks=pytest.mark.slow),
+    pytest.param("geometry/finger3d.toml", ["mesh.size=8", "mesh.degree=2"], False, marks=pytest.mark.slow),
+    pytest.param("geometry/finger3d.toml", ["mesh.size=8", "mesh.degree=2"] + RIGID, True, marks=pytest.mark.slow),
 ], ids=["finger3d", "finger3d-rigid", "pillar3d", "arm3d", "post3d", "finger3d-P2", "finger3d-P2-rigid"])
 def test_iterative_equals_direct(path, overrides, krylov_only):
     """The same equilibrium to 1e-8 of each quantity's scale: Newton ends on the same residual test.
