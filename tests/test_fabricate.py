@@ -19,8 +19,31 @@ from skelfem.cli.main import main
 
 ROOT = Path(__file__).resolve().parents[1]
 GEOMETRY = ROOT / "geometry"
-DESIGNS_2D = sorted(p.stem for p in GEOMETRY.glob("*.toml") if tomllib.loads(p.read_text()).get("dim", 2) == 2
-                    and "bodies" not in tomllib.loads(p.read_text()))     # one body: fabricate casts one
+
+
+def _what_fabricate_reads(path) -> str:
+    """The design without what fabricate never reads (its name, its stages, a pin's rotation)."""
+    d = tomllib.loads(path.read_text())
+    d.pop("name", None), d.pop("stages", None)
+    pins = d.get("pins", {})
+    for pin in pins.values() if isinstance(pins, dict) else pins:
+        pin.pop("rotate", None)
+    return repr(d)
+
+
+def _one_body_2d_designs() -> list:
+    """The bundled 2D designs of one body (fabricate casts one), each set of parts once: two designs alike
+    in all fabricate reads (gripper_stages is the gripper with stages) make the same parts."""
+    names, seen = [], set()
+    for p in sorted(GEOMETRY.glob("*.toml")):
+        d = tomllib.loads(p.read_text())
+        if d.get("dim", 2) == 2 and "bodies" not in d and _what_fabricate_reads(p) not in seen:
+            seen.add(_what_fabricate_reads(p))
+            names.append(p.stem)
+    return names
+
+
+DESIGNS_2D = _one_body_2d_designs()
 SEVERAL_BODIES = sorted(p.stem for p in GEOMETRY.glob("*.toml") if "bodies" in tomllib.loads(p.read_text()))
 DESIGN_3D = "finger3d"
 DESIGNS = DESIGNS_2D + [DESIGN_3D]
