@@ -10,7 +10,9 @@ from _studies import load_study
 @pytest.mark.slow
 def test_grasp3d_study_holds_the_sphere_below_its_friction_limit(tmp_path, picture):
     study = load_study("grasp3d")
-    res = study.run(mu=0.8, ratios=(0.9,), out=tmp_path / "out", figures=tmp_path / "fig")
+    # at 5 mm (2,430 DOFs, the sphere's contact on a few triangles a finger): 20 s instead of 137 s at the
+    # design's 2.5 mm; every check below is an equilibrium or Coulomb identity, true at any mesh
+    res = study.run(mu=0.8, ratios=(0.9,), size=5.0, out=tmp_path / "out", figures=tmp_path / "fig")
     close = res["close"]
     assert close["converged"], close["status"]
     assert close["normal_magnitude"] > 0.1 and close["min_distance"] > 0       # squeezed, not pierced
