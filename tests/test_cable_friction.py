@@ -312,6 +312,18 @@ def test_bench_study_runs_quick(tmp_path):
     assert {p.name for p in tmp_path.iterdir()} == {"capstan.csv", "order.csv", "iterations.csv", "summary.json"}
 
 
+@pytest.mark.slow
+def test_cost_study_runs_quick(tmp_path):
+    """The cost study at tiny size: the bundled friction design solved with and without friction, a
+    two-step cycle and a short run in time, its JSON the table's input (every solve converges)."""
+    res = load_study("cable_friction_cost").main(["--quick", "--out", str(tmp_path)])
+    assert [r["design"] for r in res["statics"]] == ["finger_friction"]
+    assert all(r["with"]["status"] == r["without"]["status"] == "converged" for r in res["statics"])
+    assert all(r["status"] == "converged" for r in res["reversal"] + res["in_time"])
+    assert res["statics"][0]["iterations_ratio"] < 2.0
+    assert {p.name for p in tmp_path.iterdir()} == {"cable_friction_cost.json"}
+
+
 def test_friction_hessian_stays_inside_the_cable_pattern(rect):
     """The sparse part with friction (sticking segments' axial blocks included) fills only the blocks the
     frictionless cable declared (pattern: each narrow segment's nodes); the rest is rank-one parts."""

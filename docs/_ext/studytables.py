@@ -656,6 +656,35 @@ def cable_friction_cost(_: dict) -> Table:
                   "far end [N]"], rows, caption, [path])
 
 
+def cable_friction_speed(_: dict) -> Table:
+    d, path = load_json("cable_friction_cost/cable_friction_cost.json", "python studies/cable_friction_cost.py")
+
+    def pair(on, off, key: str, fmt=str) -> list[str]:
+        a, b = on[key], off[key]
+        return [f"{fmt(a)} / {fmt(b)}", f"{a / b:.2f}×"]
+    rows = [[f"statics: `{r['design']}`, friction {r['friction']}"]
+            + pair(r["with"], r["without"], "newton_iterations") + pair(r["with"], r["without"], "time", secs)
+            for r in d["statics"]]
+    rev = {r["mu"]: r for r in d["reversal"]}
+    mu = max(rev)
+    for m in (mu, 0.0):
+        r = rev[m]
+        rows.append([f"`finger` cycle, mu {short(m)}: a step up (mean) / the first step down",
+                     f"{num(r['up_mean'], 2)} / {r['reversal']}", f"{r['reversal'] / r['up_mean']:.2f}×", "", ""])
+    rows.append([f"`finger` whole cycle, mu {short(mu)} / 0"] + pair(rev[mu], rev[0.0], "cycle_iterations")
+                + pair(rev[mu], rev[0.0], "time", secs))
+    dyn = {r["mu"]: r for r in d["in_time"]}
+    on, off = dyn[max(dyn)], dyn[0.0]
+    rows.append([f"in time: `flick`, flexor friction {short(max(dyn))} / 0"] + pair(on, off, "newton_iterations")
+                + pair(on, off, "time", secs))
+    return Table(["case", "Newton iterations, with / without friction", "ratio", "time, with / without",
+                  "ratio"], rows,
+                 "Statics: a solve from rest, best wall time of three fresh sessions (Session built outside the "
+                 "timer) on a machine shared with other work, so time ratios are good to about ±0.3. The cycle: "
+                 "flexor 0 → 8 mm → 0 in 8 steps each way at mesh size 2. No bundled 3D design has cable "
+                 "friction.", [path])
+
+
 def hand_grasp(_: dict) -> Table:
     d, path = load_json("hand_grasp/hand_grasp.json", "python studies/hand_grasp.py")
 
@@ -813,7 +842,8 @@ TABLES = {f.__name__: f for f in (estimate_effectivity, estimate_cost, goal_orie
                                   tol_check, tol_check_adaptive, scatter, adaptive_reach, adaptive_tol_runs,
                                   stability, stability_slender, friction_stability, peer, pull_test, dynamics_checks,
                                   grasp, grasp3d, hand_grasp, grasp_bench, landing,
-                                  cable_friction, capstan, cable_friction_cost, adversarial, adversarial_findings)}
+                                  cable_friction, capstan, cable_friction_cost, cable_friction_speed, adversarial,
+                                  adversarial_findings)}
 
 
 # -- docutils -----------------------------------------------------------------------------------------------

@@ -37,7 +37,7 @@ b_i / c_i onto the tensions that (1) admits:
 
     Psi(u) = max_T { sum_i T_i b_i - c_i T_i^2 / 2 :  T_i >= 0,  |T_j - T_{j-1}| <= F_j },
 
-solved exactly by :func:`tensions` (a dynamic programme along the chain). By
+solved exactly by :func:`tensions`. By
 the envelope theorem grad Psi = sum_i T_i grad l_i: each segment pulls on its
 two via points with its own tension. The Hessian is sum_i T_i hess l_i plus,
 for every *zone* (a run of segments joined by slipping via points, all taut),
@@ -51,6 +51,26 @@ of (1) (:func:`coulomb_limits`, at the geometry of a converged state; then
 Newton again), so the converged state satisfies Coulomb's law with the
 normal force of that state. After the step the anchors move by the slips
 (:func:`slips`): a sticking via point keeps its material, so nothing creeps.
+
+**The chain solve without a loop along the chain.** The dual is strictly concave, so its maximiser is
+unique, and for a given stick/slip pattern (which via points slip, which way) its taut tensions are
+closed-form: T = tau_z + offsets in each zone, tau_z from the zone's material balance, and the slips
+are cumulative sums of the excess stretches (:func:`pattern_tensions`, whole-chain array operations).
+:func:`chain_solve` starts from the pattern of the cable's last solve, which Newton's next iterate and
+the next round rarely change, and updates it by a primal-dual active-set step (a semi-smooth Newton
+step on the complementarity: a sticking via point past its limit slips, a slipping one whose slip has
+the wrong sign sticks) until the optimality conditions hold, which certifies the answer; a chain it
+does not settle in a few passes, or whose optimum has slack segments, goes to the dynamic programme
+(:func:`chain_programme`, exact, a loop along the chain).
+
+**Why the limits stay lagged.** Written with F_j = mu tan(theta_j/2)(T_{j-1} + T_j) inside the
+projection (a cone in T at fixed geometry), the maximiser is another model: in a slipping zone its
+level is sum w_i b_i / sum c_i w_i^2 (w the zone's tension profile), not the material balance
+sum b_i / sum c_i w_i, so material would not be conserved through the via points; and Coulomb friction
+whose normal force follows the state has no potential (its tangent is not symmetric), while Newton's
+line search and its low-rank solve need an energy and symmetric rank-one parts. The lag keeps an exact
+potential per round; :func:`coulomb_limits` gives the limits that hold with their own tensions at the
+round's geometry.
 """
 from __future__ import annotations
 
