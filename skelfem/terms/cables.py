@@ -98,7 +98,7 @@ class Cable:
         self._version = 0
         self._mixing: list = []
         self._cache: Any = None
-        self._pattern = None                    # the last chain solve's stick/slip pattern (its warm start)
+        self._pattern: np.ndarray | None = None     # the last chain solve's stick/slip pattern (its warm start)
 
     @property
     def friction(self) -> bool:
