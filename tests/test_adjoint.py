@@ -25,7 +25,25 @@ def flick(integrator="bdf2", size=4.0, dt=0.01, duration=0.08, damping=None):
 TARGETS = [TimedTarget("tip", 0.08, np.array([12.0, 36.0])), TimedTarget("tip", 0.035, np.array([6.0, 39.0]))]
 
 
-def central_differences(s, d, targets, eps=1e-4) -> np.ndarray:
+def run_value(s, targets) -> float:
+    """J of one forward run alone (central differences need no gradient, whose sensitivities through
+    friction cost as much as the run): each marker's squared distance to its target, the marker
+    interpolated linearly between the stored steps around the target's time."""
+    from skelfem.fem.dynamics import Dynamics
+    rep = Dynamics(s.model, s.solver, s.design).run(store=True)
+    assert rep.converged, rep.status
+    markers = s.model.term("markers")
+    times = np.array([0.0] + [step[0] for step in rep.steps])
+    paths = np.array([markers.positions(x) for x in rep.states])         # (steps + 1, markers, dim)
+    value = 0.0
+    for tt in targets:
+        k = markers.names.index(tt.marker)
+        y = np.array([np.interp(tt.time, times, paths[:, k, c]) for c in range(paths.shape[2])])
+        value += float(np.sum((y - np.asarray(tt.target, float)) ** 2))
+    return value
+
+
+def central_differences(s, d, targets, eps=1e-4, value=run_value) -> np.ndarray:
     """dJ/d(flexor's knot values) by central differences of whole runs (the session left at the last)."""
     base = np.array(d["cables"][0]["schedule"], float)
     fd = np.zeros(len(base))
@@ -35,7 +53,7 @@ def central_differences(s, d, targets, eps=1e-4) -> np.ndarray:
             sched = base.copy()
             sched[k, 1] += sign * eps
             s.set({"cables.flexor.schedule": sched.tolist()})
-            values.append(schedule_gradient(s, targets).value)
+            values.append(value(s, targets))
         fd[k] = (values[0] - values[1]) / (2 * eps)
     return fd
 
@@ -245,11 +263,16 @@ def test_through_a_frictional_wall_the_gradient_is_exact_and_optimize_reaches_a_
     assert res.reached and res.error < 0.05, (res.status, res.error)
 
 
-def riding_box(rigid: bool, mu: float = 0.8) -> dict:
+def riding_box(rigid: bool, mu: float = 0.8, line_search: str | None = None) -> dict:
     """A 6 x 3 mm box dropped 0.3 mm onto the top of the flicking strip (dhat 0.2 mm): it lands in the
     first step and rides on the tip, held there by friction (about half of its normal force sticking at
-    the end)."""
+    the end). line_search "energy" reaches the same states (the objective 3e-12 relative, the gradient
+    1e-7 apart) in 331 Newton iterations to the default curved search's 704, whose full steps raise the
+    energy fivefold at each step's start (the rigid box on its tether); the gradient does not depend on
+    how Newton got there."""
     d = flick("bdf2")
+    if line_search is not None:
+        d["solver"]["line_search"] = line_search
     d["materials"]["pla"] = {"E": 5.0, "nu": 0.3, "density": 1250.0}
     d["objects"] = [{"name": "box", "outline": [[1, 40.3], [7, 40.3], [7, 43.3], [1, 43.3]], "material": "pla",
                      "rigid": rigid}]
@@ -275,14 +298,18 @@ def test_a_box_carried_by_sticking_friction_has_the_exact_gradient(rigid):
     anchors and the lagged normal forces, which the gradient follows through the steps (the contact
     forms during the first step, anchored where it was at its start). Measured 1e-7 from central
     differences, rigid or elastic; holding friction at each step instead was 13 % off (elastic)."""
-    d = riding_box(rigid)
+    d = riding_box(rigid, line_search="energy" if rigid else None)
     with Session(d) as s:
         r = schedule_gradient(s, BOX_TARGETS)
         assert not r.approximate and r.report.converged
         pair = s.model.term("contacts", "friction").readout(s.model)["body|box"]
         assert 0.2 < pair["sticking"] < 1.0, pair                  # held partly by sticking, partly slipping
         assert np.linalg.norm(r.positions[0] - [4.0, 42.0]) > 5.0     # carried far from where it was put
-        fd = central_differences(s, d, BOX_TARGETS)
+        # the elastic box's known regression raises in the sensitivities at a perturbed schedule (its
+        # forward runs alone jump there: J by about 120 between knot values 2e-4 apart): its differences go
+        # through schedule_gradient, as its xfail says
+        value = run_value if rigid else (lambda s, targets: schedule_gradient(s, targets).value)
+        fd = central_differences(s, d, BOX_TARGETS, value=value)
     g = r.gradient["flexor"]
     assert np.abs(fd - g).max() < 1e-5 * np.abs(fd).max(), (g, fd)
 
@@ -291,11 +318,12 @@ def test_a_box_carried_by_sticking_friction_has_the_exact_gradient(rigid):
 def test_optimize_moves_a_box_carried_by_friction_to_a_target():
     """The target: where a known schedule carries the box at t = 0.08 s. From rest the tendon sags slack
     under gravity (no gradient: L-BFGS-B stopped there, 8.2 mm off), so optimize starts at 10 % of each
-    bound; on the exact gradient it then reaches the target within 0.04 mm (measured 15 forward runs;
-    from (0.5, 2, 1.5) mm 12, one of which, its first step to the bounds, failed and is a wall it backed
-    off from; with friction held at each step 30 runs did not reach it)."""
+    bound; on the exact gradient it then reaches the target within 0.04 mm (measured 15 forward runs, now
+    19 with the energy line search and 20 with the curved one; from (0.5, 2, 1.5) mm 12, one of which, its
+    first step to the bounds, failed and is a wall it backed off from; with friction held at each step 30
+    runs did not reach it)."""
     from skelfem.analysis.optimize import optimize_schedules
-    with Session(riding_box(True)) as s:
+    with Session(riding_box(True, line_search="energy")) as s:
         s.set({"cables.flexor.schedule": [[0.0, 0.3], [0.04, 1.8], [0.08, 2.4]]})
         goal = schedule_gradient(s, [TimedTarget("b", 0.08, np.zeros(2))]).positions[0]
         res = optimize_schedules(s, "b", [(0.08, goal)], knots=3, tol=0.04, max_evaluations=30)
