@@ -85,15 +85,24 @@ def interrupt_at(tmp_path: Path, target: str, delay: float, sig: int, args: list
 
 
 def assert_stopped(tmp_path: Path, code: int, err: str, took: float, sent: bool, sig: int, out: Path,
-                   allowed=()):
+                   allowed=(), sweep=False):
     assert sent, f"the phase was never reached: {code} {err}"
     assert "Traceback" not in err, err
     assert code == 128 + sig, (code, err)
     assert error_lines(err) == ["error: interrupted"], err
     assert took < 2.0, took
-    assert not out.exists(), sorted(os.listdir(out))
+    assert not out.exists() or (sweep and complete_sweep_cases(out)), sorted(os.listdir(out))
     debris = [e for e in os.listdir(out.parent) if e.startswith(f".{out.name}") and e not in allowed]
     assert not debris, debris
+
+
+def complete_sweep_cases(out: Path) -> bool:
+    """A sweep keeps the cases it finished before the signal (a rerun resumes after them): a folder of
+    complete case folders, each with its result.json, and nothing else. (On a loaded machine the timer
+    that sends the signal may wait for the GIL until a case has been written.)"""
+    entries = list(out.iterdir())
+    return bool(entries) and all(e.is_dir() and (e / "result.json").is_file() and not e.name.startswith(".")
+                                 for e in entries)
 
 
 def calibration_data(tmp_path: Path) -> Path:
@@ -159,4 +168,4 @@ def test_a_signal_in_every_command_and_phase_stops_it_within_two_seconds(tmp_pat
     out = tmp_path / "out"
     code, err, took, sent = interrupt_at(tmp_path, target, delay, sig, [*args, "--out", str(out), "-q"])
     resumable = (".out.track-partial",) if command == "track" else ()      # track resumes from it
-    assert_stopped(tmp_path, code, err, took, sent, sig, out, resumable)
+    assert_stopped(tmp_path, code, err, took, sent, sig, out, resumable, sweep=command == "sweep")
