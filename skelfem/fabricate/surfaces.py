@@ -250,8 +250,8 @@ def orient(points: np.ndarray, tris: np.ndarray) -> np.ndarray:
 
 def write_stl(path, points: np.ndarray, tris: np.ndarray, name: str) -> None:
     """Binary STL: 80-byte header, uint32 count, per triangle its unit normal and corners (float32)."""
-    c = points[tris]
-    n = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
+    c = points[tris].astype(np.float32).astype(float)    # the corners as written: a reader's normal of a
+    n = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])      # sliver follows its float32 corners
     n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
     # Readers that guess ASCII or binary from the bytes after the header (admesh: any byte > 127 means
     # binary) are sure to see one if the first triangle's normal has a negative component.
