@@ -15,10 +15,9 @@ log = logging.getLogger("skelfem")
 
 
 C1 = 1e-4          # Armijo constant
-MAX_ROTATION = 0.7  # rad: a curved step turns the body at most this much (max |grad p|); a straight step
-#                     stretches a turning strip by about MAX_ROTATION^2 / 2 (25 % here, 50 % at 1 rad, where
-#                     Newton's next step could not bring a coiling strip back; at 0.5 rad a frictionless
-#                     block sliding on a floor took 450 iterations and failed: see docs/model.md)
+MAX_ROTATION = 0.5  # rad: a curved step turns the body at most this much (max |grad p|); a straight step
+#                     stretches a turning strip by about MAX_ROTATION^2 / 2 (12 % here, 50 % at 1 rad, where
+#                     Newton's next step could not bring a coiling strip back, see docs/model.md)
 WATCHDOG = 5       # relaxed (energy-raising) full steps of the curved strategy before it checks Pi
 
 
