@@ -28,7 +28,7 @@ import numpy as np
 
 from .design.spec import Design, DesignError
 from .fem.report import BUDGET_SPENT
-from .result import Result, plain as _plain, result_dict  # noqa: F401 (Result re-exported)
+from .result import Result, Status, plain as _plain, result_dict  # noqa: F401 (Result re-exported)
 from .design.parse import changed_keys, flatten, live_value, load_design, parse_design
 from .runtime import memory
 
@@ -345,7 +345,8 @@ class Session:
         equilibrium one degree richer on the same mesh); the result's ``errors`` and ``estimate``.
 
         A warm start that fails (after an edit: a carried-over state that inverts elements, a change the
-        parameter path cannot follow) is followed by one solve from rest, the load ramped as
+        parameter path cannot follow) is followed by one solve from rest (not when it found an object not
+        held: that is the answer on the path the edits took), the load ramped as
         ``skelfem simulate`` does; the result then says so (``retried_from_rest``: the warm attempt's
         status, and a warning: the load path starts again, which friction's answer can depend on).
         An object that jumps within a load step (skelfem.fem.jumps) is listed in ``events``.
@@ -357,7 +358,10 @@ class Session:
         warm = self.solved
         report, events = self._equilibrium(steps)
         retried = None
-        if warm and not report.converged and report.status != BUDGET_SPENT:   # a preview goes on from its state
+        # a preview goes on from its state; "not held" is physics' answer on this path, not a bad start: a ramp
+        # from rest would load grip and weight together (another path) and double the cost of every lost grasp
+        if (warm and not report.converged and report.status != BUDGET_SPENT
+                and Status.of(report.status) != Status.NOT_HELD):
             retried = report
             log.info("%s: the solve from the last state failed (%s); solving from rest", self.design.name,
                      report.status)

@@ -166,6 +166,7 @@ def test_pinch_holds_above_mu_min_and_loses_below():
     assert pair["sticking"] < 1.0                              # partly slipping so near the limit
     lost = _pinch(0.9 * mu_min)
     assert lost.status == "no equilibrium: object box is not held"
+    assert getattr(lost, "retried_from_rest", None) is None     # the verdict of the path taken: close, then weigh
     print(f"\npinch: W = {W:.4g} N, sum N = {W / mu_min:.4g} N, mu_min = {mu_min:.4f}; "
           f"held at {1.1 * mu_min:.4f} (sticking {pair['sticking']:.2f}), lost at {0.9 * mu_min:.4f}")
 
