@@ -255,3 +255,32 @@ def test_a_full_circle_coil_takes_at_most_40_iterations(contraction, L, h, d, si
     assert len(r.attempts) == 1
     pts = np.array([r.markers[f"m{i}"]["position"] for i in range(2, 9)])
     assert _circle_curvature(pts) * L / (2 * np.pi) >= 0.95          # at least a full circle
+
+
+def sliding_block_design(k: float = 100.0, theta: float = 20.0, L: float = 20.0, H: float = 5.0) -> dict:
+    """A soft L x H block (E = 100 kPa) on a frictionless floor of penalty stiffness k under gravity tilted
+    by theta, held back by a spring pin on its uphill end (2e-5 N/mm per mm^2 of its end face): it slides by
+    W sin(theta) / (2e-5 H t) (studies/friction_stability.py's block on a slope, mu = 0)."""
+    th = np.radians(theta)
+    return {"format": 1, "name": "block", "dim": 2, "thickness": THICK, "mesh": {"size": 1.0, "degree": 1},
+            "materials": {"m": {"E": 0.1, "nu": 0.3, "density": 1e4}},
+            "body": {"outline": [[0, 0], [L, 0], [L, H], [0, H]], "material": "m"},
+            "pins": [{"name": "pull", "region": [[L - 0.1, -1], [L + 1, H + 1]], "kind": "spring",
+                      "stiffness": 1e-3 / 50.0}],
+            "grounds": [{"name": "floor", "point": [0, 0], "normal": [0, 1], "stiffness": k}],
+            "gravity": {"acceleration": [-9.81 * np.sin(th), -9.81 * np.cos(th)]},
+            "markers": {"c": [L / 2, H / 2]}, "solver": {"line_search": "curved"}}
+
+
+@pytest.mark.parametrize("k, theta, L, H", [(100.0, 20.0, 20.0, 5.0), (100.0, 10.0, 40.0, 4.0)])
+def test_the_watchdog_goes_back_to_its_reference_after_five_steps_of_any_kind(k, theta, L, H):
+    """From rest the floor does not hold the block yet (its penalty is zero at zero depth): the first Newton
+    step sinks it and raises Pi from 0 to 2e5 N mm, a relaxed step the watchdog takes. The Armijo steps after
+    it each lower Pi but stay far above the reference; counting only relaxed steps, the watchdog never went
+    back, and every attempt ended at its 50 iterations (450 in all, each step capped by the rotation limit in
+    the sunk block). Counting every step, Newton returns to the reference after five, and converges in 9."""
+    r = _solve(sliding_block_design(k, theta, L, H))
+    assert r.converged and len(r.attempts) == 1 and r.newton_iterations <= 15, (r.newton_iterations, r.attempts)
+    W = 1e4 * 1e-9 * 9.81 * L * H * THICK
+    slid = L / 2 - r.markers["c"]["position"][0]
+    assert slid == pytest.approx(W * np.sin(np.radians(theta)) / (1e-3 / 50.0 * H * THICK), rel=0.02)

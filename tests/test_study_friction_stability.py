@@ -8,9 +8,6 @@ from _studies import load_study
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="the frictionless soft block on the slope (k = 100) with the curved line "
-                   "search ends at max_iterations (450) since its steps turn at most 0.5 rad (8 iterations at 1 "
-                   "rad; 0.6-1 rad tip test_jumps' pushed box onto its side since objects land)")
 def test_friction_stability_tiny(tmp_path, picture):
     study = load_study("friction_stability")
     res = study.run(cases=("block on a slope", "pinch", "finger on a wall"), strategies=("energy", "curved"),

@@ -18,7 +18,9 @@ C1 = 1e-4          # Armijo constant
 MAX_ROTATION = 0.5  # rad: a curved step turns the body at most this much (max |grad p|); a straight step
 #                     stretches a turning strip by about MAX_ROTATION^2 / 2 (12 % here, 50 % at 1 rad, where
 #                     Newton's next step could not bring a coiling strip back, see docs/model.md)
-WATCHDOG = 5       # relaxed (energy-raising) full steps of the curved strategy before it checks Pi
+WATCHDOG = 5       # Newton steps of the curved strategy, from the first relaxed (energy-raising) full step
+#                    on, after which Pi must be below that step's reference or Newton goes back to it; every
+#                    step counts, not only the relaxed ones (see docs/model.md)
 
 
 class LineSearch:
@@ -73,13 +75,16 @@ class LineSearch:
                 wd["n"] += 1
                 self._set_step(y, x0, p, accel, alpha0)
                 self._last_trial = None
-                log.debug("  watchdog: full step %d, energy %.9e -> %.9e", wd["n"], e0, e_full)
+                log.debug("  watchdog: full step (%d since the reference), energy %.9e -> %.9e", wd["n"], e0,
+                          e_full)
                 return True
             if not np.isfinite(e_full) and wd is not None:
                 self._watch, self._watch_allowed = None, False
                 return self._fall_back(x, y, wd)
         alpha, accepted = self._backtrack(x, x0, p, e0, slope, f0, alpha0, accel=accel)
         model.sync(x)
+        if wd is not None:              # a monotone step while relaxed counts too: Armijo steps down from a
+            wd["n"] += 1                # relaxed step's far higher Pi do not keep the watchdog open forever
         if not accepted:
             self._failure = "line_search_failed"
             y.set(0.0)
