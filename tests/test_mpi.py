@@ -130,15 +130,32 @@ def _agree_contacts(serial, parallel, rel=1e-6):
         assert _close(m["position"], parallel["markers"][name]["position"], rel), name
 
 
-def test_self_contact_agrees_across_ranks(tmp_path, mpirun):
-    """The knuckled finger curls until its notches close (the barrier active): the same answer on 2 ranks."""
-    path, sets = ROOT / "geometry" / "finger_knuckles.toml", ["mesh.size=3"]
+@pytest.mark.parametrize("dim", [2, 3])
+def test_self_contact_agrees_across_ranks(tmp_path, mpirun, dim):
+    """2D: the knuckled finger curls until its notches close (the barrier active); 3D: a notched strip
+    curled by its tendon until the notch closes (the barrier on the boundary's triangles). The same
+    answer on 2 ranks, and the same per-node contact forces in solution.xdmf."""
+    import meshio
+    if dim == 2:
+        path, sets, dhat = ROOT / "geometry" / "finger_knuckles.toml", ["mesh.size=3"], 0.3
+    else:
+        from test_contact_3d import DHAT, notched
+        path, sets, dhat = tmp_path / "notched3d.toml", [], DHAT
+        path.write_text(toml_text(notched()))
     serial = _simulate(mpirun, path, tmp_path / "s", 1, *sets)
     parallel = _simulate(mpirun, path, tmp_path / "p", 2, *sets)
-    assert serial["contact"]["self"]["min_distance"] < 0.3                # within dhat: in contact
+    a, b = serial["contact"]["self"], parallel["contact"]["self"]
+    assert 0 < a["min_distance"] < dhat and a["normal_magnitude"] > 0      # within dhat: in contact
     assert parallel["newton_iterations"] == serial["newton_iterations"]
-    assert abs(parallel["contact"]["self"]["min_distance"] - serial["contact"]["self"]["min_distance"]) < 1e-9
+    assert abs(b["min_distance"] - a["min_distance"]) < 1e-9
+    assert _close([b["normal_magnitude"]], [a["normal_magnitude"]])
     assert _close(serial["markers"]["tip"]["position"], parallel["markers"]["tip"]["position"])
+    forces = []
+    for run in ("s", "p"):
+        m = meshio.read(tmp_path / run / "solution.xdmf")
+        order = np.lexsort(np.round(m.points, 9).T[::-1])
+        forces.append(np.asarray(m.point_data["contact_normal_force"])[order])
+    assert np.abs(forces[0] - forces[1]).max() <= 1e-6 * np.abs(forces[0]).max()
 
 
 @pytest.mark.parametrize("case", ["two_fingers", "gripper", "ground", "elastic", "cube3d"])

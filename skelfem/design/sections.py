@@ -509,8 +509,6 @@ def read_contact(top: Table, dim: int, h: float = 1.0, pieces: tuple = ()) -> Co
     t = Table(top.take("contact", "table", {}), "contact", top.source)
     written = t.has("dhat")
     spec = ContactSpec(t.take("self", "bool", False), positive(t, "dhat", t.take("dhat", "number", 0.3)))
-    if spec.self_contact and dim != 2:
-        t.fail("self", "self-contact is implemented for dim = 2 only")
     t.done()
     if written or spec.self_contact or len(pieces) > 1:
         low = MIN_DHAT_MESH * h

@@ -35,25 +35,29 @@ STICKING, SLIPPING = 1.0, 2.0     # contact_state: 0 no friction anchor (free, o
 
 
 def contact_forces(model) -> tuple[np.ndarray, np.ndarray] | None:
-    """(contact_force, contact_traction) of contact_fields, or None without contact between pieces."""
+    """(contact_force, contact_traction) of contact_fields, or None without contact."""
     fields = contact_fields(model)
     return None if fields is None else (fields["contact_force"], fields["contact_traction"])
 
 
 def contact_fields(model) -> dict | None:
-    """Where pieces (bodies, objects) can touch: at every node of the (local) P1 geometry, {name: (n, dim)
-    or (n,)}: ``contact_force`` (N), the barrier's and friction's force the other pieces exert on it, split
-    into ``contact_normal_force`` (the barrier's) and ``contact_friction_force``; ``contact_traction``
+    """Where pieces (bodies, objects) can touch, or a body itself (self-contact): at every node of the
+    (local) P1 geometry, {name: (n, dim) or (n,)}: ``contact_force`` (N), the barrier's and friction's force
+    the other pieces (and other parts of its own body) exert on it, split into ``contact_normal_force``
+    (the barriers') and ``contact_friction_force``; ``contact_traction``
     (MPa), that force over the node's share of the boundary (2D: half its edges' lengths times the
     thickness; 3D: a third of its triangles' areas); ``contact_state``, STICKING (1) or SLIPPING (2) for a
     node anchored by friction on another piece (as the pairs' ``sticking`` counts it), 0 otherwise. A P2
     edge midpoint's forces and share go half to each end of its edge; None without such contact.
     Collective: under MPI every rank has the whole boundary's forces (global node numbers) and keeps its
     own geometry nodes'."""
-    pieces = next((t for t in model.terms_in("contacts") if hasattr(t, "nodal_forces")), None)
-    if pieces is None:
+    barriers = [t for section in ("contacts", "contact") for t in model.terms_in(section) if hasattr(t, "nodal_forces")]
+    if not barriers:
         return None
+    pieces = barriers[0]                 # every barrier's rows are the same boundary nodes (boundary_facets)
     _, normal, friction = pieces.nodal_forces(model)
+    for other in barriers[1:]:
+        normal = normal + other.nodal_forces(model)[1]
     state = np.zeros(len(normal))
     rubbing = next((t for t in model.terms_in("contacts") if hasattr(t, "vertex_states")), None)
     if rubbing is not None:
@@ -278,7 +282,7 @@ def cell_stretches(x: np.ndarray, y: np.ndarray, cells: np.ndarray) -> np.ndarra
 
 def write_xdmf(path: Path, state) -> None:
     """Mesh (rest coordinates) with displacement, region tag, largest principal stretch per cell, and
-    cables as polylines; where bodies and objects can touch, the contact force (N), its normal and
+    cables as polylines; where bodies and objects can touch (or a body itself), the contact force (N), its normal and
     friction parts, the traction (MPa) and the stick/slip state on every node (contact_fields).
 
     `state` is a model (collective) or a Snapshot of one.
