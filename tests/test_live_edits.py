@@ -23,7 +23,7 @@ DESIGNS = sorted(p.name for p in GEOMETRY.glob("*.toml"))
 # a fraction of the cost (hand 18 s at 6 mm to 32 s at 4; two_fingers3d 8.5 s at 12 mm, one element
 # across a finger, to 18 s at 8)
 COARSE = {"arm3d.toml": 14.0, "finger3d.toml": 6.0, "gripper3d.toml": 6.0, "pillar3d.toml": 5.0,
-          "post3d.toml": 4.0, "two_fingers3d.toml": 12.0, "finger_knuckles.toml": 3.0,
+          "post3d.toml": 4.0, "two_fingers3d.toml": 12.0, "finger_knuckles.toml": 3.0, "finger_knuckles3d.toml": 8.0,
           "hand.toml": 6.0, "gripper.toml": 6.0}
 
 
