@@ -131,3 +131,54 @@ def test_cli_estimate_refuses_a_run_in_time_before_meshing(tmp_path, monkeypatch
     d["dynamics"] = {"dt": 0.01, "duration": 0.05}
     line = simulate_refused_before_meshing(d, tmp_path, monkeypatch, capsys, "--estimate")
     assert "--estimate" in line and "run in time" in line
+
+
+def _block3d(linear="auto"):
+    """A coarse 3D block (12 x 30 x 12 mm, h = 6) with a bone where its tendon ends: a few hundred DOFs."""
+    return {"format": 1, "name": "block3d", "dim": 3, "mesh": {"size": 6.0, "degree": 1},
+            "materials": {"soft": {"E": 0.2, "nu": 0.45}, "hard": {"E": 2000.0, "nu": 0.35}},
+            "body": {"solids": [{"box": {"min": [0, 0, 0], "max": [12, 30, 12]}}], "material": "soft"},
+            "bones": [{"name": "b", "solids": [{"box": {"min": [2, 18, 3], "max": [8, 27, 9]}}], "material": "hard"}],
+            "cables": [{"name": "flexor", "kind": "tendon", "path": [[6, 0, 6], [6, 24, 6]],
+                        "stiffness": 5.0, "contraction": 1.0}],
+            "pins": [{"name": "base", "region": [[-1, -1, -1], [13, 1e-6, 13]], "kind": "fixed"}],
+            "markers": {"tip": [6, 30, 6]}, "solver": {"linear": linear}}
+
+
+@pytest.mark.slow
+def test_3d_richer_solve_is_iterative_and_matches_the_factorised_one():
+    """In 3D the richer (P2) solve runs CG with two-level p-multigrid (skelfem.estimate.richer_linear); its
+    error bars are those of the factorised richer solve to 2 % (each stops at 1e-3 of its first residual)."""
+    bars = {}
+    for linear in ("auto", "direct"):
+        with Session(parse_design(_block3d(linear), "block3d")) as s:
+            r = s.solve(estimate=True)
+            assert r.converged and r.estimate["status"] == "converged"
+            bars[linear] = r.errors, r.estimate
+    (iterative, est), (direct, est_direct) = bars["auto"], bars["direct"]
+    assert est["krylov_iterations"] > 0 and est_direct["krylov_iterations"] is None
+    for name in ("markers.tip.x", "markers.tip.y", "markers.tip.z", "cables.flexor.tension"):
+        assert iterative[name]["error"] == pytest.approx(direct[name]["error"], rel=0.02), name
+        assert direct[name]["error"] > 1e-4
+
+
+def test_slip_sensitive_bars_are_named_when_friction_is_anchored():
+    """Ground friction keeps per-node anchors that the richer degree cannot take over: the estimate says so and
+    names the read-outs its bars leave a different slip history out of (the ground's forces)."""
+    import math
+    d = {"format": 1, "name": "block", "dim": 2, "thickness": 10.0, "mesh": {"size": 2.5, "degree": 1},
+         "materials": {"m": {"E": 100.0, "nu": 0.3, "density": 1e4}},
+         "body": {"outline": [[0, 0], [20, 0], [20, 5], [0, 5]], "material": "m"},
+         "pins": [{"name": "pull", "region": [[19.9, -1], [21, 6]], "kind": "spring", "stiffness": 2e-6}],
+         "grounds": [{"name": "floor", "point": [0, 0], "normal": [0, 1], "stiffness": 100.0, "friction": 0.5}],
+         "gravity": {"acceleration": [-9.81 * math.sin(0.2), -9.81 * math.cos(0.2)]},
+         "markers": {"c": [10, 2.5]}, "solver": {"steps": 2}}
+    with Session(parse_design(d, "block")) as s:
+        r = s.solve(estimate=True)
+        assert r.converged and r.estimate["status"] == "converged"
+        assert r.estimate["slip_history"] == "anchored"
+        assert "grounds.floor.friction_force.x" in r.estimate["not_covered"]
+        assert not any(k.startswith("markers") for k in r.estimate["not_covered"])
+    with Session(parse_design(strip(size=4.0, contraction=1.0), "strip")) as s:
+        est = s.solve(estimate=True).estimate
+        assert est["slip_history"] == "carried" and "not_covered" not in est

@@ -1,4 +1,4 @@
-"""studies/estimate_effectivity.py, goal_oriented.py and tol_targets.py, tiny."""
+"""studies/estimate_effectivity.py, estimate_cost.py, goal_oriented.py and tol_targets.py, tiny."""
 import json
 
 import pytest
@@ -16,6 +16,14 @@ def test_estimate_effectivity_tiny(tmp_path, monkeypatch):
     assert rows["cables.flexor.tension"]["estimate"] > 0 and rows["markers.tip.x"]["true_error"] > 0
     assert not rows["pins.base.reaction.x"]["measurable"]            # round-off: never counted
     assert d["summary"]["cost"]["tiny"]["ratio"] > 0 and d["summary"]["rows"] == len(d["rows"])
+
+
+def test_estimate_cost_tiny(tmp_path):
+    study = load_study("estimate_cost")
+    assert study.main(["--cases", "strip:8", "--out", str(tmp_path)]) == 0
+    (row,) = json.loads((tmp_path / "estimate_cost.json").read_text())
+    assert row["case"] == "strip:8" and row["dofs"] > 0 and row["richer_dofs"] > row["dofs"]
+    assert row["solve_cpu_s"] > 0 and row["ratio_cpu"] > 0 and row["status"] == "converged"
 
 
 def test_goal_oriented_tiny(tmp_path, monkeypatch):

@@ -142,6 +142,11 @@ class NewtonSolver(LineSearch):
             target = max(self.atol, self.rtol * self._f0, self._loose * self._round_f0)
             self.lin.rtol = forcing(self._history, self.lin.rtol, target)
 
+    @property
+    def factorised(self) -> bool:
+        """Whether lin holds K (factorised, or its multigrid) next to the current state: a converged solve's."""
+        return self._factorised
+
     def _residual(self, x: PETSc.Vec, b: PETSc.Vec) -> None:
         """SNES's function; the step's solve is done: the solver's blocks make room for the pack."""
         self.lin.forget_blocks()
