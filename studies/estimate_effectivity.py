@@ -1,6 +1,7 @@
 """How honest is ``--estimate``? Effectivity of every observable's error bar against fine references.
 
-    python studies/estimate_effectivity.py [--cases strip_bones ...] [--out studies/output/estimate_effectivity]
+    python studies/estimate_effectivity.py [--cases strip_bones ...] [--keep] [--out studies/output/...]
+    python studies/estimate_effectivity.py --sweep block3d block3d_in_bone block3d_anchor3
 
 Each case is a design that is not one of the bundled files (built here):
 ``strip_bones`` (2D, a soft strip with two rigid bones bent by a tendon),
@@ -9,7 +10,16 @@ Each case is a design that is not one of the bundled files (built here):
 h = 4 mm, 2.5 cells across the strip, where it fails), ``pinch`` (2D, the bundled
 gripper's fingers closed 3.5 mm on its box with contact friction mu 0.8 and
 a 2 mm mesh, references 2x and 4x finer), ``block3d`` (3D, a soft block with a bone and a
-tendon), ``block3d_buried`` (3D, the tendon ends in silicone).
+tendon ending on its top in silicone), ``block3d_buried`` (3D, the tendon ends inside it):
+both ends are finite anchors of 0.53 mm (the default 1 % of the diagonal) on
+cells of 3 mm; ``block3d_in_bone`` (the tendon ends in the bone),
+``block3d_anchor3`` (a 3 mm anchor), ``beam3d`` (a slender beam, nu = 0.48,
+three cells across, the tendon ending in a tip bone) and ``finger3d`` (a
+soft cylinder, nu = 0.49, four cells across, with a bone where the tendon
+ends), references at 1.5x and 3x finer.
+
+``--sweep`` measures effectivity against h instead: the design at P1 on three
+sizes against one P2 reference (SWEEP), into estimate_effectivity_h.json.
 
 For each: the solve at the case's mesh with ``estimate=True`` (skelfem.estimate),
 and two references of degree 2 at h / R and h / (2 R) (R = 4 in 2D, 2 in 3D).
@@ -199,6 +209,34 @@ def run_case(name: str) -> list[dict]:
     return rows
 
 
+SWEEP = {   # name: (builder of size, P1 sizes, the reference's P2 sizes: the finer one is the reference)
+    "block3d": (lambda h, p: block3d(size=h, degree=p), (3.0, 2.0, 1.5), (1.5, 1.0)),
+    "block3d_in_bone": (lambda h, p: block3d(size=h, degree=p, in_bone=True), (3.0, 2.0, 1.5), (1.5, 1.0)),
+    "block3d_anchor3": (lambda h, p: block3d(size=h, degree=p, anchor=3.0), (3.0, 2.0, 1.5), (1.5, 1.0)),
+}
+
+
+def h_sweep(name: str) -> list[dict]:
+    """Effectivity against h: the design at P1 on each size of SWEEP[name], estimated, against one reference (P2
+    on the finest reference mesh; its change from the coarser one is its uncertainty)."""
+    build, sizes, (h1, h2) = SWEEP[name]
+    ref1, _, _, _ = _solve(build(h1, 2))
+    ref2, dofs2, _, _ = _solve(build(h2, 2))
+    rows = []
+    for h in sizes:
+        J, dofs, _, est = _solve(build(h, 1), estimate=True)
+        for k in J:
+            if k.startswith("pins") or k not in ref2:
+                continue
+            true, unc = abs(ref2[k] - J[k]), abs(ref2[k] - ref1[k])
+            e = est["errors"][k]["error"]
+            rows.append({"case": name, "h": h, "dofs": dofs, "observable": k, "value": J[k], "reference": ref2[k],
+                         "reference_h": h2, "reference_dofs": dofs2, "true_error": true, "reference_uncertainty": unc,
+                         "estimate": e, "measurable": bool(true >= MEASURABLE * unc),
+                         "effectivity": e / true if true >= MEASURABLE * unc else None})
+    return rows
+
+
 def run(cases=tuple(CASES)) -> list[dict]:
     rows = []
     for name in cases:
@@ -231,7 +269,18 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=ROOT / "studies" / "output" / "estimate_effectivity")
     ap.add_argument("--keep", action="store_true",
                     help="keep the rows of the cases not run from the output already there (re-run some cases)")
+    ap.add_argument("--sweep", nargs="*", choices=list(SWEEP),
+                    help="instead: effectivity against h on these designs (estimate_effectivity_h.json)")
     args = ap.parse_args(argv)
+    if args.sweep:
+        swept = [r for name in args.sweep for r in h_sweep(name)]
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "estimate_effectivity_h.json").write_text(json.dumps(swept, indent=1))
+        for r in swept:
+            eff = "   -  " if r["effectivity"] is None else f"{r['effectivity']:6.2f}"
+            print(f"{r['case']:16s} h {r['h']:4g} {r['dofs']:6d} {r['observable']:24s} true {r['true_error']:9.3g} "
+                  f"(ref +- {r['reference_uncertainty']:8.2g}) est {r['estimate']:9.3g} eff {eff}")
+        return 0
     rows = run(args.cases)
     old = args.out / "estimate_effectivity.json"
     if args.keep and old.exists():

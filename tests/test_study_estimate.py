@@ -18,6 +18,16 @@ def test_estimate_effectivity_tiny(tmp_path, monkeypatch):
     assert d["summary"]["cost"]["tiny"]["ratio"] > 0 and d["summary"]["rows"] == len(d["rows"])
 
 
+def test_estimate_effectivity_sweep_tiny(tmp_path, monkeypatch):
+    study = load_study("estimate_effectivity")
+    build = lambda h, p: study.strip(size=h, degree=p, contraction=1.0)     # noqa: E731
+    monkeypatch.setattr(study, "SWEEP", {"tiny": (build, (8.0, 6.0), (6.0, 4.0))})
+    assert study.main(["--sweep", "tiny", "--out", str(tmp_path)]) == 0
+    rows = json.loads((tmp_path / "estimate_effectivity_h.json").read_text())
+    assert {r["h"] for r in rows} == {8.0, 6.0} and all(r["estimate"] > 0 for r in rows)
+    assert all((r["effectivity"] is None) == (not r["measurable"]) for r in rows)
+
+
 def test_estimate_cost_tiny(tmp_path):
     study = load_study("estimate_cost")
     assert study.main(["--cases", "strip:8", "--out", str(tmp_path)]) == 0
