@@ -835,6 +835,29 @@ def goal_oriented(_: dict) -> Table:
                      for c in d) + ").", [path])
 
 
+def knuckle_contact3d(_: dict) -> Table:
+    d, path = load_json("knuckle_contact3d/knuckle_contact3d.json", "python studies/knuckle_contact3d.py")
+    names = {"on": "self-contact on", "projected": "on, Hessian projected throughout", "off": "self-contact off",
+             "grown": "on (pattern grows)", "full": "on, whole boundary block"}
+    rows = []
+    for key in ("on", "projected", "off", "grown", "full"):
+        if key not in d:
+            continue
+        r = d[key]
+        rows.append([names[key], f"{short(r['size'])} mm, {thousands(r['dofs'])}", r["status"],
+                     f"{r['newton_iterations']} ({', '.join(str(s['iterations']) for s in r['steps'])})",
+                     str(r["meet_step"]) if key != "off" and r["meet_step"] else "–",
+                     num(r["min_distance"]), num(r["final_distance"]), "yes" if r["intersects"] else "no",
+                     thousands(r["pattern_pairs"]) if r["pattern_pairs"] else "–", secs(r["solve_time"])])
+    on = d["on"]
+    return Table(["run", "mesh, DOFs", "status", "Newton its (per load step)", "knuckles meet in step",
+                  "min distance over iterates [mm]", "final [mm]", "triangles intersect", "pattern node pairs",
+                  "solve"], rows,
+                 f"finger_knuckles3d.toml, flexor {short(on['contraction'])} mm in {len(on['steps'])} load steps, "
+                 f"dhat = {short(on['dhat'])} mm, {on['boundary_nodes']:,} boundary nodes on the "
+                 f"{short(on['size'])} mm mesh; distances are ipctk's between non-adjacent boundary parts.", [path])
+
+
 TABLES = {f.__name__: f for f in (estimate_effectivity, estimate_cost, goal_oriented,
                                   linear_scaling, krylov_bounds, arm3d_fine, reference_3d, bench, in_hand_roll,
                                   slice_check, slice_check_3mf, fabrication_volumes, fabrication_poses, mpi_speed,
@@ -843,7 +866,7 @@ TABLES = {f.__name__: f for f in (estimate_effectivity, estimate_cost, goal_orie
                                   stability, stability_slender, friction_stability, peer, pull_test, dynamics_checks,
                                   grasp, grasp3d, hand_grasp, grasp_bench, landing,
                                   cable_friction, capstan, cable_friction_cost, cable_friction_speed, adversarial,
-                                  adversarial_findings)}
+                                  adversarial_findings, knuckle_contact3d)}
 
 
 # -- docutils -----------------------------------------------------------------------------------------------

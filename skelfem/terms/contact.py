@@ -47,10 +47,11 @@ the contacts have settled: when the collisions (the same primitive pairs)
 are those of the Hessian before it in the same load step. On
 finger_knuckles.toml that cut the solve from 91 to 44 Newton iterations
 (its third load step, where the notches close, from 50 to 11), on the 3D
-finger_knuckles3d.toml from 98 to 57, and a 3D notched strip pressed
-harder (8 mm of tendon) that the projected tail did not converge in 50
-iterations per step converged in 39 (studies/knuckle_contact3d.py).
-Contact between pieces keeps the projected Hessian.
+finger_knuckles3d.toml from 98 to 56 (studies/knuckle_contact3d.py), and a
+3D notched strip pulled 8 mm, whose projected tail did not converge in 50
+iterations per step (752 in all, every step cut), converges in 39
+(tests/test_contact_3d.py). Contact between pieces keeps the projected
+Hessian.
 
 Contact pairs change between iterations, and the matrix pattern must hold
 every node pair a collision couples. It holds the pairs that can couple
@@ -202,6 +203,7 @@ class SelfContact(Term):
         # the time of first contact is bracketed conservatively (never past it) to CCD_TOLERANCE x dhat:
         # ipctk's default of 1e-6 (mm) took seconds for a face landing flat on a face
         self.ccd = ipctk.TightInclusionCCD(tolerance=CCD_TOLERANCE * self.dhat, max_iterations=CCD_MAX_ITERATIONS)
+        self.reach = PATTERN_REACH  # x dhat: how far the pattern looks ahead (math.inf: every boundary pair)
         self.outgrown = False       # a Hessian needed node pairs the pattern had not (see the module note)
         self._pairs: Any = None     # the node pairs the pattern holds (on first use: _near_pairs at rest)
 
@@ -212,13 +214,13 @@ class SelfContact(Term):
 
     def _near_pairs(self, y: np.ndarray) -> np.ndarray:
         """Sorted keys i * n + j (indices into self.nodes, both orders, i = j too) of the node pairs a
-        collision may couple before the nodes move a further PATTERN_REACH x dhat: each facet's own
+        collision may couple before the nodes move a further `reach` x dhat: each facet's own
         nodes, and those closer than dhat plus two of the longest edges plus that reach."""
         n = len(self.nodes)
         f = self.facets
         i, j = np.repeat(f, f.shape[1], axis=1).ravel(), np.tile(f, f.shape[1]).ravel()
         longest = float(np.linalg.norm(y[self.edges[:, 0]] - y[self.edges[:, 1]], axis=1).max(initial=0.0))
-        close = cKDTree(y).query_pairs((1 + PATTERN_REACH) * self.dhat + 2 * longest, output_type="ndarray")
+        close = cKDTree(y).query_pairs((1 + self.reach) * self.dhat + 2 * longest, output_type="ndarray")
         close = close[self.can_couple(close[:, 0], close[:, 1])]
         keys = np.concatenate([i.astype(np.int64) * n + j, close[:, 0].astype(np.int64) * n + close[:, 1],
                                close[:, 1].astype(np.int64) * n + close[:, 0]])
@@ -233,6 +235,11 @@ class SelfContact(Term):
         if len(keys) and (not len(pairs) or not np.array_equal(pairs[at], keys)):
             self._pairs = np.union1d(pairs, np.union1d(keys, self._near_pairs(self.positions(u))))
             self.outgrown = True
+
+    def widen(self, reach: float) -> None:
+        """Let the pattern look `reach` x dhat ahead from the next matrix on (math.inf: the whole boundary
+        x boundary block, no growth; to measure what the growing pattern saves)."""
+        self.reach, self._pairs, self.outgrown = float(reach), None, True
 
     def pairs(self) -> np.ndarray:
         """The node pairs the pattern holds (keys as _near_pairs'; at first, those near at rest)."""
