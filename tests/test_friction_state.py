@@ -150,3 +150,13 @@ def test_the_closest_edge_search_holds_a_bounded_block_of_pairs(monkeypatch):
         tracemalloc.stop()
     assert peak < 100e6, peak
     assert np.all(fp[j] != piece) and np.allclose(d, 0.1)
+
+
+@pytest.mark.slow
+def test_the_3d_gripper_closed_on_its_ball_reads_one_state():
+    """gripper3d.toml, both flexors closed 3 mm on the ball in 3 steps (one flexor alone pushes the free
+    ball away: not held): 12 N at a node against 1e-8 N in the pair before the return map kept each
+    vertex's friction force; a second solve moved the state."""
+    _check_sequence("geometry/gripper3d.toml", [{"cables.left_flexor.contraction": 3.0,
+                                                 "cables.right_flexor.contraction": 3.0}],
+                    ["mesh.size=4", "solver.steps=3"])
