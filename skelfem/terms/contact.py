@@ -44,7 +44,7 @@ contacts come and go, at the price of a linearly converging tail once the
 faces touch; the exact Hessian converges quadratically there but may
 wander before. Self-contact (``settle=True``) takes the exact Hessian once
 the contacts have settled: when the collisions (the same primitive pairs)
-are those of the Hessian before it in the same load step. On
+are those of the Hessian before it in the same load (or time) step. On
 finger_knuckles.toml that cut the solve from 91 to 44 Newton iterations
 (its third load step, where the notches close, from 50 to 11), on the 3D
 finger_knuckles3d.toml from 98 to 56 (studies/knuckle_contact3d.py), and a
@@ -292,6 +292,10 @@ class SelfContact(Term):
     # -- energy term interface -----------------------------------------------------------------
     def set_factor(self, a: float) -> None:
         """Contact does not depend on the load factor; a new load step starts with projected Hessians."""
+        self._settled = None
+
+    def end_step(self, model) -> None:
+        """So does the next time step of a run in time (which sets no load factor)."""
         self._settled = None
 
     def energy(self, u: np.ndarray) -> float:
