@@ -263,7 +263,8 @@ class SelfContact(Term):
         return c
 
     def min_distance(self, u: np.ndarray) -> float:
-        """Smallest distance between non-adjacent boundary parts, mm (inf if none).
+        """Smallest distance between non-adjacent boundary parts that may collide (the mesh's filter: for
+        contact between pieces, parts of different pieces), mm (inf if none).
 
         ipctk 1.6's NormalCollisions.compute_minimum_distance returns the
         *squared* distance (checked against a brute-force distance in the
@@ -275,7 +276,8 @@ class SelfContact(Term):
         """min_distance at positions y: the collisions within r = dhat, 4 dhat, 16 dhat ... (each build
         holds every pair closer than r, so the first one that finds any has the smallest), up to the
         boundary's extent. One build over the extent held every pair of a 3D finger's 1,528 boundary
-        nodes and 3,052 triangles (13 s); growing r finds its 0.8 mm in two builds."""
+        nodes and 3,052 triangles (13 s); growing r finds its 0.8 mm in two builds (gripper3d.toml's
+        pieces at rest: 5.9 s to 0.2 s)."""
         reach = float(np.linalg.norm(np.ptp(y, axis=0)))
         r = self.dhat
         while True:

@@ -259,15 +259,6 @@ class PieceContact(SelfContact):
                 friction += term.vertex_forces(u)
         return y, normal, friction
 
-    def min_distance(self, u: np.ndarray) -> float:
-        """Smallest distance between different pieces, mm (inf if none within the boundary's extent)."""
-        y = self.positions(u)
-        reach = float(np.linalg.norm(np.ptp(y, axis=0)))
-        c = self.collisions(y, reach)
-        if len(c) == 0:
-            return float("inf")
-        return float(np.sqrt(c.compute_minimum_distance(self.mesh, fortran_array(y))))
-
     def _on_grounds(self, model, u: np.ndarray) -> dict:
         """Per ground and object on it: the force the object exerts on the ground (normal, and friction
         if the ground has it), from the ground's nodal penalty forces on the object's nodes."""
