@@ -64,7 +64,14 @@ def _designs():
                  "objects": [{"name": "box", "solids": [{"box": {"min": [8.25, 2, 1], "max": [12, 10, 7]}}],
                               "material": "hard"}],
                  "contact": {"dhat": 0.2, "friction": 0.4}, "gravity": {"acceleration": [1.0, -9.81, 0.5]}}
-    return {"objects3d": objects3d, "elastic_object": elastic, "full": full, "spring": spring, "contact": contact, "dynamic": dynamic, "rigid": rigid,
+    contact3d = {"format": 1, "name": "contact3d", "dim": 3, "mesh": {"size": 2.0, "degree": 1},
+                 "materials": {"soft": {"E": 1.0, "nu": 0.3}},
+                 "body": {"solids": [{"extrude": {"outline": contact["body"]["outline"], "z": [0, 4]}}],
+                          "material": "soft"},
+                 "pins": [{"name": "base", "region": [[-1, -1, -1], [9, 1e-6, 5]], "kind": "fixed"}],
+                 "cables": [dict(base["cables"][0], path=[[7, 0, 2], [7, 30, 2]])],
+                 "contact": {"self": True, "dhat": 0.2}}    # the notch's tip: 0.23 mm between triangles at rest
+    return {"contact3d": contact3d, "objects3d": objects3d, "elastic_object": elastic, "full": full, "spring": spring, "contact": contact, "dynamic": dynamic, "rigid": rigid,
             "friction": friction, "objects": objects, "bodies": bodies}
 
 
@@ -120,7 +127,7 @@ def _gradient(model, term, u, gform):
 
 
 @pytest.mark.parametrize("name", ["full", "spring", "contact", "dynamic", "rigid", "friction", "objects", "bodies",
-                                  "elastic_object", "objects3d"])
+                                  "elastic_object", "objects3d", "contact3d"])
 def test_every_term_gradient_and_hessian_match_central_differences(name):
     import dolfinx.fem.petsc  # noqa: F401
     design = _designs()[name]
@@ -128,7 +135,7 @@ def test_every_term_gradient_and_hessian_match_central_differences(name):
     model = s.model
     model.set_factor(0.7)
     seen = set()
-    u0 = _perturbed_state(model, 0.02 if name not in ("contact", "objects", "objects3d") else 1e-3)
+    u0 = _perturbed_state(model, 0.02 if name not in ("contact", "objects", "objects3d", "contact3d") else 1e-3)
     if name in ("objects", "elastic_object", "objects3d"):          # the box 0.12 mm from the strip: in the barrier's reach
         box = model.term("objects", "box")
         u0[box.dofs[:, 0]] = -0.13
@@ -141,13 +148,14 @@ def test_every_term_gradient_and_hessian_match_central_differences(name):
         model.u.x.array[:] = u0
         contact = model.term("contacts", "pieces")
         assert contact.min_distance(u0) < 0.2 and not contact.intersects(u0)
-    if name == "contact":                             # close the notch so that contacts are active
+    if name in ("contact", "contact3d"):              # close the notch so that contacts are active
         y = model.V.tabulate_dof_coordinates()[:, 1]
         uy = -0.45 * np.clip(y - 15.0, 0.0, 2.0)
-        u0.reshape(-1, 2)[:, 1] += uy
+        u0.reshape(-1, model.bs)[:, 1] += uy
         model.u.x.array[:] = u0
         contact = model.term("contact")
-        assert contact.min_distance(u0) < 0.3 and not contact.intersects(u0)
+        assert contact.min_distance(u0) < contact.dhat and not contact.intersects(u0)
+        assert len(contact.collisions(contact.positions(u0))) >= 3
     rng = np.random.default_rng(1)
     for term in model.terms:
         seen.add(type(term).__name__)
@@ -210,7 +218,7 @@ def test_every_term_gradient_and_hessian_match_central_differences(name):
     s.close()
     if name == "full":
         assert {"Elasticity", "Pin", "CableTerm", "PointLoad", "Ground", "Markers", "Gravity", "Traction"} <= seen
-    if name == "contact":
+    if name in ("contact", "contact3d"):
         assert "SelfContact" in seen
     if name == "dynamic":
         assert "Inertia" in seen
