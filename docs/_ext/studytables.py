@@ -835,6 +835,30 @@ def goal_oriented(_: dict) -> Table:
                      for c in d) + ").", [path])
 
 
+def hand_scenario(_: dict) -> Table:
+    d, path = load_json("hand_scenario/hand_scenario.json", "python studies/hand_scenario.py")
+    rows = []
+    for name in ("hand", "gripper3d"):
+        if name not in d:
+            continue
+        r = d[name]
+        by = r.get("worst_follow", {}).get("by_stage", {})
+        for st in r["stages"]:
+            ok = st["converged"]
+            rows.append([r["design"], st["name"], st["status"], f"{st['newton_iterations']} / {st['load_steps']}",
+                         ", ".join(num(v, 4) for v in st["object"]) if ok else "–",
+                         num(st["object_angle"], 3) if ok else "–",
+                         f"{100 * by[st['name']]:.2f} %" if st["name"] in by else "–",
+                         num(st["normal"], 3) if ok else "–",
+                         num(math.hypot(*st["ground_force"]), 3) if ok else "–"])
+    caption = "; ".join(f"{d[n]['design']}: {d[n]['dofs']:,} DOFs, {secs(d[n]['time'])}, object "
+                        f"{num(d[n]['size'], 3)} mm across (its box's diagonal)"
+                        for n in ("hand", "gripper3d") if n in d)
+    return Table(["design", "stage", "status", "Newton its / load steps", "object centroid [mm]", "object turned [°]",
+                  "held: off the base's motion (worst, % of size)", "fingers' normal force [N]",
+                  "ground's normal force [N]"], rows, caption + ".", [path])
+
+
 def knuckle_contact3d(_: dict) -> Table:
     d, path = load_json("knuckle_contact3d/knuckle_contact3d.json", "python studies/knuckle_contact3d.py")
     names = {"on": "self-contact on", "projected": "on, Hessian projected throughout", "off": "self-contact off",
@@ -864,7 +888,7 @@ TABLES = {f.__name__: f for f in (estimate_effectivity, estimate_cost, goal_orie
                                   editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
                                   tol_check, tol_check_adaptive, scatter, adaptive_reach, adaptive_tol_runs,
                                   stability, stability_slender, friction_stability, peer, pull_test, dynamics_checks,
-                                  grasp, grasp3d, hand_grasp, grasp_bench, landing,
+                                  grasp, grasp3d, hand_grasp, hand_scenario, grasp_bench, landing,
                                   cable_friction, capstan, cable_friction_cost, cable_friction_speed, adversarial,
                                   adversarial_findings, knuckle_contact3d)}
 

@@ -1,0 +1,90 @@
+"""studies/hand_scenario.py: the three-finger hand grasps its object, weighs it, lifts it 20 mm, carries it 30 mm
+sideways, turns it 30 degrees, puts it down on a ramp and lets go (2D, a coarse mesh); the 3D gripper lifts its
+sphere 10 mm. While held the object follows the base's rigid motion; put down, the ramp alone holds it."""
+import json
+import math
+
+import numpy as np
+import pytest
+from _studies import load_study
+from conftest import ROOT
+
+HAND_STAGES = ["close", "weigh", "lift", "carry", "turn", "put_down", "release", "retreat"]
+
+
+def _on_the_object(stage: dict) -> np.ndarray:
+    """The contacts' forces on the object (the read-outs give them on the pair's first name: minus)."""
+    return -np.asarray(stage["normal_force"]) - np.asarray(stage["friction"]) \
+        - np.asarray(stage["ground_force"]) - np.asarray(stage["ground_friction"])
+
+
+def _check_hand(h: dict, floor: float) -> None:
+    assert h["converged"], h["status"]
+    st = {s["name"]: s for s in h["stages"]}
+    assert list(st) == HAND_STAGES and not h["events"]                       # no jump anywhere
+    W = np.asarray(st["weigh"]["weight"])
+    # weighed: the fingers carry the whole weight, nothing touches the ramp
+    assert _on_the_object(st["weigh"]) == pytest.approx(-W, abs=1e-3 * np.linalg.norm(W))
+    assert np.linalg.norm(st["weigh"]["ground_force"]) == 0.0
+    # lifted 20 mm and carried 30 mm with the base, to 2 % of the object's size (the floor)
+    lift = np.asarray(st["lift"]["object"]) - st["weigh"]["object"]
+    carry = np.asarray(st["carry"]["object"]) - st["lift"]["object"]
+    assert lift == pytest.approx([0.0, 20.0], abs=floor * h["size"])
+    assert carry == pytest.approx([30.0, 0.0], abs=floor * h["size"])
+    by = h["worst_follow"]["by_stage"]
+    assert by["lift"] < floor and by["carry"] < floor
+    # turned with the palm (30 degrees within 1.5), held throughout: the soft fingers bend under the weight's
+    # share across the hand, the object hardly moves in the fingertips' frame
+    assert st["turn"]["object_angle"] - st["weigh"]["object_angle"] == pytest.approx(30.0, abs=1.5)
+    assert by["turn"] < 0.1 and h["worst_follow"]["in_grip"] < 0.01 * h["size"]
+    assert all(r["normal"] > 0 for r in h["rows"] if r["stage"] in ("weigh", "lift", "carry", "turn"))
+    # put down flat on the 30-degree ramp; let go and retreated, the ramp holds it (mu 0.8 > tan 30)
+    end = st["retreat"]
+    assert end["object_angle"] == pytest.approx(30.0, abs=0.01)
+    ramp = np.asarray(end["ground_force"]) + end["ground_friction"]
+    assert -ramp == pytest.approx(-W, abs=0.05 * np.linalg.norm(W))        # the ramp carries the weight
+    assert end["normal"] < 0.05 * np.linalg.norm(W)                          # the fingers have let go
+    assert _on_the_object(end) == pytest.approx(-W, abs=1e-3 * np.linalg.norm(W))
+    normal = np.asarray(end["ground_force"])
+    assert np.linalg.norm(end["ground_friction"]) < 0.8 * np.linalg.norm(normal)       # inside the cone
+    assert math.degrees(math.atan2(normal[0], -normal[1])) == pytest.approx(30.0, abs=0.01)   # normal to the ramp
+
+
+def _check_gripper3d(g: dict, floor: float) -> None:
+    assert g["converged"], g["status"]
+    st = {s["name"]: s for s in g["stages"]}
+    assert list(st) == ["close", "weigh", "lift"] and not g["events"]
+    W = np.asarray(st["weigh"]["weight"])
+    assert np.linalg.norm(st["close"]["weight"]) == 0.0 and st["close"]["normal"] > 0     # squeezed, no weight
+    assert _on_the_object(st["weigh"]) == pytest.approx(-W, abs=2e-3 * np.linalg.norm(W))
+    lift = np.asarray(st["lift"]["object"]) - st["weigh"]["object"]
+    assert lift == pytest.approx([0.0, 10.0, 0.0], abs=floor * g["size"])
+    assert g["worst_follow"]["by_stage"]["lift"] < floor
+    assert _on_the_object(st["lift"]) == pytest.approx(-W, abs=2e-3 * np.linalg.norm(W))
+
+
+@pytest.mark.slow
+def test_hand_scenario_tiny_grasps_lifts_carries_turns_and_puts_down(tmp_path, picture):
+    """6 mm meshes (1,018 DOFs in 2D, 1,725 in 3D): 43 s with the pictures, on a loaded machine."""
+    study = load_study("hand_scenario")
+    res = study.run(size=6.0, size3d=6.0, weightless=False, out=tmp_path / "out", figures=tmp_path / "fig", say=lambda *a: None)
+    _check_hand(res["hand"], study.FOLLOW_SHARE)
+    _check_gripper3d(res["gripper3d"], study.FOLLOW_SHARE)
+    saved = json.loads((tmp_path / "out" / "hand_scenario.json").read_text())
+    assert saved["hand"]["stages"] == json.loads(json.dumps(res["hand"]["stages"]))
+    lines = (tmp_path / "out" / "hand_scenario.csv").read_text().splitlines()
+    assert len(lines) == 1 + len(res["hand"]["rows"]) + len(res["gripper3d"]["rows"])
+    assert sum(line.startswith("hand,") for line in lines) == res["hand"]["load_steps"]
+    assert (tmp_path / "out" / "hand.toml").exists() and (tmp_path / "out" / "gripper3d.toml").exists()
+    picture(tmp_path / "fig" / "hand_scenario_3d.png", 400, 400)
+    picture(tmp_path / "fig" / "hand_scenario.png", 800, 400)
+    assert 20_000 < (tmp_path / "fig" / "hand_scenario.gif").stat().st_size < 2_000_000
+
+
+def test_the_committed_hand_scenario_meets_the_floor_on_the_designs_meshes():
+    """The study's committed output (hand.toml's 2 mm mesh, gripper3d.toml's): the hand's scenario completes, and
+    the 3D gripper lifts its sphere 10 mm, following the base within 2 % of the sphere's size."""
+    out = json.loads((ROOT / "studies" / "output" / "hand_scenario" / "hand_scenario.json").read_text())
+    assert out["params"]["size"] is None and out["params"]["size3d"] is None
+    _check_hand(out["hand"], 0.02)
+    _check_gripper3d(out["gripper3d"], 0.02)
