@@ -273,14 +273,15 @@ def sliding_block_design(k: float = 100.0, theta: float = 20.0, L: float = 20.0,
 
 
 @pytest.mark.parametrize("k, theta, L, H", [(100.0, 20.0, 20.0, 5.0), (100.0, 10.0, 40.0, 4.0)])
-def test_the_watchdog_goes_back_to_its_reference_after_five_steps_of_any_kind(k, theta, L, H):
+def test_the_watchdog_goes_back_to_its_reference_when_its_steps_stall(k, theta, L, H):
     """From rest the floor does not hold the block yet (its penalty is zero at zero depth): the first Newton
     step sinks it and raises Pi from 0 to 2e5 N mm, a relaxed step the watchdog takes. The Armijo steps after
-    it each lower Pi but stay far above the reference; counting only relaxed steps, the watchdog never went
-    back, and every attempt ended at its 50 iterations (450 in all, each step capped by the rotation limit in
-    the sunk block). Counting every step, Newton returns to the reference after five, and converges in 9."""
+    it each lower Pi but stay far above the reference, the later ones closing a few percent of the gap each;
+    counting only relaxed steps, the watchdog never went back, and every attempt ended at its 50 iterations
+    (450 in all, each step capped by the rotation limit in the sunk block). Counting the steps that close
+    less than a tenth of the gap too, Newton returns to the reference and converges in about 20."""
     r = _solve(sliding_block_design(k, theta, L, H))
-    assert r.converged and len(r.attempts) == 1 and r.newton_iterations <= 15, (r.newton_iterations, r.attempts)
+    assert r.converged and len(r.attempts) == 1 and r.newton_iterations <= 30, (r.newton_iterations, r.attempts)
     W = 1e4 * 1e-9 * 9.81 * L * H * THICK
     slid = L / 2 - r.markers["c"]["position"][0]
     assert slid == pytest.approx(W * np.sin(np.radians(theta)) / (1e-3 / 50.0 * H * THICK), rel=0.02)

@@ -18,9 +18,12 @@ C1 = 1e-4          # Armijo constant
 MAX_ROTATION = 0.5  # rad: a curved step turns the body at most this much (max |grad p|); a straight step
 #                     stretches a turning strip by about MAX_ROTATION^2 / 2 (12 % here, 50 % at 1 rad, where
 #                     Newton's next step could not bring a coiling strip back, see docs/model.md)
-WATCHDOG = 5       # Newton steps of the curved strategy, from the first relaxed (energy-raising) full step
-#                    on, after which Pi must be below that step's reference or Newton goes back to it; every
-#                    step counts, not only the relaxed ones (see docs/model.md)
+WATCHDOG = 5       # stalled steps of the curved strategy after which, if Pi is still above the reference
+#                    (the state before its first relaxed, energy-raising, full step), Newton goes back to it:
+#                    relaxed steps, and steps that close less than WATCHDOG_CLOSE of the gap to it
+WATCHDOG_CLOSE = 0.1   # (docs/model.md: counting only relaxed steps, a block sunk into a floor by one crawled
+#                        450 iterations; counting every step, a finger pushed into a stiff wall by one, on its
+#                        way back in 14, was sent back and crawled monotone)
 
 
 class LineSearch:
@@ -31,6 +34,7 @@ class LineSearch:
     # What the host (the NewtonSolver) holds and this mixin reads, named for the type checker.
     model: Any
     lin: Any
+    watchdog: int
 
     def _energy_line_search(self, x, y):
         """SNES pre-check: scale the step -y so that x - y is admissible and lowers Pi
@@ -55,7 +59,7 @@ class LineSearch:
             if e0 <= wd["e0"] + C1 * wd["alpha0"] * wd["slope"]:
                 self._watch = wd = None             # the relaxed steps paid off: back to monotone
                 log.debug("  watchdog: energy %.9e below the reference", e0)
-            elif wd["n"] >= self.watchdog:
+            elif self._watch_expired(wd, e0):
                 self._watch, self._watch_allowed = None, False
                 log.debug("  watchdog: energy %.9e still above the reference %.9e: back to it", e0, wd["e0"])
                 return self._fall_back(x, y, wd)
@@ -71,20 +75,17 @@ class LineSearch:
                 # the full step is admissible but raises Pi: take it anyway (watchdog)
                 if wd is None:
                     self._watch = wd = {"x0": x0, "e0": e0, "p": p, "slope": slope, "f0": f0,
-                                        "alpha0": alpha0, "accel": accel, "n": 0}
-                wd["n"] += 1
+                                        "alpha0": alpha0, "accel": accel, "n": 0, "last": 0.0}
+                wd["n"] += 1                        # stalled; at the next check again, as it opened the gap
                 self._set_step(y, x0, p, accel, alpha0)
                 self._last_trial = None
-                log.debug("  watchdog: full step (%d since the reference), energy %.9e -> %.9e", wd["n"], e0,
-                          e_full)
+                log.debug("  watchdog: full step (%d stalled), energy %.9e -> %.9e", wd["n"], e0, e_full)
                 return True
             if not np.isfinite(e_full) and wd is not None:
                 self._watch, self._watch_allowed = None, False
                 return self._fall_back(x, y, wd)
         alpha, accepted = self._backtrack(x, x0, p, e0, slope, f0, alpha0, accel=accel)
         model.sync(x)
-        if wd is not None:              # a monotone step while relaxed counts too: Armijo steps down from a
-            wd["n"] += 1                # relaxed step's far higher Pi do not keep the watchdog open forever
         if not accepted:
             self._failure = "line_search_failed"
             y.set(0.0)
@@ -93,6 +94,18 @@ class LineSearch:
         log.debug("  line search: alpha %.3g, decrement %.3e, energy %.9e", alpha if accepted else 0.0,
                   -slope, e0)
         return True
+
+    def _watch_expired(self, wd: dict, e0: float) -> bool:
+        """Whether the watchdog gives up on its relaxed steps at Pi = e0 (above the reference): after
+        WATCHDOG stalled steps. Every relaxed step is one when taken, and every step, relaxed or monotone,
+        that closed less than WATCHDOG_CLOSE of the gap between Pi and the reference's is one (judged here,
+        at the next step: a relaxed step, which opens the gap, counts twice). Newton heading back into its
+        basin closes most of the gap at every step; a search that crawls does not."""
+        gap, last = e0 - wd["e0"], wd["last"]
+        wd["last"] = gap
+        if gap > (1.0 - WATCHDOG_CLOSE) * last:
+            wd["n"] += 1
+        return wd["n"] >= self.watchdog
 
     def _set_step(self, y, x0, p, accel, alpha) -> None:
         """y such that x0 - y is the trial state of step alpha (SNES steps x - y)."""
