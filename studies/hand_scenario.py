@@ -403,9 +403,9 @@ def animation(path: Path, res: dict, snaps: list, ms: int = 250) -> None:
         _draw_state(ax, snap, f"{row['stage']} {row['step']}", xlim, ylim)
         ax.collections[0].set_edgecolor("face")          # no cell edges: noise at this size, and twice the bytes
         fig.tight_layout()
-        buf = io.BytesIO()
-        fig.savefig(buf, format="png")
-        images.append(Image.open(io.BytesIO(buf.getvalue())).convert("RGB"))
+        fig.canvas.draw()                                  # the canvas's pixels, no PNG in between
+        images.append(Image.frombuffer("RGBA", fig.canvas.get_width_height(), fig.canvas.buffer_rgba(), "raw",
+                                       "RGBA", 0, 1).convert("RGB"))
     palette = images[len(images) // 2].quantize(colors=32)
     frames = [im.quantize(palette=palette) for im in images]
 
