@@ -69,7 +69,7 @@ class LineSearch:
             if g * alpha0 > MAX_ROTATION:
                 alpha0 = MAX_ROTATION / g
         accel = self._choose_curve(x, x0, p, r, e0, slope, alpha0) if self.curved else None
-        if wd is not None or (self.watchdog and self._watch_allowed):
+        if wd is not None or (self.watchdog and self._watch_allowed and not model.bounds_steps):
             e_full = self._phi(x, x0, p, accel, alpha0) if alpha0 > 0.0 else np.inf
             if np.isfinite(e_full) and not e_full <= e0 + C1 * alpha0 * slope:
                 # the full step is admissible but raises Pi: take it anyway (watchdog)
