@@ -4,7 +4,8 @@
 
 A case is DESIGN:SIZE, DESIGN one of estimate_effectivity's builders (``strip``:
 the 2D strip with bones, P1; ``block3d``: the 3D block with a bone and a tendon,
-P1; ``block3d_in_bone``: the same with the tendon ending in the bone). Each is
+P1; ``block3d_in_bone``: the same with the tendon ending in the bone; ``pinch``:
+the gripper closed on its box with contact friction, 2D P1). Each is
 solved once from rest (Session.solve) and then estimated (Session.estimate) in
 the same process; both are timed in CPU seconds of this process
 (time.process_time: on a shared machine the wall time counts the other
@@ -29,8 +30,9 @@ import estimate_effectivity as effectivity  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 BUILDERS = {"strip": lambda h: effectivity.strip(size=h), "block3d": lambda h: effectivity.block3d(size=h),
-            "block3d_in_bone": lambda h: effectivity.block3d(size=h, in_bone=True)}
-DEFAULT = ("strip:1", "strip:0.5", "block3d:3", "block3d:1.5", "block3d:0.65")
+            "block3d_in_bone": lambda h: effectivity.block3d(size=h, in_bone=True),
+            "pinch": lambda h: effectivity._gripper(h, 1)}
+DEFAULT = ("strip:1", "strip:0.5", "strip:0.25", "pinch:2", "block3d:3", "block3d:1.5", "block3d:0.65")
 
 
 def run_case(case: str) -> dict:
@@ -38,8 +40,8 @@ def run_case(case: str) -> dict:
     from skelfem.session import Session
     name, size = case.split(":")
     d = BUILDERS[name](float(size))
-    with Session(parse_design(copy.deepcopy(effectivity.block3d(size=6.0) if d["dim"] == 3 else
-                                            effectivity.strip(size=8.0)), "warm")) as s:
+    warm = BUILDERS[name](float(size) * 4)
+    with Session(parse_design(copy.deepcopy(warm), "warm")) as s:
         s.solve(estimate=True)                  # the richer degree's forms compiled (FFCx's cache)
     with Session(parse_design(copy.deepcopy(d), d["name"])) as s:
         t0, c0 = time.perf_counter(), time.process_time()
