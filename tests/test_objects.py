@@ -168,7 +168,11 @@ def test_pinch_holds_above_mu_min_and_loses_below():
     assert lost.status == "no equilibrium: object box is not held"
     assert getattr(lost, "retried_from_rest", None) is None     # the verdict of the path taken: close, then weigh
     print(f"\npinch: W = {W:.4g} N, sum N = {W / mu_min:.4g} N, mu_min = {mu_min:.4f}; "
-          f"held at {1.1 * mu_min:.4f} (sticking {pair['sticking']:.2f}), lost at {0.9 * mu_min:.4f}")
+          f"held at {1.1 * mu_min:.4f} (sticking {pair['sticking']:.2f}), lost at {0.9 * mu_min:.4f} "
+          f"({lost.report.newton_iterations} Newton iterations)")
+    # the box slides off the prongs and falls with nothing under it: the verdict comes as it passes its own
+    # size (Term.verdict), not after Newton has given up falling a trust region per step
+    assert lost.report.newton_iterations <= 150
 
 
 # -- bad input ---------------------------------------------------------------------------------------
@@ -429,3 +433,19 @@ def test_a_dropped_elastic_object_falls_at_g():
     t, y = np.array([q["time"] for q in rows]), np.array([q["b_y"] for q in rows])
     acc = (y[2:] - 2 * y[1:-1] + y[:-2]) / (t[1] - t[0]) ** 2 * 1e-3
     assert acc[6] == pytest.approx(-G, rel=1e-3)
+
+
+@pytest.mark.parametrize("floor", [False, True])
+def test_a_falling_object_is_not_held_at_once_unless_something_is_in_its_way(floor):
+    """A box beside the block with nothing under it falls free: 'not held' as soon as it has fallen its own
+    size (Term.verdict), not after Newton has fallen a trust region per step up to max_iterations. With a
+    floor 40 mm below, the floor is in its way: it lands there and is held."""
+    grounds = [{"name": "floor", "point": [0, -20], "normal": [0, 1], "stiffness": 100.0, "friction": 0.5}]
+    with Session(_base([_box(14, 20, 20, 23)], **({"grounds": grounds} if floor else {}))) as s:
+        r = s.solve()
+    if floor:
+        assert r.converged, r.status
+        assert r.to_dict()["objects"]["box"]["position"][1] == pytest.approx(-18.5, abs=0.05)
+    else:
+        assert r.status == "no equilibrium: object box is not held"
+        assert r.report.newton_iterations <= 10, r.report.newton_iterations     # 50 (max_iterations) before

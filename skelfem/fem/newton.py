@@ -123,6 +123,7 @@ class NewtonSolver(LineSearch):
         self._stop_at: float | None = None     # the deadline of the Newton solve running now
         self._budget_spent = False
         self._watch_events = any(getattr(t, "contact_event", None) is not None for t in model.terms)
+        self._verdicts = [t for t in model.terms if t.verdicts]   # Term.verdict: asked after every step
         self._factorised = False      # lin holds a factorisation of K near the current state
         self.equilibrium = Equilibrium()     # the last converged state (a re-solve with nothing changed)
         self.snes = self._create_snes(prefix)
@@ -231,7 +232,7 @@ class NewtonSolver(LineSearch):
         step = self._newton_step if self.energy_search else ynorm
         if it > 0 and step <= self.xtol * max(xnorm, self.model.size):
             return PETSc.SNES.ConvergedReason.CONVERGED_SNORM_RELATIVE
-        if self._failure is not None:
+        if self._failure is not None or (it > 0 and self._verdict()):
             return PETSc.SNES.ConvergedReason.DIVERGED_LINE_SEARCH
         if it > 0 and self._stop_at is not None and time.monotonic() >= self._stop_at:
             self._budget_spent = True
@@ -239,6 +240,15 @@ class NewtonSolver(LineSearch):
         if it >= self.max_iterations:
             return PETSc.SNES.ConvergedReason.DIVERGED_MAX_IT
         return PETSc.SNES.ConvergedReason.ITERATING
+
+    def _verdict(self) -> bool:
+        """Whether a term finds no equilibrium ahead of the iterate (Term.verdict; e.g. an object falling
+        with nothing in its way): Newton ends with it as its failure instead of falling on."""
+        if not self._verdicts:
+            return False
+        self.model.sync(self.x)
+        self._failure = next((why for why in (t.verdict(self.model) for t in self._verdicts) if why), None)
+        return self._failure is not None
 
     # -- solves ---------------------------------------------------------------------------
     def _newton(self) -> tuple[bool, str, int]:

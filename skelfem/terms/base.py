@@ -176,6 +176,13 @@ class Term:
         the state where Newton gave up."""
         return None
 
+    verdicts = False   # verdict can answer at a Newton iterate (Newton asks it after every step)
+
+    def verdict(self, model) -> str | None:
+        """Why no equilibrium can lie ahead of the present Newton iterate (a free object falling with nothing
+        in its way), or None; Newton ends the solve with it at once (the same answer on every rank)."""
+        return None
+
     def update_lag(self, model) -> bool:
         """Refresh lagged quantities (friction's normal forces) at a converged state; True: solve again."""
         return False

@@ -84,6 +84,9 @@ class RigidObject(Term):
     held_tol = 1e-3      # the tether may carry at most this share of the forces on the object
     step_limit = 0.25    # a Newton step moves no node of the object by more than this share of its size
     bounds_steps = True
+    verdicts = True
+    contact: Any = None   # the PieceContact of the pieces (build), and this object's piece in it
+    piece = -1
 
     def __init__(self, ctx: Context, spec):
         self.ctx, self.name, self.spec = ctx, spec.name, spec
@@ -181,6 +184,38 @@ class RigidObject(Term):
         if np.linalg.norm(pull) > self.held_tol * loads and moved > 1e-9 * self.size:   # not round-off
             return f"no equilibrium: object {self.name} is not held"
         return None
+
+    def verdict(self, model) -> str | None:
+        """'no equilibrium: object NAME is not held' at a Newton iterate where the object falls free: its
+        load pulls it, it has moved further than its own size from its rest place, and nothing is in its
+        way (PieceContact.in_the_way: no other piece within dhat of the band it sweeps along its load, no
+        ground ahead or within dhat). Only the tether could stop it, a million times below any support:
+        Newton would go on falling a trust region per step until it gave up."""
+        if self.contact is None or any(getattr(t, "active", False) for t in model.terms_in("dynamics")):
+            return None
+        load = self.factor * self.weight()
+        size = float(np.linalg.norm(load))
+        u = model.u.x.array
+        moved = self.ctx.comm.allreduce(float(np.abs(u[self.dofs]).max(initial=0.0)), op=MPI.MAX)
+        if not (size > 0.0 and moved > self.size):
+            return None
+        d = load / size
+        if self.contact.in_the_way(u, self.piece, d) or self._ground_in_the_way(model, u, d):
+            return None
+        return f"no equilibrium: object {self.name} is not held"
+
+    def _ground_in_the_way(self, model, u: np.ndarray, d: np.ndarray) -> bool:
+        """Whether a ground lies ahead of the object along d (d . n < 0) or within dhat of its nodes."""
+        from .grounds import Ground
+        y = self.X + u[self.dofs]
+        for g in model.terms_in("grounds"):
+            if not isinstance(g, Ground):
+                continue
+            n = g.normal / np.linalg.norm(g.normal)
+            low = self.ctx.comm.allreduce(float(((y - g.point) @ n).min(initial=np.inf)), op=MPI.MIN)
+            if d @ n < 0.0 or low <= self.contact.dhat:
+                return True
+        return False
 
     def _loads(self, model, u: np.ndarray) -> float:
         """Sum of the magnitudes of the nodal forces on the object but the tether's: weight and contacts
@@ -315,6 +350,23 @@ class PieceContact(SelfContact):
                                    "min_distance": gap}
         return out
 
+    def in_the_way(self, u: np.ndarray, piece: int, d: np.ndarray) -> bool:
+        """Whether some facet of another piece may stop piece `piece` moving along d (unit): a facet whose
+        bounding box, in coordinates across d, meets the piece's own widened by dhat, and that reaches
+        beyond the piece's rear (along d) less dhat. Conservative: a piece touching another, or one
+        beside it, is in the way."""
+        y = self.positions(u)
+        mine = self.label == piece
+        others = self.facets[self.label[self.facets[:, 0]] != piece]
+        if not mine.any() or not len(others):
+            return bool(len(others))
+        across = np.linalg.svd(d[None, :])[2][1:].T                      # (dim, dim - 1) orthonormal across d
+        c, a = y @ across, y @ d
+        lo, hi = c[mine].min(axis=0) - self.dhat, c[mine].max(axis=0) + self.dhat
+        cf = c[others]                                                   # (m, dim, dim - 1)
+        meets = (cf.max(axis=1) >= lo).all(axis=1) & (cf.min(axis=1) <= hi).all(axis=1)
+        return bool((meets & (a[others].max(axis=1) >= a[mine].min() - self.dhat)).any())
+
     def pair_forces(self, y: np.ndarray, c) -> dict:
         """{(i, j), i < j: the barrier's nodal forces (n, dim) N of the collisions between pieces i and j},
         each collision's share taken from its own gradient (a node may touch two pieces at once)."""
@@ -340,6 +392,8 @@ def build(ctx: Context) -> list[Term]:
         return []
     objects = [(RigidObject if spec.rigid else ElasticObject)(ctx, spec) for spec in d.objects]
     contact = PieceContact(ctx, objects, d.contact.dhat, barrier_stiffness(d))
+    for k, obj in enumerate(objects):
+        obj.contact, obj.piece = contact, len(d.bodies) + k           # pieces: the bodies, then the objects
     d0 = contact.min_distance(np.zeros(len(ctx.u.x.array)))
     if d0 <= d.contact.dhat:
         raise DesignError(f"{d.source}: contact.dhat: {d.contact.dhat:g} mm is not below the smallest rest "
