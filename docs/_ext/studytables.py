@@ -901,11 +901,12 @@ def knuckle_contact3d(_: dict) -> Table:
                      f"{r['newton_iterations']} ({', '.join(str(s['iterations']) for s in r['steps'])})",
                      str(r["meet_step"]) if key != "off" and r["meet_step"] else "–",
                      num(r["min_distance"]), num(r["final_distance"]), "yes" if r["intersects"] else "no",
-                     thousands(r["pattern_pairs"]) if r["pattern_pairs"] else "–", secs(r["solve_time"])])
+                     thousands(r["pattern_pairs"]) if r["pattern_pairs"] else "–",
+                     f"{secs(r['solve_time'])} ({secs(r.get('solve_cpu'))} CPU)"])
     on = d["on"]
     return Table(["run", "mesh, DOFs", "status", "Newton its (per load step)", "knuckles meet in step",
                   "min distance over iterates [mm]", "final [mm]", "triangles intersect", "pattern node pairs",
-                  "solve"], rows,
+                  "solve (wall, CPU)"], rows,
                  f"finger_knuckles3d.toml, flexor {short(on['contraction'])} mm in {len(on['steps'])} load steps, "
                  f"dhat = {short(on['dhat'])} mm, {on['boundary_nodes']:,} boundary nodes on the "
                  f"{short(on['size'])} mm mesh; distances are ipctk's between non-adjacent boundary parts.", [path])
