@@ -1,8 +1,8 @@
 """Grasp, lift, carry, turn, put down: the three-finger hand's scenario in 2D, and the 3D gripper lifting its sphere.
 
     python studies/hand_scenario.py [--size 2] [--density 310] [--contraction 4] [--turn-steps 12]
-                                    [--size3d 2.5] [--no-3d] [--out studies/output/hand_scenario]
-                                    [--figures studies/figures]
+                                    [--size3d 2.5] [--no-3d] [--no-weightless]
+                                    [--out studies/output/hand_scenario] [--figures studies/figures]
 
 2D: geometry/hand.toml (a palm with three skeleton fingers, the object a
 46 mm square between them) written as a design with ``[[stages]]``:
@@ -11,9 +11,16 @@ close (the outer flexors contracted, gravity off), weigh (gravity on), lift
 about the palm's centre), put down (the palm lowered until the object rests
 on a ground, a ramp parallel to the object's turned bottom face placed
 ``gap`` below where a rigid grip would carry it, lowered ``gap + push``
-along its normal), release (the flexors let go). The palm's turn needs the
-pin's ``rotate`` (the design gives an angle of 0); three markers on the
-pinned edge give the base's pose after every load step.
+along its normal), release (the flexors let go), retreat (the palm backed
+away 4 mm along the ramp's normal: lifted straight up, a step's first solve
+takes the object off the ramp with the fingers, see the guide). The palm's
+turn needs the pin's ``rotate`` (the design gives an angle of 0); three
+markers on the pinned edge give the base's pose after every load step. The
+object's density is 310 kg/m^3 (a quarter-infill print): in solid PLA it is
+heavier than the outer fingers' friction can carry. The held stages run
+again with the hand's own materials weightless (``hand_weightless``): how
+much of the object's lag in the turn is the fingers bending under their
+own weight.
 
 3D: geometry/gripper3d.toml with stages close (both flexors, 3 equal
 steps), weigh, lift (the palm up 10 mm).
@@ -29,9 +36,11 @@ weighing: ``follow`` = that distance / the object's size (the diagonal of
 its bounding box, as the jump watch's).
 
 Writes into out hand_scenario.json (stages, per-step rows, the worst
-``follow``), hand_scenario.csv (the rows), hand.toml and gripper3d.toml (the
-designs with their stages: ``skelfem simulate`` runs them); into figures
-hand_scenario.png (the hand at the end of every stage and the trajectories),
+``follow``), hand_scenario.csv (the rows), hand.toml, hand_weightless.toml and
+gripper3d.toml (the designs with their stages: ``skelfem simulate`` runs
+them); into figures
+hand_scenario.png (the hand at the end of every stage, the trajectories, the
+share off the base's motion per load step),
 hand_scenario.gif (every load step) and hand_scenario_3d.png (the sphere
 lifted). run(**params) returns the numbers.
 """
