@@ -175,6 +175,23 @@ def test_pinch_holds_above_mu_min_and_loses_below():
     assert lost.report.newton_iterations <= 150
 
 
+@pytest.mark.slow
+def test_a_held_box_lifted_with_the_hand_in_one_step_is_no_jump():
+    """gripper_stages.toml closed and weighed, its palm lifted 20 mm in one load step: the box rises with
+    the fingers that carry it (0.37 of its size in one step, where its own pose alone made it a jump, with
+    a warning to run it in time): no event."""
+    import tomllib
+    from pathlib import Path
+    d = tomllib.loads((Path(__file__).resolve().parents[1] / "geometry" / "gripper_stages.toml").read_text())
+    d["stages"] = d["stages"][:2] + [{"name": "lift", "steps": 1, "set": {"pins.palm.move": [0.0, 20.0]}}]
+    with Session(d) as s:
+        lifted = s.run_stages()
+    assert lifted.converged, lifted.status
+    out = lifted.to_dict()
+    assert out["objects"]["box"]["displacement"][1] == pytest.approx(20.0, abs=1.0)
+    assert "events" not in out, out.get("events")
+
+
 # -- bad input ---------------------------------------------------------------------------------------
 @pytest.mark.parametrize("change, key", [
     (lambda d: d["objects"][0].update(outline=[[2, 9], [8, 9], [8, 12], [2, 12]]), "objects.box.outline"),
