@@ -28,7 +28,8 @@ point-like quantity (a tendon ending in silicone) p + 1 on the same mesh
 gains less than near smooth ones, and the estimate is lower.
 
 In 3D the richer solve's linear solves are CG with two-level p-multigrid
-(richer_linear): half the CPU time of MUMPS on the P2 matrix at 55k DOFs. It
+above 30k DOFs (richer_linear): half the CPU time of MUMPS on the P2 matrix
+at 55k DOFs. It
 still costs 4-5x the P1 solve it checks in 3D (three P2 Newton iterations,
 each a P2 assembly and about 20 multigrid cycles, against about eight P1
 ones), and 1-2x in 2D: docs/guide/accuracy.md has the measurements, and
@@ -76,6 +77,9 @@ RICH_RTOL = 1e-3          # the richer solve stops at this share of its first re
 SLIP_SENSITIVE = ("contacts.", "grounds.", "objects.")   # read-outs set by where contacts stuck and slipped on the way
 
 
+RICH_ITERATIVE_DOFS = 30_000   # 3D richer solves above this many DOFs are iterative (richer_linear)
+
+
 class EstimateError(Exception):
     """The observables cannot be estimated for this run (e.g. a run in time)."""
 
@@ -93,12 +97,17 @@ def richer(design):
     return dataclasses.replace(design, mesh=dataclasses.replace(design.mesh, degree=int(design.mesh.degree) + 1))
 
 
-def richer_linear(design) -> str:
-    """The richer solve's linear solves: in 3D (unless [solver] linear asks for one) CG with two-level
-    p-multigrid (the P1 level of the same mesh under one smoothing of the richer matrix, skelfem.fem.multigrid.
-    Coarse), whatever the size: MUMPS fills in a P2 factorisation of a tetrahedral mesh far more than a P1 one
-    (block3d at h = 1.5 mm, 55k P2 DOFs: 8.5 s of CPU against 4.2 s). 2D: the design's choice."""
-    return "iterative" if design.dim == 3 and design.solver.linear == "auto" else design.solver.linear
+def richer_linear(design, dofs: int) -> str:
+    """The richer solve's linear solves: in 3D above RICH_ITERATIVE_DOFS (unless [solver] linear asks for one)
+    CG with two-level p-multigrid (the P1 level of the same mesh under one smoothing of the richer matrix,
+    skelfem.fem.multigrid.Coarse): MUMPS fills in a P2 factorisation of a tetrahedral mesh far more than a P1
+    one (block3d at h = 1.5 mm, 55k P2 DOFs: 8.5 s of CPU against 4.2 s). Below it, and in 2D, the design's
+    choice ("auto": MUMPS), which is as fast at 10k P2 DOFs and faster for nearly incompressible bodies,
+    whose P2 multigrid needs 50-60 Krylov iterations per Newton step (finger3d, nu = 0.49, 9k P2 DOFs: 0.9 s
+    against 1.7 s)."""
+    if design.dim == 3 and design.solver.linear == "auto" and dofs > RICH_ITERATIVE_DOFS:
+        return "iterative"
+    return design.solver.linear
 
 
 def _fits(old, new) -> bool:
@@ -178,10 +187,10 @@ def estimate(session) -> dict:
     design = richer(session.design)
     rich = Model(design, model.tm)
     t2 = time.perf_counter()
+    dofs = int(rich.V.dofmap.index_map.size_global * rich.bs)
     solver = NewtonSolver(rich, dataclasses.replace(design.solver, rtol=max(design.solver.rtol, RICH_RTOL),
-                                                    linear=richer_linear(design)))
-    info = {"method": METHOD, "degree": int(design.mesh.degree),
-            "dofs": int(rich.V.dofmap.index_map.size_global * rich.bs)}
+                                                    linear=richer_linear(design, dofs)))
+    info = {"method": METHOD, "degree": int(design.mesh.degree), "dofs": dofs}
     try:
         _same_parameters(model, rich)
         rich.u.interpolate(model.u)

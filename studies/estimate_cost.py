@@ -5,7 +5,8 @@
 A case is DESIGN:SIZE, DESIGN one of estimate_effectivity's builders (``strip``:
 the 2D strip with bones, P1; ``block3d``: the 3D block with a bone and a tendon,
 P1; ``block3d_in_bone``: the same with the tendon ending in the bone; ``pinch``:
-the gripper closed on its box with contact friction, 2D P1). Each is
+the gripper closed on its box with contact friction, 2D P1; ``beam3d``, ``finger3d``:
+the slender beam and the finger-like cylinder, nearly incompressible). Each is
 solved once from rest (Session.solve) and then estimated (Session.estimate) in
 the same process; both are timed in CPU seconds of this process
 (time.process_time: on a shared machine the wall time counts the other
@@ -31,8 +32,10 @@ import estimate_effectivity as effectivity  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 BUILDERS = {"strip": lambda h: effectivity.strip(size=h), "block3d": lambda h: effectivity.block3d(size=h),
             "block3d_in_bone": lambda h: effectivity.block3d(size=h, in_bone=True),
-            "pinch": lambda h: effectivity._gripper(h, 1)}
-DEFAULT = ("strip:1", "strip:0.5", "strip:0.25", "pinch:2", "block3d:3", "block3d:1.5", "block3d:0.65")
+            "pinch": lambda h: effectivity._gripper(h, 1), "beam3d": lambda h: effectivity.beam3d(size=h),
+            "finger3d": lambda h: effectivity.finger3d(size=h)}
+DEFAULT = ("strip:1", "strip:0.5", "strip:0.25", "pinch:2", "block3d:3", "beam3d:2", "finger3d:2.5", "block3d:1.5",
+           "block3d:0.65")
 
 
 def run_case(case: str) -> dict:
