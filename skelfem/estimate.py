@@ -23,7 +23,8 @@ step: reactions and contact forces are read from the residual on fixed and
 contact DOFs, which only balance at an equilibrium (one step left a pin's
 reaction 1 N off on finger3d). The saturation constant s is what limits the
 effectivity (measured in docs/guide/accuracy.md: 0.60-1.51 where the mesh
-resolves the body, far lower where a part has a few cells across); near a
+resolves the body, far lower where a part has a few cells across or a cable ends in
+an anchor far smaller than its cells: docs/model.md); near a
 point-like quantity (a tendon ending in silicone) p + 1 on the same mesh
 gains less than near smooth ones, and the estimate is lower.
 

@@ -832,7 +832,7 @@ def estimate_cost_cpu(_: dict) -> Table:
     return Table(["design", "", "DOFs (P1)", "Newton its", "solve (CPU)", "estimate (CPU)", "estimate / solve",
                   "richer DOFs (P2)", "its Newton its", "Krylov its", "algebraic part"], rows,
                  "CPU seconds of one process (time.process_time), the solve from rest and then the estimate; the "
-                 "richer solve is MUMPS in 2D, CG with two-level p-multigrid in 3D.", [path])
+                 "richer solve is MUMPS in 2D and below 30k DOFs, CG with two-level p-multigrid in 3D above.", [path])
 
 
 def estimate_effectivity_h(_: dict) -> Table:
