@@ -23,6 +23,9 @@ from __future__ import annotations
 
 import numpy as np
 from mpi4py import MPI
+from scipy.spatial import cKDTree
+
+from ..terms.rigid import closest_rigid_motion, rotation_readout
 
 JUMP_SHARE = 0.25     # an object's pose may change by this share of its size in one load step
 
@@ -43,8 +46,7 @@ class JumpWatch:
     object's carriers, and ``carried``: whether it had any)."""
 
     def __init__(self, model, share: float = JUMP_SHARE):
-        from ..terms.rigid import rotation_readout
-        self.share, self.rotation_readout = share, rotation_readout
+        self.share = share
         self.objects = list(model.terms_in("objects"))
         self.step = 0
         self.events: list = []
@@ -57,11 +59,10 @@ class JumpWatch:
         self.start = {obj.name: self._state(obj, model) for obj in self.objects}
 
     def _positions(self, model) -> np.ndarray:
-        return self.X + model.u.x.array[:len(self.X) * self.bs].reshape(len(self.X), self.bs)[:, :len(self.X[0])]
+        return self.X + model.u.x.array[:self.X.size].reshape(self.X.shape)
 
     def _state(self, obj, model) -> tuple:
-        """(centroid, rotation matrix, carrier node indices) of obj in the current state."""
-        from scipy.spatial import cKDTree
+        """(centroid, rotation matrix, carrier nodes, their positions) of obj in the current state."""
         u = model.u.x.array
         t, R = obj.body.fit(u)
         y = self._positions(model)
@@ -77,7 +78,6 @@ class JumpWatch:
 
     def _carried(self, near: np.ndarray, y0: np.ndarray, model):
         """The rigid motion (c_X, c_y, R) closest to the carriers' over the step, or None without any."""
-        from ..terms.rigid import closest_rigid_motion
         if self.comm.allreduce(len(near), op=MPI.SUM) == 0:
             return None
         total = (lambda a: a) if self.comm.size == 1 else (lambda a: self.comm.allreduce(a, op=MPI.SUM))
@@ -94,7 +94,7 @@ class JumpWatch:
                 cx, cy, Rc = carried
                 c0, R0 = cy + Rc @ (c0 - cx), Rc @ R0
             moved = float(np.linalg.norm(c1 - c0))
-            turned = turn(self.rotation_readout(R0), self.rotation_readout(R1))
+            turned = turn(rotation_readout(R0), rotation_readout(R1))
             if moved + abs(turned) * obj.size / 2 > self.share * obj.size:
                 self.events.append({"kind": "jump", "piece": obj.name, "load_factor": float(model.factor),
                                     "step": self.step, "rotation": turned, "displacement": moved,

@@ -41,6 +41,7 @@ from .linesearch import WATCHDOG, LineSearch, resolve_strategy
 from ..design.resources import direct_limit, stiff_elastic_bones
 from .linear import LowRankSolver, default_petsc_options  # noqa: F401 (re-exported)
 from .multigrid import KRYLOV_RTOL, choose_linear, forcing
+from ..terms.base import Term
 
 log = logging.getLogger("skelfem")
 
@@ -123,7 +124,7 @@ class NewtonSolver(LineSearch):
         self._stop_at: float | None = None     # the deadline of the Newton solve running now
         self._budget_spent = False
         self._watch_events = any(getattr(t, "contact_event", None) is not None for t in model.terms)
-        self._verdicts = [t for t in model.terms if t.verdicts]   # Term.verdict: asked after every step
+        self._verdicts = [t for t in model.terms if type(t).verdict is not Term.verdict]   # asked every step
         self._factorised = False      # lin holds a factorisation of K near the current state
         self.equilibrium = Equilibrium()     # the last converged state (a re-solve with nothing changed)
         self.snes = self._create_snes(prefix)

@@ -176,11 +176,10 @@ class Term:
         the state where Newton gave up."""
         return None
 
-    verdicts = False   # verdict can answer at a Newton iterate (Newton asks it after every step)
-
     def verdict(self, model) -> str | None:
         """Why no equilibrium can lie ahead of the present Newton iterate (a free object falling with nothing
-        in its way), or None; Newton ends the solve with it at once (the same answer on every rank)."""
+        in its way), or None; Newton ends the solve with it at once (the same answer on every rank). Newton
+        asks it after every step of the terms that override it."""
         return None
 
     def update_lag(self, model) -> bool:

@@ -84,7 +84,6 @@ class RigidObject(Term):
     held_tol = 1e-3      # the tether may carry at most this share of the forces on the object
     step_limit = 0.25    # a Newton step moves no node of the object by more than this share of its size
     bounds_steps = True
-    verdicts = True
     contact: Any = None   # the PieceContact of the pieces (build), and this object's piece in it
     piece = -1
 
