@@ -26,7 +26,7 @@ def _start_up() -> None:
     try:
         with _interrupts.held():
             try:
-                import gmsh  # noqa: F401
+                _interrupts.import_gmsh()
             except ImportError:
                 pass
             from mpi4py import MPI  # noqa: F401

@@ -102,11 +102,10 @@ def _import_gmsh() -> None:
     killing the process without clean-up until the next re-install.
     """
     from ..runtime import interrupts
-    with interrupts.held():
-        try:
-            import gmsh  # noqa: F401
-        except ImportError:
-            pass
+    try:
+        interrupts.import_gmsh()          # with the signals held
+    except ImportError:
+        pass
 
 
 def _internal(exc: BaseException, verbosity: int) -> tuple[int, str, bool]:

@@ -44,7 +44,8 @@ def ensure_gmsh(gmsh) -> None:
 @contextmanager
 def gmsh_model(name: str):
     """A fresh Gmsh model for the duration of the block (this rank only); removed after."""
-    import gmsh
+    from ..runtime.interrupts import import_gmsh
+    gmsh = import_gmsh()
     ensure_gmsh(gmsh)
     with forget_array_types():
         gmsh.model.add(name)

@@ -62,7 +62,8 @@ def check(body_solids, bones, cables, markers, loads, pins, tol: float) -> Check
     if key in _CACHE:
         _CACHE.move_to_end(key)
         return _CACHE[key]
-    import gmsh
+    from ..runtime.interrupts import import_gmsh
+    gmsh = import_gmsh()
 
     from .occ import gmsh_model
     try:
@@ -85,7 +86,8 @@ def common_volume(a, b) -> float:
     key = _key("common", a, b)
     if key in _CACHE:
         return _CACHE[key]
-    import gmsh
+    from ..runtime.interrupts import import_gmsh
+    gmsh = import_gmsh()
 
     from .occ import gmsh_model
     with gmsh_model("skelfem-common"):
@@ -106,7 +108,8 @@ def touching(a, b, tol: float) -> str | None:
         return "overlaps"
     key = _key("touching", a, b)
     if key not in _CACHE:
-        import gmsh
+        from ..runtime.interrupts import import_gmsh
+        gmsh = import_gmsh()
 
         from .occ import gmsh_model
         with gmsh_model("skelfem-touching"):

@@ -40,7 +40,8 @@ def split(design) -> list:
 def _owners(design) -> tuple[dict, dict]:
     """({bone: body}, {cable: body}): bones by their OpenCASCADE volume in each body, cables by their first
     point against the bodies' triangulated surfaces."""
-    import gmsh
+    from ..runtime.interrupts import import_gmsh
+    gmsh = import_gmsh()
 
     from ..design.occ import gmsh_model
     from ..mesh.geometry import add_design_solids

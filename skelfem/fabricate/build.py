@@ -116,7 +116,8 @@ def build_bone(plan: Plan, bone, folder: Path | None = None, pole_axis=Z) -> Par
     volume can be checked against (un-cut volume) + (added) - (removed).
     pole_axis: where balls have their poles (micrometres.py).
     """
-    import gmsh
+    from ..runtime.interrupts import import_gmsh
+    gmsh = import_gmsh()
 
     from ..design.occ import gmsh_model
     from ..mesh.geometry import add_design_solids
@@ -177,7 +178,8 @@ def build_half(plan: Plan, side: str, folder: Path | None = None, pole_axis=Z) -
     """One mould half: its slab of the block minus the body, with pins or pin holes, its pegs and guide
     posts, the tendon exits, the pry slots, the removable rods' holes, the clamp bolts' holes and (top) the
     pour hole and vents. pole_axis: where balls have their poles (micrometres.py)."""
-    import gmsh
+    from ..runtime.interrupts import import_gmsh
+    gmsh = import_gmsh()
 
     from ..design.occ import gmsh_model
     from ..mesh.geometry import add_design_solids

@@ -114,7 +114,8 @@ def check_print(plan: Plan) -> None:
 def build_print(plan: Plan) -> tuple[list[PrintedPart], PrintPose, dict]:
     """Every volume of the print (body first, then the bones in design order), their common print pose
     and the complement check."""
-    import gmsh
+    from ..runtime.interrupts import import_gmsh
+    gmsh = import_gmsh()
 
     from ..design.occ import gmsh_model
     from ..mesh.geometry import add_design_solids

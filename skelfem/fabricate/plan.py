@@ -569,7 +569,8 @@ def plan(design) -> Plan:
 def _probe(design, spec):
     """The design's solids in OCC, meshed coarsely: (scale, body volume, bone volumes, body surface,
     bone surfaces)."""
-    import gmsh
+    from ..runtime.interrupts import import_gmsh
+    gmsh = import_gmsh()
 
     from ..design.occ import gmsh_model
     from ..mesh.geometry import add_design_solids

@@ -314,7 +314,8 @@ def _mesh_design(design, comm=MPI.COMM_WORLD, verbose: bool = False, size=None) 
     Gmsh once per point it places); the design's [mesh] size stays the upper
     bound. Without it the mesh is the design's uniform one.
     """
-    import gmsh
+    from ..runtime.interrupts import import_gmsh
+    gmsh = import_gmsh()
     from dolfinx.io import gmshio
 
     from ..design import resources

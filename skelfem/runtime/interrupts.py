@@ -191,3 +191,37 @@ def critical():
         if not _critical and _pending is not None:
             signum, _pending = _pending, None
             raise Interrupted(signum)
+
+
+_import_lock = threading.Lock()
+
+
+def import_gmsh():
+    """The gmsh module, imported from any thread (every import of gmsh in skelfem goes through here).
+
+    gmsh.py calls signal.signal(SIGINT, SIG_DFL) at import, which Python refuses off the main thread
+    (ValueError): a plan or a mesh made in a worker thread (a notebook's, an editor's) failed there.
+    On the main thread the import runs with the signals held (see :func:`held`); off it, signal.signal
+    answers None without touching anything for the calls made from that thread during the import (the
+    main thread's go through), so gmsh keeps no old handler to restore at finalize and the process's
+    handlers stay as they are.
+    """
+    if "gmsh" in sys.modules:               # imported (or being imported: the import waits for it)
+        import gmsh
+        return gmsh
+    if threading.current_thread() is threading.main_thread():
+        with held():
+            import gmsh
+        return gmsh
+    with _import_lock:
+        real = signal.signal
+        me = threading.get_ident()
+
+        def quiet(signalnum, handler):
+            return None if threading.get_ident() == me else real(signalnum, handler)
+        signal.signal = quiet                   # type: ignore[assignment]
+        try:
+            import gmsh
+        finally:
+            signal.signal = real                # type: ignore[assignment]
+    return gmsh
