@@ -1,17 +1,21 @@
 """Newton's line searches on Pi: the energy (Armijo, admissible steps) and curved (geodesic acceleration) strategies.
+
+``EnergyLineSearch`` is an object the Newton solver holds (skelfem.fem.newton), with a small interface:
+it is given the model (the energy at a trial point, admissibility, the step bound
+``Model.max_step`` and the bones' step correction), the vector SNES writes grad Pi into, and a
+back-substitution with the current Newton matrix (the curved step's acceleration); it owns the
+watchdog's state and the last accepted trial, and reports to Newton what it found
+(``newton_step``, ``decrement_converged``, ``failure``). Nothing else is shared.
 """
 from __future__ import annotations
 
 import logging
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 from mpi4py import MPI
 
-from .linear import LowRankSolver, default_petsc_options  # noqa: F401 (re-exported)
-
 log = logging.getLogger("skelfem")
-
 
 
 C1 = 1e-4          # Armijo constant
@@ -24,32 +28,51 @@ WATCHDOG = 5       # stalled steps of the curved strategy after which, if Pi is 
 WATCHDOG_CLOSE = 0.1   # (docs/model.md: counting only relaxed steps, a block sunk into a floor by one crawled
 #                        450 iterations; counting every step, a finger pushed into a stiff wall by one, on its
 #                        way back in 14, was sent back and crawled monotone)
+ETOL = 1e-15       # Newton decrement -grad Pi . p relative to |Pi| that ends the solve
 
 
-class LineSearch:
-    """The energy line search of the Newton solver (a mixin): SNES's pre-check scales each Newton step so
-    that the trial state is admissible (``Model.max_step``) and lowers the total energy (Armijo
-    backtracking, with a watchdog that lets a few full steps raise it), optionally along a curve."""
+class EnergyLineSearch:
+    """The energy line search of a Newton solve: SNES's pre-check (``precheck``) scales each Newton step
+    so that the trial state is admissible (``Model.max_step``) and lowers the total energy (Armijo
+    backtracking, with a watchdog that lets a few full steps raise it), optionally along a curve.
 
-    # What the host (the NewtonSolver) holds and this mixin reads, named for the type checker.
-    model: Any
-    lin: Any
-    watchdog: int
+    model: the energy at a trial state, its admissibility, the step bound and step correction;
+    gradient: the vector SNES holds grad Pi at its iterate in (also the backtracking's scratch);
+    solve(b, x): x = H^{-1} b with the current Newton matrix (the curved strategy's acceleration).
+    After each ``precheck``, ``newton_step`` is |p| of the undamped Newton step,
+    ``decrement_converged`` whether the Newton decrement reached round-off and ``failure`` why no step
+    was found (None: a step was set)."""
 
-    def _energy_line_search(self, x, y):
+    def __init__(self, model, gradient, solve: Callable[[Any, Any], None], curved: bool = False):
+        self.model, self.gradient, self.solve = model, gradient, solve
+        self.curved = curved
+        self.watchdog = WATCHDOG if curved else 0   # full steps that may raise Pi before it must be below
+        #                                             the reference
+        self.etol = ETOL
+        self.reset()
+
+    def reset(self) -> None:
+        """A new Newton solve (or a changed model): no watchdog reference, no trial to reuse, no outcome."""
+        self.newton_step = np.inf               # |p| of the last undamped Newton step
+        self.decrement_converged = False
+        self.failure: str | None = None
+        self._last_trial: tuple | None = None   # (state, Pi) of the last accepted trial
+        self._watch: dict | None = None         # the watchdog's reference (state, energy, step) while relaxed
+        self._watch_allowed = True
+
+    def precheck(self, x, y) -> bool:
         """SNES pre-check: scale the step -y so that x - y is admissible and lowers Pi
         (or, with the watchdog, take the full step and check the energy a few iterations later)."""
         model = self.model
-        self.lin.forget_blocks()                    # the step is solved; trials and packs need the room
         p = -y.array_r.copy()                       # Newton direction (SNES steps x - y)
-        r = self.b.array_r.copy()                   # grad Pi at x, set by SNES
+        r = self.gradient.array_r.copy()            # grad Pi at x, set by SNES
         x0 = x.array_r.copy()
         slope = float(model.comm.allreduce(r @ p))
         e0 = self._energy_at(x)
-        self._newton_step = float(np.sqrt(model.comm.allreduce(p @ p)))
+        self.newton_step = float(np.sqrt(model.comm.allreduce(p @ p)))
         if 0.0 <= -slope <= self.etol * max(abs(e0), 1e-300):
             # Newton decrement at round-off level: x is the minimiser to machine precision
-            self._decrement_converged = True
+            self.decrement_converged = True
             return self._take(x, y, p, self._max_step(x0, p)) or True
         if slope > 0.0:                             # not a descent direction: turn around
             p, slope = -p, -slope
@@ -84,10 +107,10 @@ class LineSearch:
             if not np.isfinite(e_full) and wd is not None:
                 self._watch, self._watch_allowed = None, False
                 return self._fall_back(x, y, wd)
-        alpha, accepted = self._backtrack(x, x0, p, e0, slope, f0, alpha0, accel=accel)
+        alpha, accepted = self.backtrack(x, x0, p, e0, slope, f0, alpha0, accel=accel)
         model.sync(x)
         if not accepted:
-            self._failure = "line_search_failed"
+            self.failure = "line_search_failed"
             y.set(0.0)
         else:
             self._set_step(y, x0, p, accel, alpha)
@@ -117,13 +140,13 @@ class LineSearch:
         ref = x.duplicate()
         try:
             ref.array_w[:] = wd["x0"]
-            alpha, accepted = self._backtrack(ref, wd["x0"], wd["p"], wd["e0"], wd["slope"], wd["f0"],
+            alpha, accepted = self.backtrack(ref, wd["x0"], wd["p"], wd["e0"], wd["slope"], wd["f0"],
                                               wd["alpha0"], accel=wd["accel"])
         finally:
             ref.destroy()
             model.sync(x)
         if not accepted:
-            self._failure = "line_search_failed"
+            self.failure = "line_search_failed"
             y.set(0.0)
             return True
         y.array_w[:] = x.array_r - self._trial(wd["x0"], wd["p"], wd["accel"], alpha)
@@ -197,14 +220,14 @@ class LineSearch:
                 model.residual(vec, res)
                 d2 = d2 + res.array_r
             res.array_w[:] = d2 / h ** 2
-            self.lin.solve(res, vec)
+            self.solve(res, vec)
             return -vec.array_r.copy()
         finally:
             vec.destroy()
             res.destroy()
             model.sync(x)
 
-    def _backtrack(self, x, x0, p, e0, slope, f0, alpha0=1.0, c1=1e-4, accel=None):
+    def backtrack(self, x, x0, p, e0, slope, f0, alpha0=1.0, c1=C1, accel=None) -> tuple[float, bool]:
         """Armijo backtracking with quadratic interpolation on phi(a) = Pi(x + a p), a <= alpha0
         (along x + a p + a^2 accel / 2 if accel is given).
 
@@ -232,9 +255,9 @@ class LineSearch:
                     return alpha, True
                 if np.isfinite(e) and abs(e - e0) <= noise:
                     trial.array_w[:] = x0 + alpha * p
-                    model.residual(trial, self.b)
-                    better = self.b.norm() < f0
-                    model.residual(x, self.b)
+                    model.residual(trial, self.gradient)
+                    better = self.gradient.norm() < f0
+                    model.residual(x, self.gradient)
                     if better:
                         return alpha, True
                 if np.isfinite(e):

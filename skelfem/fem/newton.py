@@ -37,9 +37,9 @@ from petsc4py import PETSc
 from ..design.spec import ATOL_RELATIVE, ENERGY_LINE_SEARCHES, LINE_SEARCHES as STRATEGIES, force_scale
 from .equilibrium import Equilibrium
 from .report import BUDGET_SPENT, SolveError, SolveReport  # noqa: F401 (SolveError re-exported)
-from .linesearch import WATCHDOG, LineSearch, resolve_strategy
+from .linesearch import EnergyLineSearch, resolve_strategy
 from ..design.resources import direct_limit, stiff_elastic_bones
-from .linear import LowRankSolver, default_petsc_options  # noqa: F401 (re-exported)
+from .linear import LowRankSolver
 from .multigrid import KRYLOV_RTOL, choose_linear, forcing
 from ..terms.base import Term
 
@@ -67,7 +67,7 @@ _REASONS = {
 }
 
 
-class NewtonSolver(LineSearch):
+class NewtonSolver:
     """SNES Newton for one Model; reusable across solves (warm starts)."""
 
     def __init__(self, model, spec=None, petsc_options: dict | None = None, prefix: str = "skelfem_"):
@@ -90,11 +90,8 @@ class NewtonSolver(LineSearch):
         self.xtol = 1e-11             # relative size of a full Newton step that ends the solve
         self.max_cuts = 8
         self.max_verdict_cuts = 0     # a path step that leaves an object unheld is cut this often at most
-        self._newton_step = np.inf    # |p| of the last undamped Newton step
         self.reference_residual = 0.0  # largest first |R| of a solve from rest (the problem's force scale)
         self._loose, self._round_f0 = 0.0, 0.0   # a loose re-solve (see _relag) and its own first |R|
-        self.etol = 1e-15             # Newton decrement -grad Pi . p relative to |Pi| that ends the solve
-        self._decrement_converged = False
         self.linear = choose_linear(spec.linear, model)
         model.embed_border = self.linear == "direct"    # iterative: the rigid border stays outside K
         self.A = model.create_matrix()
@@ -110,12 +107,7 @@ class NewtonSolver(LineSearch):
         self._history: list[float] = []
         self._failure: str | None = None
         self._f0 = 0.0
-        self._last_trial = None       # (state, Pi) of the last accepted line-search trial
-        self.curved = self.strategy == "curved"
-        self.watchdog = WATCHDOG if self.curved else 0   # full steps that may raise Pi before it must
-        #                                                   be below the reference
-        self._watch = None            # the watchdog's reference (state, energy, Newton step) while relaxed
-        self._watch_allowed = True
+        self.search = EnergyLineSearch(model, self.b, self.lin.solve, curved=self.strategy == "curved")
         self._event = False           # the last SNES solve stopped at a contact event (Model.contact_event)
         # time.monotonic() after which a warm re-solve (resolve) stops after its current Newton step, its
         # state kept as a start for the next (status BUDGET_SPENT, not converged); None: no deadline. Only
@@ -166,7 +158,7 @@ class NewtonSolver(LineSearch):
             snes.setType("newtonls")
             options = {"snes_linesearch_type": "bt" if self.strategy == "residual" else "basic", **options}
             if self.energy_search:
-                snes.setLineSearchPreCheck(self._energy_line_search)
+                snes.setLineSearchPreCheck(self._precheck)
         opts = PETSc.Options()
         for key, value in options.items():
             opts[f"{prefix}{key}"] = value
@@ -179,6 +171,11 @@ class NewtonSolver(LineSearch):
         ksp.setType("preonly")
         self.lin.as_pc(ksp.getPC())
         return snes
+
+    def _precheck(self, x: PETSc.Vec, y: PETSc.Vec) -> bool:
+        """SNES's pre-check: the step is solved, so the solver's blocks make room for the line search."""
+        self.lin.forget_blocks()
+        return self.search.precheck(x, y)
 
     def new_matrix(self, A: PETSc.Mat | None = None) -> None:
         """A new Newton matrix (default: the model's; its terms' pattern grew). The old one is destroyed
@@ -198,8 +195,7 @@ class NewtonSolver(LineSearch):
         """Drop what was computed for the model before it changed (Model.refresh): factorisation, trials."""
         self._factorised = False
         self.equilibrium.forget()
-        self._last_trial = None
-        self._watch, self._watch_allowed = None, True
+        self.search.reset()
 
     def destroy(self) -> None:
         self._retire()
@@ -228,12 +224,12 @@ class NewtonSolver(LineSearch):
             return PETSc.SNES.ConvergedReason.DIVERGED_FNORM_NAN
         if fnorm <= max(self.atol, self.rtol * self._f0, self._loose * self._round_f0):
             return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_ABS
-        if self._decrement_converged:
+        if self.search.decrement_converged:
             return PETSc.SNES.ConvergedReason.CONVERGED_FNORM_RELATIVE
-        step = self._newton_step if self.energy_search else ynorm
+        step = self.search.newton_step if self.energy_search else ynorm
         if it > 0 and step <= self.xtol * max(xnorm, self.model.size):
             return PETSc.SNES.ConvergedReason.CONVERGED_SNORM_RELATIVE
-        if self._failure is not None or (it > 0 and self._verdict()):
+        if self.search.failure is not None or self._failure is not None or (it > 0 and self._verdict()):
             return PETSc.SNES.ConvergedReason.DIVERGED_LINE_SEARCH
         if it > 0 and self._stop_at is not None and time.monotonic() >= self._stop_at:
             self._budget_spent = True
@@ -254,10 +250,8 @@ class NewtonSolver(LineSearch):
     # -- solves ---------------------------------------------------------------------------
     def _newton(self) -> tuple[bool, str, int]:
         """Newton from the current state at the current load factor."""
-        self._history, self._failure, self._newton_step = [], None, np.inf
-        self._watch, self._watch_allowed = None, True
-        self._decrement_converged = False
-        self._last_trial = None
+        self._history, self._failure = [], None
+        self.search.reset()
         self._event = False
         self._budget_spent = False
         self.model.u.vector.copy(self.x)
@@ -291,7 +285,8 @@ class NewtonSolver(LineSearch):
             return (False, why, its) if why else (True, "converged", its)
         log.debug("SNES reason %s", reason)
         why = self.model.failure(converged=False)          # e.g. a free object sliding away
-        return False, why or self._failure or _REASONS.get(reason, f"diverged ({reason})"), its
+        why = why or self._failure or self.search.failure
+        return False, why or _REASONS.get(reason, f"diverged ({reason})"), its
 
     def _relag(self, its: int) -> tuple[bool, str, int]:
         """Newton again after each change of the terms' lagged quantities, until none changes."""
@@ -300,8 +295,8 @@ class NewtonSolver(LineSearch):
         loose, failed, rounds, events = LAG_LOOSE, 0, 0, 0
         tight = self._event                     # the round that takes up new contacts is solved fully
         while rounds < MAX_LAG_UPDATES and events < MAX_CONTACT_EVENTS:
-            self._failure, self._newton_step, self._decrement_converged = None, np.inf, False
-            self._watch, self._watch_allowed, self._last_trial = None, True, None
+            self._failure = None
+            self.search.reset()
             self._loose = 0.0 if tight else loose
             try:
                 ok, status, more = self._newton_once()
@@ -349,7 +344,7 @@ class NewtonSolver(LineSearch):
         if reason > 0:
             return True, "converged", self.snes.getIterationNumber()
         why = self.model.failure(converged=False)
-        why = why or self._failure or _REASONS.get(reason, f"diverged ({reason})")
+        why = why or self._failure or self.search.failure or _REASONS.get(reason, f"diverged ({reason})")
         return False, why, self.snes.getIterationNumber()
 
     def _predict(self, prev, a_prev: float, a: float, target: float) -> None:
@@ -364,7 +359,7 @@ class NewtonSolver(LineSearch):
         current = u.copy()
         model.apply_bcs(current)
         model.apply_bcs(guess)
-        reachable = self._max_step(u.array_r, guess.array_r - u.array_r) >= 1.0
+        reachable = model.max_step(u.array_r, guess.array_r - u.array_r) >= 1.0
         if reachable and model.admissible(guess) and (not model.admissible(current)
                                                       or model.energy(guess) < model.energy(current)):
             guess.copy(u)
@@ -500,7 +495,7 @@ class NewtonSolver(LineSearch):
                 return 0.0
             x0 = x.array_r.copy()
             f0 = float(np.sqrt(model.comm.allreduce(r @ r)))
-            alpha, ok = self._backtrack(x, x0, p, model.energy(x), slope, f0, self._max_step(x0, p))
+            alpha, ok = self.search.backtrack(x, x0, p, model.energy(x), slope, f0, model.max_step(x0, p))
             if not ok:
                 return 0.0
             x.array_w[:] = x0 + alpha * p + model.step_correction(x0, p, alpha)
