@@ -92,7 +92,9 @@ def test_a_sharp_bend_gets_a_post_thin_enough_for_the_tolerance():
     import gmsh  # noqa: F401 - imported on the main thread (it sets a signal handler)
     from skelfem import fabricate as fab
     from skelfem.design import load_design
+    # (lig1_palmar moved off the flexor's way into the middle bone: the two lines would cross in the silicone)
     plan = fab.plan(load_design(GEOMETRY / "finger.toml", ["cables.flexor.path=[[3,0],[3,39.5],[11,47]]",
+                                                           "cables.lig1_palmar.path=[[10,34],[10,52]]",
                                                            "fabrication.route_tolerance=0.1"]))
     (post,) = plan.routes["flexor"]["posts"]
     assert post["diameter"] == pytest.approx(1.0) and post["kind"] == "post"

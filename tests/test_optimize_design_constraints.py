@@ -197,3 +197,44 @@ def test_a_grazing_channel_at_the_start_is_refused_at_fabricates_angle(tmp_path,
     assert "constraints.min_entry_angle: the channel of cables.flexor enters bone 'distal' at 17.4 degrees in the " \
            "start design, less than the 30 needed" in err[0], err
     assert not (tmp_path / "out").exists()
+
+
+CROSSED = ["cables.lig1_palmar.path=[[7.5, 34], [12.5, 48]]", "cables.lig1_dorsal.path=[[12.5, 34], [7.5, 48]]"]
+
+
+def test_crossing_cables_break_the_cable_gap_whatever_their_vertices_distances():
+    """Two ligaments crossed as an X: every vertex lies 4.7 mm from the other sketch, so the point-segment
+    distances alone would pass a 2 mm gap; the crossing counts as a negative distance, whose Jacobian is the
+    exact derivative of the signed value while the sketches stay crossed (central differences)."""
+    from skelfem.design.clearances import Clearances, start_points
+    from skelfem.design.parse import load_design
+    d = load_design(FINGER, CROSSED)
+    for constraints, key in (({"min_cable_gap": 2.0}, "min_cable_gap"), ({"min_wall": 3.5}, "cable_apart")):
+        c = Clearances(d, constraints)
+        X = start_points(d)
+        (group, least), *_ = c.worst(X)
+        assert group.key == key and least == pytest.approx(-5.0 * 14.0 / np.hypot(5.0, 14.0)), (group, least)
+        assert "cables 'lig1_palmar' and 'lig1_dorsal'" in group.what and group.shortfall(least).endswith(
+            "cross in the start design")
+        rng = np.random.default_rng(3)
+        X = X + 0.05 * rng.normal(size=X.shape)          # off the X's symmetry, where the four distances tie
+        dX = rng.normal(size=X.shape)
+        exact = np.einsum("mij,ij->m", c.jacobian(X), dX)
+        h = 1e-6
+        fd = (c.values(X + h * dX) - c.values(X - h * dX)) / (2 * h)
+        assert np.abs(fd - exact).max() < 1e-6, np.abs(fd - exact).max()
+    # uncrossed (the same two ligaments side by side, the finger's own), nothing is short
+    assert Clearances(_design(), {"min_cable_gap": 2.0}).worst(start_points(_design())) == []
+
+
+@pytest.mark.parametrize("constraints, message", [
+    ("min_cable_gap = 2.0", "constraints.min_cable_gap: cables 'lig1_palmar' and 'lig1_dorsal' cross in the start "
+                            "design"),
+    ("min_wall = 3.5", "constraints.fabrication: cables 'lig1_palmar' and 'lig1_dorsal' (their holes' radii + "
+                       "fabrication.min_wall) cross in the start design"),
+])
+def test_a_start_with_crossing_cables_is_one_error_line(tmp_path, capsys, constraints, message):
+    rc = _run(tmp_path, PUSH.replace("min_wall = 3.5", constraints), "out", *[a for o in CROSSED for a in ("--set", o)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and len(err) == 1 and message in err[0], err
+    assert not (tmp_path / "out").exists()

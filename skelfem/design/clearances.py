@@ -7,16 +7,19 @@
 ``min_cable_wall``     silicone between every cable sketch vertex that lies in the silicone (not on
                        the outline, not in a bone) and the body's outline, holes and bones (mm): a
                        channel's way into a bone neither grazes it nor runs along under its side
-``min_cable_gap``      between the sketches of any two cables (mm): where both run in a bone,
-                       ``skelfem fabricate`` needs their holes' radii + ``fabrication.min_wall``
-                       (``cable_gap_floor``), and a smaller value is refused
+``min_cable_gap``      between the sketches of any two cables (mm), which must not cross: where both
+                       run in a bone, ``skelfem fabricate`` needs their holes' radii +
+                       ``fabrication.min_wall`` (``cable_gap_floor``), and a smaller value is refused
 ``min_entry_angle``    a tendon's channel into a bone (its last segment) crosses the bone's edge
                        at this angle or more (degrees; fabricate sheathes a channel below 30) and
                        keeps its radius + ``fabrication.min_wall`` from the bone's corners
 (always, with any)     every cable end in a bone keeps its hole's radius (a ligament's
                        ``fabrication.anchor_diameter / 2``, a tendon's ``channel_diameter / 2``) +
                        ``fabrication.min_wall`` from the bone's outline: the wall ``skelfem
-                       fabricate`` demands round an anchor hole or a channel's end
+                       fabricate`` demands round an anchor hole or a channel's end; and, without
+                       ``min_cable_gap``, any two cables' sketches do not cross and keep their radii
+                       + ``fabrication.min_wall`` apart (``cable_apart``: ``skelfem fabricate``'s rule
+                       for two cables, in a bone or in the silicone)
 =====================  ==========================================================================
 
 Each is a set of distances d(x, [a, b]) − need ≥ 0 between a point and a segment: for two
@@ -26,6 +29,14 @@ distance to a convex set, continuously differentiable wherever it is not zero: w
 the nearest point and n = (x − c) / d, dd/dx = n, dd/da = −(1 − t) n, dd/db = −t n. So every
 constraint is C¹ in the points, and through the design handles' exact velocities in the design
 variables (skelfem.analysis.design_optimize).
+
+Two cables' sketches that cross would pass those distances (the vertices may all lie far from the
+other sketch). Where a segment of one crosses a segment of the other, the least of the four
+end-to-segment distances of the pair counts as negative, −d: the depth by which the nearest end
+would have to move to undo the crossing, a signed distance that is continuous where the crossing
+ends (d = 0 there) and whose gradient is −n. Continuous moves that keep d − need ≥ 0 can never
+make two sketches cross (an end would have to pass through the other segment); the sign catches a
+start design or an optimiser's trial step that jumped across.
 
 The points are those of ``points_of``: the body's loops and the bones' outlines (the order of
 ``Design.body_loops`` then ``Design.bones``), then every cable's sketch. Numpy only: the task is
@@ -43,6 +54,7 @@ from . import polygons as poly_tools
 KEYS = ("min_wall", "min_gap", "min_cable_wall", "min_cable_gap", "min_entry_angle")
 ANGLES = ("min_entry_angle",)  # degrees; the other keys are lengths (mm)
 ANCHOR = "end_wall"            # the wall skelfem fabricate demands round a cable end's hole in a bone
+APART = "cable_apart"          # skelfem fabricate's rule for two cables: no crossing, radii + min_wall apart
 CORNERS = "entry_corners"      # min_entry_angle's channel kept off the corners of the bone it enters
 GRAZING_ANGLE = 30.0           # degrees: below it skelfem fabricate sheathes a channel (its GRAZING = sin 30)
 
@@ -58,12 +70,14 @@ class Group:
         if self.key in ANGLES:
             angle, need = (math.degrees(math.asin(min(max(v, -1.0), 1.0))) for v in (least, self.need))
             return f"{self.what} at {angle:.3g} degrees in the start design, less than the {need:.3g} needed"
+        if least < 0.0:
+            return f"{self.what} cross in the start design"
         return f"{self.what} are {least:.3g} mm apart in the start design, less than the {self.need:g} mm needed"
 
     @property
     def asked_by(self) -> str:
         """The [constraints] key that asks for this group (fabrication: any key asks for the end walls)."""
-        return {ANCHOR: "fabrication", CORNERS: "min_entry_angle"}.get(self.key, self.key)
+        return {ANCHOR: "fabrication", APART: "fabrication", CORNERS: "min_entry_angle"}.get(self.key, self.key)
 
 
 def points_of(polys, paths) -> np.ndarray:
@@ -97,6 +111,7 @@ class Clearances:
         self.groups: list[Group] = []
         rows: list[tuple] = []              # (point, a, b, group): d(point, [a, b]) >= need
         entries: list[tuple] = []           # (a, b, c, d, sign, group): sign sin(b - a, d - c) >= need
+        crossings: list[tuple] = []         # two cables' segments (p, q, a, b) and their four rows
 
         def polygon_pair(i_a, i_b, group):
             for P, Q in ((i_a, i_b), (i_b, i_a)):
@@ -105,10 +120,18 @@ class Clearances:
                         rows.append((x, a, b, group))
 
         def polyline_pair(i_a, i_b, group):
+            first = len(rows)
             for P, Q in ((i_a, i_b), (i_b, i_a)):
                 for x in P:
                     for a, b in zip(Q[:-1], Q[1:]):
                         rows.append((x, a, b, group))
+            na, nb = len(i_a), len(i_b)           # row of (vertex v of A, segment j of B), then (B's v, A's j)
+            for i in range(na - 1):
+                for j in range(nb - 1):
+                    crossings.append((i_a[i], i_a[i + 1], i_b[j], i_b[j + 1],
+                                      first + i * (nb - 1) + j, first + (i + 1) * (nb - 1) + j,
+                                      first + na * (nb - 1) + j * (na - 1) + i,
+                                      first + na * (nb - 1) + (j + 1) * (na - 1) + i))
 
         def add(key, what, need, pairs_of):
             self.groups.append(Group(key, what, float(need)))
@@ -142,11 +165,18 @@ class Clearances:
                     add("min_cable_gap", f"cables {design.cables[i].name!r} and {design.cables[j].name!r}",
                         constraints["min_cable_gap"],
                         lambda g, i=i, j=j: polyline_pair(path_idx[i], path_idx[j], g))
+        elif constraints:
+            for j, b in enumerate(design.cables):
+                for i, a in enumerate(design.cables[:j]):
+                    add(APART, f"cables {a.name!r} and {b.name!r} (their holes' radii + fabrication.min_wall)",
+                        _radius(design, a) + _radius(design, b) + design.fabrication.min_wall,
+                        lambda g, i=i, j=j: polyline_pair(path_idx[i], path_idx[j], g))
         if constraints:
             self._end_walls(design, constraints, (paths, bones, path_idx, bone_idx), tol, add, rows, entries)
         table = np.array(rows, dtype=int).reshape(-1, 4)
         self.point, self.a, self.b, group = table.T
         self.entries = np.array(entries, dtype=int).reshape(-1, 6)
+        self.crossings = np.array(crossings, dtype=int).reshape(-1, 8)
         self.group = np.concatenate([group, self.entries[:, 5]])
         self.need = np.array([self.groups[g].need for g in self.group])
 
@@ -195,12 +225,21 @@ class Clearances:
         return len(self.group)
 
     def _nearest(self, X):
+        """(t, r, signed d) of every point-segment row: d < 0 on the row that measures how deep two crossing
+        cable segments cross (the least of their four)."""
         x, a, b = X[self.point], X[self.a], X[self.b]
         e = b - a
         ee = np.einsum("ij,ij->i", e, e)
         t = np.clip(np.einsum("ij,ij->i", x - a, e) / np.where(ee > 0, ee, 1.0), 0.0, 1.0)
         r = x - (a + t[:, None] * e)
-        return t, r, np.linalg.norm(r, axis=1)
+        d = np.linalg.norm(r, axis=1)
+        if len(self.crossings):
+            p, q, c, f = (X[self.crossings[:, k]] for k in range(4))
+            crossed = _proper_crossing(p, q, c, f)
+            four = self.crossings[crossed, 4:]
+            deepest = four[np.arange(len(four)), np.argmin(d[four], axis=1)]
+            d[deepest] = -d[deepest]
+        return t, r, d
 
     def _sines(self, X):
         a, b, c, d, sign = (self.entries[:, i] for i in range(5))
@@ -223,7 +262,7 @@ class Clearances:
         """d(values)/dX, (constraints, points, 2)."""
         X = np.asarray(X, dtype=float)
         t, r, d = self._nearest(X)
-        n = r / np.maximum(d, 1e-300)[:, None]
+        n = np.where(d < 0, -1.0, 1.0)[:, None] * r / np.maximum(np.abs(d), 1e-300)[:, None]
         J = np.zeros((len(self), len(X), 2))
         rows = np.arange(len(self.point))
         np.add.at(J, (rows, self.point), n)
@@ -271,12 +310,25 @@ def _entry_edge(bone: np.ndarray, outside: np.ndarray, end: np.ndarray, tol: flo
     return k, (1 if u[0] * v[1] - u[1] * v[0] > 0 else -1)
 
 
+def _proper_crossing(p, q, a, b) -> np.ndarray:
+    """Whether segments p->q and a->b (rows of (n, 2) arrays) cross, each's ends strictly on either side of
+    the other's line (touching is d = 0 on a row already)."""
+    def side(o, u, w):
+        return (u[:, 0] - o[:, 0]) * (w[:, 1] - o[:, 1]) - (u[:, 1] - o[:, 1]) * (w[:, 0] - o[:, 0])
+    return (side(p, q, a) * side(p, q, b) < 0.0) & (side(a, b, p) * side(a, b, q) < 0.0)
+
+
+def _radius(design, cable) -> float:
+    """The radius of a cable's hole in a bone (skelfem fabricate's): a ligament's anchor hole, a tendon's channel."""
+    spec = design.fabrication
+    return (spec.anchor_diameter if cable.kind == "ligament" else spec.channel_diameter) / 2
+
+
 def cable_gap_floor(design) -> float:
     """The least min_cable_gap that keeps ``skelfem fabricate``'s rule for two cables' holes in one bone:
     the two largest holes' radii + fabrication.min_wall."""
     spec = design.fabrication
-    radii = sorted((spec.anchor_diameter if c.kind == "ligament" else spec.channel_diameter) / 2
-                   for c in design.cables)
+    radii = sorted(_radius(design, c) for c in design.cables)
     return sum(radii[-2:]) + spec.min_wall if len(radii) > 1 else 0.0
 
 

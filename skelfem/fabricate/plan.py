@@ -41,7 +41,7 @@ import numpy as np
 from .meshing import generate_surface_mesh, triangle_surface
 from .parts import Frame, Plan, Tool, cable_points, where_text
 from . import casting
-from .routes import RouteHolder
+from .routes import RouteHolder, check_apart
 from .sheaths import sheath
 from .surfaces import (FabricationError, GRAZING, PROBE_CURVATURE, Surface, face_distances, inside,
                        point_triangle_distance, ray_hits)
@@ -531,7 +531,9 @@ def plan(design) -> Plan:
     planner.block()
     bone_tools = planner.route()
     pegs = planner.pegs(bone_tools)
-    posts, routes = RouteHolder(design, spec, planner.frame, body, bones, scale).hold(pegs)
+    holder = RouteHolder(design, spec, planner.frame, body, bones, scale)
+    posts, routes = holder.hold(pegs)
+    check_apart(holder)
     openings, flow, notes = casting.openings(planner, pegs + posts)
     flow["air_under_bones"], more = casting.ceilings(planner)
     flow["undercut"], most = casting.undercuts(planner)

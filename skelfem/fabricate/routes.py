@@ -267,5 +267,48 @@ class RouteHolder:
                    for t in pegs)
 
 
+def segment_pair_distance(p0, p1, q0, q1) -> tuple[np.ndarray, np.ndarray]:
+    """(distance, the point midway between the nearest points) of segments p0-p1 and q0-q1, rows of (n, 3)
+    arrays: exact (the nearest points by Ericson's clamped solve; segments of positive length)."""
+    d1, d2, r = p1 - p0, q1 - q0, p0 - q0
+    a, e = np.einsum("ij,ij->i", d1, d1), np.einsum("ij,ij->i", d2, d2)
+    b, c, f = np.einsum("ij,ij->i", d1, d2), np.einsum("ij,ij->i", d1, r), np.einsum("ij,ij->i", d2, r)
+    den = a * e - b * b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(den > 1e-12 * a * e, np.clip((b * f - c * e) / den, 0.0, 1.0), 0.0)
+        t = (b * s + f) / e
+        s = np.where(t < 0.0, np.clip(-c / a, 0.0, 1.0), np.where(t > 1.0, np.clip((b - c) / a, 0.0, 1.0), s))
+    t = np.clip(t, 0.0, 1.0)
+    x, y = p0 + s[:, None] * d1, q0 + t[:, None] * d2
+    return np.linalg.norm(x - y, axis=1), 0.5 * (x + y)
+
+
+def check_apart(holder: RouteHolder) -> None:
+    """Two cables' lines in the silicone neither cross nor come closer than their radii + fabrication.min_wall
+    (the rule for their channels and holes in one bone, and for a guide post beside a cable); FabricationError
+    naming the cable and where. Pieces in bones are left to the bones' own check (a ligament's sketch in its
+    bone is no channel: only its anchor hole is)."""
+    spec = holder.spec
+    lines = []
+    for cable in holder.design.cables:
+        p = holder.points(cable)
+        free = ~holder.in_bone(0.5 * (p[:-1] + p[1:]))
+        lines.append((cable, p[:-1][free], p[1:][free]))
+    for j, (b, b0, b1) in enumerate(lines):
+        for a, a0, a1 in lines[:j]:
+            if not len(a0) or not len(b0):
+                continue
+            i, k = (m.ravel() for m in np.meshgrid(np.arange(len(b0)), np.arange(len(a0)), indexing="ij"))
+            d, at = segment_pair_distance(b0[i], b1[i], a0[k], a1[k])
+            need = cable_radius(spec, a) + cable_radius(spec, b) + spec.min_wall
+            worst = int(np.argmin(d))
+            if d[worst] < need - holder.tol:
+                how = "crosses" if d[worst] <= holder.tol else f"comes within {d[worst]:.2f} mm of"
+                raise FabricationError(f"cables.{b.name}.path",
+                                       f"its line in the silicone {how} the line of {a.name!r} near "
+                                       f"{where_text(at[worst])} (their radii + fabrication.min_wall: axes {need:g} "
+                                       "mm apart are needed)")
+
+
 def _plain(x) -> list:
     return [round(float(v), 6) for v in np.ravel(x)]
