@@ -80,7 +80,7 @@ def solve_case(ratio: float, contraction: float, strategy: str, steps: int, size
 
     session = Session(parse_design(finger_dict(ratio, contraction, strategy, steps, size), "finger.toml"))
     if steps == 1:
-        session.solver.max_cuts = 0
+        session.solver.stepper.max_cuts = 0
     t0 = time.perf_counter()
     try:
         result = session.solve(steps)

@@ -75,7 +75,7 @@ def test_tendon_bends_strip_into_beam_theory_arc(strip_design):
 def test_failed_solve_reports_status_and_keeps_last_equilibrium(strip_design):
     d = variant(strip_design(size=3.0, contraction=3.0, k=20.0), **{"solver.max_iterations": 1})
     s = Session(d)
-    s.solver.max_cuts = 1
+    s.solver.stepper.max_cuts = 1
     result = s.solve(1)
     assert not result.converged
     assert result.status == "max_iterations" == result.report.status

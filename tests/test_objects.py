@@ -272,12 +272,12 @@ def test_a_failed_warm_re_solve_cuts_the_change_from_the_last_equilibrium():
             s.set({"gravity.acceleration": [0.0, -G]})
             if fail_first:                    # the warm attempt gives up at once, as a hard one would
                 calls = []
-                real = NewtonSolver._newton
+                real = NewtonSolver.attempt
 
-                def newton(solver, calls=calls, real=real):
+                def newton(solver, calls=calls, real=real, **kw):
                     calls.append(1)
-                    return (False, "max_iterations", 0) if len(calls) == 1 else real(solver)
-                s.solver._newton = lambda: newton(s.solver)
+                    return (False, "max_iterations", 0) if len(calls) == 1 else real(solver, **kw)
+                s.solver.attempt = lambda **kw: newton(s.solver, **kw)
             r = s.solve()
             assert r.converged, r.status
             out[fail_first] = (r, r.to_dict()["objects"]["box"]["position"])
@@ -293,6 +293,7 @@ def test_a_failed_attempt_leaves_no_anchors_or_slips_behind():
     then failed is taken back whole: the parameter path starts from the last equilibrium's friction
     history, not from the failed attempt's (a retry that started from it held a cube past its
     friction limit)."""
+    from skelfem.fem.loadstep import LoadStepper
     from skelfem.fem.newton import NewtonSolver
     d = _base([_box(2, 10.5, 8, 13.5)], contact={"dhat": 0.2, "friction": 0.5})
     th = math.radians(15.0)
@@ -301,18 +302,18 @@ def test_a_failed_attempt_leaves_no_anchors_or_slips_behind():
         committed = s.model.history()
         s.set({"gravity.acceleration": [G * math.sin(th), -G * math.cos(th)]})
         calls, seen = [], []
-        real_newton, real_path = NewtonSolver._newton, NewtonSolver.path
+        real_newton, real_path = NewtonSolver.attempt, LoadStepper.path
 
-        def newton(solver):
+        def newton(solver, **kw):
             calls.append(1)
-            ok, status, its = real_newton(solver)          # it runs (and changes the history) ...
+            ok, status, its = real_newton(solver, **kw)    # it runs (and changes the history) ...
             return (False, "max_iterations", its) if len(calls) == 1 else (ok, status, its)   # ... then fails
 
-        def path(solver, *args, **kw):
+        def path(stepper, *args, **kw):
             seen.append(s.model.history())
-            return real_path(solver, *args, **kw)
-        s.solver._newton = lambda: newton(s.solver)
-        s.solver.path = lambda *a, **k: path(s.solver, *a, **k)
+            return real_path(stepper, *args, **kw)
+        s.solver.attempt = lambda **kw: newton(s.solver, **kw)
+        s.solver.stepper.path = lambda *a, **k: path(s.solver.stepper, *a, **k)
         r = s.solve()
         assert r.converged, r.status
     (at_path,) = seen

@@ -80,12 +80,12 @@ def body_extent(model) -> float:
 @contextlib.contextmanager
 def _no_cuts(solver):
     """A failed warm-started solve is reported, not retried from a lower load factor."""
-    saved = solver.max_cuts
-    solver.max_cuts = 0
+    saved = solver.stepper.max_cuts
+    solver.stepper.max_cuts = 0
     try:
         yield
     finally:
-        solver.max_cuts = saved
+        solver.stepper.max_cuts = saved
 
 
 class SoftIK:

@@ -25,7 +25,7 @@ ligaments are never actuated.
 
 A draft has a frame budget (``frame_budget``, FRAME_SECONDS): Newton stops
 after the first step that ends past it, on models without path dependence
-(NewtonSolver.deadline), and the answer is that state, ``converged`` false,
+(LoadStepper.deadline), and the answer is that state, ``converged`` false,
 status ``frame_budget``, with its mesh. The same design asked again goes on
 from there ("go on"); the next design starts from it (``set`` with the tangent
 predictor, or moved nodes). A request without ``draft`` is always solved to
@@ -234,11 +234,11 @@ class Engine:
         # frames of one design go on until converged, or failed: past the solver's own iteration limit the
         # next is solved to the end (a Newton that never converges is not asked again for ever)
         budget = draft and self.frame_budget is not None and self.preview_steps < solver.max_iterations
-        solver.deadline = start + self.frame_budget if budget else None
+        solver.stepper.deadline = start + self.frame_budget if budget else None
         try:
             result = self.session.solve()
         finally:
-            solver.deadline = None
+            solver.stepper.deadline = None
         return self._answer(result, t0, how)
 
     def _edit(self, d, draft: bool) -> str:

@@ -75,9 +75,8 @@ import scipy.sparse as sp
 from petsc4py import PETSc
 
 from .lowrank import Border, columns, dense, sparse_dots, sparse_product
-from .multigrid import (GMRES_CYCLES, KRYLOV_RTOL, LOOSE_STEP, REBUILD_RATIO, Coarse, default_petsc_options,
-                        iterative_petsc_options, krylov_solve, near_nullspace, options_held,
-                        two_level_petsc_options)
+from .multigrid import GMRES_CYCLES, KRYLOV_RTOL, LOOSE_STEP, REBUILD_RATIO, Coarse, krylov_solve, near_nullspace
+from .options import default_petsc_options, iterative_petsc_options, options_held, two_level_petsc_options
 
 
 class LowRankSolver:

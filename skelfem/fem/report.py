@@ -4,7 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 
-BUDGET_SPENT = "frame_budget"   # status of a warm re-solve stopped at its deadline (NewtonSolver.deadline)
+BUDGET_SPENT = "frame_budget"   # status of a warm re-solve stopped at its deadline (LoadStepper.deadline)
 
 
 class SolveError(RuntimeError):

@@ -419,7 +419,7 @@ def measure(model, solver, steps: int, repeats: int, options: dict) -> dict:
 def bench_size(path, size: float, degree: int | None = None, overrides=(), repeats: int = 3,
                petsc_options: dict | None = None, steps: int | None = None) -> dict:
     """Every measurement for one mesh size; returns one row of the table."""
-    from ..fem.linear import default_petsc_options
+    from ..fem.options import default_petsc_options
     from ..session import Session
 
     sets = [*overrides, f"mesh.size={size}"] + ([f"mesh.degree={degree}"] if degree else [])
