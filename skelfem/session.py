@@ -256,6 +256,8 @@ class Session:
         from .mesh.geometry import region_names
         from .mesh.morph import Morph, same_polygons
         meshed = self._meshed
+        if design.dim == 3:
+            return self._same_mesh3d(design, morph)
         if (self.comm.size != 1 or design.dim != 2 or self.model is None
                 or float(design.mesh.size) != float(meshed.mesh.size)
                 or int(design.mesh.degree) != int(self.design.mesh.degree)):
@@ -270,13 +272,31 @@ class Session:
             self._morph = Morph(self.model.tm, meshed)
         return self._morph.moved(design)
 
+    def _same_mesh3d(self, design, morph: bool) -> np.ndarray | None:
+        """_same_mesh for a 3D design: the solids as meshed, the bones' poses moved (skelfem.mesh.morph3d)."""
+        from .mesh.geometry import region_names
+        from .mesh.morph3d import Morph3D, same_poses, shape_key
+        meshed = self._meshed
+        if (self.comm.size != 1 or self.model is None or meshed.dim != 3
+                or float(design.mesh.size) != float(meshed.mesh.size)
+                or int(design.mesh.degree) != int(self.design.mesh.degree)
+                or region_names(design) != region_names(meshed) or shape_key(design) != shape_key(meshed)):
+            return None
+        if not morph:
+            if not same_poses(design, meshed):
+                return None
+            return self._morph.X0 if self._morph is not None else self.model.mesh.geometry.x[:, :3].copy()
+        if self._morph is None:
+            self._morph = Morph3D(self.model.tm, meshed)
+        return self._morph.moved(design)
+
     def _move_mesh(self, design, x: np.ndarray) -> None:
         """The model for design on the current mesh with node coordinates x; u carries over as is.
 
         The model follows in place when it can (Model.refresh: compiled forms,
         matrix and factorisation kept); otherwise it is built anew on the mesh.
         """
-        old_design, old_x = self.design, self.model.mesh.geometry.x[:, :2].copy()
+        old_design, old_x = self.design, self.model.mesh.geometry.x[:, :x.shape[1]].copy()
         u = self.model.u.x.array.copy() if self.solved else None
         if self._morph is not None:     # else the nodes are where Gmsh put them, and x is that
             self._morph.apply(x)

@@ -330,7 +330,7 @@ def test_bad_names_are_422_and_the_editor_goes_on(ed, design, name):
     assert request(ed, "POST", "/api/solve", design)[0] == 200
 
 
-# == 7. 3D designs are not saved by the editor ==========================================================
+# == 7. 3D designs are saved by the editor, never a design of the other dimension over them ============
 class _FakeEngine:
     def __init__(self, d):
         self.d = d
@@ -344,9 +344,12 @@ class _FakeEngine:
         return self.d
 
 
-@pytest.mark.parametrize("posted", ["3d", "2d"])
-def test_saving_over_a_3d_design_is_refused(tmp_path, posted):
-    # before: /api/save rewrote the read-only 3D design through the 2D writer
+def test_a_3d_design_saves_with_its_pose_and_a_2d_one_over_it_is_refused(tmp_path):
+    # before: /api/save refused every 3D design (the editor showed them read-only); now the editor edits
+    # 3D designs and writes them back, comments kept, and refuses a 2D design over a 3D file (one design
+    # per server, and its file keeps its dimension)
+    import tomllib
+
     from _hardening import box3d
     from skelfem.design.parse import parse_design
     from skelfem.editor.savefile import SaveError
@@ -358,9 +361,17 @@ def test_saving_over_a_3d_design_is_refused(tmp_path, posted):
     ed.path, ed.folder = path, tmp_path
     ed.engine = _FakeEngine(parse_design(box3d(), "block.toml"))
     with pytest.raises(SaveError) as e:
-        ed.save(box3d() if posted == "3d" else strip2d(), None, False)
+        ed.save(strip2d(), None, False)
     assert e.value.status == 422 and "3D" in e.value.message
     assert path.read_text() == text and listing(tmp_path) == ["block.toml"]
+    moved = box3d()
+    moved["bones"][1]["move"] = [0.25, 0.0, 0.5]
+    moved["bones"][1]["rotate"] = {"angle": 3.5, "axis": [0.0, 1.0, 0.0], "centre": [5.0, 5.0, 29.0]}
+    ed.save(moved, None, False)
+    written = path.read_text()
+    assert written.startswith("# a hand-written 3D design\n") and tomllib.loads(written) == moved
+    assert listing(tmp_path) == ["block.toml"]                    # written in place (atomic: no leftovers)
+    assert parse_design(tomllib.loads(written), "block.toml").bones[1].pose["angle"] == 3.5
 
 
 # == 6. connections: header timeout, idle sockets, binary frames, malformed HTTP ========================

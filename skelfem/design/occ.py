@@ -83,8 +83,15 @@ def add_polygon(occ, points) -> int:
 
 
 def add_solid(occ, primitive: dict) -> int:
-    """OCC volume from one 3D primitive of the design format; returns its tag."""
+    """OCC volume from one 3D primitive of the design format (placed by its "pose", if any); returns its tag."""
+    from .pose import apply
     (kind, p), = primitive.items()
+    tag = _add_primitive(occ, kind, p)
+    apply(occ, tag, p.get("pose"))
+    return tag
+
+
+def _add_primitive(occ, kind: str, p: dict) -> int:
     if kind == "box":
         lo, hi = np.asarray(p["min"], float), np.asarray(p["max"], float)
         return occ.addBox(*lo, *(hi - lo))

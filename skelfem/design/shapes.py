@@ -8,6 +8,7 @@ import numpy as np
 
 from . import polygons
 from .spec import Body, Bone, DesignError, MAX_COORDINATE, MAX_NAME, Material, PRIMITIVES
+from .pose import MAX_ANGLE as POSE_MAX_ANGLE
 from .table import MATERIAL_PAIR, Table, convert_value, entry_name, memoised, positive
 
 
@@ -296,6 +297,30 @@ def _extent(data: dict) -> float:
         return 1.0
 
 
+def read_pose(t: Table) -> dict | None:
+    """A 3D bone's ``move`` and ``rotate`` as a pose dict, or None when it has neither."""
+    move = t.take("move", "vector", None, dim=3) if t.has("move") else None
+    angle, centre, axis = 0.0, None, None
+    if t.has("rotate"):
+        r = Table(t.take("rotate", "table"), t.key("rotate"), t.source)
+        angle = float(r.take("angle", "number"))
+        if abs(angle) > POSE_MAX_ANGLE:
+            r.fail("angle", f"must lie within +-{POSE_MAX_ANGLE:g} degrees, got {angle:g}")
+        if not r.has("centre"):
+            r.fail("centre", "missing: a bone turns about a centre (a point)")
+        centre = r.take("centre", "point", dim=3)
+        axis = r.take("axis", "vector", dim=3)
+        if not np.linalg.norm(axis) > 0:
+            r.fail("axis", "must not be zero")
+        axis = axis / np.linalg.norm(axis)
+        r.done()
+    if move is None and centre is None:
+        return None
+    return {"angle": angle, "axis": axis if axis is not None else np.array([0.0, 0.0, 1.0]),
+            "centre": centre if centre is not None else np.zeros(3),
+            "move": move if move is not None else np.zeros(3)}
+
+
 def read_bones(top: Table, dim: int, materials: dict, tol, body_tables: list) -> tuple:
     """[[bones]]; in 2D each lies strictly inside one body (body_tables: [(table, region)] per body)."""
     bones, tables = [], []
@@ -304,7 +329,9 @@ def read_bones(top: Table, dim: int, materials: dict, tol, body_tables: list) ->
         material = _material_ref(t, materials)
         rigid = t.take("rigid", "bool", False)
         if dim == 3:
-            bones.append(Bone(name, material, solids=read_solids(t, dim, tol), rigid=rigid))
+            from .pose import placed
+            pose = read_pose(t)
+            bones.append(Bone(name, material, solids=placed(read_solids(t, dim, tol), pose), rigid=rigid, pose=pose))
             t.done()
             continue
         outline = _polygon(t, "outline", t.take("outline", "points", dim=2), tol)

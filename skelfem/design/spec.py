@@ -63,6 +63,7 @@ class Bone:
     outline: np.ndarray | None = None
     solids: tuple = ()
     rigid: bool = False   # a rigid body: its nodes follow 3 (2D) / 6 (3D) rigid DOFs, its cells carry no energy
+    pose: dict | None = None   # 3D: move and rotate of its solids (skelfem.design.pose), None if none
 
 
 @dataclass(frozen=True, eq=False)

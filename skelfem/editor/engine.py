@@ -143,6 +143,8 @@ class Engine:
         self.preview = False                  # the state is a draft frame stopped at its budget (not converged)
         self.preview_steps = 0                # Newton steps of the frames since the last converged state
         self.initial = d                      # recovery's last resort: the design the editor started with
+        from .frames3d import StaleFrames
+        self.frames3d = StaleFrames()                    # a 3D drag's frames: the held factorisation reused
         self.first = self._answer(self.session.solve(), time.perf_counter(), "built")
 
     # -- designs ----------------------------------------------------------------------------------
@@ -181,6 +183,7 @@ class Engine:
         payload["certificate"] = self.certificate(result.converged)
         payload["editor"] = {"how": how, "draft": self.draft, "mesh_size": float(self.session.design.mesh.size),
                              "seconds": round(time.perf_counter() - t0, 4)}
+        self.frames3d.note(self.session, result)
         if result.converged:
             self.answer, self.good = payload, self.session.design
         return payload
@@ -215,7 +218,7 @@ class Engine:
         d = self.parse(design)
         self.ensure()
         flat = flatten(d.raw)
-        draft = bool(draft) and d.dim == 2
+        draft = bool(draft)
         kept = draft or not self.draft              # a request not a draft re-meshes moved nodes (a release)
         if flat == self.flat and kept and self.session.solved:
             if not self.preview and self.answer is not None:
@@ -231,6 +234,10 @@ class Engine:
                 self.draft = draft
             self.flat = flat
         solver = self.session.solver
+        if draft and d.dim == 3 and self.frame_budget is not None and self.preview_steps < solver.max_iterations:
+            frame = self.frames3d.frame(self.session, start + self.frame_budget)   # 3D: no new factorisation
+            if frame is not None and frame.newton_iterations:
+                return self._answer(frame, t0, how)
         # frames of one design go on until converged, or failed: past the solver's own iteration limit the
         # next is solved to the end (a Newton that never converges is not asked again for ever)
         budget = draft and self.frame_budget is not None and self.preview_steps < solver.max_iterations

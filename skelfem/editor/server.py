@@ -383,9 +383,9 @@ class Editor:
         from ..io.files import write_text
         from .savefile import SaveError, render, target
         d = self.engine.parse(design, budget=False)      # saving needs no solve
-        if d.dim != 2 or self.engine.design.dim != 2:
-            raise SaveError(f"{self.path.name}: the editor shows 3D designs read-only and cannot write them "
-                            "back faithfully; edit the TOML file instead", 422)
+        if d.dim != self.engine.design.dim:              # one design per server: its file keeps its dimension
+            raise SaveError(f"{self.path.name}: dim: the editor holds a {self.engine.design.dim}D design and "
+                            f"cannot write a {d.dim}D one over it; edit the TOML file instead", 422)
         path = target(self.folder, self.path, name)
         if name is not None and path.exists() and path != self.path and not overwrite:
             raise SaveError(f"{path.name} exists; save with overwrite to replace it", 409)
