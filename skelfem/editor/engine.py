@@ -28,8 +28,16 @@ after the first step that ends past it, on models without path dependence
 (LoadStepper.deadline), and the answer is that state, ``converged`` false,
 status ``frame_budget``, with its mesh. The same design asked again goes on
 from there ("go on"); the next design starts from it (``set`` with the tangent
-predictor, or moved nodes). A request without ``draft`` is always solved to
-the end.
+predictor, or moved nodes). A request without ``draft`` is solved to the
+end, unless it asks for frames (``framed``: the page's release of a drag: the new
+mesh, then Newton within the same budget, and the page asks again until it is
+converged).
+
+What goes back: the mesh's cells, regions and rest nodes only when the
+client does not hold them already (``have``: the ``topology`` key of the
+last mesh it got; the same mesh with moved nodes keeps its key), and the
+per-cell fields only when asked (``fields``): a frame of a drag then carries
+the deformed nodes, cables, markers and objects only.
 
 Every answer carries a ``certificate``: the residual |R| of the state shown,
 the tolerance a batch solve (``skelfem simulate``) of the design holds its
@@ -46,10 +54,12 @@ worker's) calls it.
 from __future__ import annotations
 
 import copy
+import json
 import logging
 import math
 import re
 import time
+import weakref
 
 import numpy as np
 
@@ -62,7 +72,7 @@ log = logging.getLogger("skelfem")
 # A draft's Newton steps (a handle being dragged, draft=True) stop after the first one that ends this long after
 # the request began (at least one step): the frame is sent as a "preview", and the page asks for the same design
 # again, which goes on from that state. Engine(frame_budget=None) solves every draft to the end.
-FRAME_SECONDS = 0.012
+FRAME_SECONDS = 0.006
 IK_LIVE_SOLVES = 12       # forward solves of one Soft IK request while a target is dragged
 IK_FINAL_SOLVES = 40      # ... and when it is let go (as `skelfem ik`)
 CONTRACTION_DECIMALS = 4  # contractions Soft IK finds are written back rounded to 0.1 um
@@ -143,6 +153,8 @@ class Engine:
         self.preview = False                  # the state is a draft frame stopped at its budget (not converged)
         self.preview_steps = 0                # Newton steps of the frames since the last converged state
         self.initial = d                      # recovery's last resort: the design the editor started with
+        self._parsed: tuple[str, object] | None = None   # (the JSON of the last design parsed, its Design)
+        self._mesh_seen, self._meshes = None, 0          # the mesh the topology key names, and how many so far
         from .frames3d import StaleFrames
         self.frames3d = StaleFrames()                    # a 3D drag's frames: the held factorisation reused
         self.first = self._answer(self.session.solve(), time.perf_counter(), "built")
@@ -165,6 +177,39 @@ class Engine:
     def check_budget(self, d) -> None:
         check_budget(d, self.max_dofs)
 
+    def _parse_again(self, design):
+        """parse(design), or the Design of the last call when design is the same (a frame asked again)."""
+        try:
+            key = json.dumps(design, sort_keys=True, allow_nan=False)
+        except (TypeError, ValueError):
+            return self.parse(design)
+        if self._parsed is not None and self._parsed[0] == key:
+            return self._parsed[1]
+        d = self.parse(design)
+        self._parsed = (key, d)
+        return d
+
+    def topology(self) -> str:
+        """A key of the mesh's cells and regions: the same while the mesh is (its nodes may move), new after
+        a re-mesh."""
+        mesh = self.session.model.mesh
+        if self._mesh_seen is None or self._mesh_seen() is not mesh:
+            self._mesh_seen, self._meshes = weakref.ref(mesh), self._meshes + 1
+        return f"mesh-{self._meshes}"
+
+    def _mesh(self, have: str | None, fields: bool) -> dict:
+        """The mesh payload of the state: topology left out if the client has it, fields only if asked."""
+        key = self.topology()
+        mesh = mesh_payload(self.session.model, topology=have != key, fields=fields)
+        mesh["topology"] = key
+        return mesh
+
+    @staticmethod
+    def _fits(mesh: dict | None, have: str | None, fields: bool) -> bool:
+        """Whether a mesh payload made before holds what a client with topology ``have`` asks for."""
+        return mesh is not None and ("cells" in mesh or have == mesh.get("topology")) and \
+            ("fields" in mesh or not fields or mesh.get("dim") != 2)
+
     @property
     def design(self):
         return self.session.design if self.session is not None else self.good
@@ -174,12 +219,12 @@ class Engine:
         if self.session is None:
             self.recover()
 
-    def _answer(self, result, t0: float, how: str) -> dict:
+    def _answer(self, result, t0: float, how: str, have: str | None = None, fields: bool = True) -> dict:
         from ..fem.report import BUDGET_SPENT
         self.preview = result.status == BUDGET_SPENT
         self.preview_steps = self.preview_steps + result.newton_iterations if self.preview else 0
         payload = result.to_dict()
-        payload["mesh"] = mesh_payload(self.session.model) if result.converged or self.preview else None
+        payload["mesh"] = self._mesh(have, fields) if result.converged or self.preview else None
         payload["certificate"] = self.certificate(result.converged)
         payload["editor"] = {"how": how, "draft": self.draft, "mesh_size": float(self.session.design.mesh.size),
                              "seconds": round(time.perf_counter() - t0, 4)}
@@ -208,21 +253,27 @@ class Engine:
                 "residual": residual if finite else None, "tolerance": tol, "ratio": ratio if finite else None}
 
     # -- solving --------------------------------------------------------------------------------------
-    def solve(self, design: dict, draft: bool = False) -> dict:
+    def solve(self, design: dict, draft: bool = False, framed: bool = False, have: str | None = None,
+              fields: bool = True) -> dict:
         """Equilibrium of design (a dict): result.json's keys plus ``mesh`` and ``editor`` (how it was got).
 
         ``converged`` false: the solve failed; ``mesh`` is None and the last valid answer stays.
+        draft: a handle is being dragged (moved nodes, a frame budget); framed: a frame budget for a request
+        that is not a draft (a release); have, fields: what the mesh payload leaves out (see the module doc).
         """
         t0 = time.perf_counter()
         start = time.monotonic()
-        d = self.parse(design)
+        d = self._parse_again(design)
         self.ensure()
         flat = flatten(d.raw)
         draft = bool(draft)
         kept = draft or not self.draft              # a request not a draft re-meshes moved nodes (a release)
         if flat == self.flat and kept and self.session.solved:
             if not self.preview and self.answer is not None:
-                return dict(self.answer, editor=dict(self.answer["editor"], how="unchanged", seconds=0.0))
+                mesh = self.answer["mesh"]
+                mesh = mesh if self._fits(mesh, have, fields) else self._mesh(have, fields)
+                return dict(self.answer, mesh=mesh, editor=dict(self.answer["editor"], how="unchanged",
+                                                                seconds=round(time.perf_counter() - t0, 4)))
             how = "go on"                           # from the last frame's state
         else:
             changes = live_changes(self.flat, flat, self.session.model.parameters()) if kept else None
@@ -237,16 +288,16 @@ class Engine:
         if draft and d.dim == 3 and self.frame_budget is not None and self.preview_steps < solver.max_iterations:
             frame = self.frames3d.frame(self.session, start + self.frame_budget)   # 3D: no new factorisation
             if frame is not None and frame.newton_iterations:
-                return self._answer(frame, t0, how)
+                return self._answer(frame, t0, how, have, fields)
         # frames of one design go on until converged, or failed: past the solver's own iteration limit the
         # next is solved to the end (a Newton that never converges is not asked again for ever)
-        budget = draft and self.frame_budget is not None and self.preview_steps < solver.max_iterations
+        budget = (draft or framed) and self.frame_budget is not None and self.preview_steps < solver.max_iterations
         solver.stepper.deadline = start + self.frame_budget if budget else None
         try:
             result = self.session.solve()
         finally:
             solver.stepper.deadline = None
-        return self._answer(result, t0, how)
+        return self._answer(result, t0, how, have, fields)
 
     def _edit(self, d, draft: bool) -> str:
         """Session.edit (moving the mesh's nodes for a draft); returns how the mesh was got."""

@@ -82,26 +82,35 @@ def _boundary_faces(tets: np.ndarray, regions: np.ndarray) -> tuple[np.ndarray, 
     return faces[keep], owner[keep]
 
 
-def mesh_payload(model) -> dict:
-    """The deformed state of a Session's model (serial) as plain lists; see the module doc."""
+def mesh_payload(model, topology: bool = True, fields: bool = True) -> dict:
+    """The deformed state of a Session's model (serial) as plain lists; see the module doc.
+
+    topology=False leaves out what a client holding this mesh has already (``x``, ``cells``, ``regions``,
+    ``region_names``, ``body_tag``): a frame of a drag on the same mesh sends its deformed nodes ``y``
+    (moved nodes change ``x`` too; the page draws ``y``). fields=False leaves out the per-cell fields.
+    """
     from ..io.xdmf import snapshot
 
     snap = snapshot(model)
     x, u, cells, regions = snap.x, snap.u, np.asarray(snap.cells), np.asarray(snap.regions)
     y = x + u
     tags = dict(model.tm.tags)
-    out = {"dim": int(x.shape[1]), "region_names": {str(v): k for k, v in tags.items()},
-           "body_tag": int(snap.body_tag)}
+    out: dict = {"dim": int(x.shape[1])}
+    if topology:
+        out.update(region_names={str(v): k for k, v in tags.items()}, body_tag=int(snap.body_tag))
     if x.shape[1] == 2:
-        mu, lam = _lame_by_tag(snap.design, tags)
-        out["fields"] = cell_fields(x, y, cells, np.vectorize(mu.get)(regions).astype(float),
-                                    np.vectorize(lam.get)(regions).astype(float))
+        if fields:
+            mu, lam = _lame_by_tag(snap.design, tags)
+            out["fields"] = cell_fields(x, y, cells, np.vectorize(mu.get)(regions).astype(float),
+                                        np.vectorize(lam.get)(regions).astype(float))
     else:
         cells, regions = boundary_faces(cells, regions)
         used, cells = np.unique(cells, return_inverse=True)
         cells = cells.reshape(-1, 3)
         x, y = x[used], y[used]
-    out.update(x=_round(x), y=_round(y), cells=cells.astype(int).tolist(), regions=regions.astype(int).tolist())
+    out["y"] = _round(y)
+    if topology:
+        out.update(x=_round(x), cells=cells.astype(int).tolist(), regions=regions.astype(int).tolist())
     out["cables"] = [{"name": c["name"], "kind": c["kind"], "via_rest": _round(c["rest"]),
                       "via": _round(c["deformed"]), "tension": float(c["tension"]),
                       "length": float(c["length"]), "rest_length": float(c["rest_length"]),

@@ -291,7 +291,11 @@ def _live_job(msg):
         raise ApiError(400, 'a message is {"id": N, "kind": "solve" | "ik", "design": {...}, ...}')
     mid, kind = msg["id"], msg.get("kind")
     if kind == "solve":
-        return mid, lambda e: e.solve(msg.get("design"), draft=bool(msg.get("draft", False)))
+        have = msg.get("have")           # the mesh the page holds: its cells and regions are not sent again
+        return mid, lambda e: e.solve(msg.get("design"), draft=bool(msg.get("draft", False)),
+                                      framed=bool(msg.get("frame", False)),
+                                      have=have if isinstance(have, str) else None,
+                                      fields=bool(msg.get("fields", True)))
     if kind == "ik":
         return mid, lambda e: e.ik(msg.get("design"), msg.get("marker"), msg.get("target"),
                                    final=bool(msg.get("final", True)))

@@ -21,15 +21,17 @@ const REGION_LABEL = { body: "body", bone: "bones", object: "objects" };
 const PALETTE = ["#440154", "#482475", "#414487", "#355f8d", "#2a788e", "#21908d", "#22a884", "#42be71",
   "#7ad151", "#bddf26", "#fde725"];
 const SNAP = 100;                      // coordinates are rounded to 1/SNAP mm
+const GO_ON_WAIT = 12;                 // ms a "go on" waits for the next move while the pointer moves
 
 const S = {
   design: null, file: "", dim: 2, readonly: false,
   answer: null, failed: null,            // last valid answer; message of the last failure
   undo: [], redo: [],
-  view: { x0: 0, y0: 0, k: 1 },
+  view: { x0: 0, y0: 0, k: 1 }, size: { W: 800, H: 600 },
   drag: null,
   ik: { on: false, marker: null, target: null, info: null },
-  ws: null, reqSeq: 0, inflight: null, queued: null,
+  ws: null, reqSeq: 0, inflight: null, queued: null, goOnTimer: null, lastInput: 0,
+  topo: null,                            // the mesh's cells and regions as last sent (frames leave them out)
   inputSeq: 0, inputs: [],               // input events not yet shown: {seq, t, kind}
   latency: { rendered: [], events: [] }, // ms from an input event to the picture showing it
   solves: 0, errors: 0, ready: false, server: [], renderMs: [],
@@ -79,8 +81,15 @@ function request(req) {
   send(req);
 }
 function send(req) {
+  clearTimeout(S.goOnTimer);
+  if (S.queued && S.queued.goOn) S.queued = null;       // any request goes on from the newest state
   const msg = { id: ++S.reqSeq, kind: req.kind, design: S.design };
-  if (req.kind === "solve") msg.draft = !!req.draft;
+  if (req.kind === "solve") {
+    // every solve is a frame: within the server's frame budget, asked again until converged; the mesh's
+    // cells and regions are sent only when this page does not hold them, the fields only when drawn
+    Object.assign(msg, { draft: !!req.draft, frame: true, have: S.topo ? S.topo.topology : null,
+      fields: $("colour").value !== "region" });
+  }
   if (req.kind === "ik") Object.assign(msg, { marker: req.marker, target: req.target, final: !!req.final });
   req.id = msg.id;
   req.input = S.inputSeq;                 // everything typed or dragged so far is in this design
@@ -93,6 +102,11 @@ function onAnswer(data) {
   if (!req || data.id !== req.id) return;
   S.inflight = null;
   if (data.dropped) { /* a newer request replaced it on the server */ }
+  else if (data.ok && (data.answer.converged || data.answer.status === "frame_budget") && data.answer.mesh &&
+           !whole(data.answer)) {
+    S.topo = null;                          // a frame on a mesh this page does not hold: ask for it whole
+    if (!S.queued) S.queued = { kind: req.kind, draft: !!req.draft, input: req.input };
+  }
   else if (data.ok && (data.answer.converged || data.answer.status === "frame_budget") && data.answer.mesh) {
     const a = data.answer;
     if (a.new_design && req.kind === "ik") adoptContractions(a.new_design);
@@ -104,7 +118,17 @@ function onAnswer(data) {
     render();
     painted(req.input);
     // a frame stopped at its time budget: the same design again goes on from its state (unless newer input waits)
-    if (a.status === "frame_budget" && !S.queued) S.queued = { kind: "solve", draft: !!req.draft, input: req.input };
+    if (a.status === "frame_budget" && !S.queued) {
+      S.queued = { kind: "solve", draft: !!req.draft, input: req.input, goOn: true };
+      // while the pointer is moving, the next move is likely within a frame: wait for it a little rather
+      // than make it wait for a "go on" in flight
+      const wait = S.drag && performance.now() - S.lastInput < 40 ? GO_ON_WAIT : 0;
+      if (wait) {
+        const q = S.queued;
+        S.goOnTimer = setTimeout(() => { if (S.queued === q && !S.inflight && S.ws) { S.queued = null; send(q); } }, wait);
+        return;
+      }
+    }
   } else if (data.ok) {
     S.failed = `solve failed: ${data.answer.status} after ${data.answer.newton_iterations} Newton iterations; ` +
       "the last equilibrium stays on screen"; S.errors += 1;
@@ -135,8 +159,23 @@ function painted(upto) {
     }
   }, 0));
 }
+// The mesh of an answer made whole: a frame on the mesh this page holds leaves out its cells and regions.
+// Returns false if it left them out for another mesh than the one held.
+function whole(a) {
+  const m = a.mesh;
+  if (m.cells) {
+    S.topo = { topology: m.topology, cells: m.cells, regions: m.regions, region_names: m.region_names,
+      body_tag: m.body_tag, x: m.x };
+    S.drawCache = null;
+    return true;
+  }
+  if (!S.topo || S.topo.topology !== m.topology) return false;
+  a.mesh = { ...S.topo, ...m };
+  return true;
+}
 function input(kind) {
   S.inputSeq += 1;
+  S.lastInput = performance.now();
   performance.mark(`input-${S.inputSeq}`);
   S.inputs.push({ seq: S.inputSeq, t: performance.now(), kind });
 }
@@ -389,51 +428,137 @@ function fit() {
   x0 -= pad; x1 += pad; y0 -= pad; y1 += pad;
   const k = Math.min(W / (x1 - x0), H / (y1 - y0));
   S.view = { k, x0: (x0 + x1) / 2 - W / 2 / k, y0: (y0 + y1) / 2 + H / 2 / k };
+  S.size = { W, H };
   svg.setAttribute("viewBox", `0 0 ${W} ${H}`);
+  drawSketch();
   render();
 }
 
 function render() {
   const t0 = performance.now();
   if (S.dim !== 2) { draw3d(); return; }
-  drawMesh(); drawCables(); drawContacts(); drawSketch(); drawMarkers(); drawIK(); showStatus(); markError();
+  // the sketch (the design's handles) is drawn when the design or the view changes, not with every answer
+  drawMesh(); drawCables(); drawContacts(); drawMarkers(); drawIK(); showStatus(); markError();
   S.renderMs.push(performance.now() - t0);
 }
 
+// The mesh on a canvas under the drawing, rasterised here into the canvas's pixels: a canvas path of many
+// triangles costs Chromium's software canvas far more (one path of finger.toml's 1,356 triangles: 13 ms to fill,
+// of 18,696: 1.7 s; one fill per triangle 4.5 ms and 78 ms), an SVG path of them 5-10 ms an answer.
+// Each triangle is filled by its edge functions at pixel centres; where cells are a few pixels across or
+// more, pixels within half a pixel of a cell's edge are darkened (the cell edges).
 function drawMesh() {
-  const layer = $("layer-mesh"); layer.textContent = "";
-  const a = S.answer; if (!a || !a.mesh) return;
-  const m = a.mesh, y = m.y.map(px);
-  const mode = $("colour").value;
-  const groups = new Map();
-  let lo = 0, hi = 1;
-  const f = mode === "region" ? null : m.fields[mode];
-  if (f) {
-    const vals = f.filter((v) => v !== null && Number.isFinite(v)).sort((p, q) => p - q);
-    lo = mode === "stretch" ? 1 : 0;
-    hi = vals.length ? vals[Math.min(vals.length - 1, Math.floor(0.98 * vals.length))] : 1;
-    if (!(hi > lo)) hi = lo + 1e-9;
-    $("legend").className = "bar";
-    $("legend").replaceChildren(html("span", {}, [fmt(lo, 3)]), html("span", {}, [mode === "stretch" ? "stretch" : "ψ (N·mm/mm³)"]),
-      html("span", {}, [`≥ ${fmt(hi, 3)}`]));
-  } else {
-    const kinds = new Set(Object.values(m.region_names).map(regionKind));
-    $("legend").className = "regions";
-    $("legend").replaceChildren(...["body", "bone", "object"].filter((k) => kinds.has(k))
-      .flatMap((k) => [html("span", { className: `swatch ${k}` }), html("span", {}, [REGION_LABEL[k]])]));
+  const cv = $("mesh2d"), ctx = cv.getContext("2d");
+  const dpr = window.devicePixelRatio || 1;
+  // the view's size as fit() read it (reading it here would lay the page out again with every answer)
+  const W = Math.max(1, Math.round(S.size.W * dpr)), H = Math.max(1, Math.round(S.size.H * dpr));
+  if (cv.width !== W || cv.height !== H || !S.pixels) {
+    cv.width = W; cv.height = H;
+    const img = ctx.createImageData(W, H);
+    S.pixels = { img, buf: new Uint32Array(img.data.buffer) };
   }
-  m.cells.forEach((c, i) => {
-    let fill;
-    if (f) {
-      const v = f[i] === null ? hi : f[i];
-      fill = PALETTE[Math.max(0, Math.min(PALETTE.length - 1, Math.round((v - lo) / (hi - lo) * (PALETTE.length - 1))))];
-    } else fill = REGION_FILL[regionKind(m.region_names[m.regions[i]])];
-    const p0 = y[c[0]], p1 = y[c[1]], p2 = y[c[2]];
-    const s = `M${p0[0].toFixed(1)} ${p0[1].toFixed(1)}L${p1[0].toFixed(1)} ${p1[1].toFixed(1)}L${p2[0].toFixed(1)} ${p2[1].toFixed(1)}Z`;
-    if (!groups.has(fill)) groups.set(fill, []);
-    groups.get(fill).push(s);
-  });
-  for (const [fill, parts] of groups) el("path", { d: parts.join(""), fill, class: "cell-edges" }, layer);
+  const { img, buf } = S.pixels;
+  buf.fill(0);                                             // transparent: the page's white shows through
+  const a = S.answer;
+  if (!a || !a.mesh || !a.mesh.cells) { ctx.putImageData(img, 0, 0); S.meshDrawn = { cells: 0, fills: [] }; return; }
+  const m = a.mesh, v = S.view, n = m.y.length, P = new Float64Array(2 * n), k = v.k * dpr;
+  for (let i = 0; i < n; i++) { P[2 * i] = (m.y[i][0] - v.x0) * k; P[2 * i + 1] = (v.y0 - m.y[i][1]) * k; }
+  const { fills, index } = cellColours(m);
+  const C = S.drawCache.cells, nc = index.length;
+  const edges = nc > 0 && Math.sqrt(Math.abs(areaOf(P, C)) / nc) > 4 * dpr;
+  const rgba = fills.map((c) => packed(c, 1)), edged = fills.map((c) => packed(c, 0.65));
+  const used = new Uint8Array(fills.length);
+  for (let i = 0; i < nc; i++) {
+    const j = index[i];
+    used[j] = 1;
+    triangle(buf, W, H, P, 2 * C[3 * i], 2 * C[3 * i + 1], 2 * C[3 * i + 2], rgba[j], edges ? edged[j] : 0);
+  }
+  ctx.putImageData(img, 0, 0);
+  const shown = fills.filter((_, j) => used[j]);
+  S.meshDrawn = { cells: nc, fills: shown, edges };
+  cv.dataset.fills = shown.join(" ");
+}
+
+// The colour of every cell (an index into fills): by region, or by the field drawn; sets the legend.
+function cellColours(m) {
+  if (!S.drawCache || S.drawCache.topology !== m.topology)       // the cells as one typed array, once per mesh
+    S.drawCache = { topology: m.topology, index: null, cells: Int32Array.from(m.cells.flat()) };
+  const mode = $("colour").value;
+  const f = mode === "region" || !m.fields ? null : m.fields[mode];
+  if (!f) {
+    if (S.legend !== m.topology) {                                 // the legend, once per mesh
+      const kinds = new Set(Object.values(m.region_names).map(regionKind));
+      $("legend").className = "regions";
+      $("legend").replaceChildren(...["body", "bone", "object"].filter((x) => kinds.has(x))
+        .flatMap((x) => [html("span", { className: `swatch ${x}` }), html("span", {}, [REGION_LABEL[x]])]));
+      S.legend = m.topology;
+    }
+    if (!S.drawCache.index) {                                      // the region colours, once per mesh
+      const names = Object.keys(REGION_FILL), at = {};
+      for (const [tag, name] of Object.entries(m.region_names)) at[tag] = names.indexOf(regionKind(name));
+      S.drawCache.index = Int32Array.from(m.regions, (r) => at[r]);
+    }
+    return { fills: Object.values(REGION_FILL), index: S.drawCache.index };
+  }
+  const vals = f.filter((x) => x !== null && Number.isFinite(x)).sort((p, q) => p - q);
+  const lo = mode === "stretch" ? 1 : 0;
+  let hi = vals.length ? vals[Math.min(vals.length - 1, Math.floor(0.98 * vals.length))] : 1;
+  if (!(hi > lo)) hi = lo + 1e-9;
+  $("legend").className = "bar";
+  $("legend").replaceChildren(html("span", {}, [fmt(lo, 3)]), html("span", {}, [mode === "stretch" ? "stretch" : "ψ (N·mm/mm³)"]),
+    html("span", {}, [`≥ ${fmt(hi, 3)}`]));
+  S.legend = null;
+  const index = new Int32Array(f.length);
+  for (let i = 0; i < index.length; i++) {
+    const x = f[i] === null ? hi : f[i];
+    index[i] = Math.max(0, Math.min(PALETTE.length - 1, Math.round((x - lo) / (hi - lo) * (PALETTE.length - 1))));
+  }
+  return { fills: PALETTE, index };
+}
+
+// "#rrggbb" darkened by `shade` (1: as is; the cell edges' #7a6a66 at 0.35) as a pixel (RGBA bytes, little-endian).
+function packed(hex, shade) {
+  const c = [1, 3, 5].map((i) => parseInt(hex.slice(i, i + 2), 16));
+  const e = [0x7a, 0x6a, 0x66];
+  const [r, g, b] = c.map((x, i) => Math.round(shade * x + (1 - shade) * e[i]));
+  return ((255 << 24) | (b << 16) | (g << 8) | r) >>> 0;
+}
+
+// Fill the triangle (P[a], P[b], P[c]) (device pixels) into buf (W x H pixels); with `edge` non-zero, the pixels
+// within half a pixel of its sides get that colour instead.
+function triangle(buf, W, H, P, a, b, c, fill, edge) {
+  const x0 = P[a], y0 = P[a + 1];
+  let x1 = P[b], y1 = P[b + 1], x2 = P[c], y2 = P[c + 1];
+  if ((x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0) < 0) { x1 = P[c]; y1 = P[c + 1]; x2 = P[b]; y2 = P[b + 1]; }
+  const xa = Math.max(0, Math.floor(Math.min(x0, x1, x2))), xb = Math.min(W - 1, Math.ceil(Math.max(x0, x1, x2)));
+  const ya = Math.max(0, Math.floor(Math.min(y0, y1, y2))), yb = Math.min(H - 1, Math.ceil(Math.max(y0, y1, y2)));
+  if (xa > xb || ya > yb) return;
+  // edge functions e_i(x, y) >= 0 inside (y down: the orientation above makes all three positive inside)
+  const A0 = y1 - y2, B0 = x2 - x1, A1 = y2 - y0, B1 = x0 - x2, A2 = y0 - y1, B2 = x1 - x0;
+  const L0 = 1 / (Math.sqrt(A0 * A0 + B0 * B0) || 1), L1 = 1 / (Math.sqrt(A1 * A1 + B1 * B1) || 1),
+    L2 = 1 / (Math.sqrt(A2 * A2 + B2 * B2) || 1);
+  const px0 = xa + 0.5, py0 = ya + 0.5;
+  let r0 = A0 * (px0 - x1) + B0 * (py0 - y1), r1 = A1 * (px0 - x2) + B1 * (py0 - y2), r2 = A2 * (px0 - x0) + B2 * (py0 - y0);
+  for (let y = ya; y <= yb; y++) {
+    let e0 = r0, e1 = r1, e2 = r2, row = y * W + xa;
+    for (let x = xa; x <= xb; x++, row++) {
+      if (e0 >= 0 && e1 >= 0 && e2 >= 0) {
+        buf[row] = edge && (e0 * L0 < 0.6 || e1 * L1 < 0.6 || e2 * L2 < 0.6) ? edge : fill;
+      }
+      e0 += A0; e1 += A1; e2 += A2;
+    }
+    r0 += B0; r1 += B1; r2 += B2;
+  }
+}
+
+// The deformed mesh's area on screen: the sum of its cells' areas (device pixels^2).
+function areaOf(P, C) {
+  let A = 0;
+  for (let c = 0; c < C.length; c += 3) {
+    const a = 2 * C[c], b = 2 * C[c + 1], d = 2 * C[c + 2];
+    A += (P[b] - P[a]) * (P[d + 1] - P[a + 1]) - (P[d] - P[a]) * (P[b + 1] - P[a + 1]);
+  }
+  return 0.5 * A;
 }
 
 function regionKind(name) {
@@ -468,7 +593,10 @@ function drawCables() {
   for (const c of a.mesh.cables) {
     const cls = `${c.kind}${c.slack ? " slack" : ""}`;
     el("polyline", { points: pts(c.via), class: `cable-line ${cls}`, "data-cable": c.name }, layer);
-    for (const p of c.via) { const q = px(p); el("circle", { cx: q[0], cy: q[1], r: 2.2, class: `via ${c.kind}` }, layer); }
+    // its via points: dots (zero-length strokes with round caps) of one path, not an element each (at 20k cells
+    // a drag's frame drew some 500 circles)
+    const dots = c.via.map((p) => { const q = px(p); return `M${q[0].toFixed(1)} ${q[1].toFixed(1)}h0`; }).join("");
+    el("path", { d: dots, class: `via ${c.kind}`, "data-cable": c.name, "data-count": c.via.length }, layer);
   }
   placeCableLabels(layer, a.mesh.cables);
 }
@@ -491,19 +619,30 @@ function placeCableLabels(layer, cables) {
       if (i >= 0 && i < n) spots.push(i);
     }
     let done = false;
+    const w = textWidth(t.textContent);        // measured once, without a layout of the page (getBBox forces one)
     for (const i of spots.slice(0, 12)) {
       const q = px(c.via[i]);
       for (const side of [1, -1]) {
-        t.setAttribute("x", side > 0 ? q[0] + 6 : q[0] - 6);
+        const x = side > 0 ? q[0] + 6 : q[0] - 6;
+        const b = { x: side > 0 ? x : x - w, y: q[1] - 12, width: w, height: 16 };   // as its halo draws
+        if (hits(b)) continue;
+        t.setAttribute("x", x); t.setAttribute("y", q[1]);
         t.setAttribute("text-anchor", side > 0 ? "start" : "end");
-        t.setAttribute("y", q[1]);
-        const b = t.getBBox();
-        if (!hits(b)) { placed.push(b); done = true; break; }
+        placed.push(b); done = true; break;
       }
       if (done) break;
     }
     if (!done) t.setAttribute("visibility", "hidden");
   }
+}
+
+// The width of a cable label (class "tension": 11 px) in px, from a canvas's text metrics.
+function textWidth(text) {
+  if (!S.measure) {
+    S.measure = document.createElement("canvas").getContext("2d");
+    S.measure.font = `11px ${getComputedStyle(document.body).fontFamily}`;
+  }
+  return S.measure.measureText(text).width;
 }
 
 function polygonItem(layer, points, cls, key, path, minCount) {
@@ -764,7 +903,7 @@ async function main() {
   if (status !== 200) { setStatus(`cannot load the design: ${data.error}`, true); return; }
   S.design = data.design; S.file = data.file; S.dim = data.dim; S.readonly = data.readonly;
   S.savedText = JSON.stringify(data.saved || data.design);      // the file as on disk: unsaved changes differ
-  if (data.first) S.answer = data.first;
+  if (data.first) { S.answer = data.first; if (data.first.mesh) whole(data.first); }
   if (S.dim !== 2) { setup3d(); draw3d(); S.ready = true; window.addEventListener("resize", draw3d); return; }
   S.restored = recall();            // unsaved edits of this file from before a reload
   buildPanel(); buttons();
@@ -781,7 +920,10 @@ async function main() {
   };
   $("new").onclick = newDesign;
   $("saveas").onclick = () => { const n = prompt("Save as (a .toml name in the same folder):", S.file); if (n) save(n); };
-  $("colour").onchange = () => drawMesh();
+  $("colour").onchange = () => {            // frames carry the fields only while a field is drawn
+    if ($("colour").value !== "region" && S.answer && S.answer.mesh && !S.answer.mesh.fields) request({ kind: "solve" });
+    else drawMesh();
+  };
   $("ik-on").onchange = () => { S.ik.on = $("ik-on").checked; S.ik.info = null; drawIK(); };
   $("ik-marker").onchange = () => { S.ik.marker = $("ik-marker").value; };
   meshField("mesh-size", "size", Number);
