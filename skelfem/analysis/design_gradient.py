@@ -19,6 +19,17 @@ whatever the number of handles.
 Exact for the discrete problem on the moved mesh: what the test against
 full re-solves on moved meshes (tests/test_design_gradient.py) measures. Not
 covered (ValueError): see skelfem.analysis.shape.uncovered.
+
+Through a ground's friction the equilibrium depends on the load path: J(p)
+is taken as the equilibrium reached from rest (every design is solved from
+rest, the load ramped as ``skelfem simulate`` does), and its derivative along
+a path on which no contact node changes between sticking and slipping.
+Sticking nodes keep their anchors where they rest; the variables must leave
+the body's outline and holes (the contact nodes) where they are, so the
+anchors, the boundary weights and the gaps at fixed u do not move; the
+lagged normal forces follow the state (J = H + C, the adjoint solves with
+J^T). Exact while every contact node sticks (a slipping node's anchor is set
+by the load path, which is held).
 """
 from __future__ import annotations
 
@@ -28,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..mesh.morph import Morph, polygons
+from ..terms.friction import GroundFriction
 from .cable_shape import mesh_edges
 from .handles import DesignHandles
 from .sensitivity import Linearization
@@ -142,6 +154,15 @@ class DesignGradient:
             raise ValueError(why)
         self.session = session
         self.handles = DesignHandles(session.design, keys)
+        self.frictional = any(isinstance(t, GroundFriction) and t.active for t in session.model.terms)
+        if self.frictional:
+            n_loops = len(session.design.body_loops)
+            for h in self.handles.handles:
+                if h.kind == "point" and self.handles.names[h.point][0] == "poly" \
+                        and self.handles.names[h.point][1] < n_loops:
+                    raise ValueError(f"{h.key}: design gradients through a ground's friction take variables that "
+                                     "leave the body's outline and holes in place (their nodes carry the stick "
+                                     "anchors)")
         self.morph = Morph(session.model.tm, session.design)
         self.p = np.zeros(len(self.handles.keys))
         self._shape = None
@@ -174,6 +195,8 @@ class DesignGradient:
                 raise MeshDegrades("the session re-meshed the moved design: the gradient's mesh is gone")
             self.p = p.copy()
         t0 = time.perf_counter()
+        if self.frictional:              # friction's answer depends on the load path: every design from rest
+            self.session.solved = False
         result = self.session.solve()
         self.timings["solve"] = time.perf_counter() - t0
         return result
@@ -215,7 +238,7 @@ class DesignGradient:
             rhs[model.fixed] = 0.0
             b = model.u.vector.duplicate()
             b.array_w[:] = rhs[:len(b.array_w)]
-            z_vec = lin.solve(b)
+            z_vec = lin.solve_transposed(b)
             z = z_vec.array_r.copy()
             b.destroy()
             z_vec.destroy()

@@ -222,6 +222,55 @@ class Linearization:
         return _gmres(lambda v: v + h_inv(self._coupling(v)), rhs, tol, restart=60, maxiter=5,
                       what="sensitivity through friction")
 
+    def solve_transposed(self, rhs: PETSc.Vec) -> PETSc.Vec:
+        """J^-T rhs (rhs zero on Dirichlet rows): the adjoint solve. H^-1 rhs without lagged terms (H is
+        symmetric). With lagged friction J = H + C is not: C is probed column by column on the DOFs of the
+        lagged terms' gradients (a ground's N_i depends on its own node alone), checked against one random
+        probe (ValueError where C reaches further), and (I + H^-1 C^T) z = H^-1 rhs is solved by GMRES."""
+        x = rhs.duplicate()
+        if not self.lagged:
+            self.solver.lin.solve(rhs, x)
+        else:
+            cols, C = self._coupling_columns()
+            b = rhs.array_r.copy()
+            n = len(b)
+
+            def h_inv(r):
+                return self.h_solve_many(np.asarray(r, float).reshape(n, 1))[:, 0]
+
+            def transposed(v):
+                out = np.zeros(n)
+                out[cols] = C.T @ v
+                return out
+            start = h_inv(b)
+            x.array_w[:] = start if not np.any(start) else _gmres(
+                lambda v: v + h_inv(transposed(v)), start, 1e-12, restart=60, maxiter=5,
+                what="adjoint through friction")
+        x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        return x
+
+    def _coupling_columns(self) -> tuple[np.ndarray, np.ndarray]:
+        """(DOFs D, C[:, D]) of the lag coupling C, probed on the lagged terms' gradient DOFs; ValueError if a
+        random probe finds C acting beyond D."""
+        u = self.model.u.x.array
+        n = len(self.model.u.vector.array_r)
+        cols = np.unique(np.concatenate([np.asarray(g[0], dtype=np.int64) for g in
+                                         (t.gradient(u) for t in self.lagged) if g is not None] or [np.zeros(0, int)]))
+        cols = cols[cols < n]
+        cols = cols[~np.asarray(self.model.fixed)[cols]]
+        C = np.zeros((n, len(cols)))
+        for j, k in enumerate(cols):
+            e = np.zeros(n)
+            e[k] = 1.0
+            C[:, j] = self._coupling(e)[:n]
+        r = np.random.default_rng(0).standard_normal(n)
+        r[np.asarray(self.model.fixed)[:n]] = 0.0
+        full, part = self._coupling(r)[:n], C @ r[cols]
+        if np.abs(full - part).max() > 1e-6 * max(float(np.abs(full).max()), 1e-300):
+            raise ValueError("the friction's lagged forces depend on DOFs beyond its own nodes: the adjoint "
+                             "through them is not covered")
+        return cols, C
+
     def state_sensitivities(self) -> list[PETSc.Vec]:
         """dx*/du_c = -H^-1 dR/du_c for every tendon c (forward mode)."""
         out = []

@@ -14,10 +14,20 @@ too. A material's Young's modulus E enters psi through mu and lam, both
 proportional to E, so z^T dR/dE = z^T R_M / E with R_M the elastic residual
 over that material's cells.
 
+A ground's friction (skelfem.terms.friction) acts on the body's boundary
+nodes alone, through their positions X_i + u_i, their stick anchors and their
+lagged normal forces N_i = k t w_i max(-gap_i, 0) (w_i from the boundary's
+facets): at fixed u and anchors it depends on the mesh only through the
+boundary nodes. Design gradients through it take design variables that leave
+the body's outline and holes in place (skelfem.analysis.design_gradient
+refuses the others), so its shape derivative is zero; the lag's coupling is
+in the adjoint solve (Linearization.solve_transposed).
+
 Covered: 2D, one MPI process, elastic bones, fixed and spring pins, gravity,
-tractions, frictionless cables, markers. Refused with a ValueError naming
-the ingredient: rigid bones and objects, contact, friction, grounds, point
-loads, turned pins, dynamics, 3D.
+tractions, frictionless cables, markers, grounds with or without friction.
+Refused with a ValueError naming the ingredient: rigid bones and objects,
+contact between bodies, cable friction, point loads, turned pins, dynamics,
+3D.
 """
 from __future__ import annotations
 
@@ -29,9 +39,11 @@ from dolfinx.fem import petsc as fem_petsc
 from ..terms.base import Term
 from ..terms.cables import CableTerm
 from ..terms.elasticity import Elasticity, deformation_gradient, psi
+from ..terms.friction import GroundFriction
 from .cable_shape import CableShape, mesh_edges
 
-COVERED = (CableTerm,)      # hand-written terms whose shape derivative is known
+COVERED = (CableTerm, GroundFriction)   # hand-written terms whose shape derivative is known (friction's: zero
+#                                         while the boundary stays, see above)
 
 
 def uncovered(model) -> str | None:
@@ -54,8 +66,8 @@ def uncovered(model) -> str | None:
             return f"{term.section}.{term.name}: design gradients do not cover this ingredient yet"
         if isinstance(term, CableTerm) and term.cable.friction:
             return f"cables.{term.name}.friction: design gradients do not cover cable friction"
-        if term.history() is not None:
-            return f"{term.section}.{term.name}: design gradients do not cover friction"
+        if term.history() is not None and not isinstance(term, GroundFriction):
+            return f"{term.section}.{term.name}: design gradients do not cover this friction"
     return None
 
 
