@@ -27,7 +27,15 @@ times). Every answer's certificate is counted: previews, converged ones, and
 converged ones whose residual is above the batch tolerance (never, if the
 page is right).
 
-    python studies/editor_latency.py [DESIGN] [--moves 30] [--drags 4] [--api 20] [--out DIR]
+The same is measured on finer meshes of the design (``--sizes``, mesh sizes in
+mm: 0.9 and 0.5 give finger.toml about 6k and 20k DOFs; the study writes those
+variants of the design), each in its own editor and browser, with fewer
+``POST`` requests (``--api-fine``). For a release it also times the first
+converged picture after it ("settled": the page asks again after every frame
+out of time). The host's load average and ``uptime`` are recorded before and
+after each case.
+
+    python studies/editor_latency.py [DESIGN] [--moves 30] [--drags 4] [--api 20] [--sizes 0.9 0.5] [--out DIR]
 """
 from __future__ import annotations
 
@@ -37,6 +45,7 @@ import http.client
 import json
 import os
 import shutil
+import subprocess
 import tempfile
 import time
 from pathlib import Path
@@ -44,6 +53,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+SIZES = (0.9, 0.5)      # finer meshes of the design (mm): finger.toml at about 6k and 20k DOFs
 
 
 def _pct(values) -> dict:
@@ -55,16 +65,20 @@ def _pct(values) -> dict:
 
 
 def _reset(page) -> None:
-    page.js("(() => { S.latency = {rendered: [], events: []}; S.server = []; S.renderMs = []; S.certificates = [];"
+    page.js("(() => { S.latency = {rendered: [], events: [], settled: []}; S.server = []; S.renderMs = [];"
+            " S.certificates = [];"
             " performance.clearMarks(); performance.clearMeasures(); return 1; })()")
 
 
 def _collect(page) -> dict:
     measures = page.js("performance.getEntriesByType('measure').map(m => [m.name, m.duration])")
     events = page.js("S.latency.events.map(e => [e.kind, e.ms])")
+    settled = page.js("S.latency.settled.map(e => [e.kind, e.ms])")
     server = page.js("S.server.map(e => [e.how, 1000 * e.s, e.rtt])")
     certs = page.js("S.certificates")
     out: dict = {"rendered": {}, "every_event": {}, "server_ms": {}, "round_trip_ms": {},
+                 "settled": {k: _pct([ms for kind, ms in settled if kind == k])
+                             for k in sorted({k for k, _ in settled})},
                  "render_ms": _pct(page.js("S.renderMs")),
                  "certificates": {"converged": sum(c["state"] == "converged" for c in certs),
                                   "preview": sum(c["state"] == "preview" for c in certs),
@@ -136,27 +150,47 @@ def _api(port: int, design: dict, repeats: int) -> dict:
     return {"one_vertex_ms": _pct(vertex), "contraction_ms": _pct(contraction), "hows": sorted(hows)}
 
 
-def run(design="geometry/finger.toml", moves: int = 30, drags: int = 4, api: int = 20, step_ms: int = 16,
-        out=None, screenshot: bool = True) -> dict:
-    """Drive the editor on design; returns {contraction, vertex, api} latencies in ms (see the module doc)."""
+def _load() -> dict:
+    try:
+        up = subprocess.run(["uptime"], capture_output=True, text=True, timeout=5).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        up = ""
+    return {"load_average": list(os.getloadavg()), "uptime": up}
+
+
+def _variant(design: Path, size: float | None, work: Path) -> Path:
+    """The design copied into work, at mesh size `size` (mm) if given (the TOML written again)."""
+    if size is None:
+        shutil.copy(design, work / design.name)
+        return work / design.name
+    import tomllib
+
+    from skelfem.editor.savefile import render
+    raw = tomllib.loads(design.read_text())
+    raw.setdefault("mesh", {})["size"] = float(size)
+    path = work / f"{design.stem}_h{size:g}.toml"
+    path.write_text(render(design.read_text(), raw, default_name=design.stem))
+    return path
+
+
+def run_case(design: Path, size: float | None = None, moves: int = 30, drags: int = 4, api: int = 20,
+             step_ms: int = 16, screenshot=None) -> dict:
+    """One design (at mesh size `size`): the browser's drags, then the API's solves; see the module doc."""
     import tomllib
 
     from skelfem.editor.browser import Page, chrome
-    from skelfem.editor.engine import FRAME_SECONDS
     from skelfem.editor.server import Editor
 
-    design = Path(design)
-    if not design.is_absolute() and not design.exists():
-        design = ROOT / design
     work = Path(tempfile.mkdtemp(prefix="skelfem-latency-"))
-    shutil.copy(design, work / design.name)
-    raw = tomllib.loads(design.read_text())
+    path = _variant(design, size, work)
+    raw = tomllib.loads(path.read_text())
     bone = len(raw.get("bones", [])) - 1
-    editor = Editor(work / design.name, port=0).start()
+    before = _load()
+    editor = Editor(path, port=0).start()
     driver = None
     try:
         driver = chrome()
-        page = Page(driver, editor.url)
+        page = Page(driver, editor.url, timeout=300)
         _vertex_drags(page, 5, 2, step_ms, ["bones", bone, "outline", 0])      # warm-up: draft and full meshes
         _slider_drags(page, 5, 2, step_ms)
         _reset(page)
@@ -167,20 +201,36 @@ def run(design="geometry/finger.toml", moves: int = 30, drags: int = 4, api: int
         _vertex_drags(page, moves, drags, step_ms, ["bones", bone, "outline", 0])
         vertex = _collect(page)
         browser_seconds = time.perf_counter() - t0
-        if screenshot and out is not None:
-            Path(out).mkdir(parents=True, exist_ok=True)
-            page.screenshot(Path(out) / "editor_latency.png")
+        if screenshot is not None:
+            Path(screenshot).parent.mkdir(parents=True, exist_ok=True)
+            page.screenshot(screenshot)
         answer = page.js("S.answer")
+        errors = [e["message"] for e in page.console_errors()]
         api_times = _api(editor.port, raw, api)
     finally:
         if driver is not None:
             driver.quit()
         editor.stop()
         shutil.rmtree(work, ignore_errors=True)
-    res = {"design": str(design.name), "dofs": answer["dofs"], "cells": answer["cells"], "moves": moves,
-           "drags": drags, "step_ms": step_ms, "contraction": contraction, "vertex": vertex, "api": api_times,
-           "browser_seconds": browser_seconds, "load_average": list(os.getloadavg()),
-           "frame_budget_ms": 1000 * FRAME_SECONDS}
+    return {"design": path.name, "mesh_size": float(raw["mesh"]["size"]), "dofs": answer["dofs"],
+            "cells": answer["cells"], "moves": moves, "drags": drags, "step_ms": step_ms,
+            "contraction": contraction, "vertex": vertex, "api": api_times, "browser_seconds": browser_seconds,
+            "console_errors": errors, "before": before, "after": _load()}
+
+
+def run(design="geometry/finger.toml", moves: int = 30, drags: int = 4, api: int = 20, step_ms: int = 16,
+        out=None, screenshot: bool = True, sizes=SIZES, api_fine: int = 5) -> dict:
+    """Drive the editor on design and on finer meshes of it; returns the bundled design's latencies in ms
+    (contraction, vertex, api, ...) with ``sizes``, the same for each finer mesh (see the module doc)."""
+    from skelfem.editor.engine import FRAME_SECONDS
+
+    design = Path(design)
+    if not design.is_absolute() and not design.exists():
+        design = ROOT / design
+    shot = Path(out) / "editor_latency.png" if screenshot and out is not None else None
+    res = run_case(design, None, moves, drags, api, step_ms, shot)
+    res["sizes"] = [run_case(design, float(h), moves, drags, api_fine, step_ms) for h in sizes]
+    res.update(_load(), frame_budget_ms=1000 * FRAME_SECONDS)
     if out is not None:
         Path(out).mkdir(parents=True, exist_ok=True)
         (Path(out) / "latency.json").write_text(json.dumps(res, indent=2) + "\n")
@@ -193,24 +243,17 @@ def _row(name: str, p: dict) -> str:
     return f"  {name:34s} p50 {p['p50']:6.0f} ms   p95 {p['p95']:6.0f} ms   (n = {p['n']})"
 
 
-def main(argv=None) -> dict:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("design", nargs="?", default="geometry/finger.toml")
-    p.add_argument("--moves", type=int, default=30, help="pointer moves per drag")
-    p.add_argument("--drags", type=int, default=4, help="drags of each kind")
-    p.add_argument("--api", type=int, default=20, help="POST /api/solve requests of each kind")
-    p.add_argument("--step-ms", type=int, default=16, help="time between pointer moves")
-    p.add_argument("--out", type=Path, default=ROOT / "studies" / "output" / "editor_latency")
-    args = p.parse_args(argv)
-    res = run(args.design, args.moves, args.drags, args.api, args.step_ms, args.out)
+def _print(res: dict) -> None:
     print(f"{res['design']}: {res['dofs']} DOFs, {res['cells']} cells; drags of {res['moves']} moves, "
-          f"one every {res['step_ms']} ms")
+          f"one every {res['step_ms']} ms; load {res['before']['load_average'][0]:.1f} -> "
+          f"{res['after']['load_average'][0]:.1f}")
     print("input event -> updated picture (the request's own event; every event incl. waiting):")
     print(_row("contraction slider", res["contraction"]["rendered"].get("contraction")))
     print(_row("  every event", res["contraction"]["every_event"].get("contraction")))
     print(_row("vertex drag (draft: moved nodes)", res["vertex"]["rendered"].get("vertex")))
     print(_row("  every event", res["vertex"]["every_event"].get("vertex")))
     print(_row("vertex release (full mesh)", res["vertex"]["rendered"].get("release")))
+    print(_row("  release -> converged picture", res["vertex"]["settled"].get("release")))
     print("server time per answer, and from sending the request to having the answer in the page:")
     for how, v in {**res["contraction"]["server_ms"], **res["vertex"]["server_ms"]}.items():
         print(_row(how, v))
@@ -221,9 +264,31 @@ def main(argv=None) -> dict:
         c = res[kind]["certificates"]
         print(f"  certificates of the {kind} drags: {c['preview']} preview, {c['converged']} converged "
               f"({c['converged_above_tolerance']} of them above the batch tolerance), the last {c['last']}")
+    print(f"  console errors: {len(res['console_errors'])}")
     print("POST /api/solve from a script:")
     print(_row("one bone vertex moved 0.5 mm", res["api"]["one_vertex_ms"]))
     print(_row("contraction changed 0.5 mm", res["api"]["contraction_ms"]))
+
+
+def main(argv=None) -> dict:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("design", nargs="?", default="geometry/finger.toml")
+    p.add_argument("--moves", type=int, default=30, help="pointer moves per drag")
+    p.add_argument("--drags", type=int, default=4, help="drags of each kind")
+    p.add_argument("--api", type=int, default=20, help="POST /api/solve requests of each kind")
+    p.add_argument("--api-fine", type=int, default=5, help="... on the finer meshes")
+    p.add_argument("--sizes", type=float, nargs="*", default=list(SIZES),
+                   help="finer mesh sizes (mm) also measured (none: the design's own only)")
+    p.add_argument("--step-ms", type=int, default=16, help="time between pointer moves")
+    p.add_argument("--out", type=Path, default=ROOT / "studies" / "output" / "editor_latency")
+    args = p.parse_args(argv)
+    if any(not h > 0 for h in args.sizes):
+        p.exit(1, "error: --sizes: mesh sizes must be positive (mm)\n")
+    res = run(args.design, args.moves, args.drags, args.api, args.step_ms, args.out, sizes=args.sizes,
+              api_fine=args.api_fine)
+    for case in [res] + res["sizes"]:
+        _print(case)
+        print()
     return res
 
 

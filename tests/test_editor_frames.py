@@ -164,10 +164,13 @@ def test_frames_of_one_design_stop_being_budgeted_past_the_solvers_iteration_lim
         eng.session.solver.max_iterations = 2            # a Newton that needs more steps than its limit
         d = copy.deepcopy(design)
         d["cables"][0]["contraction"] = float(d["cables"][0].get("contraction", 0.0)) + 3.0
-        statuses = [eng.solve(d, draft=True)["status"] for _ in range(4)]
-        # two one-step frames reach the limit; the third is solved to the end (whatever it ends with), and
-        # the page, which asks again only after a frame_budget answer, stops asking
-        assert statuses[:2] == ["frame_budget"] * 2 and statuses[2] != "frame_budget"
+        answers = [eng.solve(d, draft=True) for _ in range(4)]
+        statuses = [a["status"] for a in answers]
+        # the predictor's frame (no Newton step: the predictor spent the time) and two one-step frames reach
+        # the limit; the fourth is solved to the end (whatever it ends with), and the page, which asks again
+        # only after a frame_budget answer, stops asking
+        assert [a["newton_iterations"] for a in answers[:3]] == [0, 1, 1]
+        assert statuses[:3] == ["frame_budget"] * 3 and statuses[3] != "frame_budget"
     finally:
         eng.close()
 
@@ -241,3 +244,50 @@ def test_the_page_asks_again_after_a_frame_out_of_time_until_converged(tmp_path)
         if driver is not None:
             driver.quit()
         ed.stop()
+
+
+@pytest.mark.slow
+def test_the_pages_release_is_framed_and_goes_on_to_the_batch_solve(design):
+    """The page's release (framed=True): the new mesh, then Newton within the frame budget, asked again until
+    converged; preview until then, and the state is then a fresh batch solve's within 1e-8."""
+    eng = Engine(copy.deepcopy(design), "finger.toml", frame_budget=1e-6)
+    try:
+        d = copy.deepcopy(design)
+        for _ in range(3):
+            d["bones"][-1]["outline"][0][0] -= 0.5
+            eng.solve(d, draft=True)
+        a = eng.solve(d, framed=True)
+        assert a["editor"]["how"] == "edit (re-meshed)" and a["status"] == "frame_budget"
+        seen = [_check(eng, a)]
+        while a["status"] == "frame_budget" and len(seen) < 40:       # the page asks again
+            a = eng.solve(d, framed=True)
+            assert a["editor"]["how"] == "go on"
+            seen.append(_check(eng, a))
+        assert a["converged"] and seen[-1]["state"] == "converged" and len(seen) >= 2
+        assert all(c["state"] == "preview" for c in seen[:-1])
+        assert _same_state(eng, _batch(d)) < RELEASE_RTOL
+    finally:
+        eng.close()
+
+
+def test_a_frame_leaves_out_the_mesh_the_client_holds_and_the_fields_it_does_not_draw(design):
+    eng = Engine(copy.deepcopy(design), "finger.toml", frame_budget=None)
+    try:
+        whole = eng.first["mesh"]
+        key = whole["topology"]
+        assert {"cells", "regions", "x", "y", "fields", "region_names"} <= whole.keys()
+        d = copy.deepcopy(design)
+        d["cables"][0]["contraction"] = float(d["cables"][0].get("contraction", 0.0)) + 0.5
+        a = eng.solve(d, draft=True, have=key, fields=False)["mesh"]
+        assert a["topology"] == key and "cells" not in a and "x" not in a and "fields" not in a
+        assert len(a["y"]) == len(whole["y"]) and a["cables"] and a["markers"]
+        d["bones"][-1]["outline"][0][0] -= 0.3                     # moved nodes: the same cells
+        a = eng.solve(d, draft=True, have=key, fields=False)["mesh"]
+        assert a["topology"] == key and "cells" not in a
+        b = eng.solve(d, have=key, fields=False)["mesh"]          # the release: a new mesh, sent whole
+        assert b["topology"] != key and len(b["cells"]) > 0 and "fields" not in b
+        c = eng.solve(d, have=b["topology"], fields=True)         # unchanged, but the fields asked for now
+        assert c["editor"]["how"] == "unchanged" and "fields" in c["mesh"] and "cells" not in c["mesh"]
+        assert "cells" in eng.solve(d)["mesh"]                    # a client holding nothing gets it whole
+    finally:
+        eng.close()

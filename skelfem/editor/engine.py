@@ -276,6 +276,7 @@ class Engine:
                                                                 seconds=round(time.perf_counter() - t0, 4)))
             how = "go on"                           # from the last frame's state
         else:
+            self.preview_steps = 0                  # the iteration limit counts the frames of one design
             changes = live_changes(self.flat, flat, self.session.model.parameters()) if kept else None
             if changes is not None:
                 how = "set"

@@ -220,9 +220,10 @@ class LoadStepper:
         and its history (friction's anchors), never from rest: a grip is
         not squeezed and loaded at once. The report counts every iteration.
 
-        With a ``deadline`` (and no path dependence), Newton stops after the first step that ends past it:
-        the report is not converged, its status BUDGET_SPENT, and the state, the last accepted iterate, is
-        where the next resolve goes on from (the editor's frames while a handle is dragged).
+        With a ``deadline`` (and no path dependence), Newton stops after the first step that ends past it,
+        or takes none when the tangent predictor took a step and ended past it: the report is not
+        converged, its status BUDGET_SPENT, and the state, the last accepted iterate (or the predicted
+        one), is where the next resolve goes on from (the editor's frames while a handle is dragged).
         """
         t0 = time.perf_counter()
         model = self.model
@@ -239,7 +240,14 @@ class LoadStepper:
         model.set_factor(1.0)
         predicted = self._tangent_predictor()
         model.changes.clear()
-        ok, status, its = self.newton.attempt(stop_at=self.deadline if not model.path_dependent else None)
+        stop_at = self.deadline if not model.path_dependent else None
+        if stop_at is not None and predicted > 0 and time.monotonic() >= stop_at:
+            # the predictor spent the frame's time: its state is the frame, and Newton goes on from it next time
+            saved.destroy()
+            return self._finish(SolveReport(False, BUDGET_SPENT, 0, 0, [], [
+                {"factor": 1.0, "iterations": 0, "status": BUDGET_SPENT, "warm": True,
+                 "predictor_step": predicted}]), t0)
+        ok, status, its = self.newton.attempt(stop_at=stop_at)
         if status == BUDGET_SPENT and model.admissible(model.u.vector):   # a preview: the next call goes on
             saved.destroy()
             return self._finish(SolveReport(False, status, its, 0, [self.newton.history], [

@@ -33,7 +33,8 @@ const S = {
   ws: null, reqSeq: 0, inflight: null, queued: null, goOnTimer: null, lastInput: 0,
   topo: null,                            // the mesh's cells and regions as last sent (frames leave them out)
   inputSeq: 0, inputs: [],               // input events not yet shown: {seq, t, kind}
-  latency: { rendered: [], events: [] }, // ms from an input event to the picture showing it
+  latency: { rendered: [], events: [], settled: [] }, // ms from an input event to the picture showing it; from a
+  //                                     release to the first converged picture after it
   solves: 0, errors: 0, ready: false, server: [], renderMs: [],
   certificates: [],                      // {state, ratio} of every answer shown
 };
@@ -152,6 +153,8 @@ function painted(upto) {
     const shown = S.inputs.filter((i) => i.seq <= upto);
     S.inputs = S.inputs.filter((i) => i.seq > upto);
     for (const i of shown) S.latency.events.push({ kind: i.kind, ms: now - i.t });
+    const s = S.settling, c = S.answer && S.answer.certificate;
+    if (s && c && c.state === "converged") { S.latency.settled.push({ kind: s.kind, ms: now - s.t }); S.settling = null; }
     const own = shown.find((i) => i.seq === upto);
     if (own) {
       S.latency.rendered.push({ kind: own.kind, ms: now - own.t });
@@ -178,6 +181,7 @@ function input(kind) {
   S.lastInput = performance.now();
   performance.mark(`input-${S.inputSeq}`);
   S.inputs.push({ seq: S.inputSeq, t: performance.now(), kind });
+  if (kind.endsWith("release")) S.settling = { kind, t: performance.now() };
 }
 
 async function api(path, body) {
