@@ -450,13 +450,13 @@ def test_cli_serves_until_interrupted(tmp_path):
 
 
 @pytest.mark.slow
-def test_3d_design_opens_read_only(tmp_path):
+def test_3d_design_opens_editable(tmp_path):
     from skelfem.editor.server import Editor
     shutil.copy(GEOMETRY / "arm3d.toml", tmp_path / "arm3d.toml")
     ed = Editor(tmp_path / "arm3d.toml", port=0).start()
     try:
         status, d = request(ed, "GET", "/api/design")
-        assert status == 200 and d["dim"] == 3 and d["readonly"]
+        assert status == 200 and d["dim"] == 3 and not d["readonly"]
         first = d["first"]
         assert first["converged"] and first["mesh"]["dim"] == 3
         m = first["mesh"]

@@ -193,23 +193,6 @@ def test_drag_ik_target_reaches_it(page, editor, figures, picture):
     assert not page.console_errors()
 
 
-def test_3d_design_opens_read_only(tmp_path, figures, picture):
-    from skelfem.editor.server import Editor
-    shutil.copy(GEOMETRY / "arm3d.toml", tmp_path / "arm3d.toml")
-    ed = Editor(tmp_path / "arm3d.toml", port=0).start()
-    driver = chrome(900, 700)
-    try:
-        page = Page(driver, ed.url)
-        assert page.js("S.readonly") and page.js("!document.getElementById('banner').hidden")
-        assert "3D design" in page.js("document.getElementById('banner').textContent")
-        assert page.js("document.getElementById('edit-tools').hidden")
-        img = picture(page.screenshot(figures / "editor_3d.png"), 800, 500)
-        assert img is not None and not page.console_errors()
-    finally:
-        driver.quit()
-        ed.stop()
-
-
 def test_objects_are_drawn_moved_whole_and_show_their_contact_forces(tmp_path, figures, picture):
     """The gripper closed on its box: the box's cells in their own colour with a legend, arrows for the
     barrier and friction forces on it, and a pointer drag inside the box moves the whole object."""

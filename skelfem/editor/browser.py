@@ -96,6 +96,18 @@ class Page:
                              " const q = px(arguments[0]); return [r.left + q[0], r.top + q[1]]; })()",
                              [float(v) for v in point_mm]))
 
+    def handle3d(self, kind: str, **match) -> tuple[float, float]:
+        """Viewport pixel of a 3D handle (``S.handles3d``, editor3d.js) of this kind whose other fields match
+        (e.g. ``name="distal", axis=2`` or ``path=["markers", "tip"]``)."""
+        found = self.js("(() => { const b = document.getElementById('view3d').getBoundingClientRect();"
+                        " const m = arguments[1];"
+                        " const h = S.handles3d.find((h) => h.kind === arguments[0] && Object.keys(m).every("
+                        "(k) => JSON.stringify(h[k]) === JSON.stringify(m[k])));"
+                        " return h ? [b.left + h.x, b.top + h.y] : null; })()", kind, match)
+        if found is None:
+            raise LookupError(f"page: no 3D handle {kind} {match}")
+        return tuple(found)
+
     def center(self, css: str) -> tuple[float, float]:
         return tuple(self.js("(() => { const b = document.querySelector(arguments[0]).getBoundingClientRect();"
                              " return [b.left + b.width / 2, b.top + b.height / 2]; })()", css))

@@ -37,7 +37,7 @@ HEADER_TIMEOUT = 10.0       # s a connection may take to send a request's header
 KEEP_ALIVE = 5              # s an idle keep-alive connection is kept
 MAX_CONNECTIONS = 256       # open HTTP connections; beyond, the oldest idle one is closed (never a 503)
 BACKLOG = 128
-STATIC = ("index.html", "editor.js", "editor.css")
+STATIC = ("index.html", "editor.js", "editor3d.js", "editor.css")
 # The page's own files only; no form may submit anywhere, no <base> may redirect its links, no frame may hold it
 CSP = ("default-src 'self'; img-src 'self' data:; style-src 'self'; script-src 'self'; connect-src 'self'; "
        "object-src 'none'; form-action 'none'; base-uri 'none'; frame-ancestors 'none'")
@@ -368,7 +368,7 @@ class Editor:
         self.engine.ensure()
         d = self.engine.design
         return {"design": d.raw, "saved": self._on_disk(d.raw), "file": self.path.name, "folder": str(self.folder),
-                "dim": d.dim, "readonly": d.dim != 2, "parameters": sorted(self.engine.session.model.parameters()),
+                "dim": d.dim, "readonly": False, "parameters": sorted(self.engine.session.model.parameters()),
                 "first": self.engine.first if self.engine.first.get("converged") else None}
 
     def _on_disk(self, fallback: dict) -> dict:

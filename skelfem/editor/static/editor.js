@@ -824,67 +824,7 @@ function startIK(e) {
   input("ik"); drawIK(); requestIK(false);
 }
 
-// -- 3D: read-only view ----------------------------------------------------------------------------------------------
-const V3 = { yaw: 0.6, pitch: -0.5, drag: null };
-function draw3d() {
-  const cv = $("view3d"), a = S.answer;
-  const W = cv.clientWidth, H = cv.clientHeight;
-  cv.width = W; cv.height = H;
-  const ctx = cv.getContext("2d");
-  ctx.clearRect(0, 0, W, H);
-  showStatus();
-  if (!a || !a.mesh) return;
-  const m = a.mesh, cy = Math.cos(V3.yaw), sy = Math.sin(V3.yaw), cp = Math.cos(V3.pitch), sp = Math.sin(V3.pitch);
-  const lo = [0, 1, 2].map((j) => Math.min(...m.y.map((p) => p[j]))), hi = [0, 1, 2].map((j) => Math.max(...m.y.map((p) => p[j])));
-  const c = lo.map((v, j) => (v + hi[j]) / 2), size = Math.max(...hi.map((v, j) => v - lo[j]));
-  const k = 0.8 * Math.min(W, H) / size;
-  const proj = m.y.map((p) => {
-    const x = p[0] - c[0], y = p[1] - c[1], z = p[2] - c[2];
-    const x1 = cy * x + sy * z, z1 = -sy * x + cy * z;
-    const y2 = cp * y - sp * z1, z2 = sp * y + cp * z1;
-    return [W / 2 + k * x1, H / 2 - k * y2, z2];
-  });
-  const order = m.cells.map((f, i) => i).sort((i, j) =>
-    (proj[m.cells[i][0]][2] + proj[m.cells[i][1]][2] + proj[m.cells[i][2]][2]) -
-    (proj[m.cells[j][0]][2] + proj[m.cells[j][1]][2] + proj[m.cells[j][2]][2]));
-  for (const i of order) {
-    const [a0, a1, a2] = m.cells[i].map((v) => proj[v]);
-    const nz = (a1[0] - a0[0]) * (a2[1] - a0[1]) - (a1[1] - a0[1]) * (a2[0] - a0[0]);
-    const area = Math.hypot(nz) / ((Math.hypot(a1[0] - a0[0], a1[1] - a0[1]) * Math.hypot(a2[0] - a0[0], a2[1] - a0[1])) || 1);
-    const shade = 0.55 + 0.45 * Math.min(1, area);
-    const bone = m.regions[i] !== m.body_tag;
-    ctx.fillStyle = bone ? `rgba(${Math.round(232 * shade)},${Math.round(228 * shade)},${Math.round(216 * shade)},1)`
-      : `rgba(${Math.round(244 * shade)},${Math.round(182 * shade)},${Math.round(166 * shade)},0.45)`;
-    ctx.beginPath(); ctx.moveTo(a0[0], a0[1]); ctx.lineTo(a1[0], a1[1]); ctx.lineTo(a2[0], a2[1]); ctx.closePath(); ctx.fill();
-  }
-  const p3 = (p) => proj[0] && (() => {
-    const x = p[0] - c[0], y = p[1] - c[1], z = p[2] - c[2];
-    const x1 = cy * x + sy * z, z1 = -sy * x + cy * z;
-    return [W / 2 + k * x1, H / 2 - k * (cp * y - sp * z1)];
-  })();
-  for (const cb of m.cables) {
-    ctx.strokeStyle = cb.kind === "tendon" ? "#1f5fbf" : "#d9822b"; ctx.lineWidth = cb.slack ? 1.5 : 3;
-    ctx.setLineDash(cb.slack ? [3, 3] : []);
-    ctx.beginPath(); cb.via.forEach((p, i) => { const q = p3(p); if (i) ctx.lineTo(q[0], q[1]); else ctx.moveTo(q[0], q[1]); }); ctx.stroke();
-  }
-  ctx.setLineDash([]);
-  ctx.fillStyle = "#222"; ctx.font = "12px sans-serif";
-  for (const [n, p] of Object.entries(m.markers)) { const q = p3(p); ctx.beginPath(); ctx.arc(q[0], q[1], 4, 0, 7); ctx.fill(); ctx.fillText(n, q[0] + 6, q[1] - 6); }
-}
-function setup3d() {
-  $("view").hidden = true; const cv = $("view3d"); cv.hidden = false;
-  $("edit-tools").hidden = true;
-  for (const id of ["undo", "redo", "save", "saveas"]) $(id).disabled = true;
-  const b = $("banner"); b.hidden = false;
-  b.textContent = "This is a 3D design: the editor shows it read-only (drag to turn it). Edit its TOML file and " +
-    "simulate it with `skelfem simulate`; the editor edits 2D designs.";
-  cv.addEventListener("pointerdown", (e) => { V3.drag = [e.clientX, e.clientY, V3.yaw, V3.pitch]; cv.setPointerCapture(e.pointerId); });
-  cv.addEventListener("pointermove", (e) => {
-    if (!V3.drag) return;
-    V3.yaw = V3.drag[2] + (e.clientX - V3.drag[0]) * 0.01; V3.pitch = V3.drag[3] + (e.clientY - V3.drag[1]) * 0.01; draw3d();
-  });
-  cv.addEventListener("pointerup", () => { V3.drag = null; });
-}
+// -- 3D: editor3d.js (setup3d, draw3d, fit3d), loaded before this file ----------------------------------------
 
 // -- saving -------------------------------------------------------------------------------------------------------------
 async function save(name) {
