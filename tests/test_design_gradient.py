@@ -272,3 +272,93 @@ def test_friction_refuses_variables_that_move_the_contact():
     with Session(_block_on_floor()) as session:
         with pytest.raises(ValueError, match=r"body\.outline\[1\]\.x: design gradients through a ground's friction"):
             DesignGradient(session, ["bones.core.angle", "body.outline[1].x"])
+
+
+# -- 3D: bone poses ------------------------------------------------------------------------------------------
+BLOCK3D = {"format": 1, "name": "block3d", "dim": 3, "mesh": {"size": 2.5, "degree": 1},
+           "materials": {"ecoflex": {"E": 0.1, "nu": 0.45, "density": 1070.0},
+                         "pla": {"E": 3000.0, "nu": 0.35, "density": 1240.0}},
+           "body": {"solids": [{"extrude": {"outline": [[0, 0], [12, 0], [12, 40], [0, 40]], "z": [0, 12]}}],
+                    "material": "ecoflex"},
+           "bones": [{"name": "bone", "solids": [{"extrude": {"outline": [[3, 20], [9, 20], [9, 32], [3, 32]],
+                                                             "z": [3, 9]}}], "material": "pla"}],
+           # a straight tendon from the base into the bone: cut by the silicone's facets (moved by the harmonic
+           # extension) and the bone's (moved rigidly); its end rides on the bone's pose
+           "cables": [{"name": "flexor", "kind": "tendon", "path": [[5.1, 0, 6.1], [5.1, 26.3, 6.1]],
+                       "stiffness": 20.0, "contraction": 2.0}],
+           "pins": [{"name": "base", "region": [[-1, -1, -1], [13, 0.01, 13]], "kind": "fixed"}],
+           "markers": {"tip": [6, 40, 6]}, "solver": {"atol": 1e-12, "rtol": 1e-14}}
+KEYS_3D = ["bones.bone.offset.x", "bones.bone.offset.y", "bones.bone.offset.z", "bones.bone.angle.z",
+           "materials.ecoflex.E"]
+
+
+@pytest.fixture(scope="module")
+def block3d_gradient():
+    from skelfem.analysis.design_gradient import DesignGradient
+    from skelfem.session import Session
+    session = Session(BLOCK3D)
+    yield DesignGradient(session, KEYS_3D)
+    session.close()
+
+
+@pytest.mark.parametrize("key", KEYS_3D)
+def test_taylor_remainder_in_3d_for_bone_poses(block3d_gradient, key):
+    """A 3D block (about 2000 DOFs) whose bone is translated or turned: the mesh follows by skelfem.mesh.morph3d
+    (the bone's nodes rigidly, the silicone's by the harmonic extension, the same tetrahedra), UFL's
+    CoordinateDerivative gives dPi/dX in 3D, the tendon's cuts with the tetrahedra's facets are differentiated
+    through their 3 x 3 systems. The remainder falls at order >= 1.9 over three halvings, for the tip's
+    target and the tendon's tension."""
+    from skelfem.analysis.design_gradient import MarkerTarget, Tension
+    dg = block3d_gradient
+    j = dg.keys.index(key)
+    objectives = [MarkerTarget("tip", (0.0, 30.0, 6.0)), Tension("flexor")]
+    dg.solve(np.zeros(len(dg.keys)))
+    values, grads = zip(*[dg.gradient(o) for o in objectives])
+    e = np.eye(len(dg.keys))[j]
+    h0 = 0.005 if key.endswith(".E") else 0.05
+    remainders = np.zeros((len(objectives), 4))
+    for i, h in enumerate(h0 * 0.5 ** np.arange(4)):
+        assert dg.solve(h * e).converged
+        for k, o in enumerate(objectives):
+            remainders[k, i] = abs(o.value(dg.session.model) - values[k] - h * grads[k][j])
+    dg.solve(np.zeros(len(dg.keys)))
+    for k, o in enumerate(objectives):
+        orders = np.log2(remainders[k, :-1] / remainders[k, 1:])
+        assert np.all(orders >= 1.9), (key, type(o).__name__, grads[k][j], remainders[k], orders)
+
+
+def test_3d_pose_handles_and_the_morphs_transpose(block3d_gradient):
+    """velocities() is points()'s derivative (a turn moves the bone's nodes and the tendon's end in it), and
+    Morph3D.pull_back is the transpose of the harmonic extension that moves the other nodes."""
+    dg = block3d_gradient
+    h = dg.handles
+    p = np.array([0.3, -0.2, 0.1, 7.0, 0.0])
+    V = h.velocities(p)
+    for j in range(len(p)):
+        step = np.eye(len(p))[j] * 1e-6
+        assert np.allclose((h.points(p + step) - h.points(p - step)) / 2e-6, V[:, :, j], atol=1e-6)
+    assert ("path", "flexor", 1) in h.index and ("path", "flexor", 0) not in h.index
+    morph = dg.morph
+    rng = np.random.default_rng(5)
+    moves = np.zeros_like(morph.X0)
+    moves[morph.bound] = rng.standard_normal((len(morph.bound), 3))
+    inner = -(morph.K_IB @ moves[morph.bound])
+    from scipy.sparse.linalg import spsolve
+    from skelfem.mesh.morph3d import laplacian
+    K = laplacian(morph.X0, morph.cells).tocsc()
+    moves[morph.free] = np.column_stack([spsolve(K[morph.free][:, morph.free], inner[:, a]) for a in range(3)])
+    g = rng.standard_normal(morph.X0.shape)
+    assert np.sum(g * moves) == pytest.approx(np.sum(morph.pull_back(g) * moves), rel=1e-9)
+
+
+def test_3d_variables_that_do_not_exist_are_named():
+    from skelfem.analysis.handles import PoseHandles3D
+    from skelfem.design.parse import parse_design
+    from skelfem.mesh.geometry import mesh_design
+    from mpi4py import MPI
+    design = parse_design(BLOCK3D)
+    tm = mesh_design(design, MPI.COMM_SELF)
+    for keys, message in ((["bones.nope.offset.x"], "no bone 'nope'"), (["bones.bone.outline[0].x"], "not a 3D design"),
+                          (["bones.bone.angle.x", "bones.bone.angle.z"], "one turning axis per bone")):
+        with pytest.raises(ValueError, match=message):
+            PoseHandles3D(design, keys, tm)

@@ -1,4 +1,4 @@
-"""How a cable's energy, residual and tension change with the mesh nodes and its sketch (2D, no friction).
+"""How a cable's energy, residual and tension change with the mesh nodes and its sketch (2D and 3D, no friction).
 
 A cable (skelfem.terms.cables) runs through via points x_j = sum_k A_jk (Y_k + u(Y_k)):
 A picks a sketch vertex or a cut, or spreads an anchored end over its disk's
@@ -7,7 +7,10 @@ psi = (mesh nodes X, sketch vertices Q, anchor radius r):
 
 * a sketch vertex: Y = Q_m;
 * a cut of sketch segment (Q0, Q1) with mesh edge (A, B): Y = A + s (B - A) = Q0 + r (Q1 - Q0),
-  differentiated through the 2 x 2 system that gives (s, r);
+  differentiated through the 2 x 2 system that gives (s, r); in 3D with a mesh facet (A, B, C):
+  Y = A + s (B - A) + t (C - A) = Q0 + r (Q1 - Q0), through the 3 x 3 system M [r, s, t] = A - Q0,
+  M = [q, A - B, A - C]: with m the first row of M^-1 and P = q m^T,
+  dY = (I - P)((1 - r) dQ0 + r dQ1) + P ((1 - s - t) dA + s dB + t dC);
 * a point cutting a cell into pieces (P2): Y = (1 - f) Y_a + f Y_b between its cuts;
 * an anchor's lattice point: Y = Q_m + rho (r / r0), rho its offset at radius r0; the default radius
   is 1 % of the mesh's bounding-box diagonal (its derivative moves the extreme nodes; where several
@@ -50,13 +53,15 @@ def radius_gradient(x: np.ndarray) -> np.ndarray:
 
 
 def mesh_edges(mesh) -> tuple[np.ndarray, np.ndarray]:
-    """(geometry nodes (n_edges, 2), their coordinates (n_edges, 2, 2)) of every mesh edge."""
+    """(geometry nodes (n_facets, d), their coordinates (n_facets, d, d)) of every mesh facet: the edges of a
+    2D mesh, the triangles of a 3D one."""
     from dolfinx.cpp.mesh import entities_to_geometry
-    mesh.topology.create_connectivity(1, 0)
-    imap = mesh.topology.index_map(1)
+    d = mesh.geometry.dim
+    mesh.topology.create_connectivity(d - 1, 0)
+    imap = mesh.topology.index_map(d - 1)
     n = imap.size_local + imap.num_ghosts
-    nodes = entities_to_geometry(mesh._mesh, 1, np.arange(n, dtype=np.int32), False)
-    return nodes, mesh.geometry.x[nodes][:, :, :2]
+    nodes = entities_to_geometry(mesh._mesh, d - 1, np.arange(n, dtype=np.int32), False)
+    return nodes, mesh.geometry.x[nodes][:, :, :d]
 
 
 def _segment_distance(y: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -65,8 +70,21 @@ def _segment_distance(y: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray
     return np.linalg.norm(a + t[:, None] * e - y, axis=1)
 
 
+def _on_triangles(y: np.ndarray, tri: np.ndarray, tol: float) -> np.ndarray:
+    """Whether y (3,) lies on each triangle (k, 3, 3), within tol."""
+    a, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    n = np.cross(e1, e2)
+    area2 = np.linalg.norm(n, axis=1)
+    w = y - a
+    off = np.abs(np.einsum("ij,ij->i", w, n)) / np.maximum(area2, 1e-300)
+    s = np.einsum("ij,ij->i", np.cross(w, e2), n) / np.maximum(area2 ** 2, 1e-300)
+    t = np.einsum("ij,ij->i", np.cross(e1, w), n) / np.maximum(area2 ** 2, 1e-300)
+    eps = tol / np.maximum(np.sqrt(area2), 1e-300)
+    return (off <= tol) & (s >= -eps) & (t >= -eps) & (s + t <= 1 + eps)
+
+
 class CableShape:
-    """A frictionless cable's geometric derivatives at the model's present mesh (serial, 2D)."""
+    """A frictionless cable's geometric derivatives at the model's present mesh (serial, 2D or 3D)."""
 
     def __init__(self, model, term, edges=None):
         if term.cable.friction:
@@ -75,16 +93,17 @@ class CableShape:
         mesh, V = model.mesh, model.V
         spec = model.design.cable(term.name)
         self.path = np.asarray(spec.path, dtype=float)
-        x = mesh.geometry.x[:, :2]
+        d = self.dim = mesh.geometry.dim
+        x = mesh.geometry.x[:, :d]
         self.n_nodes, nq = len(x), len(self.path)
-        self.q0, self.r_col = 2 * self.n_nodes, 2 * self.n_nodes + 2 * nq
+        self.q0, self.r_col = d * self.n_nodes, d * self.n_nodes + d * nq
         n_cols = self.r_col + 1
         Xv = via_points(mesh, self.path, PIECES.get(V.ufl_element().degree(), 4))
         edges = edges if edges is not None else mesh_edges(mesh)
-        rows = self._provenance(mesh, Xv, edges)                    # dY of each via point: {col: 2x2}
+        rows = self._provenance(mesh, Xv, edges)                    # dY of each via point: {col: d x d}
         Y, dY, A_entries, n = self._anchored(mesh, Xv, rows, term.anchors, spec.anchor_radius is None)
         self.A = sp.csr_matrix(A_entries, shape=(n, len(Y)))
-        self.DY = self._matrix(dY, n_cols)
+        self.DY = self._matrix(dY, n_cols, d)
         if not np.allclose(self.A @ Y, self.cable.X, rtol=0.0, atol=1e-9 * (1.0 + float(np.abs(Y).max()))):
             raise ValueError(f"cables.{term.name}: its via points could not be traced back to the sketch")
         self.points = MaterialPoints(V, Y)
@@ -92,7 +111,9 @@ class CableShape:
 
     # -- where each point comes from --------------------------------------------------------------------
     def _provenance(self, mesh, Xv: np.ndarray, edges) -> list[dict]:
-        """{column: 2 x 2 block} of dY_j / dpsi for every via point of the sketch."""
+        """{column: d x d block} of dY_j / dpsi for every via point of the sketch."""
+        if self.dim == 3:
+            return self._provenance_3d(Xv, edges)
         path, q0 = self.path, self.q0
         tol = 1e-9 * (1.0 + float(np.abs(Xv).max()))
         edge_nodes, edge_x = edges
@@ -147,6 +168,42 @@ class CableShape:
                     rows[j][col] = rows[j].get(col, 0.0) + w * C
         return rows
 
+    def _provenance_3d(self, Xv: np.ndarray, facets) -> list[dict]:
+        """{column: 3 x 3 block} of dY_j / dpsi for every via point of a 3D sketch: a vertex, or a cut with a
+        facet (the most transverse of those that hold it); P1 (no points inside cells)."""
+        path, q0 = self.path, self.q0
+        tol = 1e-9 * (1.0 + float(np.abs(Xv).max()))
+        facet_nodes, facet_x = facets
+        lo, hi = facet_x.min(axis=1) - tol, facet_x.max(axis=1) + tol
+        vertex = np.array([int(np.argmin(np.linalg.norm(path - y, axis=1))) for y in Xv])
+        is_vertex = np.linalg.norm(path[vertex] - Xv, axis=1) <= tol
+        eye, segment, rows = np.eye(3), 0, []
+        for j, y in enumerate(Xv):
+            if is_vertex[j]:
+                segment = min(int(vertex[j]), len(path) - 2)
+                rows.append({q0 + 3 * int(vertex[j]): eye})
+                continue
+            near = np.flatnonzero(np.all((lo <= y) & (hi >= y), axis=1))
+            on = near[_on_triangles(y, facet_x[near], tol)]
+            if not len(on):
+                raise ValueError(f"cables.{self.term.name}: a via point at {y} lies on no facet (3D design gradients "
+                                 "cover P1 meshes)")
+            Q0, Q1 = path[segment], path[segment + 1]
+            q = Q1 - Q0
+            tri = facet_x[on]
+            n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+            k = int(np.argmax(np.abs(n @ q) / np.linalg.norm(n, axis=1)))
+            (ia, ib, ic), (a, b, c) = facet_nodes[on[k]], tri[k]
+            M = np.column_stack([q, a - b, a - c])
+            if abs(np.linalg.det(M)) <= PARALLEL * np.linalg.norm(q) * np.linalg.norm(n[k]):
+                raise ValueError(f"cables.{self.term.name}: its sketch runs in a mesh facet at {y}")
+            Minv = np.linalg.inv(M)
+            r, s_, t_ = Minv @ (a - Q0)
+            P = np.outer(q, Minv[0])
+            rows.append({q0 + 3 * segment: (1 - r) * (eye - P), q0 + 3 * (segment + 1): r * (eye - P),
+                         3 * int(ia): (1 - s_ - t_) * P, 3 * int(ib): s_ * P, 3 * int(ic): t_ * P})
+        return rows
+
     def _anchored(self, mesh, Xv, rows, anchors: dict, default_radius: bool):
         """(points Y, their dY rows, the entries of A, its rows) as skelfem.terms.cable_route.anchored_interpolation
         makes them: anchored via points spread over their disks' lattice points."""
@@ -191,17 +248,18 @@ class CableShape:
         return np.vstack(Y), dY, (np.array(a_vals), (np.array(a_rows), np.array(a_cols))), n
 
     @staticmethod
-    def _matrix(dY: list[dict], n_cols: int) -> sp.csr_matrix:
-        """The rows of dY (2 per point) as one sparse matrix over psi."""
+    def _matrix(dY: list[dict], n_cols: int, d: int = 2) -> sp.csr_matrix:
+        """The rows of dY (d per point) as one sparse matrix over psi."""
         r, c, v = [], [], []
         for k, row in enumerate(dY):
             for col, C in row.items():
-                C = np.asarray(C, dtype=float).reshape(2, -1)
+                C = np.asarray(C, dtype=float).reshape(d, -1)
                 m = C.shape[1]
-                r += [2 * k] * m + [2 * k + 1] * m
-                c += list(range(col, col + m)) * 2
+                for i in range(d):
+                    r += [d * k + i] * m
+                c += list(range(col, col + m)) * d
                 v += C.ravel().tolist()
-        return sp.csr_matrix((v, (r, c)), shape=(2 * len(dY), n_cols))
+        return sp.csr_matrix((v, (r, c)), shape=(d * len(dY), n_cols))
 
     # -- pulling scalars back -------------------------------------------------------------------------
     def positions(self, u: np.ndarray) -> np.ndarray:
@@ -221,8 +279,8 @@ class CableShape:
             zs = np.einsum("kji,kj->ki", Z, As)
             a, b = a + zs, b - zs
         g = self.DY.T @ a.ravel()
-        gX = g[:self.q0].reshape(-1, 2) + pts.nodes_of(b) + g[self.r_col] * self.dr_dX
-        return gX, g[self.q0:self.r_col].reshape(-1, 2)
+        gX = g[:self.q0].reshape(-1, self.dim) + pts.nodes_of(b) + g[self.r_col] * self.dr_dX
+        return gX, g[self.q0:self.r_col].reshape(-1, self.dim)
 
     def _state(self, u):
         x, X = self.positions(u), self.A @ self.points.Y
@@ -248,7 +306,7 @@ class CableShape:
         """d/dX and d/dQ of z^T R_cable(u) = k s (grad l . z) at fixed u and z (local DOF arrays)."""
         _, norm, t, tau, tau0, s = self._state(u)
         if s <= 0.0:
-            return np.zeros((self.n_nodes, 2)), np.zeros((len(self.path), 2))
+            return np.zeros((self.n_nodes, self.dim)), np.zeros((len(self.path), self.dim))
         k = self.cable.k
         dz = np.diff(self.A @ self.points.values(z), axis=0)
         lam = float(np.sum(t * dz))

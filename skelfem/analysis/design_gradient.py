@@ -1,4 +1,4 @@
-"""Exact design gradients of a static equilibrium by the adjoint (2D).
+"""Exact design gradients of a static equilibrium by the adjoint (2D; 3D bone poses).
 
 The design's handles p (skelfem.analysis.handles) move its polygons, cable
 sketches and markers; the mesh follows the polygons by the editor's morph
@@ -15,6 +15,14 @@ every handle. z^T dR/dX and dJ/dX are assembled once as vectors over the
 nodes (skelfem.analysis.shape) and pulled back to the polygon vertices by the
 transpose of the morph (Morph.pull_back: two solves with its Laplacian),
 whatever the number of handles.
+
+In 3D the handles are the bones' poses and the materials' E
+(skelfem.analysis.handles.PoseHandles3D) and the mesh follows by
+skelfem.mesh.morph3d (a posed bone's nodes rigidly, the silicone's by the
+harmonic extension, the outer surface fixed): the same formula, with
+Morph3D.pull_back for the morph's transpose and the tendons' cuts with the
+tetrahedra's facets differentiated through their 3 x 3 systems
+(skelfem.analysis.cable_shape).
 
 Exact for the discrete problem on the moved mesh: what the test against
 full re-solves on moved meshes (tests/test_design_gradient.py) measures. Not
@@ -39,9 +47,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..mesh.morph import Morph, polygons
+from ..mesh.morph3d import Morph3D
 from ..terms.friction import GroundFriction
 from .cable_shape import mesh_edges
-from .handles import DesignHandles
+from .handles import DesignHandles, PoseHandles3D
 from .sensitivity import Linearization
 from .shape import ShapeDerivative, uncovered
 from .shape_points import MaterialPoints
@@ -94,7 +103,8 @@ class MarkerTarget:
     def state_gradient(self, model) -> np.ndarray:
         markers, i = self._points(model)
         r = markers.positions(model.u.x.array)[i] - np.asarray(self.target, dtype=float)
-        S = markers.local_operator()[2 * i:2 * i + 2]
+        d = model.mesh.geometry.dim
+        S = markers.local_operator()[d * i:d * i + d]
         return np.asarray(S.T @ (2.0 * r)).ravel()
 
     def explicit_parameter(self, cable: str, kind: str, dT: float) -> float:
@@ -153,7 +163,9 @@ class DesignGradient:
         if why:
             raise ValueError(why)
         self.session = session
-        self.handles = DesignHandles(session.design, keys)
+        self.dim = session.design.dim
+        self.handles = DesignHandles(session.design, keys) if self.dim == 2 else \
+            PoseHandles3D(session.design, keys, session.model.tm)
         self.frictional = any(isinstance(t, GroundFriction) and t.active for t in session.model.terms)
         if self.frictional:
             n_loops = len(session.design.body_loops)
@@ -163,7 +175,8 @@ class DesignGradient:
                     raise ValueError(f"{h.key}: design gradients through a ground's friction take variables that "
                                      "leave the body's outline and holes in place (their nodes carry the stick "
                                      "anchors)")
-        self.morph = Morph(session.model.tm, session.design)
+        self.morph = Morph(session.model.tm, session.design) if self.dim == 2 else \
+            Morph3D(session.model.tm, session.design)
         self.p = np.zeros(len(self.handles.keys))
         self._shape = None
         self.timings: dict = {}
@@ -215,6 +228,12 @@ class DesignGradient:
         """The mesh is where the morph puts it for the handles' present values (else the gradient would be
         of another discrete problem)."""
         model = self.session.model
+        if self.dim == 3:
+            X = self.morph.moved(self.session.design)
+            if X is None or not np.allclose(model.mesh.geometry.x, X, rtol=0.0,
+                                            atol=1e-9 * (1.0 + float(np.abs(X).max()))):
+                raise ValueError("the mesh is not the start mesh moved by the morph (was the session re-meshed?)")
+            return
         polys, _, _ = self.handles.split(self.handles.points(self.p))
         X = self.morph.X0 + self.morph.displacement([a - b for a, b in zip(polys, self.morph.polys0)])
         scale = 1.0 + float(np.abs(X).max())
@@ -267,6 +286,8 @@ class DesignGradient:
         sketch, a sketch vertex, anchor lattice point or marker crosses a mesh edge: skelfem.analysis.
         smooth_step), followed to second order in h: where J(p + h dp) is smooth and its Taylor remainder
         falls as h^2."""
+        if self.dim != 2:
+            raise ValueError("smooth_step: 2D designs")
         dp = np.asarray(dp, dtype=float)
         h = self.handles
         V = h.velocities(self.p) @ dp                       # (points, 2)

@@ -220,3 +220,158 @@ def _centroid(outline: np.ndarray) -> np.ndarray:
     cross = x * y1 - x1 * y
     area = 0.5 * cross.sum()
     return np.array([((x + x1) * cross).sum(), ((y + y1) * cross).sum()]) / (6.0 * area)
+
+
+# -- 3D: the bones' poses ------------------------------------------------------------------------------------
+KINDS_3D = "bones.B.offset.x|y|z (mm), bones.B.angle.x|y|z (degrees), materials.M.E"
+
+
+class PoseHandles3D:
+    """Handles on a 3D design's bone poses: ``bones.B.offset.x|y|z`` (a translation, mm) and
+    ``bones.B.angle.x|y|z`` (a turn about that axis through the bone's centre, degrees; one axis per
+    bone), and ``materials.M.E``; each a change from the start design (p = 0), whose bones carry no pose.
+
+    The points they move are the posed bones' mesh nodes (which skelfem.mesh.morph3d moves rigidly), the
+    cable sketch vertices and markers inside those bones (carried by the pose, as in 2D), at
+    points(p) = c + R(angle) (P0 - c) + offset; ``velocities`` is its exact Jacobian. ``join`` takes the
+    nodes' gradient as Morph3D.pull_back gives it.
+    """
+
+    def __init__(self, design, keys, tagged_mesh):
+        if design.dim != 3:
+            raise ValueError("PoseHandles3D: a 3D design")
+        self.start = design
+        names = [b.name for b in design.bones]
+        self.handles = []
+        for key in keys:
+            parts = key.split(".") if isinstance(key, str) else []
+            if len(parts) == 3 and parts[0] == "materials" and parts[2] == "E":
+                if parts[1] not in design.materials:
+                    raise ValueError(f"{key}: no material {parts[1]!r}")
+                self.handles.append(Handle(key, "modulus", material=parts[1]))
+            elif len(parts) == 4 and parts[0] == "bones" and parts[2] in ("offset", "angle") \
+                    and parts[3] in ("x", "y", "z"):
+                if parts[1] not in names:
+                    raise ValueError(f"{key}: no bone {parts[1]!r} (have: {', '.join(names)})")
+                self.handles.append(Handle(key, parts[2], bone=names.index(parts[1]), axis="xyz".index(parts[3])))
+            else:
+                raise ValueError(f"{key!r}: not a 3D design variable ({KINDS_3D})")
+        twice = sorted({k for k in keys if list(keys).count(k) > 1})
+        if twice:
+            raise ValueError(f"{twice[0]}: named twice")
+        self.keys = [h.key for h in self.handles]
+        self.anchor_radii: dict = {}
+        posed = sorted({h.bone for h in self.handles if h.kind in ("offset", "angle")})
+        self.axis = {}
+        for h in self.handles:
+            if h.kind == "angle":
+                if self.axis.setdefault(h.bone, h.axis) != h.axis:
+                    raise ValueError(f"{h.key}: one turning axis per bone")
+        for b in posed:
+            if design.bones[b].pose is not None:
+                raise ValueError(f"bones.{design.bones[b].name}: 3D design gradients start from a bone without a "
+                                 "pose (move, rotate) of its own")
+        self._points(design, tagged_mesh, posed)
+
+    def _points(self, design, tm, posed) -> None:
+        """The points each posed bone carries: its mesh nodes, the sketch vertices and markers inside it."""
+        from ..mesh.points import locate_cells
+        mesh = tm.mesh
+        cells = mesh.geometry.dofmap.array.reshape(-1, 4)
+        tag_of = np.zeros(len(cells), dtype=int)
+        tag_of[np.asarray(tm.cell_tags.indices)] = np.asarray(tm.cell_tags.values)
+        X = mesh.geometry.x[:, :3]
+        self.paths0 = {c.name: np.asarray(c.path, dtype=float) for c in design.cables}
+        self.markers0 = {n: np.asarray(v, dtype=float) for n, v in design.markers.items()}
+        sketch = [("path", c, i) for c, p in self.paths0.items() for i in range(len(p))] + \
+            [("marker", m, 0) for m in self.markers0]
+        S = np.vstack([self.paths0[n[1]][n[2]] if n[0] == "path" else self.markers0[n[1]] for n in sketch]) \
+            if sketch else np.zeros((0, 3))
+        where = tag_of[locate_cells(mesh, S)] if len(S) else np.zeros(0, int)
+        self.names, P, group = [], [], []
+        self.centre = {}
+        for b in posed:
+            tag = tm.tags[f"bone:{design.bones[b].name}"]
+            nodes = np.unique(cells[tag_of == tag])
+            self.centre[b] = 0.5 * (X[nodes].min(axis=0) + X[nodes].max(axis=0))
+            self.names += [("node", int(k), 0) for k in nodes]
+            P.append(X[nodes])
+            group += [b] * len(nodes)
+            inside = [j for j in range(len(sketch)) if where[j] == tag]
+            self.names += [sketch[j] for j in inside]
+            P.append(S[inside])
+            group += [b] * len(inside)
+        self.P0 = np.vstack(P) if P else np.zeros((0, 3))
+        self.group = np.array(group, dtype=int)
+        self.index = {n: j for j, n in enumerate(self.names)}
+
+    def _poses(self, p) -> dict:
+        """{bone: (R, offset)} at p."""
+        from ..design.pose import rotation
+        angle = {b: 0.0 for b in self.centre}
+        offset = {b: np.zeros(3) for b in self.centre}
+        for h, v in zip(self.handles, p):
+            if h.kind == "angle":
+                angle[h.bone] += float(v)
+            elif h.kind == "offset":
+                offset[h.bone] = offset[h.bone] + float(v) * np.eye(3)[h.axis]
+        return {b: (rotation(np.eye(3)[self.axis.get(b, 2)], angle[b]), offset[b], angle[b]) for b in self.centre}
+
+    def points(self, p) -> np.ndarray:
+        P = self.P0.copy()
+        for b, (R, o, _) in self._poses(p).items():
+            idx = self.group == b
+            P[idx] = self.centre[b] + (P[idx] - self.centre[b]) @ R.T + o
+        return P
+
+    def velocities(self, p) -> np.ndarray:
+        """dPoints/dp, (n, 3, handles): exact at p."""
+        poses = self._poses(p)
+        out = np.zeros((len(self.P0), 3, len(self.handles)))
+        for j, h in enumerate(self.handles):
+            idx = self.group == h.bone
+            if h.kind == "offset":
+                out[idx, h.axis, j] = 1.0
+            elif h.kind == "angle":
+                r = (self.P0[idx] - self.centre[h.bone]) @ poses[h.bone][0].T
+                out[idx, :, j] = math.radians(1.0) * np.cross(np.eye(3)[self.axis[h.bone]], r)
+        return out
+
+    def raw(self, p) -> dict:
+        """The start design's TOML data with the handles at p."""
+        raw = copy.deepcopy(self.start.raw)
+        P = self.points(p)
+        for b, (_, o, a) in self._poses(p).items():
+            bone = raw["bones"][b]
+            bone["move"] = [float(v) for v in o]
+            bone["rotate"] = {"angle": float(a), "axis": [float(v) for v in np.eye(3)[self.axis.get(b, 2)]],
+                              "centre": [float(v) for v in self.centre[b]]}
+        for cable in raw.get("cables", []):
+            path = [list(map(float, q)) for q in self.paths0[cable["name"]]]
+            for i in range(len(path)):
+                j = self.index.get(("path", cable["name"], i))
+                if j is not None:
+                    path[i] = P[j].tolist()
+            cable["path"] = path
+            if cable["name"] in self.anchor_radii:
+                cable["anchor_radius"] = self.anchor_radii[cable["name"]]
+        for name in self.markers0:
+            j = self.index.get(("marker", name, 0))
+            if j is not None:
+                raw["markers"][name] = P[j].tolist()
+        for h, v in zip(self.handles, p):
+            if h.kind == "modulus":
+                raw["materials"][h.material]["E"] = float(raw["materials"][h.material]["E"]) + float(v)
+        return raw
+
+    def join(self, g_nodes: np.ndarray, paths: dict, markers: dict) -> np.ndarray:
+        """The gradient at every point: the nodes' from g_nodes (n_nodes, 3), the sketch's and markers'."""
+        out = np.zeros_like(self.P0)
+        for j, n in enumerate(self.names):
+            if n[0] == "node":
+                out[j] = g_nodes[n[1]]
+            elif n[0] == "path" and n[1] in paths:
+                out[j] = paths[n[1]][n[2]]
+            elif n[0] == "marker" and n[1] in markers:
+                out[j] = markers[n[1]]
+        return out

@@ -23,11 +23,11 @@ the body's outline and holes in place (skelfem.analysis.design_gradient
 refuses the others), so its shape derivative is zero; the lag's coupling is
 in the adjoint solve (Linearization.solve_transposed).
 
-Covered: 2D, one MPI process, elastic bones, fixed and spring pins, gravity,
-tractions, frictionless cables, markers, grounds with or without friction.
+Covered: one MPI process, 2D and 3D (the same forms; 3D handles: bone poses
+and E), elastic bones, fixed and spring pins, gravity, tractions,
+frictionless cables, markers, grounds with or without friction (2D tested).
 Refused with a ValueError naming the ingredient: rigid bones and objects,
-contact between bodies, cable friction, point loads, turned pins, dynamics,
-3D.
+contact between bodies, cable friction, point loads, turned pins, dynamics.
 """
 from __future__ import annotations
 
@@ -51,8 +51,6 @@ def uncovered(model) -> str | None:
     design = model.design
     if model.comm.size > 1:
         return "design gradients run on one MPI process"
-    if design.dim != 2:
-        return "design gradients cover 2D designs"
     if model.rigid:
         return f"bones.{model.rigid[0].name}.rigid: design gradients do not cover rigid bones yet"
     if design.dynamics is not None:
@@ -110,8 +108,9 @@ class ShapeDerivative:
         vec = fem_petsc.assemble_vector(form)
         values = vec.array.copy()
         vec.destroy()
-        out = np.zeros((len(self.node_of), 2))
-        out[self.node_of] = values.reshape(-1, 2)
+        d = self.model.mesh.geometry.dim
+        out = np.zeros((len(self.node_of), d))
+        out[self.node_of] = values.reshape(-1, d)
         return out
 
     def energy(self) -> tuple[np.ndarray, dict]:

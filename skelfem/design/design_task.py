@@ -89,7 +89,7 @@ class Task:
 def uncovered(design) -> str | None:
     """'KEY: why' for a design ingredient the design gradient does not cover, or None (design level)."""
     if design.dim != 2:
-        return "dim: design gradients cover 2D designs"
+        return "dim: optimize-design takes 2D designs (3D bone poses: skelfem.analysis.design_gradient)"
     if design.dynamics is not None:
         return "dynamics: design gradients cover static equilibria"
     for b in design.bones:

@@ -142,6 +142,18 @@ class Morph3D:
             return None
         return x
 
+    def pull_back(self, g: np.ndarray) -> np.ndarray:
+        """The transpose of the harmonic extension: for g = dJ/dX (n, 3) at every node, dJ/d(the moves of the
+        bones' and the outer surface's nodes) (n, 3; zero on the other nodes), whatever moves them. One solve
+        with K_II per axis (K_II is symmetric)."""
+        g = np.asarray(g, dtype=float)
+        out = np.zeros_like(g)
+        out[self.bound] = g[self.bound]
+        if self._solve is not None:
+            y = np.column_stack([self._solve(np.ascontiguousarray(g[self.free, j])) for j in range(3)])
+            out[self.bound] -= self.K_IB.T @ y
+        return out
+
     def apply(self, x: np.ndarray) -> None:
         """Put the node coordinates x into the mesh and forget what was computed from the old ones."""
         self.mesh.geometry.x[:, :3] = x
