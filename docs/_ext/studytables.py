@@ -235,6 +235,31 @@ def editor_latency(_: dict) -> Table:
     return Table(["what", "rendered", "every event", "server's own time"], rows, caption, [path])
 
 
+def editor_latency_sizes(_: dict) -> Table:
+    """The editor's latency on the bundled design and on finer meshes of it (one row each)."""
+    d, path = load_json("editor_latency/latency.json", "python studies/editor_latency.py")
+
+    def pp(s: dict | None) -> str:
+        return f"{s['p50']:.0f} / {s['p95']:.0f}" if s and s.get("n") else "–"
+
+    rows = []
+    for case in [d] + d.get("sizes", []):
+        c, v = case["contraction"], case["vertex"]
+        render = [x for x in (c["render_ms"], v["render_ms"]) if x.get("n")]
+        rows.append([f"h = {short(case['mesh_size'])} mm", f"{case['dofs']:,}", f"{case['cells']:,}",
+                     pp(c["rendered"].get("contraction")), pp(v["rendered"].get("vertex")),
+                     pp(v["rendered"].get("release")), pp(v.get("settled", {}).get("release")),
+                     span([x["p50"] for x in render], lambda t: f"{t:.1f}"),
+                     pp(c["server_ms"].get("set")), pp(v["server_ms"].get("edit (moved nodes)")),
+                     f"{case['before']['load_average'][0]:.1f}–{case['after']['load_average'][0]:.1f}"])
+    caption = (f"{d['design']} and finer meshes of it: {d['drags']} drags of {d['moves']} moves each, a move every "
+               f"{d['step_ms']} ms; p50 / p95 in ms from the input event to the picture (release: its first "
+               f"frame, then its first converged picture); frame budget {d['frame_budget_ms']:g} ms; the host's "
+               "one-minute load average before and after each case (two cores).")
+    return Table(["mesh", "DOFs", "cells", "slider", "bone-vertex drag", "release", "release, converged",
+                  "drawing (p50)", "server: set", "server: moved nodes", "load"], rows, caption, [path])
+
+
 def _rigid(rel: str, command: str) -> Table:
     d, path = load_json(rel, command)
 
@@ -916,7 +941,7 @@ TABLES = {f.__name__: f for f in (estimate_effectivity, estimate_cost, estimate_
                                   goal_oriented,
                                   linear_scaling, krylov_bounds, arm3d_fine, reference_3d, bench, in_hand_roll,
                                   slice_check, slice_check_3mf, fabrication_volumes, fabrication_poses, mpi_speed,
-                                  editor_latency, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
+                                  editor_latency, editor_latency_sizes, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
                                   tol_check, tol_check_adaptive, scatter, adaptive_reach, adaptive_tol_runs,
                                   stability, stability_slender, friction_stability, peer, pull_test, dynamics_checks,
                                   grasp, grasp3d, hand_grasp, hand_scenario, grasp_bench, landing,
