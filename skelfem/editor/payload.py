@@ -55,20 +55,30 @@ def _lame_by_tag(design, tags: dict) -> tuple[dict, dict]:
 _FACES: dict = {}          # the last mesh's boundary faces, by a digest of its cells and regions
 
 
-def boundary_faces(tets: np.ndarray, regions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def boundary_faces(tets: np.ndarray, regions: np.ndarray, x: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """Triangles on the boundary of each region of a tetrahedral mesh, with their region (the last mesh's
-    kept: a 3D drag's frames move the nodes, not the cells; 46 ms of a frame at 10k DOFs)."""
+    kept: a 3D drag's frames move the nodes, not the cells; 46 ms of a frame at 10k DOFs). With the node
+    coordinates x, each triangle is ordered counter-clockwise seen from outside its region (the page draws
+    only the ones that face the viewer)."""
     import hashlib
-    key = hashlib.sha1(np.ascontiguousarray(tets).tobytes() + np.ascontiguousarray(regions).tobytes()).hexdigest()
+    key = hashlib.sha1(np.ascontiguousarray(tets).tobytes() + np.ascontiguousarray(regions).tobytes()
+                       + (b"x" if x is not None else b"")).hexdigest()
     if key not in _FACES:
         _FACES.clear()
-        _FACES[key] = _boundary_faces(tets, regions)
+        _FACES[key] = _boundary_faces(tets, regions, x)
     return _FACES[key]
 
 
-def _boundary_faces(tets: np.ndarray, regions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _boundary_faces(tets: np.ndarray, regions: np.ndarray, x: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """Triangles on the boundary of each region of a tetrahedral mesh, with their region."""
     faces = np.concatenate([tets[:, [0, 1, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 3]], tets[:, [1, 2, 3]]])
+    if x is not None:                 # outward: away from the tetrahedron's fourth vertex
+        opposite = np.concatenate([tets[:, 3], tets[:, 2], tets[:, 1], tets[:, 0]])
+        a, b, c = x[faces[:, 0]], x[faces[:, 1]], x[faces[:, 2]]
+        inward = np.einsum("ij,ij->i", np.cross(b - a, c - a), x[opposite] - a) > 0
+        faces[inward] = faces[inward][:, [0, 2, 1]]
     owner = np.tile(regions, 4)
     key = np.sort(faces, axis=1)
     _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
@@ -104,7 +114,7 @@ def mesh_payload(model, topology: bool = True, fields: bool = True) -> dict:
             out["fields"] = cell_fields(x, y, cells, np.vectorize(mu.get)(regions).astype(float),
                                         np.vectorize(lam.get)(regions).astype(float))
     else:
-        cells, regions = boundary_faces(cells, regions)
+        cells, regions = boundary_faces(cells, regions, x)
         used, cells = np.unique(cells, return_inverse=True)
         cells = cells.reshape(-1, 3)
         x, y = x[used], y[used]

@@ -147,6 +147,7 @@ function drawSurfaces(ctx, m) {
     const c = cells[i], x0 = P[3 * c[0]], y0 = P[3 * c[0] + 1], x1 = P[3 * c[1]], y1 = P[3 * c[1] + 1];
     const x2 = P[3 * c[2]], y2 = P[3 * c[2] + 1];
     const cross = (x1 - x0) * (y2 - y0) - (y1 - y0) * (x2 - x0);
+    if (cross >= 0) continue;                // faces outward-ordered by the server: this one faces away
     const norm = Math.hypot(x1 - x0, y1 - y0) * Math.hypot(x2 - x0, y2 - y0) || 1;
     const shade = Math.round(10 * (0.55 + 0.45 * Math.min(1, Math.abs(cross) / norm))) / 10;
     const bone = m.regions[i] !== m.body_tag;
