@@ -419,7 +419,9 @@ class Session:
         timings["total"] = sum(timings.values())
         self.timings = {"mesh": 0.0, "compile": 0.0}          # paid once per mesh
         data = result_dict(self.design, self.model, report, timings)
-        warnings = list(dict.fromkeys(note for term in self.model.terms for note in term.take_notes()))
+        from .terms.capabilities import History
+        warnings = list(dict.fromkeys(note for term in self.model.terms if isinstance(term, History)
+                                      for note in term.take_notes()))
         if retried is not None:
             data["retried_from_rest"] = {"warm_status": retried.status,
                                          "warm_newton_iterations": int(retried.newton_iterations)}

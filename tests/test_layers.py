@@ -161,6 +161,8 @@ def test_no_private_names_cross_modules():
 SOFT_LINES, HARD_LINES = 600, 800
 LONG_MODULES = {
     "skelfem.fem.linear": "the direct and the iterative solve share the low-rank (Woodbury) and border algebra",
+    "skelfem.fem.model": "the one place the terms meet: their summed energy and derivatives, the state, the "
+                         "constraints, the live parameters and the terms found by ability (Model.having)",
     "skelfem.terms.object_friction": "the potential, its lag, the anchors' return map and the landing of objects "
                                      "all read and write the one per-vertex anchor state (facet, b, T, N, fresh)",
 }
@@ -271,3 +273,23 @@ def test_a_misspelt_term_hook_is_refused_when_the_class_is_defined():
     class Fine(Term):                 # a new helper name far from any hook is fine
         def stiffness_of(self, x):
             return x
+
+
+def test_a_hook_of_an_ability_the_term_does_not_declare_is_refused():
+    """Optional hooks belong to abilities (skelfem.terms.capabilities) that the model finds with
+    isinstance: a term defining end_step without declaring History would never be told of a step."""
+    from skelfem.terms.base import Term
+    from skelfem.terms.capabilities import CAPABILITIES, History
+
+    with pytest.raises(TypeError, match="a hook of History"):
+        class Undeclared(Term):
+            def end_step(self, model):
+                pass
+
+    class Declared(Term, History):
+        def end_step(self, model):
+            pass
+
+    hooks = [n for n, v in vars(Term).items() if not n.startswith("_") and callable(v)]
+    assert len(hooks) <= 13, hooks           # the small contract: energy, pattern, parameters, read-outs
+    assert len(CAPABILITIES) >= 10

@@ -37,15 +37,15 @@ N = N(x_{n+1}). Both are followed exactly, in forward (tangent) mode: with
 J_{n+1} = H_{n+1} + C_{n+1} the Jacobian through the lags
 (skelfem.analysis.sensitivity.Linearization, hold_lags=False) and
 a^_n = A(a_n, x_n) the anchors the step uses (a contact formed during the
-step is anchored where it was at x_n, ``Term.stick_anchors_in_step``),
+step is anchored where it was at x_n, ``StickAnchors.stick_anchors_in_step``),
 
     J_{n+1} x'_{n+1} = (the right-hand side below) - dR_n/da a'^_n,
     a'_{n+1} = d/de B(x_{n+1} + e x'_{n+1}, a^_n + e a'^_n)
 
-with B the return map (``Term.stick_anchors_after``: slipping anchors move to eps
+with B the return map (``StickAnchors.stick_anchors_after``: slipping anchors move to eps
 behind their node). The derivatives through the anchors are central
 differences along each tangent, a step well inside the stick zone eps
-(``Term.stick_anchor_step``), on the branch of the forward run (which nodes stick
+(``StickAnchors.stick_anchor_step``), on the branch of the forward run (which nodes stick
 or slip; the step sequence). The gradient is then 2 (dr/du)^T r, one
 tangent per knot: ``schedule_gradient`` takes this path with friction.
 Cable friction (whose history has no anchors here) and runs on several
@@ -68,6 +68,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from .sensitivity import Linearization, local_values
+from ..terms.capabilities import History, StickAnchors
 
 
 @dataclass
@@ -238,8 +239,8 @@ def set_step(inertia, rep, n: int) -> None:
 def follows_anchors(model) -> bool:
     """Whether derivatives through time can follow the run's friction exactly: every active history is
     stick anchors (contacts, grounds; not cable friction), on one MPI process."""
-    held = [t for t in model.terms if getattr(t, "active", True) and t.history() is not None]
-    return model.comm.size == 1 and all(t.stick_anchors() is not None for t in held)
+    held = [t for t in model.terms if isinstance(t, History) and getattr(t, "active", True) and t.history() is not None]
+    return model.comm.size == 1 and all(isinstance(t, StickAnchors) and t.stick_anchors() is not None for t in held)
 
 
 class AnchorTangents:
@@ -247,7 +248,7 @@ class AnchorTangents:
 
     def __init__(self, model, columns: int):
         self.model = model
-        self.terms = [t for t in model.terms if t.stick_anchors() is not None]
+        self.terms = [t for t in model.terms if isinstance(t, StickAnchors) and t.stick_anchors() is not None]
         self.after = [np.zeros((len(t.stick_anchors()), columns)) for t in self.terms]   # a'_n (after end_step)
         self.used = [a.copy() for a in self.after]                                 # a'^_n (in the step)
 

@@ -49,6 +49,7 @@ from petsc4py import PETSc
 from .caldata import AXES, Data, DataError, is_path_parameter
 from .sensitivity import Linearization
 from ..fem.newton import SolveError
+from ..terms.capabilities import Constraints
 
 # parameters the residual is linear in (at a fixed active set): a one-sided difference of R is exact
 # (a pin's move is not: it lifts the pinned DOFs, and R at the lifted state is not linear in it)
@@ -97,11 +98,11 @@ class Rows:
         for p in data.parameters:
             owners = [t for t in self.model.terms if any(b in t.parameters() for b, _ in p.targets)]
             if (session.comm.size == 1 and not self.model.rigid and p.base.rsplit(".", 1)[-1] in LINEAR
-                    and not any(t.has_ufl_energy() or t.dirichlet() for t in owners)):
+                    and not any(t.has_ufl_energy() or _holds_dofs(t) for t in owners)):
                 self._local[p.key] = owners
             elif (session.comm.size == 1 and not self.model.rigid and p.base.rsplit(".", 1)[-1] in LINEAR
                     and all(t.has_ufl_energy() and t.gradient(self.model.u.x.array) is None
-                            and not t.dirichlet() for t in owners)):
+                            and not _holds_dofs(t) for t in owners)):
                 self._ufl[p.key] = owners                 # E, densities, gravity: the UFL form alone
         self._sections = sorted({c.split(".", 1)[0] for c in data.columns})
         self._names = {c.split(".")[1] for c in data.columns}            # whose read-outs are needed
@@ -387,3 +388,8 @@ class Rows:
                 Y[i] = self.measure()
             Ys.append(Y)
         return (Ys[0] - Ys[1]) / (2.0 * h)
+
+
+def _holds_dofs(term) -> bool:
+    """Whether a term imposes Dirichlet conditions (its parameter moves DOFs, not a force)."""
+    return isinstance(term, Constraints) and bool(term.dirichlet())

@@ -48,6 +48,7 @@ import logging
 import numpy as np
 from petsc4py import PETSc
 
+from ..terms.capabilities import Lagged
 from ..terms.contact import SelfContact
 
 log = logging.getLogger("skelfem")
@@ -111,7 +112,7 @@ class Linearization:
                        if not t.cable.friction and abs(stretch(t, u)) <= KINK * t.cable.L0]
         self._g = [self._masked_g(t) for t in self.tendons]
         # friction's N, edge tangents; hold_lags: held at their converged values (J = H, symmetric)
-        self.lagged = [] if hold_lags else [t for t in model.terms if t.lags() is not None]
+        self.lagged: list = [] if hold_lags else [t for t in model.having(Lagged) if t.lags() is not None]
         if self.lagged and model.comm.size > 1:
             raise ValueError("sensitivities through friction contacts run on one MPI process")
         barriers = [t for t in model.terms if isinstance(t, SelfContact) and t.project]

@@ -37,6 +37,7 @@ from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 
 from ..terms.base import Term
+from ..terms.capabilities import History
 from ..terms.cables import CableTerm
 from ..terms.elasticity import Elasticity, deformation_gradient, psi
 from ..terms.friction import GroundFriction
@@ -64,7 +65,7 @@ def uncovered(model) -> str | None:
             return f"{term.section}.{term.name}: design gradients do not cover this ingredient yet"
         if isinstance(term, CableTerm) and term.cable.friction:
             return f"cables.{term.name}.friction: design gradients do not cover cable friction"
-        if term.history() is not None and not isinstance(term, GroundFriction):
+        if isinstance(term, History) and term.history() is not None and not isinstance(term, GroundFriction):
             return f"{term.section}.{term.name}: design gradients do not cover this friction"
     return None
 

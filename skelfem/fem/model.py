@@ -12,7 +12,7 @@ rank-one parts c g g^T kept out of K), ``admissible``, ``max_step`` and
 Dirichlet DOFs (fixed pins) have identity rows and columns in K and carry no
 term entries, and their entries of every low-rank vector are zero.
 
-Rigid bodies (``Term.rigid_body``: rigid bones) are solved for their rigid
+Rigid bodies (``Constraints.rigid_body``: rigid bones) are solved for their rigid
 DOFs q: their nodes' rows of K become identity rows and columns too, after
 K T (T = du_b/dq) has given the coupling E and the reduced block
 C = T^T K T + sum_i R_i . d2u_i/dq2 of the linear solver's border
@@ -43,6 +43,8 @@ from petsc4py import PETSc
 from ..mesh.points import global_dof_numbers, release_cell_tree
 from ..runtime import jitcache, memory
 from ..terms import BUILDERS, Context
+from ..terms.capabilities import (Actuator, Constraints, ContactEvents, FiniteAnchors, Follows, History, Lagged,
+                                  StepBounds, StepCorrection, Verdict)
 from ..terms.elasticity import cell_value_chunks, cell_values_min, min_jacobian_expression
 from .assembly import MatrixAssembly, block_keys
 from ..design.parse import live_value
@@ -112,7 +114,7 @@ class Model(MatrixAssembly):
 
     def _constraints(self, terms=None) -> None:
         """Dirichlet conditions and rigid bodies of the terms (default: the model's own)."""
-        terms = self.terms if terms is None else terms
+        terms = [t for t in (self.terms if terms is None else terms) if isinstance(t, Constraints)]
         fixed = np.zeros(self.n_local, dtype=bool)
         for term in terms:
             for _, dofs in term.dirichlet():
@@ -137,7 +139,7 @@ class Model(MatrixAssembly):
 
         changed: the dotted design keys that differ from the model's design
         (skelfem.design.flatten). Each ingredient whose terms can follow in
-        place does (Term.follow); the others are built anew, which is allowed
+        place does (Follows.follow); the others are built anew, which is allowed
         only if none of their terms, old or new, has a UFL energy. Live
         parameters among the changes are set as ``set_parameter`` would.
         Returns None when the model cannot follow (nothing was changed: build a
@@ -160,7 +162,8 @@ class Model(MatrixAssembly):
         built, rebuilt, replaced = [], [], []
         try:
             for build, terms in self._built:
-                if terms and all(term.follow(self.ctx, structural) for term in terms):
+                if terms and all(isinstance(term, Follows) and term.follow(self.ctx, structural)
+                                 for term in terms):
                     built.append((build, terms))
                     continue
                 new = build(ctx)
@@ -236,14 +239,18 @@ class Model(MatrixAssembly):
 
     def actuators(self) -> list:
         """The terms whose contraction is a control (tendons), in design order."""
-        return [t for t in self.terms if t.actuated]
+        return [t for t in self.having(Actuator) if t.actuated]
 
     def finite_anchors(self) -> list:
-        """[(centre, radius)] of every term's finite anchors (Term.finite_anchors)."""
-        return [a for t in self.terms for a in t.finite_anchors()]
+        """[(centre, radius)] of every term's finite anchors (FiniteAnchors.finite_anchors)."""
+        return [a for t in self.having(FiniteAnchors) for a in t.finite_anchors()]
 
     def terms_in(self, section: str) -> list:
         return [t for t in self.terms if t.section == section]
+
+    def having(self, ability: type) -> list:
+        """The terms that declare an ability (a class of skelfem.terms.capabilities), in design order."""
+        return [t for t in self.terms if isinstance(t, ability)]
 
     def parameters(self) -> dict:
         """{--set key: value} of every parameter that changes live (no re-mesh, no recompile)."""
@@ -270,9 +277,9 @@ class Model(MatrixAssembly):
                     term.set_parameter(key, float(value) if value.ndim == 0 else value)
 
     def carry_over(self, x: PETSc.Vec) -> None:
-        """Let every term adjust a start state x interpolated from another mesh (see Term.carry_over)."""
+        """Let every term adjust a start state x interpolated from another mesh (see Follows.carry_over)."""
         u = x.array_w
-        for term in self.terms:
+        for term in self.having(Follows):
             term.carry_over(u)
         x.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
 
@@ -284,7 +291,7 @@ class Model(MatrixAssembly):
             term.set_factor(a)
 
     def end_step(self) -> None:
-        for term in self.terms:
+        for term in self.having(History):
             term.end_step(self)
         for watch in self.step_watchers:
             watch(self)
@@ -292,7 +299,7 @@ class Model(MatrixAssembly):
     def to_rest(self) -> None:
         """u = 0 and no history (friction's slips and anchors): the start of a solve from rest."""
         self.u.x.array[:] = 0.0
-        for term in self.terms:
+        for term in self.having(History):
             term.rest()
 
     def rigid_body_modes(self) -> np.ndarray:
@@ -337,12 +344,12 @@ class Model(MatrixAssembly):
 
     def history(self) -> list:
         """Every term's history (friction's anchors and slip states), to take a tried step back."""
-        return [term.history() for term in self.terms]
+        return [term.history() if isinstance(term, History) else None for term in self.terms]
 
     @property
     def path_dependent(self) -> bool:
         """Whether the equilibrium depends on the load path (active friction: contacts, grounds, cables)."""
-        return any(getattr(term, "active", True) and term.history() is not None for term in self.terms)
+        return any(getattr(term, "active", True) and term.history() is not None for term in self.having(History))
 
     def set_history(self, histories: list) -> None:
         for term, h in zip(self.terms, histories):
@@ -351,17 +358,17 @@ class Model(MatrixAssembly):
 
     def failure(self, converged: bool = True) -> str | None:
         """The first term's reason why the state (converged or where Newton gave up) is no equilibrium."""
-        return next((why for why in (term.failure(self, converged) for term in self.terms) if why), None)
+        return next((why for why in (term.failure(self, converged) for term in self.having(Verdict)) if why), None)
 
     def update_lag(self) -> bool:
         """Let every term refresh its lagged quantities at the converged state; True: solve again."""
-        return any([term.update_lag(self) for term in self.terms])
+        return any([term.update_lag(self) for term in self.having(Lagged)])
 
     def contact_event(self) -> bool:
         """Whether some term took up a contact that formed at the present iterate (friction anchoring
         it, ObjectFriction.contact_event): the energy changed, so Newton ends the solve there and starts
         again from it (same answer on every rank). Terms are told if the solve is static (``in_time``)."""
-        watch = [t for t in self.terms if getattr(t, "contact_event", None) is not None]
+        watch = self.having(ContactEvents)
         if not watch:
             return False
         u = self.u.x.array
@@ -448,12 +455,12 @@ class Model(MatrixAssembly):
         if not self.min_jacobian(x) > 0.0:
             return False
         u = self.u.x.array
-        return self.comm.allreduce(all(term.admissible(u) for term in self.terms), op=MPI.LAND)
+        return self.comm.allreduce(all(term.admissible(u) for term in self.having(StepBounds)), op=MPI.LAND)
 
     @property
     def bounds_steps(self) -> bool:
         """Whether some term limits the step (only the energy line search honours that)."""
-        return any(term.bounds_steps for term in self.terms)
+        return any(term.bounds_steps for term in self.having(StepBounds))
 
     def max_step(self, x0: np.ndarray, p: np.ndarray) -> float:
         """Largest alpha in [0, 1] such that every term admits x0 + s p, s <= alpha (agreed over ranks).
@@ -461,9 +468,10 @@ class Model(MatrixAssembly):
         The terms that sweep the trajectory (contact's collision detection) are asked last, on the step
         the others allow: a free object's first Newton step, which only its tether resists, can be
         kilometres long, and sweeping that took seconds where the trust region keeps a millimetre."""
-        alpha = min([1.0] + [term.max_step(x0, p) for term in self.terms if not term.sweeps_steps])
+        bounded = self.having(StepBounds)
+        alpha = min([1.0] + [term.max_step(x0, p) for term in bounded if not term.sweeps_steps])
         alpha = float(self.comm.allreduce(alpha, op=MPI.MIN))
-        for term in self.terms:
+        for term in bounded:
             if term.sweeps_steps and alpha > 0.0:
                 alpha *= float(self.comm.allreduce(term.max_step(x0, alpha * p), op=MPI.MIN))
         return alpha
@@ -471,7 +479,7 @@ class Model(MatrixAssembly):
     def step_correction(self, x0: np.ndarray, p: np.ndarray, alpha: float) -> np.ndarray | float:
         """Sum of the terms' corrections to the trial state x0 + alpha p (0 if none)."""
         out = 0.0
-        for term in self.terms:
+        for term in self.having(StepCorrection):
             c = term.step_correction(x0, p, alpha)
             if c is not None:
                 out = out + c

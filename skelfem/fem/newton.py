@@ -42,7 +42,7 @@ from ..design.resources import direct_limit, stiff_elastic_bones
 from .linear import LowRankSolver
 from .multigrid import KRYLOV_RTOL, choose_linear, forcing
 from .options import options_held, snes_petsc_options
-from ..terms.base import Term
+from ..terms.capabilities import ContactEvents, Verdict
 
 log = logging.getLogger("skelfem")
 
@@ -104,14 +104,15 @@ class NewtonSolver:
         self.b = model.u.vector.duplicate()
         self.x = model.u.vector.copy()      # SNES iterate; model.u is scratch for evaluations
         self.history: list[float] = []     # |R| of each iteration of the last attempt
-        self._verdict_failure: str | None = None    # why a term found no equilibrium ahead (Term.verdict)
+        self._verdict_failure: str | None = None    # why a term found no equilibrium ahead (Verdict.verdict)
         self._f0 = 0.0
         self.search = EnergyLineSearch(model, self.b, self.lin.solve, curved=self.strategy == "curved")
         self._event = False           # the last SNES solve stopped at a contact event (Model.contact_event)
         self._stop_at: float | None = None     # the deadline of the Newton solve running now (attempt)
         self._budget_spent = False
-        self._watch_events = any(getattr(t, "contact_event", None) is not None for t in model.terms)
-        self._verdicts = [t for t in model.terms if type(t).verdict is not Term.verdict]   # asked every step
+        self._watch_events = any(isinstance(t, ContactEvents) for t in model.terms)
+        self._verdicts = [t for t in model.terms                                         # asked every step
+                          if isinstance(t, Verdict) and type(t).verdict is not Verdict.verdict]
         self._factorised = False      # lin holds a factorisation of K near the current state
         self.equilibrium = Equilibrium()     # the last converged state (a re-solve with nothing changed)
         self.snes = self._create_snes(prefix)
@@ -229,7 +230,7 @@ class NewtonSolver:
         return PETSc.SNES.ConvergedReason.ITERATING
 
     def _verdict(self) -> bool:
-        """Whether a term finds no equilibrium ahead of the iterate (Term.verdict; e.g. an object falling
+        """Whether a term finds no equilibrium ahead of the iterate (Verdict.verdict; e.g. an object falling
         with nothing in its way): Newton ends with it as its failure instead of falling on."""
         if not self._verdicts:
             return False

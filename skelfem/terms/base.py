@@ -22,20 +22,21 @@ DOF arrays of a hand-written term are local indices, or, when the term has a
 every rank (terms acting at material points that may lie on any rank).
 
 Besides the energy a term exposes its *parameters* (the ``--set`` keys it owns,
-changed live without re-meshing or recompiling), its *read-outs* (what goes
-into result.json under ``section``), step bounds and admissibility for the
-line search, an optional step correction (exact rigid rotations of bones),
-Dirichlet conditions, rigid bodies (node groups that follow a few rigid DOFs), and a per-step hook for
-history-dependent ingredients.
+changed live without re-meshing or recompiling) and its *read-outs* (what goes
+into result.json under ``section``). That is the whole contract of ``Term``.
 
-When an edit keeps the mesh (its nodes may move: the editor's drafts), a term
-may ``follow`` the new design in place; the model builds anew the ingredients
+Optional abilities are small classes of their own (skelfem.terms.capabilities)
+that a term inherits beside ``Term`` and the model finds with ``isinstance``:
+step bounds and admissibility for the line search, a step correction (exact
+rigid rotations of bones), Dirichlet conditions and rigid bodies, following an
+edit on the same mesh (``Follows``: the model builds anew the ingredients
 whose terms cannot, and keeps its compiled forms only if none of those has a
-UFL energy (:meth:`skelfem.fem.model.Model.refresh`).
+UFL energy, :meth:`skelfem.fem.model.Model.refresh`), a per-step hook with a
+history, lagged quantities, contact events, stick anchors, finite anchors,
+actuation and verdicts.
 """
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass, field
 from typing import Any, TYPE_CHECKING
 
@@ -45,30 +46,42 @@ from dolfinx import fem
 from dolfinx import mesh as dmesh
 from petsc4py import PETSc
 
+from .capabilities import CAPABILITIES
+
 if TYPE_CHECKING:
     from ..design.spec import Design
     from ..mesh.geometry import TaggedMesh
 
 
 class Term:
-    """Base class of every energy term; the defaults describe a term that does nothing."""
+    """Base class of every energy term, the small contract: its energy (a UFL integral and/or a
+    hand-written energy, gradient, sparse Hessian inside a declared pattern and rank-one parts), its
+    live parameters and load ramp, and its read-outs. The defaults describe a term that does nothing.
+    Optional abilities (step bounds, constraints, history, lags, anchors, actuation, verdicts...) are
+    the classes of skelfem.terms.capabilities, which a term inherits beside this one."""
 
     section: str = ""            # result.json key and design section, e.g. "cables"
     name: str = ""               # entry name within the section
     gather: Any = None           # DofGather: DOFs are global numbers; None: local indices
-    bounds_steps: bool = False   # whether max_step can return < 1
-    actuated: bool = False       # an actuator: its contraction is a control of Soft IK, tracking and optimisation
 
     def __init_subclass__(cls, **kwargs):
-        """A method named almost like a hook (``end_steps``, ``readouts``) is a misspelt hook that the
-        model would never call: refuse the class when it is defined."""
+        """A method of an ability the class does not declare (``end_step`` without History), or named
+        almost like a hook (``end_steps``, ``readouts``), would never be called: refuse the class when
+        it is defined."""
         super().__init_subclass__(**kwargs)
         import difflib
-        hooks = [n for n, v in vars(Term).items() if not n.startswith("_") and callable(v)]
+        owner = {n: c for c in (Term, *CAPABILITIES) for n, v in vars(c).items()
+                 if not n.startswith("_") and callable(v)}
         for name, value in vars(cls).items():
-            if name.startswith("_") or name in hooks or not callable(value):
+            if name.startswith("_") or not callable(value):
                 continue
-            close = difflib.get_close_matches(name, hooks, n=1, cutoff=0.85)
+            if name in owner:
+                if not issubclass(cls, owner[name]):
+                    raise TypeError(f"{cls.__name__}.{name}: a hook of {owner[name].__name__}, which "
+                                    f"{cls.__name__} does not declare (add it to the class's bases: "
+                                    "undeclared hooks are never called)")
+                continue
+            close = difflib.get_close_matches(name, list(owner), n=1, cutoff=0.85)
             if close:
                 raise TypeError(f"{cls.__name__}.{name}: not a Term hook; did you mean {close[0]}? "
                                 "(a misspelt hook is never called)")
@@ -102,32 +115,6 @@ class Term:
         """[(row nodes, column nodes)] blocks the sparse Hessian may fill (node = DOF // bs)."""
         return []
 
-    def rigid_body(self):
-        """A :class:`skelfem.terms.rigid.RigidBody` whose nodes this term makes move rigidly, or None.
-
-        The model then solves for the body's rigid DOFs instead of its nodes'
-        displacements (identity rows in the matrix, a border in the linear solve).
-        """
-        return None
-
-    # -- line search ------------------------------------------------------------------------------
-    sweeps_steps = False   # max_step sweeps the whole trajectory (continuous collision detection): costly
-    #                        for long steps, so Model.max_step asks it last, on the step the others allow
-
-    def max_step(self, u0: np.ndarray, p: np.ndarray) -> float:
-        """Largest alpha in [0, 1] such that u0 + s p is admissible for s <= alpha."""
-        return 1.0
-
-    def admissible(self, u: np.ndarray) -> bool:
-        return True
-
-    def step_correction(self, u0: np.ndarray, p: np.ndarray, alpha: float):
-        """Correction added to the trial state u0 + alpha p (owned DOFs), or None."""
-        return None
-
-    def carry_over(self, u: np.ndarray) -> None:
-        """Adjust, in place, a start state u (owned DOFs) interpolated from another mesh after an edit."""
-
     def energy_scale(self) -> float:
         """Size of the terms that cancel in the energy (sets the round-off level of Pi)."""
         return 0.0
@@ -143,117 +130,10 @@ class Term:
     def set_factor(self, a: float) -> None:
         """Apply the load factor a in [0, 1] to whatever this term ramps."""
 
-    # -- following a design on the same mesh ----------------------------------------------------------
-    def follow(self, ctx: "Context", changed: set) -> bool:
-        """Become, in place, the term ctx.design would build on this mesh, whose nodes may have moved.
-
-        changed: the design's dotted keys (``pins.base.region``, ``bones.distal.outline``...) that
-        differ from the design this term was built for, live parameters aside (the model sets
-        those). True if done (node-position caches dropped, compiled UFL energy still valid);
-        False if the term must be built anew. The default is False: built anew.
-        """
-        return False
-
-    # -- constraints, read-outs, history ------------------------------------------------------------
-    def dirichlet(self) -> list:
-        """[(DirichletBC, unrolled local DOFs)] this term imposes."""
-        return []
-
-    def finite_anchors(self) -> list:
-        """[(centre, radius)]: where the term acts on a small disk (2D) or ball (3D) of material, a near
-        point force that --tol grades the mesh around (cables' ends and bends in silicone)."""
-        return []
-
+    # -- read-outs --------------------------------------------------------------------------------
     def readout(self, model) -> dict:
         """{name: {...}} reported in result.json under ``section`` (at a converged state)."""
         return {}
-
-    def end_step(self, model) -> None:
-        """Called after every accepted load or time step (history: friction, inertia)."""
-
-    def failure(self, model, converged: bool = True) -> str | None:
-        """Why the state is no equilibrium (a free object that nothing holds), or None; converged=False:
-        the state where Newton gave up."""
-        return None
-
-    def verdict(self, model) -> str | None:
-        """Why no equilibrium can lie ahead of the present Newton iterate (a free object falling with nothing
-        in its way), or None; Newton ends the solve with it at once (the same answer on every rank). Newton
-        asks it after every step of the terms that override it."""
-        return None
-
-    def update_lag(self, model) -> bool:
-        """Refresh lagged quantities (friction's normal forces) at a converged state; True: solve again."""
-        return False
-
-    def rest(self) -> None:
-        """Back to rest: forget every history (a cable's slips through its via points); the model's
-        u is being set to 0 for a solve from rest."""
-
-    def take_notes(self) -> list:
-        """Warnings for the next result (a history started at a state the solver did not reach with this
-        term as it is now: friction switched on at a loaded state), each once; [] if none."""
-        return []
-
-    # -- history, to try a step and take it back (Soft IK's trial solves) ------------------------
-    history_fields: tuple = ()   # attributes that hold the term's history (friction's anchors, slip states)
-
-    def history(self):
-        """A copy of the term's history (what end_step, update_lag and set_factor change), or None."""
-        if not self.history_fields:
-            return None
-        return {k: copy.deepcopy(getattr(self, k)) for k in self.history_fields}
-
-    def set_history(self, history) -> None:
-        """Put back a history returned by history(): a step that was tried and refused leaves nothing."""
-        for k, v in (history or {}).items():
-            setattr(self, k, copy.deepcopy(v))
-
-    # -- lagged quantities, for exact sensitivities (skelfem.analysis.sensitivity) ----------------
-    lag_step = 1e-8    # the step of the differences of lags_at, times the model's size (below a ground's
-    #                    penetration, where N(u) has a kink)
-
-    def lags(self):
-        """A copy of the lagged quantities that follow the state (friction's normal forces N, an
-        edge's tangent), or None: nothing lagged. At a converged state they are their own fixed
-        point, lags_at(u) == lags()."""
-        return None
-
-    def set_lags(self, lags) -> None:
-        """Put back lagged quantities returned by lags() or lags_at()."""
-
-    def lags_at(self, u: np.ndarray):
-        """The lagged quantities as update_lag would measure them at state u, on the present branch
-        (which nodes stick, slip, broke away; the anchors), without relaxation: what makes the lagged
-        Jacobian exact, J v = H v + d/de gradient(u; lags_at(u + e v))."""
-        return None
-
-    # -- stick anchors through time, for exact derivatives of runs (skelfem.analysis.adjoint) ---------
-    def stick_anchors(self):
-        """The continuous part of the history that the present state's residual uses (friction's
-        stick anchors a, a flat float array), or None. A term with a history but no anchors (cable
-        friction) makes derivatives through time approximate."""
-        return None
-
-    def set_stick_anchors(self, a) -> None:
-        """Put back anchors returned by stick_anchors() (or perturbed ones)."""
-
-    def stick_anchor_step(self) -> tuple[float, float]:
-        """(a change of an anchor entry, a change of a displacement in mm), both small against the stick
-        zone eps: the steps of the central differences through the anchors (every node stays on its
-        branch)."""
-        return 1.0, 1.0
-
-    def stick_anchors_in_step(self, a_start, u_start):
-        """The anchors a converged step uses, from the anchors a_start it began with and the state
-        u_start it began from (a contact that formed during the step is anchored where it was at
-        u_start); the term holds the converged step's history."""
-        return a_start
-
-    def stick_anchors_after(self, u):
-        """The anchors the return map (end_step) would give at state u from the present anchors, with
-        the lagged quantities at lags_at(u), on the present branch; changes nothing."""
-        return self.stick_anchors()
 
 
 def touched(changed: set, *prefixes: str) -> bool:

@@ -42,6 +42,7 @@ from . import cable_slip
 from ..mesh.geometry import body_tag_name, bone_tag_name
 from ..mesh.points import DofGather, locate_cells
 from .base import Context, Term
+from .capabilities import Actuator, FiniteAnchors, History, Lagged
 from .cable_route import (MAX_PER_RADIUS, PER_RADIUS, PIECES, anchor_samples, anchor_weights,  # noqa: F401
                           anchored_interpolation, anchors, default_anchor_radius, differences,
                           lattice_density, release_facets, via_points)
@@ -424,7 +425,7 @@ class Cable:
         return [nodes[j] for j, keep in zip(J, narrow) if keep]
 
 
-class CableTerm(Term):
+class CableTerm(Term, History, Lagged, FiniteAnchors, Actuator):
     """One cable as an energy term; its rest length follows the load factor.
 
     Parameters: ``cables.NAME.contraction`` (tendons) or ``.pretension``

@@ -92,6 +92,7 @@ from scipy.spatial import cKDTree
 
 from ..mesh.geometry import body_tag_name, object_tag_name
 from .base import Context, Term
+from .capabilities import History, StepBounds
 
 CCD_TOLERANCE = 1e-3    # continuous collision detection brackets the time of first contact to this x dhat
 # Tight Inclusion's breadth-first search of one query may run this many refinements; past them it returns
@@ -168,7 +169,7 @@ def fortran_array(a) -> np.ndarray:
     return np.asfortranarray(a, dtype=float)
 
 
-class SelfContact(Term):
+class SelfContact(Term, StepBounds, History):
     """The IPC barrier term over the body's boundary."""
 
     section, name = "contact", "self"

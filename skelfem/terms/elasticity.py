@@ -28,6 +28,7 @@ from mpi4py import MPI
 
 from ..mesh.geometry import body_tag_name, body_tags, bone_tag_name, object_tag_name
 from .base import Context, Term, touched
+from .capabilities import Follows, StepCorrection
 from .rigid import closest_rigid_motion
 
 
@@ -119,7 +120,7 @@ def cell_values_min(expr, num_cells: int) -> float:
     return min((float(v.min()) for v in cell_value_chunks(expr, num_cells)), default=np.inf)
 
 
-class Elasticity(Term):
+class Elasticity(Term, StepCorrection, Follows):
     """Pi_el = t int psi(F(u)) dx with mu, lam per region."""
 
     section, name = "materials", "elasticity"

@@ -97,6 +97,7 @@ from petsc4py import PETSc
 
 from ..mesh.geometry import body_box
 from .base import Context, Term
+from .capabilities import ContactEvents, Follows, History, Lagged, StepBounds, StickAnchors
 from .grounds import nodal_ds
 
 
@@ -123,7 +124,7 @@ def boundary_weights(V) -> np.ndarray:
     return w
 
 
-class GroundFriction(Term):
+class GroundFriction(Term, StepBounds, Follows, History, Lagged, ContactEvents, StickAnchors):
     """Coulomb friction between the body's boundary and one ground."""
 
     section = "grounds"

@@ -18,12 +18,13 @@ from dolfinx import fem
 from mpi4py import MPI
 
 from .base import Context, Term, constant, touched
+from .capabilities import Follows
 from .elasticity import region_cells, region_materials
 
 KG_PER_M3_TIMES_M_PER_S2 = 1e-9     # N/mm^3
 
 
-class Gravity(Term):
+class Gravity(Term, Follows):
     section, name = "gravity", "gravity"
 
     def __init__(self, ctx: Context):

@@ -41,6 +41,7 @@ import basix
 from mpi4py import MPI
 
 from .base import Context, Term, constant, touched
+from .capabilities import Follows
 
 
 # Nodal rules on the reference triangle (area 1/2) for 3D boundaries: P1 its vertices (1/3 of the area
@@ -78,7 +79,7 @@ def nodal_ds(u):
     return ufl.Measure("ds", domain=mesh, metadata=metadata)
 
 
-class Ground(Term):
+class Ground(Term, Follows):
     """One half-space. Parameters ``grounds.NAME.point`` and ``.stiffness``; read-out ``force``."""
 
     section = "grounds"

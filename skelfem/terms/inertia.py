@@ -60,6 +60,7 @@ from mpi4py import MPI
 
 from ..mesh.geometry import object_tag_name
 from .base import Context, Term, constant
+from .capabilities import History
 from .elasticity import deformation_gradient, lame, psi, region_cells
 
 MASS_UNIT = 1e-12     # N mm per kg/m^3 mm^3 (mm/s)^2; equivalently N/mm^3 per kg/m^3 mm/s^2
@@ -72,7 +73,7 @@ def bdf_coefficients(order: int, w: float = 1.0) -> tuple[float, float, float]:
     return (1.0 + 2.0 * w) / (1.0 + w), -(1.0 + w), w * w / (1.0 + w)
 
 
-class Inertia(Term):
+class Inertia(Term, History):
     """1/(2 beta h^2) |x - x~|_M^2 + 1/(2 gamma h) |x - x*|_(aM + bK_n)^2, with its time-step history."""
 
     section, name = "dynamics", "inertia"

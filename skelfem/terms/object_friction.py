@@ -68,11 +68,12 @@ import scipy.sparse as sp
 from mpi4py import MPI
 
 from .base import Term
+from .capabilities import ContactEvents, History, Lagged, StickAnchors
 from .contact import barrier_stiffness, fortran_array
 from .facets import closest_facet, closest_on_facets, plane_coordinates, tangents
 
 
-class ObjectFriction(Term):
+class ObjectFriction(Term, History, Lagged, ContactEvents, StickAnchors):
     """Friction of every boundary vertex of each piece against the other pieces' boundary facets."""
 
     section, name = "contacts", "friction"

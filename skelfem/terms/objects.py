@@ -47,6 +47,7 @@ from mpi4py import MPI
 
 from ..mesh.geometry import object_tag_name
 from .base import Context, Term
+from .capabilities import Constraints, StepBounds, Verdict
 from .contact import SelfContact, barrier_stiffness, fortran_array, piece_labels, piece_names
 from .gravity import KG_PER_M3_TIMES_M_PER_S2
 from .rigid import RigidBody, rotation_readout
@@ -76,7 +77,7 @@ def nodal_areas(V, cells: np.ndarray) -> np.ndarray:
     return out
 
 
-class RigidObject(Term):
+class RigidObject(Term, StepBounds, Constraints, Verdict):
     """One free rigid object: its weight, its tether, its kinematics and its read-out."""
 
     section = "objects"

@@ -27,9 +27,10 @@ from dolfinx.fem import petsc as fem_petsc
 from petsc4py import PETSc
 
 from .base import Context, Term, constant, touched
+from .capabilities import Constraints, Follows
 
 
-class Pin(Term):
+class Pin(Term, Constraints, Follows):
     section = "pins"
 
     def __init__(self, ctx: Context, spec):

@@ -39,6 +39,7 @@ from mpi4py import MPI
 
 from ..mesh.geometry import bone_tag_name
 from .base import Context, Term
+from .capabilities import Constraints
 
 
 def _cross_matrix(r: np.ndarray) -> np.ndarray:
@@ -155,7 +156,7 @@ class RigidBody:
         u[self.dofs] = self.c0 + t + (self.X - self.c0) @ R.T - self.X
 
 
-class RigidBone(Term):
+class RigidBone(Term, Constraints):
     """One rigid bone: no energy; its kinematics for the model, its pattern and its read-out."""
 
     section = "bones"

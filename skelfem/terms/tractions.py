@@ -19,9 +19,10 @@ from dolfinx import fem
 from mpi4py import MPI
 
 from .base import Context, Term, constant, touched
+from .capabilities import Follows
 
 
-class Traction(Term):
+class Traction(Term, Follows):
     section = "tractions"
 
     def __init__(self, ctx: Context, spec):
