@@ -32,12 +32,11 @@ Through a ground's friction the equilibrium depends on the load path: J(p)
 is taken as the equilibrium reached from rest (every design is solved from
 rest, the load ramped as ``skelfem simulate`` does), and its derivative along
 a path on which no contact node changes between sticking and slipping.
-Sticking nodes keep their anchors where they rest; the variables must leave
-the body's outline and holes (the contact nodes) where they are, so the
-anchors, the boundary weights and the gaps at fixed u do not move; the
-lagged normal forces follow the state (J = H + C, the adjoint solves with
-J^T). Exact while every contact node sticks (a slipping node's anchor is set
-by the load path, which is held).
+Sticking nodes keep their anchors where they rest, which move with the
+design's nodes (skelfem.analysis.shape: the friction's shape derivative);
+the lagged normal forces follow the state (J = H + C, the adjoint solves
+with J^T). Exact while every contact node sticks (a slipping node's anchor
+is set by the load path, which is held).
 """
 from __future__ import annotations
 
@@ -167,14 +166,6 @@ class DesignGradient:
         self.handles = DesignHandles(session.design, keys) if self.dim == 2 else \
             PoseHandles3D(session.design, keys, session.model.tm)
         self.frictional = any(isinstance(t, GroundFriction) and t.active for t in session.model.terms)
-        if self.frictional:
-            n_loops = len(session.design.body_loops)
-            for h in self.handles.handles:
-                if h.kind == "point" and self.handles.names[h.point][0] == "poly" \
-                        and self.handles.names[h.point][1] < n_loops:
-                    raise ValueError(f"{h.key}: design gradients through a ground's friction take variables that "
-                                     "leave the body's outline and holes in place (their nodes carry the stick "
-                                     "anchors)")
         self.morph = Morph(session.model.tm, session.design) if self.dim == 2 else \
             Morph3D(session.model.tm, session.design)
         self.p = np.zeros(len(self.handles.keys))

@@ -15,12 +15,15 @@ proportional to E, so z^T dR/dE = z^T R_M / E with R_M the elastic residual
 over that material's cells.
 
 A ground's friction (skelfem.terms.friction) acts on the body's boundary
-nodes alone, through their positions X_i + u_i, their stick anchors and their
-lagged normal forces N_i = k t w_i max(-gap_i, 0) (w_i from the boundary's
-facets): at fixed u and anchors it depends on the mesh only through the
-boundary nodes. Design gradients through it take design variables that leave
-the body's outline and holes in place (skelfem.analysis.design_gradient
-refuses the others), so its shape derivative is zero; the lag's coupling is
+nodes alone, through their tangential offsets d_i from their stick anchors,
+their lagged normal forces N_i = k t w_i max(-gap_i, 0) (w_i the node's
+boundary weight) and its slip length eps (a fraction of the body's
+bounding-box diagonal). A design solved from rest anchors each node where it
+rests, s_i = T^T X_i, so d_i = T^T u_i does not move with X; the rest does:
+z^T R_f = sum_i b_i N_i with b_i = z_i . f_i / N_i (the force is
+proportional to N_i), differentiated through the same nodal-quadrature UFL
+form as the ground's penalty, plus the 1 / eps of the sticking nodes' force
+through the bounding box (``_friction_adjoint``). The lag's coupling to u is
 in the adjoint solve (Linearization.solve_transposed).
 
 Covered: one MPI process, 2D and 3D (the same forms; 3D handles: bone poses
@@ -41,7 +44,8 @@ from ..terms.capabilities import History
 from ..terms.cables import CableTerm
 from ..terms.elasticity import Elasticity, deformation_gradient, psi
 from ..terms.friction import GroundFriction
-from .cable_shape import CableShape, mesh_edges
+from ..terms.grounds import nodal_ds
+from .cable_shape import CableShape, mesh_edges, radius_gradient
 
 COVERED = (CableTerm, GroundFriction)   # hand-written terms whose shape derivative is known (friction's: zero
 #                                         while the boundary stays, see above)
@@ -97,7 +101,59 @@ class ShapeDerivative:
         energy = model.ctx.thickness * psi(deformation_gradient(u), self.chi * elastic.mu,
                                            self.chi * elastic.lam) * elastic.dx
         self._material = fem.form(ufl.derivative(energy, u, self.z))
+        self.frictions = [self._friction_form(t, w) for t in model.terms
+                          if isinstance(t, GroundFriction) and t.active]
         self.trace_cables()
+
+    def _friction_form(self, term, w):
+        """(term, b, form): form = d/dX of sum_i b_i N_i at fixed u, N_i = k t w_i max(-gap_i, 0) on the ground's
+        nodal quadrature (the boundary weights w_i and the gaps at the nodes move with them); b_i in b's first
+        components at the friction's nodes."""
+        mesh, u = self.model.mesh, self.model.u
+        b = fem.Function(self.model.V)
+        X = ufl.SpatialCoordinate(mesh)
+        n, p = ufl.as_vector([float(v) for v in term.normal]), ufl.as_vector([float(v) for v in term.point])
+        N = term.k * term.t * ufl.max_value(-ufl.dot(X + u - p, n), 0.0)
+        return term, b, fem.form(ufl.derivative(b[0] * N * nodal_ds(u), X, w))
+
+    def _friction_adjoint(self, z: np.ndarray) -> np.ndarray:
+        """z^T dR_f/dX (n, d) of the grounds' friction at fixed u, its anchors where the nodes rest (a design
+        solved from rest: s_i = T^T X_i, so d_i = T^T u_i does not move with X). Its force on node i is
+        proportional to the lagged N_i (mu N_i d_i / eps sticking, mu N_i d_i / r slipping), so
+        z^T R_f = sum_i b_i N_i with b_i = z_i . f_i / N_i, and N_i moves with X through its boundary weight and
+        gap (the UFL form above); a sticking node's force is also proportional to 1 / eps, eps = slip_length
+        times the body's bounding-box diagonal (its derivative by a central difference in eps, exact to
+        1e-12 as f is linear in 1 / eps; the diagonal's as the cables' default radius)."""
+        u = self.model.u.x.array
+        x = self.model.mesh.geometry.x[:, :self.model.mesh.geometry.dim]
+        out = np.zeros((len(self.node_of), x.shape[1]))
+        for term, b, form in self.frictions:
+            N = term.lags()
+            if N is None:
+                continue
+            zf = self._z_dot_force(term, u, z)
+            b.x.array[:] = 0.0
+            b.x.array[term.dofs[:, 0]] = np.where(N > 0.0, zf / np.where(N > 0.0, N, 1.0), 0.0)
+            out += self._nodes(form)
+            eps = term.eps
+            try:
+                term.eps = eps * (1.0 + 1e-6)
+                up = float(self._z_dot_force(term, u, z).sum())
+                term.eps = eps * (1.0 - 1e-6)
+                down = float(self._z_dot_force(term, u, z).sum())
+            finally:
+                term.eps = eps
+            out += (up - down) / (2e-6 * eps) * (term.slip_length / 0.01) * radius_gradient(x)
+        return out
+
+    @staticmethod
+    def _z_dot_force(term, u, z) -> np.ndarray:
+        """z_i . f_i per friction node (f: its gradient, the tangential force on the node's DOFs)."""
+        f = np.zeros(len(u))
+        got = term.gradient(u)
+        if got is not None:
+            np.add.at(f, got[0], got[1])
+        return (z[term.dofs] * f[term.dofs]).sum(axis=1)
 
     def trace_cables(self) -> None:
         """Trace the model's cables on the mesh as it is now (after its nodes moved)."""
@@ -129,6 +185,8 @@ class ShapeDerivative:
         u = self.model.u.x.array
         self.z.x.array[:] = z
         gX = self._nodes(self._adjoint)
+        if self.frictions:
+            gX += self._friction_adjoint(z)
         gQ = {}
         for name, c in self.cables.items():
             dX, gQ[name] = c.adjoint_gradient(u, z)
