@@ -16,7 +16,8 @@ from skelfem import Session
 from skelfem.analysis.sensitivity import Linearization
 from skelfem.design import DesignError, load_design
 from skelfem.fem.linear import LowRankSolver
-from skelfem.fem.multigrid import Coarse, choose_linear, near_nullspace, rigid_body_modes
+from skelfem.fem.linear import choose_linear
+from skelfem.fem.multigrid import Coarse, near_nullspace, rigid_body_modes
 from skelfem.fem.options import iterative_petsc_options
 from skelfem.fem.newton import NewtonSolver
 

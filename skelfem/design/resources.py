@@ -11,7 +11,7 @@ the direct solver (MUMPS, factors growing like n log n) is the one used and
 we allow 4 million DOFs (about 4 million P1 triangles, 1 million P2) on the
 machines this project runs on (2 cores, 24 GB). In 3D the limit follows the
 memory model of the linear solver the design will use (``planned_linear``:
-[solver] linear, "auto" as skelfem.fem.multigrid.choose_linear picks it):
+[solver] linear, "auto" as skelfem.fem.linear.choose_linear picks it):
 MUMPS's peak grows like n^(4/3) (``DIRECT_BYTES`` n^(4/3), measured 11.3 GB
 at 682k P2 DOFs), multigrid's like n (``ITERATIVE_BYTES`` per DOF at P1 and
 P2, measured up to 1.4M DOFs), each plus ``BASE_BYTES``; the limit is the
@@ -101,7 +101,7 @@ def peak_bytes(dofs: float, linear: str, degree: int) -> float:
 
 
 def planned_linear(design, dofs: float) -> str:
-    """The linear solver a 3D design of about `dofs` unknowns will use (skelfem.fem.multigrid.choose_linear
+    """The linear solver a 3D design of about `dofs` unknowns will use (skelfem.fem.linear.choose_linear
     on the estimate)."""
     kind = design.solver.linear
     return auto_linear(design, dofs) if kind == "auto" else kind
@@ -170,5 +170,5 @@ def auto_linear(design, dofs: float) -> str:
     """What [solver] linear = "auto" picks for a design of `dofs` unknowns: direct in 2D and for 3D
     designs up to AUTO_ITERATIVE_DOFS (MUMPS is faster there: arm3d with its PLA bones deflated,
     iterative/direct time 1.28 at 119k DOFs, 0.80 at 219k); iterative otherwise
-    (skelfem.fem.multigrid.choose_linear on the model, the size limit on the estimate before meshing)."""
+    (skelfem.fem.linear.choose_linear on the model, the size limit on the estimate before meshing)."""
     return "iterative" if design.dim == 3 and dofs > AUTO_ITERATIVE_DOFS else "direct"

@@ -55,7 +55,7 @@ E, C and the cables' G D G^T without forming them; its preconditioner is the
 exact inverse of that system with one multigrid cycle B in place of K^{-1},
 i.e. the formulas above with ZB = B [G | E] for Z (k + m cycles per
 update, no Krylov solve). Newton's own steps are inexact (Eisenstat-Walker
-forcing, ``forcing``: ETA_MAX far from the solution, tighter near it, never
+forcing, ``skelfem.fem.newton.forcing``: ETA_MAX far from the solution, tighter near it, never
 tighter than the residual test needs); every other solve (sensitivities,
 adjoints) is to ``KRYLOV_RTOL``. The multigrid is built at the first update
 and kept at later ones (``_lag_preconditioner``) until its iterations per
@@ -74,6 +74,7 @@ import numpy as np
 import scipy.sparse as sp
 from petsc4py import PETSc
 
+from ..design.resources import auto_linear
 from .lowrank import Border, columns, dense, sparse_dots, sparse_product
 from .multigrid import GMRES_CYCLES, KRYLOV_RTOL, LOOSE_STEP, REBUILD_RATIO, Coarse, krylov_solve, near_nullspace
 from .options import default_petsc_options, iterative_petsc_options, options_held, two_level_petsc_options
@@ -601,3 +602,10 @@ class _Bordered:
         zw = np.linalg.solve(s.CB, rhs)
         z, w = zw[:m], zw[m:]
         s._join(y, y0 - ZB[:, k:] @ z - ZB[:, :k] @ w, z)
+
+
+def choose_linear(kind: str, model) -> str:
+    """"direct" or "iterative" for a [solver] linear value ("auto": skelfem.design.resources.auto_linear)."""
+    if kind != "auto":
+        return kind
+    return auto_linear(model.design, model.comm.allreduce(model.n_owned))

@@ -1,12 +1,12 @@
 """Multigrid for the iterative linear solves (skelfem.fem.linear): the two-level coarse space, the
-rigid-body near-nullspace, Krylov solves with their GMRES fallback, and how tightly an inexact Newton
-step is solved (the forcing term). Its PETSc option sets are in skelfem.fem.options."""
+rigid-body near-nullspace and Krylov solves with their GMRES fallback. Its PETSc option sets are in
+skelfem.fem.options, the direct-or-iterative choice in skelfem.fem.linear and how tightly an inexact
+Newton step is solved (the forcing term) in skelfem.fem.newton."""
 from __future__ import annotations
 
 import numpy as np
 from petsc4py import PETSc
 
-from ..design.resources import auto_linear
 
 
 KRYLOV_RTOL = 1e-12       # |r| / |b| of a tight iterative solve (sensitivities to 1e-8 behind a 1e4 condition)
@@ -15,23 +15,7 @@ GMRES_RESTART = 20        # the fallback GMRES's restart (its vectors: restart +
 GMRES_CYCLES = 5          # ... and a Newton step's restarts before it is judged stalled (arm3d P2 at nu 0.45:
 #                           restarts after the first left |r| / |b| at 1.2e-2 for 480 iterations)
 LOOSE_STEP = 0.1          # ... and then taken if |r| / |b| got this low (a tight solve keeps ksp_max_it)
-ETA_MAX = 0.01            # the loosest forcing term of an inexact Newton step
 REBUILD_RATIO = 2.0       # a lagged multigrid is rebuilt when it needs this many times the iterations
-
-
-def forcing(residuals: list[float], last: float, target: float = 0.0) -> float:
-    """Eisenstat and Walker's second forcing term for Newton step k: eta = 0.9 (|F_k| / |F_k-1|)^2,
-    safeguarded (not below 0.9 last^2 while that is above 0.1) and kept in [KRYLOV_RTOL, ETA_MAX]:
-    loose while Newton is far from the solution, as tight as a direct solve near it, and no tighter
-    than the residual test (|F| <= target) needs, 0.5 target / |F_k|."""
-    if len(residuals) < 2 or residuals[-2] <= 0.0:
-        return ETA_MAX
-    eta = 0.9 * (residuals[-1] / residuals[-2]) ** 2
-    if 0.9 * last ** 2 > 0.1:
-        eta = max(eta, 0.9 * last ** 2)
-    if residuals[-1] > 0.0:
-        eta = max(eta, min(ETA_MAX, 0.5 * target / residuals[-1]))
-    return float(min(max(eta, KRYLOV_RTOL), ETA_MAX))
 
 
 def set_krylov_type(ksp: PETSc.KSP, ksp_type: str) -> None:
@@ -162,10 +146,3 @@ def near_nullspace(K: PETSc.Mat, modes: np.ndarray, comm) -> PETSc.NullSpace:
         v.normalize()
         vecs.append(v)
     return PETSc.NullSpace().create(vectors=vecs, comm=comm)
-
-
-def choose_linear(kind: str, model) -> str:
-    """"direct" or "iterative" for a [solver] linear value ("auto": skelfem.design.resources.auto_linear)."""
-    if kind != "auto":
-        return kind
-    return auto_linear(model.design, model.comm.allreduce(model.n_owned))

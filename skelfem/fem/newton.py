@@ -39,8 +39,8 @@ from .report import BUDGET_SPENT, SolveError, SolveReport  # noqa: F401 (SolveEr
 from .linesearch import EnergyLineSearch, resolve_strategy
 from .loadstep import LoadStepper
 from ..design.resources import direct_limit, stiff_elastic_bones
-from .linear import LowRankSolver
-from .multigrid import KRYLOV_RTOL, choose_linear, forcing
+from .linear import LowRankSolver, choose_linear
+from .multigrid import KRYLOV_RTOL
 from .options import options_held, snes_petsc_options
 from ..terms.capabilities import ContactEvents, Verdict
 
@@ -51,6 +51,8 @@ MAX_LAG_UPDATES = 30   # re-solves with updated lagged quantities (friction's no
 MAX_CONTACT_EVENTS = 100   # solves stopped where contacts formed (Model.contact_event), per step
 MAX_FAILED_ROUNDS = 3  # re-solves in a row that fail although their lags changed: no equilibrium near
 LAG_LOOSE = 1e-2       # a re-solve whose lags will change again stops at this times its own first |R|
+
+ETA_MAX = 0.01         # the loosest forcing term of an inexact Newton step (iterative linear solves)
 
 
 _REASONS = {
@@ -66,6 +68,21 @@ _REASONS = {
     PETSc.SNES.ConvergedReason.DIVERGED_FUNCTION_DOMAIN: "inverted_elements",
     PETSc.SNES.ConvergedReason.DIVERGED_JACOBIAN_DOMAIN: "inverted_elements",
 }
+
+
+def forcing(residuals: list[float], last: float, target: float = 0.0) -> float:
+    """Eisenstat and Walker's second forcing term for Newton step k: eta = 0.9 (|F_k| / |F_k-1|)^2,
+    safeguarded (not below 0.9 last^2 while that is above 0.1) and kept in [KRYLOV_RTOL, ETA_MAX]:
+    loose while Newton is far from the solution, as tight as a direct solve near it, and no tighter
+    than the residual test (|F| <= target) needs, 0.5 target / |F_k|."""
+    if len(residuals) < 2 or residuals[-2] <= 0.0:
+        return ETA_MAX
+    eta = 0.9 * (residuals[-1] / residuals[-2]) ** 2
+    if 0.9 * last ** 2 > 0.1:
+        eta = max(eta, 0.9 * last ** 2)
+    if residuals[-1] > 0.0:
+        eta = max(eta, min(ETA_MAX, 0.5 * target / residuals[-1]))
+    return float(min(max(eta, KRYLOV_RTOL), ETA_MAX))
 
 
 class NewtonSolver:
