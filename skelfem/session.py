@@ -290,6 +290,14 @@ class Session:
             self._morph = Morph3D(self.model.tm, meshed)
         return self._morph.moved(design)
 
+    def prepare_moves(self) -> None:
+        """Build now what a drag on this 3D mesh needs (its Morph3D: the Laplacian factorised, 1.3 s at 48k DOFs),
+        so that the drag's first frame does not pay it; nothing in 2D (a 2D Morph is cheap) or once built."""
+        from .mesh.morph3d import Morph3D
+        if self.design.dim == 3 and self._morph is None and self.comm.size == 1 and self.model is not None \
+                and self._meshed.dim == 3:
+            self._morph = Morph3D(self.model.tm, self._meshed)
+
     def _move_mesh(self, design, x: np.ndarray) -> None:
         """The model for design on the current mesh with node coordinates x; u carries over as is.
 

@@ -231,6 +231,8 @@ class Engine:
         self.frames3d.note(self.session, result)
         if result.converged:
             self.answer, self.good = payload, self.session.design
+            if not self.draft:
+                self.session.prepare_moves()        # 3D: the next drag's first frame starts at once
         return payload
 
     def certificate(self, converged: bool) -> dict:
