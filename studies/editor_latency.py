@@ -150,6 +150,34 @@ def _api(port: int, design: dict, repeats: int) -> dict:
     return {"one_vertex_ms": _pct(vertex), "contraction_ms": _pct(contraction), "hows": sorted(hows)}
 
 
+class GcClock:
+    """The cyclic garbage collector's pauses in this process (the editor's server and solver run here):
+    collections per generation, their total and longest time (ms)."""
+
+    def __init__(self):
+        self.start, self.runs, self.total, self.longest = 0.0, [0, 0, 0], 0.0, 0.0
+
+    def __call__(self, phase: str, info: dict) -> None:
+        if phase == "start":
+            self.start = time.perf_counter()
+            return
+        dt = 1000 * (time.perf_counter() - self.start)
+        self.runs[info["generation"]] += 1
+        self.total, self.longest = self.total + dt, max(self.longest, dt)
+
+    def __enter__(self):
+        import gc
+        gc.callbacks.append(self)
+        return self
+
+    def __exit__(self, *exc):
+        import gc
+        gc.callbacks.remove(self)
+
+    def to_dict(self) -> dict:
+        return {"collections": list(self.runs), "total_ms": round(self.total, 2), "longest_ms": round(self.longest, 2)}
+
+
 def _load() -> dict:
     try:
         up = subprocess.run(["uptime"], capture_output=True, text=True, timeout=5).stdout.strip()
@@ -195,11 +223,12 @@ def run_case(design: Path, size: float | None = None, moves: int = 30, drags: in
         _slider_drags(page, 5, 2, step_ms)
         _reset(page)
         t0 = time.perf_counter()
-        _slider_drags(page, moves, drags, step_ms)
-        contraction = _collect(page)
-        _reset(page)
-        _vertex_drags(page, moves, drags, step_ms, ["bones", bone, "outline", 0])
-        vertex = _collect(page)
+        with GcClock() as gc_clock:
+            _slider_drags(page, moves, drags, step_ms)
+            contraction = _collect(page)
+            _reset(page)
+            _vertex_drags(page, moves, drags, step_ms, ["bones", bone, "outline", 0])
+            vertex = _collect(page)
         browser_seconds = time.perf_counter() - t0
         if screenshot is not None:
             Path(screenshot).parent.mkdir(parents=True, exist_ok=True)
@@ -215,6 +244,7 @@ def run_case(design: Path, size: float | None = None, moves: int = 30, drags: in
     return {"design": path.name, "mesh_size": float(raw["mesh"]["size"]), "dofs": answer["dofs"],
             "cells": answer["cells"], "moves": moves, "drags": drags, "step_ms": step_ms,
             "contraction": contraction, "vertex": vertex, "api": api_times, "browser_seconds": browser_seconds,
+            "gc": gc_clock.to_dict(),
             "console_errors": errors, "before": before, "after": _load()}
 
 
@@ -264,7 +294,9 @@ def _print(res: dict) -> None:
         c = res[kind]["certificates"]
         print(f"  certificates of the {kind} drags: {c['preview']} preview, {c['converged']} converged "
               f"({c['converged_above_tolerance']} of them above the batch tolerance), the last {c['last']}")
-    print(f"  console errors: {len(res['console_errors'])}")
+    print(f"  console errors: {len(res['console_errors'])}; garbage collections during the drags "
+          f"{res['gc']['collections']}, {res['gc']['total_ms']:.0f} ms in all, the longest "
+          f"{res['gc']['longest_ms']:.1f} ms")
     print("POST /api/solve from a script:")
     print(_row("one bone vertex moved 0.5 mm", res["api"]["one_vertex_ms"]))
     print(_row("contraction changed 0.5 mm", res["api"]["contraction_ms"]))

@@ -19,6 +19,7 @@ def test_editor_latency_tiny(tmp_path, picture):
     assert "edit (moved nodes)" in res["vertex"]["server_ms"] and "set" in res["contraction"]["server_ms"]
     assert res["api"]["one_vertex_ms"]["n"] == 2 and res["api"]["hows"] == ["edit (re-meshed)"]
     assert res["console_errors"] == [] and res["load_average"] and "load average" in res["uptime"]
+    assert res["gc"]["longest_ms"] >= 0 and len(res["gc"]["collections"]) == 3
     assert json.loads((tmp_path / "latency.json").read_text())["api"]["one_vertex_ms"]["n"] == 2
     picture(tmp_path / "editor_latency.png", 1000, 700)
 
