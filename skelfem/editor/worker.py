@@ -15,7 +15,8 @@ finger.toml) is moved out of the cyclic garbage collector's reach
 (``gc.freeze``): a full collection walked them all, 36-105 ms, once in
 every 80 or so frames of a drag, in the middle of a frame (with it frozen:
 under 3 ms). What is made later is collected as usual; cyclic garbage among
-the frozen objects (the first model's, after a re-mesh) stays, once.
+the frozen objects (the first model's, after a re-mesh) stays until the
+worker ends, which unfreezes them.
 
 Every job has a budget (:class:`Budget`): seconds of the solver's time and
 bytes it may add to the process's resident memory. A watchdog thread looks
@@ -183,7 +184,14 @@ class Worker:
     def _run(self) -> None:
         one_openmp_thread()
         one_blas_thread()
+        gc.collect()                # what is garbage now goes; what lives is frozen (see the module doc)
         gc.freeze()
+        try:
+            self._serve()
+        finally:
+            gc.unfreeze()           # a closed editor's objects can be collected again
+
+    def _serve(self) -> None:
         while True:
             with self._cond:
                 while not self._pending and not self._closed:
