@@ -21,7 +21,8 @@ const REGION_LABEL = { body: "body", bone: "bones", object: "objects" };
 const PALETTE = ["#440154", "#482475", "#414487", "#355f8d", "#2a788e", "#21908d", "#22a884", "#42be71",
   "#7ad151", "#bddf26", "#fde725"];
 const SNAP = 100;                      // coordinates are rounded to 1/SNAP mm
-const GO_ON_WAIT = 12;                 // ms a "go on" waits for the next move while the pointer moves
+const GO_ON_WAIT = 40;                 // ms a "go on" waits for the next move while a handle or slider moves
+const MOVING = 100;                    // ... which it does if its last input is at most this old (ms)
 
 const S = {
   design: null, file: "", dim: 2, readonly: false,
@@ -121,9 +122,9 @@ function onAnswer(data) {
     // a frame stopped at its time budget: the same design again goes on from its state (unless newer input waits)
     if (a.status === "frame_budget" && !S.queued) {
       S.queued = { kind: "solve", draft: !!req.draft, input: req.input, goOn: true };
-      // while the pointer is moving, the next move is likely within a frame: wait for it a little rather
-      // than make it wait for a "go on" in flight
-      const wait = S.drag && performance.now() - S.lastInput < 40 ? GO_ON_WAIT : 0;
+      // while a handle or slider moves, its next move comes within a frame (16 ms): wait for it rather than
+      // make it wait for a "go on" in flight
+      const wait = performance.now() - S.lastInput < MOVING ? GO_ON_WAIT : 0;
       if (wait) {
         const q = S.queued;
         S.goOnTimer = setTimeout(() => { if (S.queued === q && !S.inflight && S.ws) { S.queued = null; send(q); } }, wait);
