@@ -260,6 +260,34 @@ def editor_latency_sizes(_: dict) -> Table:
                   "drawing (p50)", "server: set", "server: moved nodes", "load"], rows, caption, [path])
 
 
+def editor_latency3d(_: dict) -> Table:
+    """The editor's latency for a 3D bone dragged and turned (finger3d at about 10k and 50k DOFs)."""
+    d, path = load_json("editor_latency/latency3d.json", "python studies/editor_latency3d.py")
+
+    def pp(s: dict | None) -> str:
+        return f"{s['p50']:.0f} / {s['p95']:.0f}" if s and s.get("n") else "–"
+
+    rows = []
+    for case in d["cases"]:
+        for kind, part in (("bone-move", "move"), ("bone-turn", "turn")):
+            c = case[part]
+            rows.append([f"h = {short(case['mesh_size'])} mm", f"{case['dofs']:,}", kind.replace("bone-", ""),
+                         pp(c["rendered"].get(kind)), pp(c["every_event"].get(kind)),
+                         pp(c["rendered"].get("release")), pp(c.get("settled", {}).get("release")),
+                         pp(c["server_ms"].get("edit (moved nodes)")), pp(c["render_ms"]),
+                         f"{c['certificates']['converged_above_tolerance']}",
+                         f"{case['before']['load_average'][0]:.1f}–{case['after']['load_average'][0]:.1f}"])
+    first = d["cases"][0]
+    caption = (f"finger3d.toml's distal bone moved in the view's plane (move) and turned about z (turn): "
+               f"{first['drags']} drags of {first['moves']} moves each, a move every {first['step_ms']} ms; "
+               "p50 / p95 in ms from the input event to the picture (release: its first frame, then its first "
+               f"converged picture); frame budget {d['frame_budget_ms']:g} ms; 'converged above tolerance' "
+               "counts certificates that said converged with |R| above the batch tolerance; the host's one-minute "
+               "load average before and after each case (two cores).")
+    return Table(["mesh", "DOFs", "drag", "rendered", "every event", "release", "release, converged",
+                  "server: moved nodes", "drawing", "converged above tolerance", "load"], rows, caption, [path])
+
+
 def _rigid(rel: str, command: str) -> Table:
     d, path = load_json(rel, command)
 
@@ -941,7 +969,8 @@ TABLES = {f.__name__: f for f in (estimate_effectivity, estimate_cost, estimate_
                                   goal_oriented,
                                   linear_scaling, krylov_bounds, arm3d_fine, reference_3d, bench, in_hand_roll,
                                   slice_check, slice_check_3mf, fabrication_volumes, fabrication_poses, mpi_speed,
-                                  editor_latency, editor_latency_sizes, rigid_bones_2d, rigid_bones_3d, speed_accuracy,
+                                  editor_latency, editor_latency_sizes, editor_latency3d,
+                                  rigid_bones_2d, rigid_bones_3d, speed_accuracy,
                                   tol_check, tol_check_adaptive, scatter, adaptive_reach, adaptive_tol_runs,
                                   stability, stability_slender, friction_stability, peer, pull_test, dynamics_checks,
                                   grasp, grasp3d, hand_grasp, hand_scenario, grasp_bench, landing,
