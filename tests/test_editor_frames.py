@@ -291,3 +291,22 @@ def test_a_frame_leaves_out_the_mesh_the_client_holds_and_the_fields_it_does_not
         assert "cells" in eng.solve(d)["mesh"]                    # a client holding nothing gets it whole
     finally:
         eng.close()
+
+
+def test_the_solver_thread_collects_the_garbage_between_requests_not_in_them():
+    import gc
+    import time
+
+    from skelfem.editor.worker import IDLE, Worker
+    w = Worker(engine=None)
+    try:
+        assert w.submit("t", lambda e: gc.get_freeze_count()).result(30) > 0     # frozen when it started
+        assert w.tidied == 0                                    # nothing tidied while requests come
+        time.sleep(IDLE + 0.5)
+        assert w.tidied == 1 and not w.tidying                  # once after a quiet spell, not again
+        time.sleep(IDLE)
+        assert w.tidied == 1
+        assert w.submit("t", lambda e: 42).result(30) == 42
+    finally:
+        w.close()
+    assert gc.get_freeze_count() == 0                           # the worker unfreezes all when it ends

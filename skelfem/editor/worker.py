@@ -14,9 +14,11 @@ model, the compiled forms, the libraries' objects: some 67k of them for
 finger.toml) is moved out of the cyclic garbage collector's reach
 (``gc.freeze``): a full collection walked them all, 36-105 ms, once in
 every 80 or so frames of a drag, in the middle of a frame (with it frozen:
-under 3 ms). What is made later is collected as usual; cyclic garbage among
-the frozen objects (the first model's, after a re-mesh) stays until the
-worker ends, which unfreezes them.
+under 3 ms). What is made later is collected as usual, and whenever no
+request has come for IDLE seconds the thread collects everything and
+freezes what lives again (a re-mesh's new model, whose full collections
+took up to 344 ms in a frame at 19k DOFs on a loaded host; the old model's
+garbage goes then). The worker unfreezes all when it ends.
 
 Every job has a budget (:class:`Budget`): seconds of the solver's time and
 bytes it may add to the process's resident memory. A watchdog thread looks
@@ -46,6 +48,7 @@ from dataclasses import dataclass
 log = logging.getLogger("skelfem")
 
 POLL = 0.05          # s between two looks of the watchdog at the running job
+IDLE = 0.5           # s without a request after which the solver thread collects the garbage (module doc)
 RAISE_AGAIN = 0.5    # s after which Cancel is raised again in a job that has not ended
 
 
@@ -161,6 +164,8 @@ class Worker:
         self._running: _Running | None = None   # the job being run, if any
         self.dropped = 0                      # jobs replaced before they ran
         self.cancelled = 0                    # jobs cancelled over budget
+        self.tidying = False                  # the solver thread is collecting the garbage between requests
+        self.tidied = 0                       # ... and has done so this often
         self._thread = threading.Thread(target=self._run, name="skelfem-solver", daemon=True)
         self._thread.start()
         self._watchdog = threading.Thread(target=self._watch, name="skelfem-budget", daemon=True)
@@ -192,10 +197,24 @@ class Worker:
             gc.unfreeze()           # a closed editor's objects can be collected again
 
     def _serve(self) -> None:
+        untidy = False                  # jobs ran since the garbage was last tidied
         while True:
             with self._cond:
-                while not self._pending and not self._closed:
-                    self._cond.wait()
+                idle = not self._cond.wait_for(lambda: bool(self._pending) or self._closed,
+                                               timeout=IDLE if untidy else None)
+            if idle:                    # no request for IDLE seconds: tidy the garbage now, not in a frame
+                self.tidying = True
+                try:
+                    gc.unfreeze()
+                    gc.collect()
+                    gc.freeze()
+                finally:
+                    self.tidying = False
+                self.tidied += 1
+                untidy = False
+                continue
+            untidy = True
+            with self._cond:
                 if self._closed:
                     for _, fut in self._pending.values():
                         _settle(fut, exc=Closed("the editor is shutting down"))
