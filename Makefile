@@ -44,8 +44,8 @@ demo: setup
 # both ranks: 186 s one at a time, 144 s two at a time); the slowest tests are listed. test-fast skips
 # the slow tier (the edit loop).
 test: setup
-	$(PY) -m pytest -q -n 2 -m "not mpi" --durations=20
-	$(PY) -m pytest -q -n 2 -m mpi --durations=10
+	$(PY) -m pytest -q -n 2 -m "not mpi" --durations=60
+	$(PY) -m pytest -q -n 2 -m mpi --durations=20
 
 test-fast: setup
 	$(PY) -m pytest -q -n 2 -m "not slow and not mpi" --durations=10
