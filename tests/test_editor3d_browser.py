@@ -145,3 +145,27 @@ def test_undo_restores_the_pose_and_save_writes_a_file_simulate_agrees_with(page
     page.wait(CONVERGED, 120)
     assert page.js("S.design.bones[2].move") != pose["move"]
     assert not page.console_errors()
+
+
+def test_an_object_dragged_whole_in_3d(tmp_path, figures, picture):
+    """gripper3d's ball (at mesh.size 6) moved with its square: every primitive of its solids moves."""
+    from skelfem.editor.server import Editor
+    text = (GEOMETRY / "gripper3d.toml").read_text().replace("size = 2.5", "size = 6.0")
+    assert "size = 6.0" in text
+    (tmp_path / "gripper3d.toml").write_text(text)
+    ed = Editor(tmp_path / "gripper3d.toml", port=0).start()
+    driver = chrome(1100, 760)
+    try:
+        page = Page(driver, ed.url)
+        before = page.js("S.design.objects[0].solids[0].sphere.center")
+        start = page.handle3d("object", path=["objects", 0, "solids"])
+        page.drag(start, _line(start, (start[0], start[1] - 4), 4))
+        page.wait(CONVERGED, 120)
+        after = page.js("S.design.objects[0].solids[0].sphere.center")
+        assert after != before and np.linalg.norm(np.subtract(after, before)) < 3.0
+        assert page.js("S.answer.converged") and page.js("S.error") is None
+        picture(page.screenshot(figures / "editor_3d_object.png"), 900, 600)
+        assert not page.console_errors()
+    finally:
+        driver.quit()
+        ed.stop()

@@ -148,14 +148,15 @@ function drawSurfaces(ctx, m) {
     if (cross >= 0) continue;                // faces outward-ordered by the server: this one faces away
     const norm = Math.hypot(x1 - x0, y1 - y0) * Math.hypot(x2 - x0, y2 - y0) || 1;
     const shade = Math.round(10 * (0.55 + 0.45 * Math.min(1, Math.abs(cross) / norm))) / 10;
-    const bone = m.regions[i] !== m.body_tag;
-    const key = `${bone ? "b" : "s"}${shade}`;
-    if (!groups.has(key)) groups.set(key, { bone, shade, tris: [] });
+    const bone = m.regions[i] !== m.body_tag, kind = bone ? regionKind(m.region_names[m.regions[i]]) : "body";
+    const key = `${kind}${shade}`;
+    if (!groups.has(key)) groups.set(key, { bone, kind, shade, tris: [] });
     groups.get(key).tris.push(x0, y0, x1, y1, x2, y2);
   }
   // the opaque bones first, then the translucent body over them
   for (const g of [...groups.values()].sort((p, q) => q.bone - p.bone)) {
-    ctx.fillStyle = g.bone ? `rgb(${Math.round(232 * g.shade)},${Math.round(228 * g.shade)},${Math.round(216 * g.shade)})`
+    const rgb = g.kind === "object" ? [185, 203, 228] : [232, 228, 216];    // objects in their colour, as in 2D
+    ctx.fillStyle = g.bone ? `rgb(${Math.round(rgb[0] * g.shade)},${Math.round(rgb[1] * g.shade)},${Math.round(rgb[2] * g.shade)})`
       : `rgba(${Math.round(244 * g.shade)},${Math.round(182 * g.shade)},${Math.round(166 * g.shade)},0.35)`;
     ctx.beginPath();
     const t = g.tris;
