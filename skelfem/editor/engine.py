@@ -18,7 +18,11 @@ morph=True)``, :mod:`skelfem.mesh.morph`): no meshing, no new DOF numbering, no
 form compiled (``Model.refresh``: only the cables, markers and other
 hand-written terms are built again), the last equilibrium as the start. Where the moved mesh would be poor it
 re-meshes. The page sends the same design without ``draft`` on release,
-which re-meshes, so the answer is the one ``skelfem simulate`` gives. ``Engine.ik`` runs Soft IK
+which re-meshes, so the answer is the one ``skelfem simulate`` gives. In 3D a
+draft that moves or turns bones (their ``move`` and ``rotate``) moves the nodes
+the same way (:mod:`skelfem.mesh.morph3d`), and its frames take modified Newton
+steps with the factorisation the last solve left instead of factorising again
+(:mod:`.frames3d`). ``Engine.ik`` runs Soft IK
 (skelfem.analysis.control.SoftIK, the
 same as ``skelfem ik``) for a marker target from the current equilibrium;
 ligaments are never actuated.
