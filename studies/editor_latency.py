@@ -2,7 +2,8 @@
 
 Serves a design (default: the demo, geometry/finger.toml) with `skelfem edit`'s
 server, opens it in headless Chromium (Debian's, through Selenium) and drags
-with real pointer input (one move every `step_ms` ms, as a mouse sends them):
+with real pointer input (one move every `step_ms` ms, as a mouse sends them;
+each drag starts PAUSE s after the last picture of the one before):
 
 * contraction: the flexor's slider, back and forth (a live parameter: warm
   re-solve on the same mesh);
@@ -54,6 +55,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 SIZES = (0.9, 0.5)      # finer meshes of the design (mm): finger.toml at about 6k and 20k DOFs
+PAUSE = 0.5             # s from the last picture of a drag to the next drag (a hand lets go and grabs again)
 
 
 def _pct(values) -> dict:
@@ -107,6 +109,7 @@ def _slider_drags(page, moves: int, drags: int, step_ms: int) -> None:
         span = 0.15 * rect["width"] * (-1 if k % 2 == 0 else 1)
         page.drag((x0, y), [(x0 + span * i / moves, y) for i in range(1, moves + 1)], step_ms)
         page.idle()
+        time.sleep(PAUSE)
 
 
 def _vertex_drags(page, moves: int, drags: int, step_ms: int, path) -> None:
@@ -117,6 +120,7 @@ def _vertex_drags(page, moves: int, drags: int, step_ms: int, path) -> None:
         page.drag((x0, y0), [(x0 + dx * i / moves, y0 + 0.5 * dx * i / moves) for i in range(1, moves + 1)],
                   step_ms)
         page.idle()
+        time.sleep(PAUSE)
 
 
 def _post(port: int, path: str, body) -> tuple[int, float, dict]:

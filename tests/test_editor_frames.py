@@ -301,7 +301,7 @@ def test_the_solver_thread_collects_the_garbage_between_requests_not_in_them():
     w = Worker(engine=None)
     try:
         assert w.submit("t", lambda e: gc.get_freeze_count()).result(30) > 0     # frozen when it started
-        assert w.tidied == 0                                    # nothing tidied while requests come
+        assert w.tidied == 0                                    # nothing tidied at once
         time.sleep(IDLE + 0.5)
         assert w.tidied == 1 and not w.tidying                  # once after a quiet spell, not again
         time.sleep(IDLE)

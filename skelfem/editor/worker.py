@@ -48,7 +48,7 @@ from dataclasses import dataclass
 log = logging.getLogger("skelfem")
 
 POLL = 0.05          # s between two looks of the watchdog at the running job
-IDLE = 0.5           # s without a request after which the solver thread collects the garbage (module doc)
+IDLE = 0.25          # s without a request after which the solver thread collects the garbage (module doc)
 RAISE_AGAIN = 0.5    # s after which Cancel is raised again in a job that has not ended
 
 
