@@ -197,7 +197,7 @@ class Session:
             inertia.stiffness_damping == (design.dynamics.damping_stiffness > 0.0)
 
     @_exclusive
-    def edit(self, design, overrides=(), morph: bool = False, size=None) -> str:
+    def edit(self, design, overrides=(), morph: bool = False, size=None, preview: bool = False) -> str:
         """Replace the design (a path, a dict or a Design); the last solution is the start.
 
         The design is re-meshed, unless its mesh would be the same: when the
@@ -211,13 +211,16 @@ class Session:
         size: a non-uniform mesh size (skelfem.mesh.geometry.SizeField) below the
         design's [mesh] size: always re-meshes; the mesh of any later edit
         without it is uniform again.
+        preview=True (the editor's 3D drafts): on moved nodes, cables and markers that only bones' poses
+        moved keep their points in the cells they were found in instead of being built again (the state
+        is a preview; skelfem.terms.base.bone_poses_only).
         Returns how: "re-meshed", "same mesh" or "moved nodes".
         """
         design = as_design(design, overrides)
         from .fem.newton import NewtonSolver
         x = self._same_mesh(design, morph) if size is None and self.size is None else None
         if x is not None:
-            self._move_mesh(design, x)
+            self._move_mesh(design, x, preview)
             return "moved nodes" if morph and np.any(x != self._morph.X0) else "same mesh"
         old_model, old_solved = self.model, self.solved
         start = None
@@ -298,7 +301,7 @@ class Session:
                 and self._meshed.dim == 3:
             self._morph = Morph3D(self.model.tm, self._meshed)
 
-    def _move_mesh(self, design, x: np.ndarray) -> None:
+    def _move_mesh(self, design, x: np.ndarray, preview: bool = False) -> None:
         """The model for design on the current mesh with node coordinates x; u carries over as is.
 
         The model follows in place when it can (Model.refresh: compiled forms,
@@ -310,7 +313,7 @@ class Session:
             self._morph.apply(x)
         self.design = design
         try:
-            if not self._refresh(design):
+            if not self._refresh(design, preview):
                 self._build(self.model.tm)
         except BaseException:
             if self._morph is not None:
@@ -324,10 +327,13 @@ class Session:
             self.model.apply_bcs(self.model.u.vector)
             self.solved = True
 
-    def _refresh(self, design) -> bool:
+    def _refresh(self, design, preview: bool = False) -> bool:
         """Let the model follow design in place (a new matrix if its pattern grew); False if it cannot."""
         t0 = time.perf_counter()
         changed = changed_keys(flatten(self.model.design.raw), flatten(design.raw))
+        if preview and changed:
+            from .terms.base import PREVIEW
+            changed = set(changed) | {PREVIEW}               # the terms may follow as a preview allows
         if any(k.startswith(("solver.", "contact.")) for k in changed):    # the solver was set up for them
             return False
         how = self.model.refresh(design, changed)

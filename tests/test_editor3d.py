@@ -151,3 +151,30 @@ def test_a_marker_or_cable_edit_keeps_the_3d_mesh(engine, design):
     a = engine.solve(copy.deepcopy(d))
     assert a["converged"] and a["editor"]["how"] == "edit (same mesh)"
     assert a["mesh"]["markers"]["tip"] is not None
+
+
+def test_a_preview_keeps_cables_and_markers_and_an_exact_edit_builds_them_anew(design):
+    """The editor's 3D drafts (preview=True) keep the cables' and markers' points in their cells on the moved
+    nodes; any other edit on moved nodes (a design gradient's) builds them anew, exact."""
+    from skelfem.session import Session
+    from skelfem.terms.base import PREVIEW, bone_poses_only
+
+    class Ctx:
+        class design:
+            dim = 3
+    assert bone_poses_only(Ctx, {PREVIEW, "bones.distal.move", "bones.distal.rotate.angle"})
+    assert not bone_poses_only(Ctx, {"bones.distal.move"})                     # not a preview
+    assert not bone_poses_only(Ctx, {PREVIEW, "bones.distal.move", "cables.flexor.path"})
+    assert not bone_poses_only(Ctx, {PREVIEW})
+    s = Session(parse_design(copy.deepcopy(design), "finger3d.toml"))
+    try:
+        assert s.solve().converged
+        cable, markers = s.model.terms_in("cables")[0], s.model.terms_in("markers")[0]
+        assert s.edit(parse_design(posed(design, [0.1, 0.0, 0.0], 1.0), "f.toml"), morph=True,
+                      preview=True) == "moved nodes"
+        assert s.model.terms_in("cables")[0] is cable and s.model.terms_in("markers")[0] is markers
+        assert s.edit(parse_design(posed(design, [0.2, 0.0, 0.0], 1.5), "f.toml"), morph=True) == "moved nodes"
+        assert s.model.terms_in("cables")[0] is not cable and s.model.terms_in("markers")[0] is not markers
+        assert s.solve().converged
+    finally:
+        s.close()

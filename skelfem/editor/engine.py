@@ -311,7 +311,7 @@ class Engine:
         from ..mesh.geometry import MeshingError
         old = self.session.design
         try:
-            return self.session.edit(d, morph=draft)
+            return self.session.edit(d, morph=draft, preview=draft)
         except (DesignError, MeshingError) as exc:   # the old mesh, model and solution are intact
             self.session.design = old
             raise EditError(f"{self.source}: {exc}" if isinstance(exc, MeshingError) else str(exc),

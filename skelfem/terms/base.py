@@ -141,6 +141,21 @@ def touched(changed: set, *prefixes: str) -> bool:
     return any(k == p or k.startswith(p + ".") or p.startswith(k + ".") for k in changed for p in prefixes)
 
 
+PREVIEW = "#preview"     # in a refresh's changed keys: the state will be a preview (Session.edit(preview=True))
+
+
+def bone_poses_only(ctx, changed: set) -> bool:
+    """Whether changed is a preview's (PREVIEW among its keys) of nothing but 3D bones' poses
+    (``bones.B.move``, ``bones.B.rotate...``): the editor's 3D drafts on nodes moved by
+    skelfem.mesh.morph3d, which cables and markers follow by keeping their points in the cells they were
+    found in (an approximation a preview allows; the release re-meshes). Anyone else's edit (a design
+    gradient's moved mesh) builds them anew, exact."""
+    keys = set(changed) - {PREVIEW}
+    return ctx.design.dim == 3 and PREVIEW in changed and bool(keys) and all(
+        len(k.split(".")) > 2 and k.split(".")[0] == "bones" and k.split(".")[2] in ("move", "rotate")
+        for k in keys)
+
+
 def constant(mesh, value) -> fem.Constant:
     """A fem.Constant holding a float or a vector."""
     v = np.asarray(value, dtype=PETSc.ScalarType)
