@@ -310,3 +310,26 @@ def test_the_solver_thread_collects_the_garbage_between_requests_not_in_them():
     finally:
         w.close()
     assert gc.get_freeze_count() == 0                           # the worker unfreezes all when it ends
+
+
+def test_a_2d_draft_keeps_the_cables_and_markers_in_their_cells_and_an_exact_edit_builds_them_anew(design):
+    """A draft on moved nodes (a bone vertex dragged) is a preview: the cables and markers keep the cells
+    their points were found in (terms.base.moved_nodes_only), half of a frame's time not spent; the same
+    move as an edit that is not a preview (a design gradient's moved mesh) builds them anew."""
+    eng = Engine(copy.deepcopy(design), "finger.toml", frame_budget=None)
+
+    def kept() -> list:
+        return [t for t in eng.session.model.terms if t.section in ("cables", "markers")]
+    try:
+        before = kept()
+        assert len(before) == 6                                   # five cables, the markers
+        d = copy.deepcopy(design)
+        d["bones"][-1]["outline"][0][0] -= 0.3
+        a = eng.solve(d, draft=True)
+        assert a["editor"]["how"] == "edit (moved nodes)" and a["certificate"]["state"] == "preview"
+        assert all(p is q for p, q in zip(kept(), before))
+        d["bones"][-1]["outline"][0][0] -= 0.3
+        assert eng.session.edit(copy.deepcopy(d), morph=True) == "moved nodes"    # not a preview
+        assert not any(p is q for p, q in zip(kept(), before))
+    finally:
+        eng.close()

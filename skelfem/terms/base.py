@@ -156,6 +156,23 @@ def bone_poses_only(ctx, changed: set) -> bool:
         for k in keys)
 
 
+def moved_nodes_only(ctx, changed: set) -> bool:
+    """Whether changed is a preview's of nothing but moved mesh nodes: 3D bones' poses (bone_poses_only),
+    or 2D polygons dragged vertex by vertex (the outlines and holes of the body, bodies, bones and objects:
+    the editor's 2D drafts on nodes moved by skelfem.mesh.morph). Cables and markers then keep their points
+    in the cells they were found in (a preview's approximation; the release re-meshes)."""
+    if bone_poses_only(ctx, changed):
+        return True
+    keys = set(changed) - {PREVIEW}
+    return ctx.design.dim == 2 and PREVIEW in changed and bool(keys) and all(_polygon_key(k) for k in keys)
+
+
+def _polygon_key(key: str) -> bool:
+    parts = key.split(".")
+    return key in ("body.outline", "body.holes") or (
+        len(parts) == 3 and parts[0] in ("bodies", "bones", "objects") and parts[2] in ("outline", "holes"))
+
+
 def constant(mesh, value) -> fem.Constant:
     """A fem.Constant holding a float or a vector."""
     v = np.asarray(value, dtype=PETSc.ScalarType)

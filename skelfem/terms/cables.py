@@ -41,7 +41,7 @@ from mpi4py import MPI
 from . import cable_slip
 from ..mesh.geometry import body_tag_name, bone_tag_name
 from ..mesh.points import DofGather, locate_cells
-from .base import Context, Term, bone_poses_only
+from .base import Context, Term, moved_nodes_only
 from .capabilities import Actuator, FiniteAnchors, Follows, History, Lagged
 from .cable_route import (MAX_PER_RADIUS, PER_RADIUS, PIECES, anchor_samples, anchor_weights,  # noqa: F401
                           anchored_interpolation, anchors, default_anchor_radius, differences,
@@ -466,11 +466,12 @@ class CableTerm(Term, History, Lagged, FiniteAnchors, Actuator, Follows):
         return list(self.disks)
 
     def follow(self, ctx: Context, changed: set) -> bool:
-        """A 3D draft that only moves or turns bones (their ``move`` and ``rotate``: the editor's frames on
-        nodes moved by skelfem.mesh.morph3d): the cable keeps its via points in the cells they were cut
-        in, so they ride with the moved nodes (a preview's approximation: 25-60 ms of a frame at 10k DOFs,
-        0.4 s at 49k, not spent; the release re-meshes and builds the cable anew). Anything else: anew."""
-        return bone_poses_only(ctx, changed)
+        """A draft on moved nodes only (a 3D bone moved or turned, skelfem.mesh.morph3d; a 2D outline's or
+        hole's vertices dragged, skelfem.mesh.morph: terms.base.moved_nodes_only): the cable keeps its via
+        points in the cells they were cut in (a preview's approximation: 25-60 ms of a frame at 10k DOFs in
+        3D, 0.4 s at 49k, about half of a 2D frame on finger.toml, not spent; the release re-meshes and
+        builds the cable anew). Anything else: anew."""
+        return moved_nodes_only(ctx, changed)
 
     @property
     def rest_length(self) -> float:

@@ -9,7 +9,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..mesh.points import global_interpolation
-from .base import Context, Term, bone_poses_only
+from .base import Context, Term, moved_nodes_only
 from .capabilities import Follows
 
 
@@ -28,9 +28,10 @@ class Markers(Term, Follows):
                 raise DesignError(f"{ctx.design.source}: markers.{name}: point lies outside the mesh")
 
     def follow(self, ctx: Context, changed: set) -> bool:
-        """A 3D draft that only moves or turns bones: the markers keep their interpolation (26 ms of a frame
-        at 10k DOFs, a new cell tree, not spent); anything else: built anew."""
-        return bone_poses_only(ctx, changed)
+        """A draft on moved nodes only (terms.base.moved_nodes_only: a 3D bone's pose, a 2D outline's
+        vertices): the markers keep their interpolation (26 ms of a frame at 10k DOFs in 3D, a new cell
+        tree, not spent); anything else: built anew."""
+        return moved_nodes_only(ctx, changed)
 
     def positions(self, u: np.ndarray) -> np.ndarray:
         """Current marker positions (every rank gets all of them; collective under MPI)."""
