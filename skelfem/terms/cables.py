@@ -510,6 +510,9 @@ class CableTerm(Term, History, Lagged, FiniteAnchors, Actuator, Follows):
     def update_lag(self, model) -> bool:
         return self.cable.relax_limits(model.u.x.array, self.rest_length, self.LAG_RTOL)
 
+    def lags_follow_the_step(self) -> bool:
+        return self.cable.friction
+
     def end_step(self, model) -> None:
         self.cable.accept(model.u.x.array, self.rest_length)
 
