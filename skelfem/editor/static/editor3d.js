@@ -270,6 +270,7 @@ function on3dMove(e) {
       const turn = rotation3(AXES3[h.axis], (a1 - a0) * 180 / Math.PI * facing);
       const [axis, angle] = axisAngle(matMul(turn, g.pose.R));
       b.rotate = { angle: snapA(angle), axis: axis.map(snapAxis), centre: g.pose.c };
+      if (!b.move) b.move = [0, 0, 0];
     } else {
       let d;
       if (h.kind === "bone-axis") {           // along the arrow: the pointer's move projected on the arrow's screen direction
