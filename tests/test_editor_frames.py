@@ -257,7 +257,9 @@ def test_the_pages_release_is_framed_and_goes_on_to_the_batch_solve(design):
             d["bones"][-1]["outline"][0][0] -= 0.5
             eng.solve(d, draft=True)
         a = eng.solve(d, framed=True)
+        # the new mesh took the frame's time: the first frame is the state carried over onto it
         assert a["editor"]["how"] == "edit (re-meshed)" and a["status"] == "frame_budget"
+        assert a["newton_iterations"] == 0 and a["mesh"] is not None
         seen = [_check(eng, a)]
         while a["status"] == "frame_budget" and len(seen) < 40:       # the page asks again
             a = eng.solve(d, framed=True)

@@ -299,6 +299,12 @@ class Engine:
         # frames of one design go on until converged, or failed: past the solver's own iteration limit the
         # next is solved to the end (a Newton that never converges is not asked again for ever)
         budget = (draft or framed) and self.frame_budget is not None and self.preview_steps < solver.max_iterations
+        if budget and how == "edit (re-meshed)" and self.session.solved and not self.session.model.path_dependent \
+                and time.monotonic() >= start + self.frame_budget:
+            # a release's new mesh took the frame's time: its first frame is the state carried over onto it,
+            # and Newton starts with the page's next ask
+            from .frames3d import Frame
+            return self._answer(Frame(self.session, 0, time.perf_counter() - t0), t0, how, have, fields)
         solver.stepper.deadline = start + self.frame_budget if budget else None
         try:
             result = self.session.solve()
