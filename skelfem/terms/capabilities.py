@@ -131,6 +131,11 @@ class Lagged:
         """Refresh lagged quantities (friction's normal forces) at a converged state; True: solve again."""
         return False
 
+    def lags_follow_the_step(self) -> bool:
+        """Whether the lags kept from the last step always change in a new one (a cable's friction limits
+        follow its tensions): Newton's first solve of a step then stops loosely, as its re-solves do."""
+        return False
+
     def lags(self):
         """A copy of the lagged quantities that follow the state (friction's normal forces N, an
         edge's tangent), or None: nothing lagged. At a converged state they are their own fixed
