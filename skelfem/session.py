@@ -197,7 +197,8 @@ class Session:
             inertia.stiffness_damping == (design.dynamics.damping_stiffness > 0.0)
 
     @_exclusive
-    def edit(self, design, overrides=(), morph: bool = False, size=None, preview: bool = False) -> str:
+    def edit(self, design, overrides=(), morph: bool = False, size=None, preview: bool = False,
+             moved_only: bool = False) -> str:
         """Replace the design (a path, a dict or a Design); the last solution is the start.
 
         The design is re-meshed, unless its mesh would be the same: when the
@@ -214,7 +215,9 @@ class Session:
         preview=True (the editor's 3D drafts): on moved nodes, cables and markers that only bones' poses
         moved keep their points in the cells they were found in instead of being built again (the state
         is a preview; skelfem.terms.base.bone_poses_only).
-        Returns how: "re-meshed", "same mesh" or "moved nodes".
+        moved_only=True: where the mesh cannot follow, nothing changes and "not moved" is returned (the
+        editor's drafts whose bones' places only the moved tetrahedra checked: parse_design's poses_of).
+        Returns how: "re-meshed", "same mesh", "moved nodes" or "not moved".
         """
         design = as_design(design, overrides)
         from .fem.newton import NewtonSolver
@@ -222,6 +225,8 @@ class Session:
         if x is not None:
             self._move_mesh(design, x, preview)
             return "moved nodes" if morph and np.any(x != self._morph.X0) else "same mesh"
+        if moved_only:
+            return "not moved"
         old_model, old_solved = self.model, self.solved
         start = None
         # the same outlines on a new mesh (a --tol ladder's next level): friction's history (anchors on the

@@ -178,3 +178,31 @@ def test_a_preview_keeps_cables_and_markers_and_an_exact_edit_builds_them_anew(d
         assert s.solve().converged
     finally:
         s.close()
+
+
+def test_a_pose_draft_skips_the_solids_check_and_a_bone_out_of_the_body_is_still_refused(design, monkeypatch):
+    """A draft that only moves or turns bones is checked by the moved mesh (every tetrahedron keeps its
+    orientation), not by OpenCASCADE; the release checks exactly; a bone dragged out of the body turns the
+    tetrahedra over, and the draft is then checked exactly and refused at its key, the last answer kept."""
+    from skelfem.design import solids
+    from skelfem.editor.engine import EditError, Engine
+    calls = []
+    check = solids.check
+    monkeypatch.setattr(solids, "check", lambda *a, **k: calls.append(1) or check(*a, **k))
+    eng = Engine(copy.deepcopy(design), "finger3d.toml", frame_budget=1e-6)
+    try:
+        n = len(calls)
+        for k in range(1, 3):
+            a = eng.solve(posed(design, [0.1 * k, 0.0, 0.0], 0.5 * k), draft=True)
+            assert a["editor"]["how"] == "edit (moved nodes)"
+        assert len(calls) == n                                     # no OpenCASCADE check while dragged
+        done = eng.solve(posed(design, [0.2, 0.0, 0.0], 1.0))
+        assert done["converged"] and done["editor"]["how"] == "edit (re-meshed)" and len(calls) == n + 1
+        with pytest.raises(EditError) as err:
+            eng.solve(posed(design, [0.0, 8.0, 0.0]), draft=True)
+        assert err.value.key == "bones.distal.solids" and "strictly inside the body" in err.value.message
+        assert len(calls) == n + 2 and eng.session.design.bones[2].pose["move"][0] == 0.2
+        with pytest.raises(EditError):                             # asked again: still refused
+            eng.solve(posed(design, [0.0, 8.0, 0.0]), draft=True)
+    finally:
+        eng.close()

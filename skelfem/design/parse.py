@@ -37,8 +37,13 @@ def used_materials(bodies, bones) -> tuple:
     """The materials a cable can run through: the bodies' and the bones', in that order."""
     return tuple(dict.fromkeys([b.material for b in bodies] + [b.material for b in bones]))
 
-def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
-    """Validate a design given as parsed TOML (a dict); overrides are ``KEY=VALUE`` strings."""
+def parse_design(data: dict, source: str = "<design>", overrides=(), poses_of: Design | None = None) -> Design:
+    """Validate a design given as parsed TOML (a dict); overrides are ``KEY=VALUE`` strings.
+
+    poses_of: a checked 3D Design that data differs from in its bones' poses only (the editor's drafts of a
+    dragged bone): the OpenCASCADE check of the solids is not run again and its volume is kept, so the bones'
+    new places are NOT checked here; the caller must (the editor: the moved mesh's tetrahedra keep their
+    orientation, else the design is parsed again without poses_of)."""
     data = copy.deepcopy(data)
     check_text(data, source)
     for assignment in overrides:
@@ -103,8 +108,12 @@ def parse_design(data: dict, source: str = "<design>", overrides=()) -> Design:
         from .objects import inside
         in_body = {k: X for k, X in markers.items() if not any(inside(o, X) for o in objects)}
         every = tuple(s for b in bodies for s in b.solids)        # several bodies: the parts the pins must hold
-        result = solids.check(every, [(b.name, b.solids) for b in bones], [(c.name, c.path) for c in cables],
-                              in_body, [(ld.name, ld.at) for ld in loads], [(p.name, p.region) for p in pins], tol)
+        if poses_of is not None and poses_of.dim == 3:
+            result = solids.Check(poses_of.measure)
+        else:
+            result = solids.check(every, [(b.name, b.solids) for b in bones], [(c.name, c.path) for c in cables],
+                                  in_body, [(ld.name, ld.at) for ld in loads], [(p.name, p.region) for p in pins],
+                                  tol)
         if result.error is not None:
             key, message = result.error
             raise DesignError(f"{source}: {key}: {message}")

@@ -22,7 +22,12 @@ which re-meshes, so the answer is the one ``skelfem simulate`` gives. In 3D a
 draft that moves or turns bones (their ``move`` and ``rotate``) moves the nodes
 the same way (:mod:`skelfem.mesh.morph3d`), and its frames take modified Newton
 steps with the factorisation the last solve left instead of factorising again
-(:mod:`.frames3d`). ``Engine.ik`` runs Soft IK
+(:mod:`.frames3d`). Such a draft (the bones' poses its only change) is not
+checked by OpenCASCADE (parse_design's ``poses_of``): the moved mesh checks it
+(its tetrahedra keep their orientation, so the bones stay inside the body and
+apart); where the mesh cannot follow, the draft is parsed and checked exactly
+(a bone out of the body: the 422 at its key) and re-meshed, and the release
+is always checked exactly. ``Engine.ik`` runs Soft IK
 (skelfem.analysis.control.SoftIK, the
 same as ``skelfem ik``) for a marker target from the current equilibrium;
 ligaments are never actuated.
@@ -83,6 +88,7 @@ CONTRACTION_DECIMALS = 4  # contractions Soft IK finds are written back rounded 
 TOP_KEYS = ("format", "name", "dim", "thickness", "mesh", "materials", "body", "bodies", "bones", "cables", "pins",
             "loads", "grounds", "contact", "markers", "solver", "gravity", "tractions", "fabrication", "objects",
             "dynamics")
+POSE_KEY = re.compile(r"bones\.[^.]+\.(move|rotate(\.[a-z]+)?)")     # flat keys of a 3D bone's pose
 
 
 # The interactive budget: a design whose mesh is estimated (skelfem.design.resources) beyond this many
@@ -157,19 +163,20 @@ class Engine:
         self.preview = False                  # the state is a draft frame stopped at its budget (not converged)
         self.preview_steps = 0                # Newton steps of the frames since the last converged state
         self.initial = d                      # recovery's last resort: the design the editor started with
-        self._parsed: tuple[str, object] | None = None   # (the JSON of the last design parsed, its Design)
+        self._parsed: tuple | None = None   # (the JSON of the last design parsed, its Design, whether checked fully)
         self._mesh_seen, self._meshes = None, 0          # the mesh the topology key names, and how many so far
         from .frames3d import StaleFrames
         self.frames3d = StaleFrames()                    # a 3D drag's frames: the held factorisation reused
         self.first = self._answer(self.session.solve(), time.perf_counter(), "built")
 
     # -- designs ----------------------------------------------------------------------------------
-    def parse(self, design, budget: bool = True):
-        """A validated Design from a dict (within the interactive budget); EditError (422) naming the key otherwise."""
+    def parse(self, design, budget: bool = True, poses_of=None):
+        """A validated Design from a dict (within the interactive budget); EditError (422) naming the key otherwise.
+        poses_of: parse_design's (the solids' check of that Design kept)."""
         if not isinstance(design, dict):
             raise EditError("the design must be a JSON object of the TOML's keys", "", 400)
         try:
-            d = parse_design(design, self.source)
+            d = parse_design(design, self.source, poses_of=poses_of)
         except DesignError as exc:
             raise EditError(str(exc), error_key(str(exc), self.source)) from None
         except RecursionError:
@@ -181,17 +188,29 @@ class Engine:
     def check_budget(self, d) -> None:
         check_budget(d, self.max_dofs)
 
-    def _parse_again(self, design):
-        """parse(design), or the Design of the last call when design is the same (a frame asked again)."""
+    def _parse_again(self, design, poses_of=None):
+        """parse(design), or the Design of the last call when design is the same (a frame asked again);
+        poses_of: see parse_design (a Design parsed with it is not reused for a request without)."""
         try:
             key = json.dumps(design, sort_keys=True, allow_nan=False)
         except (TypeError, ValueError):
             return self.parse(design)
-        if self._parsed is not None and self._parsed[0] == key:
+        if self._parsed is not None and self._parsed[0] == key and (self._parsed[2] or poses_of is not None):
             return self._parsed[1]
-        d = self.parse(design)
-        self._parsed = (key, d)
+        d = self.parse(design, poses_of=poses_of)
+        self._parsed = (key, d, poses_of is None)
         return d
+
+    def _poses_only(self, design) -> bool:
+        """Whether design (a dict) differs from the Session's 3D design in its bones' poses only (a bone
+        dragged or turned): a draft of it is checked by the moved mesh, not by OpenCASCADE (see solve)."""
+        if self.session is None or self.flat is None or self.session.design.dim != 3 or not isinstance(design, dict):
+            return False
+        try:
+            changed = changed_keys(self.flat, flatten(design))
+        except (TypeError, ValueError, RecursionError):
+            return False
+        return bool(changed) and all(POSE_KEY.fullmatch(k) for k in changed)
 
     def topology(self) -> str:
         """A key of the mesh's cells and regions: the same while the mesh is (its nodes may move), new after
@@ -269,10 +288,11 @@ class Engine:
         """
         t0 = time.perf_counter()
         start = time.monotonic()
-        d = self._parse_again(design)
+        draft = bool(draft)
+        loose = draft and self._poses_only(design)       # the bones' new places: checked by the moved mesh
+        d = self._parse_again(design, self.session.design if loose else None)
         self.ensure()
         flat = flatten(d.raw)
-        draft = bool(draft)
         kept = draft or not self.draft              # a request not a draft re-meshes moved nodes (a release)
         if flat == self.flat and kept and self.session.solved:
             if not self.preview and self.answer is not None:
@@ -288,7 +308,11 @@ class Engine:
                 how = "set"
                 self.session.set(changes, design=d)       # validated above
             else:
-                how = f"edit ({self._edit(d, draft)})"
+                moved = self._edit(d, draft, moved_only=loose)
+                if moved == "not moved":                 # the mesh cannot follow: the exact check, then re-mesh
+                    d = self._parse_again(design)
+                    moved = self._edit(d, draft)
+                how = f"edit ({moved})"
                 self.draft = draft
             self.flat = flat
         solver = self.session.solver
@@ -312,12 +336,12 @@ class Engine:
             solver.stepper.deadline = None
         return self._answer(result, t0, how, have, fields)
 
-    def _edit(self, d, draft: bool) -> str:
+    def _edit(self, d, draft: bool, moved_only: bool = False) -> str:
         """Session.edit (moving the mesh's nodes for a draft); returns how the mesh was got."""
         from ..mesh.geometry import MeshingError
         old = self.session.design
         try:
-            return self.session.edit(d, morph=draft, preview=draft)
+            return self.session.edit(d, morph=draft, preview=draft, moved_only=moved_only)
         except (DesignError, MeshingError) as exc:   # the old mesh, model and solution are intact
             self.session.design = old
             raise EditError(f"{self.source}: {exc}" if isinstance(exc, MeshingError) else str(exc),
