@@ -65,6 +65,7 @@ def test_a_3d_design_opens_editable_with_handles(page):
     assert page.js("document.querySelectorAll('#sliders input[type=range]').length") == 5
     assert page.js("S.answer.certificate.state") == "converged"
     assert page.js("document.getElementById('banner').hidden")          # no read-only note any more
+    assert page.js("!!GL3.gl && !GL3.failed && GL3.groups.length >= 2")    # the surfaces drawn with WebGL
     assert not page.console_errors()
 
 

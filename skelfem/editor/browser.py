@@ -18,7 +18,8 @@ CHROMIUM = "/usr/bin/chromium"
 CHROMEDRIVER = "/usr/bin/chromedriver"
 FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
          "--disable-background-networking", "--disable-component-update", "--disable-sync",
-         "--disable-dev-shm-usage", "--hide-scrollbars")
+         "--disable-dev-shm-usage", "--hide-scrollbars",
+         "--enable-unsafe-swiftshader")      # WebGL without a GPU (Chromium's software one) for the 3D view
 
 
 class BrowserMissing(RuntimeError):
