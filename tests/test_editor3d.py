@@ -206,3 +206,23 @@ def test_a_pose_draft_skips_the_solids_check_and_a_bone_out_of_the_body_is_still
             eng.solve(posed(design, [0.0, 8.0, 0.0]), draft=True)
     finally:
         eng.close()
+
+
+def test_a_new_pose_whose_step_would_outlast_the_frame_is_the_moved_state(design, monkeypatch):
+    """Where a modified Newton step takes longer than frames3d.STEP_SECONDS (0 here: every step), a new pose's
+    frame takes no step (the moved state, a preview); the same design asked again (the hand at rest) does."""
+    from skelfem.editor import frames3d
+    from skelfem.editor.engine import Engine
+    monkeypatch.setattr(frames3d, "STEP_SECONDS", 0.0)
+    eng = Engine(copy.deepcopy(design), "finger3d.toml", frame_budget=1e-6)
+    try:
+        a = eng.solve(posed(design, [0.1, 0.0, 0.0], 0.5), draft=True)       # the steps' time not known yet
+        assert a["frame"]["steps"] >= 1 and eng.frames3d.step_seconds > 0
+        b = eng.solve(posed(design, [0.2, 0.0, 0.0], 1.0), draft=True)
+        assert b["editor"]["how"] == "edit (moved nodes)" and b["frame"]["steps"] == 0
+        assert "moved state" in b["frame"]["kind"] and b["certificate"]["state"] == "preview"
+        c = eng.solve(posed(design, [0.2, 0.0, 0.0], 1.0), draft=True)
+        assert c["editor"]["how"] == "go on" and c["newton_iterations"] >= 1
+        assert c["certificate"]["residual"] < b["certificate"]["residual"]
+    finally:
+        eng.close()

@@ -317,8 +317,9 @@ class Engine:
             self.flat = flat
         solver = self.session.solver
         if draft and d.dim == 3 and self.frame_budget is not None and self.preview_steps < solver.max_iterations:
-            frame = self.frames3d.frame(self.session, start + self.frame_budget)   # 3D: no new factorisation
-            if frame is not None and frame.newton_iterations:
+            # 3D: no new factorisation; a new pose whose step would outlast the frame: the moved state
+            frame = self.frames3d.frame(self.session, start + self.frame_budget, new=how != "go on")
+            if frame is not None and (frame.newton_iterations or frame.predictor):
                 return self._answer(frame, t0, how, have, fields)
         # frames of one design go on until converged, or failed: past the solver's own iteration limit the
         # next is solved to the end (a Newton that never converges is not asked again for ever)

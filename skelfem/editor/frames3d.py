@@ -15,6 +15,11 @@ last equilibrium on the mesh as meshed: near the dragged state, so the steps
 descend and converge linearly, never faster than Newton but each for the price
 of a residual, a back-substitution and a few energies.
 
+A step that takes longer than STEP_SECONDS (its last time: finger3d at 49k DOFs, a back-substitution with
+MUMPS's factors ~0.3 s) is not started for a new pose: that frame is the moved state itself (the nodes
+moved with the bones, the state carried over: a predictor, zero steps), and the steps are taken when the
+same design is asked again (the hand at rest) and on release.
+
 The state of such a frame is a preview (status ``frame_budget``, never
 "converged": moved nodes); letting go re-meshes and solves with Newton to the
 batch tolerance as every release does. ``StaleFrames.usable`` says whether the
@@ -31,6 +36,7 @@ import numpy as np
 MAX_STEPS = 8          # modified Newton steps of one frame at most (the frame's time usually ends it first)
 ARMIJO = 1e-4
 MIN_ALPHA = 1.0 / 64
+STEP_SECONDS = 0.15    # a step slower than this (the last one's time) is not started for a new pose
 
 
 class Frame:
@@ -39,14 +45,16 @@ class Frame:
     converged = False
     status = "frame_budget"
 
-    def __init__(self, session, steps: int, seconds: float):
+    def __init__(self, session, steps: int, seconds: float, predictor: bool = False):
         self.newton_iterations = steps
+        self.predictor = predictor            # no step tried: the moved state (see the module doc)
+        kind = "the moved state (a step takes longer than the frame)" if predictor else \
+            "modified Newton (the held factorisation)"
         model = session.model
         cells = model.mesh.topology.index_map(model.mesh.topology.dim).size_global
         self._dict = {"format": 1, "design": session.design.name, "converged": False, "status": self.status,
                       "newton_iterations": steps, "dofs": int(session.dofs), "cells": int(cells),
-                      "frame": {"kind": "modified Newton (the held factorisation)", "steps": steps,
-                                "seconds": round(seconds, 4)}}
+                      "frame": {"kind": kind, "steps": steps, "seconds": round(seconds, 4)}}
 
     def to_dict(self) -> dict:
         return dict(self._dict)
@@ -57,6 +65,7 @@ class StaleFrames:
 
     def __init__(self):
         self._held: tuple | None = None       # (solver, matrix) of the last converged solve
+        self.step_seconds = 0.0               # the last frame's time per step (0: not known yet)
 
     def note(self, session, result) -> None:
         """After a solve: one that took Newton steps (or converged with a factorisation) leaves the
@@ -65,24 +74,32 @@ class StaleFrames:
         if isinstance(result, Frame) or solver is None:
             return
         if result.newton_iterations > 0 or (result.converged and solver.factorised):
+            if self._held is None or self._held[0] is not solver:
+                self.step_seconds = 0.0       # a new mesh: its steps' time is not known
             self._held = (solver, solver.A)
 
     def usable(self, session) -> bool:
         held, solver = self._held, session.solver
         return held is not None and held[0] is solver and held[1] is solver.A
 
-    def frame(self, session, deadline: float) -> Frame | None:
+    def frame(self, session, deadline: float, new: bool = True) -> Frame | None:
         """Modified Newton steps from the session's state until `deadline` (time.monotonic); None if the
-        held factorisation cannot be used (the caller takes Newton's way)."""
+        held factorisation cannot be used (the caller takes Newton's way). new: a new pose (not the same
+        design asked again): no step if the last took longer than STEP_SECONDS (the moved state, 0 steps)."""
         if not self.usable(session) or session.model.path_dependent:
             return None
         t0 = time.perf_counter()
+        if new and self.step_seconds > STEP_SECONDS:
+            return Frame(session, 0, 0.0, predictor=True)
         try:
             steps = stale_steps(session.solver, deadline)
         except np.linalg.LinAlgError:
             self._held = None
             return None
-        return Frame(session, steps, time.perf_counter() - t0)
+        seconds = time.perf_counter() - t0
+        if steps:
+            self.step_seconds = seconds / steps
+        return Frame(session, steps, seconds)
 
 
 def stale_steps(solver, deadline: float, max_steps: int = MAX_STEPS) -> int:
