@@ -15,10 +15,10 @@ last equilibrium on the mesh as meshed: near the dragged state, so the steps
 descend and converge linearly, never faster than Newton but each for the price
 of a residual, a back-substitution and a few energies.
 
-A step that takes longer than STEP_SECONDS (its last time: finger3d at 49k DOFs, a back-substitution with
-MUMPS's factors ~0.3 s) is not started for a new pose: that frame is the moved state itself (the nodes
-moved with the bones, the state carried over: a predictor, zero steps), and the steps are taken when the
-same design is asked again (the hand at rest) and on release.
+A step that takes longer than STEP_SECONDS (the last one's time, in proportion to the DOFs: finger3d at
+49k DOFs, a back-substitution with MUMPS's factors 0.04-0.3 s with the load) is not started for a new pose:
+that frame is the moved state itself (the nodes moved with the bones, the state carried over: a predictor,
+zero steps), and the steps are taken when the same design is asked again (the hand at rest) and on release.
 
 The state of such a frame is a preview (status ``frame_budget``, never
 "converged": moved nodes); letting go re-meshes and solves with Newton to the
@@ -65,7 +65,8 @@ class StaleFrames:
 
     def __init__(self):
         self._held: tuple | None = None       # (solver, matrix) of the last converged solve
-        self.step_seconds = 0.0               # the last frame's time per step (0: not known yet)
+        self.step_seconds = 0.0               # the last frame's time per step (0: not known yet) ...
+        self.step_dofs = 1                    # ... on a mesh of this many DOFs
 
     def note(self, session, result) -> None:
         """After a solve: one that took Newton steps (or converged with a factorisation) leaves the
@@ -74,8 +75,6 @@ class StaleFrames:
         if isinstance(result, Frame) or solver is None:
             return
         if result.newton_iterations > 0 or (result.converged and solver.factorised):
-            if self._held is None or self._held[0] is not solver:
-                self.step_seconds = 0.0       # a new mesh: its steps' time is not known
             self._held = (solver, solver.A)
 
     def usable(self, session) -> bool:
@@ -89,7 +88,7 @@ class StaleFrames:
         if not self.usable(session) or session.model.path_dependent:
             return None
         t0 = time.perf_counter()
-        if new and self.step_seconds > STEP_SECONDS:
+        if new and self.step_estimate(session) > STEP_SECONDS:
             return Frame(session, 0, 0.0, predictor=True)
         try:
             steps = stale_steps(session.solver, deadline)
@@ -98,8 +97,14 @@ class StaleFrames:
             return None
         seconds = time.perf_counter() - t0
         if steps:
-            self.step_seconds = seconds / steps
+            self.step_seconds, self.step_dofs = seconds / steps, max(1, int(session.dofs))
         return Frame(session, steps, seconds)
+
+    def step_estimate(self, session) -> float:
+        """A step's time on the session's mesh: the last one's, in proportion to the DOFs (a release's new
+        mesh has about as many as the one dragged before; a mesh of another size is corrected by its first
+        step)."""
+        return self.step_seconds * int(session.dofs) / self.step_dofs
 
 
 def stale_steps(solver, deadline: float, max_steps: int = MAX_STEPS) -> int:
