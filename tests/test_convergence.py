@@ -23,6 +23,7 @@ from skelfem.fem.model import Model
 from skelfem.fem.newton import NewtonSolver
 from skelfem.terms import BUILDERS, Term
 from skelfem.terms.elasticity import lame, psi
+from skelfem.terms.capabilities import Constraints
 
 E, NU = 1.0, 0.3
 
@@ -50,7 +51,7 @@ def _unit_square(n: int) -> TaggedMesh:
     return TaggedMesh(mesh, dmesh.meshtags(mesh, 2, cells, np.ones_like(cells)), {BODY: 1})
 
 
-class Manufactured(Term):
+class Manufactured(Term, Constraints):
     """Body force b = -div P(F(u*)) and u = u* on the boundary, both ramped by the load factor."""
 
     section, name = "manufactured", "mms"

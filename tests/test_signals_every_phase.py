@@ -123,7 +123,7 @@ FINGER = [str(GEOMETRY / "finger.toml"), "--set", "mesh.size=2"]
 FINGER4 = [str(GEOMETRY / "finger4.toml"), "--set", "mesh.size=3"]
 FLICK = [str(GEOMETRY / "flick.toml"), "--set", "mesh.size=3"]
 
-NEWTON = "skelfem.fem.newton:NewtonSolver._newton"
+NEWTON = "skelfem.fem.newton:NewtonSolver.attempt"
 MESHING = "skelfem.mesh.geometry:mesh_design"
 WRITING = "skelfem.io.files:atomic_write"
 
