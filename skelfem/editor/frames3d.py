@@ -19,6 +19,8 @@ A step that takes longer than STEP_SECONDS (the last one's time, in proportion t
 49k DOFs, a back-substitution with MUMPS's factors 0.04-0.3 s with the load) is not started for a new pose:
 that frame is the moved state itself (the nodes moved with the bones, the state carried over: a predictor,
 zero steps), and the steps are taken when the same design is asked again (the hand at rest) and on release.
+So is a new pose's frame whose modified steps cannot lower the residual: the Newton step that would follow
+(finger3d at 10k DOFs: ~0.2 s, a factorisation) waits for the same design asked again.
 
 The state of such a frame is a preview (status ``frame_budget``, never
 "converged": moved nodes); letting go re-meshes and solves with Newton to the
@@ -47,9 +49,8 @@ class Frame:
 
     def __init__(self, session, steps: int, seconds: float, predictor: bool = False):
         self.newton_iterations = steps
-        self.predictor = predictor            # no step tried: the moved state (see the module doc)
-        kind = "the moved state (a step takes longer than the frame)" if predictor else \
-            "modified Newton (the held factorisation)"
+        self.predictor = predictor            # no step taken: the moved state (see the module doc)
+        kind = "the moved state (no step)" if predictor else "modified Newton (the held factorisation)"
         model = session.model
         cells = model.mesh.topology.index_map(model.mesh.topology.dim).size_global
         self._dict = {"format": 1, "design": session.design.name, "converged": False, "status": self.status,
@@ -84,7 +85,9 @@ class StaleFrames:
     def frame(self, session, deadline: float, new: bool = True) -> Frame | None:
         """Modified Newton steps from the session's state until `deadline` (time.monotonic); None if the
         held factorisation cannot be used (the caller takes Newton's way). new: a new pose (not the same
-        design asked again): no step if the last took longer than STEP_SECONDS (the moved state, 0 steps)."""
+        design asked again): no step if the last took longer than STEP_SECONDS, and none where the held
+        factorisation's cannot lower the residual: the moved state, 0 steps (Newton's step, which factorises
+        again, waits for the same design asked again)."""
         if not self.usable(session) or session.model.path_dependent:
             return None
         t0 = time.perf_counter()
@@ -98,7 +101,7 @@ class StaleFrames:
         seconds = time.perf_counter() - t0
         if steps:
             self.step_seconds, self.step_dofs = seconds / steps, max(1, int(session.dofs))
-        return Frame(session, steps, seconds)
+        return Frame(session, steps, seconds, predictor=new and not steps)
 
     def step_estimate(self, session) -> float:
         """A step's time on the session's mesh: the last one's, in proportion to the DOFs (a release's new
