@@ -58,7 +58,7 @@ SIZES = (0.9, 0.5)      # finer meshes of the design (mm): finger.toml at about 
 PAUSE = 0.5             # s from the last picture of a drag to the next drag (a hand lets go and grabs again)
 
 
-def _pct(values) -> dict:
+def percentiles(values) -> dict:
     v = np.asarray(values, dtype=float)
     if not len(v):
         return {"n": 0, "p50": None, "p95": None, "max": None}
@@ -66,7 +66,7 @@ def _pct(values) -> dict:
             "max": float(v.max())}
 
 
-def _reset(page) -> None:
+def reset_marks(page) -> None:
     page.js("(() => { S.latency = {rendered: [], events: [], settled: []}; S.server = []; S.renderMs = [];"
             " S.certificates = [];"
             " performance.clearMarks(); performance.clearMeasures(); return 1; })()")
@@ -79,9 +79,9 @@ def _collect(page) -> dict:
     server = page.js("S.server.map(e => [e.how, 1000 * e.s, e.rtt])")
     certs = page.js("S.certificates")
     out: dict = {"rendered": {}, "every_event": {}, "server_ms": {}, "round_trip_ms": {},
-                 "settled": {k: _pct([ms for kind, ms in settled if kind == k])
+                 "settled": {k: percentiles([ms for kind, ms in settled if kind == k])
                              for k in sorted({k for k, _ in settled})},
-                 "render_ms": _pct(page.js("S.renderMs")),
+                 "render_ms": percentiles(page.js("S.renderMs")),
                  "certificates": {"converged": sum(c["state"] == "converged" for c in certs),
                                   "preview": sum(c["state"] == "preview" for c in certs),
                                   # the page never says converged above the batch tolerance: this stays 0
@@ -91,11 +91,11 @@ def _collect(page) -> dict:
                                   "last": certs[-1]["state"] if certs else None}}
     kinds = sorted({name.split("-")[1] for name, _ in measures} | {k for k, _ in events})
     for kind in kinds:
-        out["rendered"][kind] = _pct([ms for name, ms in measures if name.split("-")[1] == kind])
-        out["every_event"][kind] = _pct([ms for k, ms in events if k == kind])
+        out["rendered"][kind] = percentiles([ms for name, ms in measures if name.split("-")[1] == kind])
+        out["every_event"][kind] = percentiles([ms for k, ms in events if k == kind])
     for how in sorted({h for h, _, _ in server}):
-        out["server_ms"][how] = _pct([ms for h, ms, _ in server if h == how])
-        out["round_trip_ms"][how] = _pct([rtt for h, _, rtt in server if h == how])
+        out["server_ms"][how] = percentiles([ms for h, ms, _ in server if h == how])
+        out["round_trip_ms"][how] = percentiles([rtt for h, _, rtt in server if h == how])
     return out
 
 
@@ -151,7 +151,7 @@ def _api(port: int, design: dict, repeats: int) -> dict:
         status, ms, a = _post(port, "/api/solve", d)
         assert status == 200 and a["converged"]
         contraction.append(ms)
-    return {"one_vertex_ms": _pct(vertex), "contraction_ms": _pct(contraction), "hows": sorted(hows)}
+    return {"one_vertex_ms": percentiles(vertex), "contraction_ms": percentiles(contraction), "hows": sorted(hows)}
 
 
 class GcClock:
@@ -188,7 +188,7 @@ class GcClock:
                 "idle": {"collections": self.idle[0], "total_ms": round(self.idle[1], 2)}}
 
 
-def _load() -> dict:
+def host_load() -> dict:
     try:
         up = subprocess.run(["uptime"], capture_output=True, text=True, timeout=5).stdout.strip()
     except (OSError, subprocess.SubprocessError):
@@ -223,7 +223,7 @@ def run_case(design: Path, size: float | None = None, moves: int = 30, drags: in
     path = _variant(design, size, work)
     raw = tomllib.loads(path.read_text())
     bone = len(raw.get("bones", [])) - 1
-    before = _load()
+    before = host_load()
     editor = Editor(path, port=0).start()
     driver = None
     try:
@@ -231,12 +231,12 @@ def run_case(design: Path, size: float | None = None, moves: int = 30, drags: in
         page = Page(driver, editor.url, timeout=300)
         _vertex_drags(page, 5, 2, step_ms, ["bones", bone, "outline", 0])      # warm-up: draft and full meshes
         _slider_drags(page, 5, 2, step_ms)
-        _reset(page)
+        reset_marks(page)
         t0 = time.perf_counter()
         with GcClock(editor.worker) as gc_clock:
             _slider_drags(page, moves, drags, step_ms)
             contraction = _collect(page)
-            _reset(page)
+            reset_marks(page)
             _vertex_drags(page, moves, drags, step_ms, ["bones", bone, "outline", 0])
             vertex = _collect(page)
         browser_seconds = time.perf_counter() - t0
@@ -255,7 +255,7 @@ def run_case(design: Path, size: float | None = None, moves: int = 30, drags: in
             "cells": answer["cells"], "moves": moves, "drags": drags, "step_ms": step_ms,
             "contraction": contraction, "vertex": vertex, "api": api_times, "browser_seconds": browser_seconds,
             "gc": gc_clock.to_dict(),
-            "console_errors": errors, "before": before, "after": _load()}
+            "console_errors": errors, "before": before, "after": host_load()}
 
 
 def run(design="geometry/finger.toml", moves: int = 30, drags: int = 4, api: int = 20, step_ms: int = 16,
@@ -270,7 +270,7 @@ def run(design="geometry/finger.toml", moves: int = 30, drags: int = 4, api: int
     shot = Path(out) / "editor_latency.png" if screenshot and out is not None else None
     res = run_case(design, None, moves, drags, api, step_ms, shot)
     res["sizes"] = [run_case(design, float(h), moves, drags, api_fine, step_ms) for h in sizes]
-    res.update(_load(), frame_budget_ms=1000 * FRAME_SECONDS)
+    res.update(host_load(), frame_budget_ms=1000 * FRAME_SECONDS)
     if out is not None:
         Path(out).mkdir(parents=True, exist_ok=True)
         (Path(out) / "latency.json").write_text(json.dumps(res, indent=2) + "\n")

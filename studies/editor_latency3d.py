@@ -26,41 +26,21 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import shutil
-import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from editor_latency import host_load, percentiles, reset_marks  # noqa: E402  (the 2D study's timing helpers)
 
 ROOT = Path(__file__).resolve().parents[1]
 DESIGN = ROOT / "geometry" / "finger3d.toml"
 SIZES = (2.6, 1.35)     # finger3d.toml at about 10k and 50k DOFs (P1)
 MAX_DOFS = 80_000       # above the editor's 3D default (30k): the 50k case is asked for
 MAX_SECONDS = 600.0     # a 50k release (mesh, compile, solve) on a loaded host takes more than the default 60 s
-
-
-def _pct(values) -> dict:
-    v = np.asarray(values, dtype=float)
-    if not len(v):
-        return {"n": 0, "p50": None, "p95": None, "max": None}
-    return {"n": int(len(v)), "p50": float(np.percentile(v, 50)), "p95": float(np.percentile(v, 95)),
-            "max": float(v.max())}
-
-
-def _load() -> dict:
-    try:
-        up = subprocess.run(["uptime"], capture_output=True, text=True, timeout=5).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        up = ""
-    return {"load_average": list(os.getloadavg()), "uptime": up}
-
-
-def _reset(page) -> None:
-    page.js("(() => { S.latency = {rendered: [], events: [], settled: []}; S.server = []; S.renderMs = [];"
-            " S.certificates = []; performance.clearMarks(); performance.clearMeasures(); return 1; })()")
 
 
 def _collect(page) -> dict:
@@ -71,12 +51,13 @@ def _collect(page) -> dict:
     certs = page.js("S.certificates")
     kinds = sorted({k for k, _ in rendered} | {k for k, _ in events})
     hows = sorted({h for h, _, _ in server})
-    return {"rendered": {k: _pct([ms for kind, ms in rendered if kind == k]) for k in kinds},
-            "every_event": {k: _pct([ms for kind, ms in events if kind == k]) for k in kinds},
-            "settled": {k: _pct([ms for kind, ms in settled if kind == k]) for k in sorted({k for k, _ in settled})},
-            "server_ms": {h: _pct([ms for how, ms, _ in server if how == h]) for h in hows},
-            "round_trip_ms": {h: _pct([rtt for how, _, rtt in server if how == h]) for h in hows},
-            "render_ms": _pct(page.js("S.renderMs")),
+    return {"rendered": {k: percentiles([ms for kind, ms in rendered if kind == k]) for k in kinds},
+            "every_event": {k: percentiles([ms for kind, ms in events if kind == k]) for k in kinds},
+            "settled": {k: percentiles([ms for kind, ms in settled if kind == k])
+                        for k in sorted({k for k, _ in settled})},
+            "server_ms": {h: percentiles([ms for how, ms, _ in server if how == h]) for h in hows},
+            "round_trip_ms": {h: percentiles([rtt for how, _, rtt in server if how == h]) for h in hows},
+            "render_ms": percentiles(page.js("S.renderMs")),
             "certificates": {"converged": sum(c["state"] == "converged" for c in certs),
                              "preview": sum(c["state"] == "preview" for c in certs),
                              "converged_above_tolerance": sum(c["state"] == "converged" and
@@ -133,7 +114,7 @@ def run_case(size: float, moves: int = 20, drags: int = 2, step_ms: int = 16, sc
 
     work = Path(tempfile.mkdtemp(prefix="skelfem-latency3d-"))
     path = _variant(size, work)
-    before = _load()
+    before = host_load()
     t_open = time.perf_counter()
     editor = Editor(path, port=0, max_dofs=MAX_DOFS, budget=Budget(seconds=MAX_SECONDS)).start()
     driver = None
@@ -142,11 +123,11 @@ def run_case(size: float, moves: int = 20, drags: int = 2, step_ms: int = 16, sc
         page = Page(driver, editor.url, timeout=timeout)
         opened = time.perf_counter() - t_open
         _moves(page, 3, 1, step_ms, timeout)                 # warm-up: a draft and a release
-        _reset(page)
+        reset_marks(page)
         t0 = time.perf_counter()
         _moves(page, moves, drags, step_ms, timeout)
         move = _collect(page)
-        _reset(page)
+        reset_marks(page)
         _turns(page, moves, drags, step_ms, timeout)
         turn = _collect(page)
         seconds = time.perf_counter() - t0
@@ -163,7 +144,7 @@ def run_case(size: float, moves: int = 20, drags: int = 2, step_ms: int = 16, sc
     return {"design": path.name, "mesh_size": float(size), "dofs": answer["dofs"], "cells": answer["cells"],
             "linear_solver": answer.get("linear_solver"), "moves": moves, "drags": drags, "step_ms": step_ms,
             "opened_seconds": opened, "move": move, "turn": turn, "browser_seconds": seconds,
-            "console_errors": errors, "before": before, "after": _load()}
+            "console_errors": errors, "before": before, "after": host_load()}
 
 
 def run(sizes=SIZES, moves: int = 20, drags: int = 2, step_ms: int = 16, out=None, screenshot: bool = True,
@@ -174,7 +155,7 @@ def run(sizes=SIZES, moves: int = 20, drags: int = 2, step_ms: int = 16, out=Non
     for i, h in enumerate(sizes):
         shot = Path(out) / "editor_latency3d.png" if screenshot and out is not None and i == 0 else None
         cases.append(run_case(float(h), moves, drags, step_ms, shot, timeout))
-    res = {"cases": cases, "frame_budget_ms": 1000 * FRAME_SECONDS, **_load()}
+    res = {"cases": cases, "frame_budget_ms": 1000 * FRAME_SECONDS, **host_load()}
     if out is not None:
         Path(out).mkdir(parents=True, exist_ok=True)
         (Path(out) / "latency3d.json").write_text(json.dumps(res, indent=2) + "\n")
