@@ -493,3 +493,45 @@ def test_several_bodies_open_solve_and_show_the_forces_between_them(tmp_path):
         assert status == 422 and bad["key"].startswith("bodies.right.outline")
     finally:
         ed.stop()
+
+
+def test_a_page_that_asks_gets_the_coordinates_packed_and_the_same_numbers(editor, design):
+    """Over the websocket, "packed": true sends the mesh's coordinates as base64 float32 (no float formatted as
+    text); they decode to the numbers the same answer has as JSON lists, to float32's precision."""
+    import base64
+
+    from _hardening import ws_connect, ws_recv, ws_send
+
+    def message(s) -> dict:
+        while True:
+            opcode, payload = ws_recv(s)
+            if opcode == 1:
+                return json.loads(payload)
+
+    def unpack(v) -> np.ndarray:
+        return np.frombuffer(base64.b64decode(v["f32"]), dtype="<f4").reshape(v["shape"])
+
+    s = ws_connect(editor.port)
+    try:
+        ws_send(s, json.dumps({"id": 1, "kind": "solve", "design": design}).encode())
+        plain = message(s)["answer"]["mesh"]
+        ws_send(s, json.dumps({"id": 2, "kind": "solve", "design": design, "packed": True}).encode())
+        packed = message(s)["answer"]["mesh"]
+    finally:
+        s.close()
+    assert isinstance(plain["y"], list) and set(packed["y"]) == {"f32", "shape"}
+    for got, want in [(packed["y"], plain["y"]), (packed["x"], plain["x"])] + \
+            [(p["via"], q["via"]) for p, q in zip(packed["cables"], plain["cables"])]:
+        want = np.asarray(want)
+        assert unpack(got).shape == want.shape
+        assert np.allclose(unpack(got), want, rtol=1e-6, atol=0)
+    assert packed["cells"] == plain["cells"] and packed["markers"] == plain["markers"]
+
+
+def test_a_coordinate_that_is_not_finite_is_never_packed():
+    from skelfem.editor.server import dumps
+    assert dumps({"y": np.array([[1.0, 2.0]])}, packed=True).startswith('{"y":{"f32":')
+    with pytest.raises(ValueError):
+        dumps({"y": np.array([[1.0, np.nan]])}, packed=True)
+    with pytest.raises(ValueError):
+        dumps({"y": np.array([[1.0, np.inf]])})

@@ -63,6 +63,9 @@ def _check(eng, answer) -> dict:
     c = answer["certificate"]
     r = _residual(eng)
     assert c["residual"] == pytest.approx(r, rel=1e-6, abs=1e-14)
+    # the tolerance the engine keeps between frames of one design is the one computed afresh
+    assert c["tolerance"] == pytest.approx(certificate(eng.session.solver, eng.session.design.solver.steps)[1],
+                                           rel=1e-12)
     assert c["ratio"] == pytest.approx(c["residual"] / c["tolerance"], rel=1e-12)
     if c["state"] == "converged":
         assert answer["converged"] and not answer["editor"]["draft"] and r <= c["tolerance"]
@@ -333,5 +336,27 @@ def test_a_2d_draft_keeps_the_cables_and_markers_in_their_cells_and_an_exact_edi
         d["bones"][-1]["outline"][0][0] -= 0.3
         assert eng.session.edit(copy.deepcopy(d), morph=True) == "moved nodes"    # not a preview
         assert not any(p is q for p, q in zip(kept(), before))
+    finally:
+        eng.close()
+
+
+def test_the_tolerance_kept_between_frames_follows_every_change_of_the_design(design):
+    """The certificate's tolerance (|R| at rest) is computed once per design and kept for its frames; a live
+    change, a cable sketched anew on the same mesh (the model follows in place) and moved nodes each get
+    their own, the one a fresh computation gives."""
+    eng = Engine(copy.deepcopy(design), "finger.toml", frame_budget=1e-6)
+    try:
+        d = copy.deepcopy(design)
+        tolerances = [_check(eng, eng.first)["tolerance"]]
+        d["cables"][0]["contraction"] = float(d["cables"][0].get("contraction", 0.0)) + 2.0
+        for _ in range(3):                            # a live change, then its frames go on
+            tolerances.append(_check(eng, eng.solve(d, draft=True))["tolerance"])
+        d["cables"][0]["path"] = [[x + 0.5, y] for x, y in d["cables"][0]["path"]]
+        a = eng.solve(d)                              # the same mesh, the cable built anew
+        assert a["editor"]["how"] == "edit (same mesh)"
+        tolerances.append(_check(eng, a)["tolerance"])
+        d["bones"][-1]["outline"][0][0] -= 0.5
+        tolerances.append(_check(eng, eng.solve(d, draft=True))["tolerance"])      # moved nodes
+        assert len(set(tolerances)) >= 3            # each change above moves the residual at rest
     finally:
         eng.close()

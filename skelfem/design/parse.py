@@ -44,7 +44,7 @@ def parse_design(data: dict, source: str = "<design>", overrides=(), poses_of: D
     dragged bone): the OpenCASCADE check of the solids is not run again and its volume is kept, so the bones'
     new places are NOT checked here; the caller must (the editor: the moved mesh's tetrahedra keep their
     orientation, else the design is parsed again without poses_of)."""
-    data = copy.deepcopy(data)
+    data = _copied(data)
     check_text(data, source)
     for assignment in overrides:
         apply_override(data, assignment, source)
@@ -131,6 +131,17 @@ def parse_design(data: dict, source: str = "<design>", overrides=(), poses_of: D
     if stage_tables:            # each stage's design validated like this one (read_stages parses it)
         design = dataclasses.replace(design, stages=read_stages(stage_tables, design, parse_design))
     return design
+
+
+def _copied(value):
+    """A deep copy of TOML-like data (dicts, lists and scalars copied directly; anything else by deepcopy)."""
+    if isinstance(value, dict):
+        return {k: _copied(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_copied(v) for v in value]
+    if value is None or isinstance(value, (str, int, float)):
+        return value
+    return copy.deepcopy(value)
 
 
 MAX_RTOL = 1e-3          # a looser relative tolerance ends Newton before it has solved anything

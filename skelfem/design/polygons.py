@@ -20,6 +20,7 @@ import numpy as np
 LEAF = 24                 # a grid cell with at most this many boxes is tested pairwise, vectorised
 MEDIUM = 256              # ... up to this many, pairwise cell by cell; more: the cell is refined
 CHUNK = 1 << 20           # pairs (or point-edge products) per vectorised batch
+SMALL = 4096              # point-edge products tested directly, without the strips' bookkeeping
 MAX_DEPTH = 12
 
 
@@ -338,6 +339,8 @@ def parity(points: np.ndarray, loops) -> np.ndarray:
     out = np.zeros(m, bool)
     if m == 0 or n == 0:
         return out
+    if m * n <= SMALL:                  # a few points and edges (a design's markers): all pairs at once
+        return _crossings_odd(points, p, q)
     ylo, yhi = np.minimum(p[:, 1], q[:, 1]), np.maximum(p[:, 1], q[:, 1])
     y0, y1 = float(ylo.min()), float(yhi.max())
     inside_y = (points[:, 1] >= y0) & (points[:, 1] <= y1)
@@ -366,13 +369,17 @@ def parity(points: np.ndarray, loops) -> np.ndarray:
         rows = max(1, CHUNK // len(e))
         for start in range(0, len(pts_idx), rows):
             idx = pts_idx[start:start + rows]
-            x, y = points[idx, 0:1], points[idx, 1:2]
-            straddle = (a[None, :, 1] > y) != (b[None, :, 1] > y)
-            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-                xc = (a[None, :, 0]
-                      + (y - a[None, :, 1]) * (b[None, :, 0] - a[None, :, 0]) / (b[None, :, 1] - a[None, :, 1]))
-            out[idx] = np.sum(straddle & (x < xc), axis=1) % 2 == 1
+            out[idx] = _crossings_odd(points[idx], a, b)
     return out
+
+
+def _crossings_odd(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Whether a ray from each point to +x crosses an odd number of the edges a -> b (every pair at once)."""
+    x, y = points[:, 0:1], points[:, 1:2]
+    straddle = (a[None, :, 1] > y) != (b[None, :, 1] > y)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        xc = a[None, :, 0] + (y - a[None, :, 1]) * (b[None, :, 0] - a[None, :, 0]) / (b[None, :, 1] - a[None, :, 1])
+    return np.sum(straddle & (x < xc), axis=1) % 2 == 1
 
 
 def region_contains(loops, points: np.ndarray, tol: float) -> np.ndarray:

@@ -9,6 +9,8 @@ names the first string that is not text.
 """
 from __future__ import annotations
 
+import json
+
 from .spec import DesignError
 
 
@@ -35,6 +37,11 @@ def _label(entry, index: int) -> str:
 def check_text(data, source: str) -> None:
     """DesignError ``source: KEY: must be valid UTF-8 text ...`` for the first key or string value of data
     (a parsed design: dicts, lists, scalars) that is not text."""
+    try:                    # the common case at once: everything encodes (the walk below names what does not)
+        json.dumps(data, ensure_ascii=False, check_circular=False).encode("utf-8")
+        return
+    except (TypeError, ValueError, UnicodeEncodeError, RecursionError):
+        pass
     stack = [(data, "")]
     while stack:
         node, where = stack.pop()

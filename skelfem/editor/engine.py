@@ -167,6 +167,7 @@ class Engine:
         self._mesh_seen, self._meshes = None, 0          # the mesh the topology key names, and how many so far
         from .frames3d import StaleFrames
         self.frames3d = StaleFrames()                    # a 3D drag's frames: the held factorisation reused
+        self._rest_tol: tuple = (None, None, 0.0)        # (Design, fem.certificate.rest_key, its tolerance)
         self.first = self._answer(self.session.solve(), time.perf_counter(), "built")
 
     # -- designs ----------------------------------------------------------------------------------
@@ -260,8 +261,15 @@ class Engine:
 
     def certificate(self, converged: bool) -> dict:
         """What the shown state is worth: its residual against the batch tolerance (see the module doc)."""
-        from ..fem.certificate import certificate
-        residual, tol = certificate(self.session.solver, self.session.design.solver.steps)
+        from ..fem.certificate import certificate, rest_key
+        solver, steps = self.session.solver, self.session.design.solver.steps
+        # frames of one design share the tolerance (one assembly less): the same Design object (a set, an edit or
+        # a recovery makes a new one; the cache holds it, so its id is not reused) and the same rest_key
+        design, key = self.session.design, rest_key(solver, steps)
+        held, held_key, held_tol = self._rest_tol
+        residual, tol = certificate(solver, steps, held_tol if key is not None and held is design and
+                                    held_key == key else None)
+        self._rest_tol = (design, key, tol)
         ratio = residual / tol if tol > 0 else math.inf
         if self.preview:
             why = "the frame's time was spent; the solve goes on"

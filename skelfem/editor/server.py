@@ -8,6 +8,7 @@ Routes (the JSON API is documented in docs/guide/editor.md):
     POST /api/ik           body: {"design", "marker", "target"} -> the same + "ik" and "new_design"
     POST /api/save         body: {"design", "name"?, "overwrite"?} -> {"saved", "file"}
     WS   /api/live         the page's solves and IK: {"id", "kind", ...} -> {"id", "ok", "answer" | "error"}
+                           ("packed": true: the mesh's coordinates as packed float32, payload.json_default)
 
 Guards: the Host header must be this server's own (``127.0.0.1:PORT`` or
 ``localhost:PORT``; DNS rebinding) and an Origin header, if any, this
@@ -29,6 +30,8 @@ import threading
 import time
 from importlib import resources as importlib_resources
 from pathlib import Path
+
+from .payload import json_default
 
 log = logging.getLogger("skelfem")
 
@@ -55,9 +58,10 @@ class ApiError(Exception):
         self.status, self.message, self.key = status, message, key
 
 
-def dumps(value) -> str:
-    """Strict, compact JSON (the payloads hold no NaN: result.json and the mesh use null)."""
-    return json.dumps(value, allow_nan=False, separators=(",", ":"))
+def dumps(value, packed: bool = False) -> str:
+    """Strict, compact JSON (the payloads hold no NaN: result.json and the mesh use null); the mesh's arrays
+    as lists, or packed (a page that asks: payload.json_default)."""
+    return json.dumps(value, allow_nan=False, separators=(",", ":"), default=json_default(packed))
 
 
 def _reject_constant(name):
@@ -150,17 +154,17 @@ def _live_endpoint(run, error_response):
         lock = asyncio.Lock()
         tasks = set()
 
-        async def reply(message):
+        async def reply(message, packed: bool = False):
             async with lock:
                 try:
-                    await ws.send_text(dumps(message))
+                    await ws.send_text(dumps(message, packed))
                 except Exception:  # noqa: BLE001 - the page went away
                     pass
 
-        async def answer(mid, job):
+        async def answer(mid, job, packed: bool):
             try:
                 result = await run(channel, job)
-                await reply({"id": mid, "ok": True, "answer": result})
+                await reply({"id": mid, "ok": True, "answer": result}, packed)
             except Superseded:
                 await reply({"id": mid, "dropped": True})
             except Exception as exc:  # noqa: BLE001
@@ -183,7 +187,7 @@ def _live_endpoint(run, error_response):
                 except ApiError as exc:
                     await reply({"id": None, "ok": False, "status": exc.status, "error": exc.message, "key": ""})
                     continue
-                task = asyncio.create_task(answer(mid, job))
+                task = asyncio.create_task(answer(mid, job, msg.get("packed") is True))
                 tasks.add(task)
                 task.add_done_callback(tasks.discard)
         except (WebSocketDisconnect, RuntimeError):

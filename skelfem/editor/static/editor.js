@@ -72,8 +72,25 @@ function html(tag, props, children) {
 function connect() {
   const ws = new WebSocket(`ws://${location.host}/api/live`);
   ws.onopen = () => { S.ws = ws; S.inflight = null; if (S.queued || S.design) request({ kind: "solve" }); };
-  ws.onmessage = (e) => onAnswer(JSON.parse(e.data));
+  ws.onmessage = (e) => onAnswer(JSON.parse(e.data, unpacked));
   ws.onclose = () => { S.ws = null; setStatus("connection lost; retrying…", true); setTimeout(connect, 700); };
+}
+
+// The server packs the mesh's coordinates (the message's "packed"): {"f32": base64 float32, "shape": [n, d]}
+// becomes the nested arrays the rest of the page reads.
+function unpacked(key, v) {
+  if (!v || typeof v !== "object" || typeof v.f32 !== "string" || !Array.isArray(v.shape)) return v;
+  const bin = atob(v.f32), bytes = new Uint8Array(bin.length);
+  for (let i = 0; i < bin.length; i++) bytes[i] = bin.charCodeAt(i);
+  const f = new Float32Array(bytes.buffer), n = v.shape[0], d = v.shape.length > 1 ? v.shape[1] : 0;
+  if (!d) return Array.from(f);
+  const out = new Array(n);
+  for (let i = 0; i < n; i++) {
+    const row = new Array(d);
+    for (let j = 0; j < d; j++) row[j] = f[i * d + j];
+    out[i] = row;
+  }
+  return out;
 }
 
 // request(): the newest request replaces a waiting one (latest wins); at most one is in flight.
@@ -85,7 +102,7 @@ function request(req) {
 function send(req) {
   clearTimeout(S.goOnTimer);
   if (S.queued && S.queued.goOn) S.queued = null;       // any request goes on from the newest state
-  const msg = { id: ++S.reqSeq, kind: req.kind, design: S.design };
+  const msg = { id: ++S.reqSeq, kind: req.kind, design: S.design, packed: true };
   if (req.kind === "solve") {
     // every solve is a frame: within the server's frame budget, asked again until converged; the mesh's
     // cells and regions are sent only when this page does not hold them, the fields only when drawn
