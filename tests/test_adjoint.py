@@ -1,5 +1,6 @@
 """The discrete adjoint through time (skelfem.adjoint): gradients of timed marker targets with
 respect to schedule knots, against central differences, and its cost against a forward run."""
+import collections
 import time
 
 import numpy as np
@@ -79,18 +80,51 @@ def test_adjoint_gradient_matches_central_differences(integrator, damping):
     assert rel < 1e-5, (g, fd, rel)                      # measured: 6e-8 (Euler), 8e-8 (BDF2, mass damping)
 
 
+def _count_work(monkeypatch) -> collections.Counter:
+    """Counts the Newton matrix's assemblies, factorisations and linear solves from here on."""
+    from skelfem.fem.assembly import MatrixAssembly
+    from skelfem.fem.linear import LowRankSolver
+    counts: collections.Counter = collections.Counter()
+
+    def counting(real, what):
+        def counted(self, *a, **k):
+            counts[what] += 1
+            return real(self, *a, **k)
+        return counted
+    for cls, name, what in ((MatrixAssembly, "assemble_jacobian", "assemblies"),
+                            (LowRankSolver, "update", "factorisations"), (LowRankSolver, "solve", "solves")):
+        monkeypatch.setattr(cls, name, counting(getattr(cls, name), what))
+    return counts
+
+
 @pytest.mark.slow
-def test_gradient_costs_at_most_one_and_a_half_forward_runs():
+def test_gradient_costs_at_most_one_and_a_half_forward_runs(monkeypatch):
+    """The gradient (its forward run and the reverse sweep) costs at most 1.5 forward runs, in work and in
+    time. Work: its assemblies, factorisations and linear solves, counted (measured 81, 81, 127 against a
+    forward run's 61, 61, 107: one Hessian per step of 20 in the sweep). Time: this process's CPU time
+    (time.process_time), not wall time, which a machine busy with other work stretches by whatever it runs
+    meanwhile (the wall-clock ratio failed on a loaded host); forward runs and gradients interleave and the
+    first ratio at most 1.5 passes (up to three tries: measured 0.9-1.3 at a load of 10 on 2 cores). Ten
+    extra Hessians per step gave work ratios of 4.6 and CPU ratios of 2.4-3.5."""
     with Session(flick(size=0.7, dt=0.004)) as s:       # 1764 DOFs, 20 steps
         schedule_gradient(s, TARGETS)                    # compiles the mass matrix form once
+        counts = _count_work(monkeypatch)
         ratios = []
-        for _ in range(3):                               # best of three: the machine may be busy
-            t0 = time.perf_counter()
+        for _ in range(3):
+            counts.clear()
+            t0 = time.process_time()
             s.run_in_time()
-            forward = time.perf_counter() - t0
-            r = schedule_gradient(s, TARGETS)
-            ratios.append((r.forward_time + r.adjoint_time) / forward)
-    assert min(ratios) <= 1.5, ratios                   # measured: 1.2
+            t1 = time.process_time()
+            forward = dict(counts)
+            counts.clear()
+            schedule_gradient(s, TARGETS)
+            t2 = time.process_time()
+            assert set(forward) == {"assemblies", "factorisations", "solves"}, forward
+            assert all(counts[k] <= 1.5 * forward[k] for k in forward), (dict(counts), forward)
+            ratios.append((t2 - t1) / (t1 - t0))
+            if ratios[-1] <= 1.5:
+                break
+    assert min(ratios) <= 1.5, ratios                   # measured: 1.2 on a quiet host
 
 
 # -- skelfem optimize ---------------------------------------------------------------------------------
