@@ -11,6 +11,7 @@ from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 from petsc4py import PETSc
 
+from ..terms.base import CooBlock
 from .lowrank import Border
 
 
@@ -272,7 +273,7 @@ class MatrixAssembly:
         aside: tuple[list, list, list] = ([], [], [])
         for term in self.terms:
             for i, (dofs, H) in enumerate(term.hessian(u)):
-                H = H if sp.isspmatrix_coo(H) else sp.coo_matrix(H)
+                H = H if isinstance(H, CooBlock) or sp.isspmatrix_coo(H) else sp.coo_matrix(H)
                 if H.nnz == 0:
                     continue
                 c = self._block_cache.get((id(term), i))

@@ -53,6 +53,31 @@ if TYPE_CHECKING:
     from ..mesh.geometry import TaggedMesh
 
 
+class CooBlock:
+    """A sparse Hessian block in COO form on a term's dofs (duplicates summed): scipy's coo_matrix's
+    row, col and data without its checks and index conversions (a cable's curvature, every Newton step:
+    five cables of finger.toml spent half the Newton matrix's assembly building coo_matrix objects)."""
+
+    __slots__ = ("data", "row", "col", "shape")
+
+    def __init__(self, data: np.ndarray, row: np.ndarray, col: np.ndarray, shape: tuple[int, int]):
+        self.data, self.row, self.col, self.shape = data, row, col, shape
+
+    @property
+    def nnz(self) -> int:
+        return len(self.data)
+
+    def tocoo(self):
+        import scipy.sparse as sp
+        return sp.coo_matrix((self.data, (self.row, self.col)), shape=self.shape)
+
+    def tocsr(self):
+        return self.tocoo().tocsr()
+
+    def toarray(self) -> np.ndarray:
+        return self.tocoo().toarray()
+
+
 class Term:
     """Base class of every energy term, the small contract: its energy (a UFL integral and/or a
     hand-written energy, gradient, sparse Hessian inside a declared pattern and rank-one parts), its
@@ -104,7 +129,8 @@ class Term:
         return None
 
     def hessian(self, u: np.ndarray) -> list:
-        """[(dofs, dense block)] of the sparse part of the Hessian; every block inside pattern()."""
+        """[(dofs, block)] of the sparse part of the Hessian (a dense array, a scipy sparse matrix or a
+        :class:`CooBlock`); every block inside pattern()."""
         return []
 
     def low_rank(self, u: np.ndarray) -> list:

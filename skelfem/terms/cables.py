@@ -41,7 +41,7 @@ from mpi4py import MPI
 from . import cable_slip
 from ..mesh.geometry import body_tag_name, bone_tag_name
 from ..mesh.points import DofGather, locate_cells
-from .base import Context, Term, moved_nodes_only
+from .base import Context, CooBlock, Term, moved_nodes_only
 from .capabilities import Actuator, FiniteAnchors, Follows, History, Lagged
 from .cable_route import (MAX_PER_RADIUS, PER_RADIUS, PIECES, anchor_samples, anchor_weights,  # noqa: F401
                           anchored_interpolation, anchors, default_anchor_radius, differences,
@@ -329,13 +329,13 @@ class Cable:
         axial = np.where(alone, 1.0 / self.compliances(), 0.0)
         return t, norm, T, axial, (label, taut, size)
 
-    def curvature(self, u: np.ndarray, L: float) -> sp.coo_matrix:
+    def curvature(self, u: np.ndarray, L: float) -> CooBlock:
         """Sparse part of the Hessian on self.dofs: B_i^T W_i B_i of the narrow segments, W_i from
         :meth:`_weights` (COO, duplicates summed later)."""
         m = len(self.dofs)
         w = self._weights(u, L)
         if w is None:
-            return sp.coo_matrix((m, m))
+            return CooBlock(np.zeros(0), np.zeros(0, np.int32), np.zeros(0, np.int32), (m, m))
         t, norm, T, axial, _ = w
         groups, rows, cols, _, _ = self._segment_blocks()
         gdim = t.shape[1]
@@ -343,7 +343,7 @@ class Cable:
         W = (T / norm)[:, None, None] * (np.eye(gdim)[None] - tt) + axial[:, None, None] * tt
         parts = [np.matmul(BdT, np.matmul(W[members], Bd)).ravel() for members, Bd, BdT in groups]
         data = np.concatenate(parts) if parts else np.zeros(0)
-        return sp.coo_matrix((data, (rows, cols)), shape=(m, m))
+        return CooBlock(data, rows, cols, (m, m))
 
     def wide_parts(self, u: np.ndarray, L: float) -> list[tuple[float, np.ndarray]]:
         """The wide segments' curvature T_i B_i^T W_i B_i as rank-one parts [(c, g)] on self.dofs.
