@@ -219,7 +219,8 @@ def test_no_round_coarsens_the_first_rounds_zones(monkeypatch):
 @pytest.mark.slow
 @pytest.mark.parametrize("name, ratio", [("strip", 2.0), ("post3d", 2.0 ** 0.5)])
 def test_a_rounds_meshes_are_the_uniform_ladders_ratio_apart(monkeypatch, name, ratio):
-    """2D: h0, h0/2, h0/4 (the field scaled by 4, 2, 1); 3D: h0, h0/sqrt 2, h0/2, as the uniform ladder."""
+    """2D: h0, h0/2, h0/4 (the field scaled by 4, 2, 1); 3D: h0, h0/sqrt 2, h0/2, as the uniform ladder. A
+    tolerance the round cannot meet: no twin is solved after it (3D: 30 % of the cost)."""
     from pathlib import Path
 
     from skelfem.design import load_design
@@ -230,7 +231,7 @@ def test_a_rounds_meshes_are_the_uniform_ladders_ratio_apart(monkeypatch, name, 
     session = Session(ladder_rules.first_level(design))
     h0 = session.design.mesh.size
     try:
-        _, a = adapt.refine_adaptive(session, 100.0, max_rounds=1)
+        _, a = adapt.refine_adaptive(session, 1e-6, max_rounds=1)
     finally:
         session.close()
     mine = [h for h in sizes if h < 0.99 * h0][:2]             # (2D: the base again, graded at its corners)
