@@ -1,8 +1,9 @@
 """Calibration on synthetic measurements: pull, push and tendon experiments, fine-mesh data, coarse-mesh fit.
 
     python studies/calibration.py [--size-data 1.0] [--size-fit 2.0] [--seeds 20] [--bench-size 1.0]
-                                  [--out studies/output/calibration] [--figures studies/figures] [--csv]
-    python studies/calibration.py --bench-only [--bench-size 1.0]     # the cost per iteration, printed
+                                  [--bench-repeats 5] [--out studies/output/calibration] [--figures studies/figures]
+                                  [--csv]
+    python studies/calibration.py --bench-only [--bench-size 1.0] [--bench-repeats 5]   # the cost per iteration
     python studies/calibration.py --model-error-only [--model-error-seeds 20] [--model-error-rows 8]
     python studies/calibration.py --hysteresis-only [--hysteresis-seeds 6]
 
@@ -336,7 +337,8 @@ def bench(size: float, rows: int = 8, counts=(2, 20), repeats: int = 5) -> dict:
 
 
 def run(size_data: float = 1.0, size_fit: float = 2.0, rows: int = 6, seeds: int = 20, coverage_rows: int = 8,
-        coverage_size: float | None = None, bench_size: float | None = 1.0, seed: int = 0) -> dict:
+        coverage_size: float | None = None, bench_size: float | None = 1.0, seed: int = 0,
+        bench_repeats: int = 5) -> dict:
     """Every part of the study; returns its numbers (nothing written)."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
@@ -354,7 +356,7 @@ def run(size_data: float = 1.0, size_fit: float = 2.0, rows: int = 6, seeds: int
            "data": {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in data.items()},
            "fits": fits, "same_mesh_noise_free": exact}
     res["coverage"] = coverage(coverage_size or size_fit, seeds, coverage_rows) if seeds else None
-    res["bench"] = bench(bench_size) if bench_size else None
+    res["bench"] = bench(bench_size, repeats=bench_repeats) if bench_size else None
     res["time"] = time.perf_counter() - t0
     return res
 
@@ -446,6 +448,7 @@ def main(argv=None) -> int:
     p.add_argument("--rows", type=int, default=6, help="rows per experiment")
     p.add_argument("--seeds", type=int, default=20)
     p.add_argument("--bench-size", type=float, default=1.0, help="mesh size of the bench (0: no bench)")
+    p.add_argument("--bench-repeats", type=int, default=5, help="timings per parameter count (the minimum is kept)")
     p.add_argument("--csv", action="store_true", help="also write geometry/finger_calibration.csv")
     p.add_argument("--bench-only", action="store_true", help="only time an iteration for 2 and 20 parameters")
     p.add_argument("--model-error-only", action="store_true",
@@ -474,11 +477,11 @@ def main(argv=None) -> int:
         say(f"wrote {a.out / 'model_error.json'}")
         return 0
     if a.bench_only:
-        b = bench(a.bench_size or 1.0)
+        b = bench(a.bench_size or 1.0, repeats=a.bench_repeats)
         say(_bench_line(b))
         return 0
     res = run(size_data=a.size_data, size_fit=a.size_fit, rows=a.rows, seeds=a.seeds,
-              bench_size=a.bench_size or None)
+              bench_size=a.bench_size or None, bench_repeats=a.bench_repeats)
     a.out.mkdir(parents=True, exist_ok=True)
     write_json(a.out / "calibration.json", {k: v for k, v in res.items() if k not in ("coverage", "bench")})
     if res["coverage"]:
