@@ -16,6 +16,7 @@ def test_tol_targets_tiny(tmp_path):
     assert marker["tol"] == "1.0" and tension["tol"].startswith("cables.flexor.tension=")
     for row in (marker, tension):
         assert row["exit"] == 0 and row["met"] and 0 < row["dofs"] < ref["dofs"]
+        assert row["tip_error"] >= 0 and row["tension_error"] >= 0     # both read on each row (not NaN)
     assert marker["tip_error"] <= 1.0 and 0 < marker["estimate"] <= 0.5        # met: twice the estimate within it
     T_tol = float(tension["tol"].split("=")[1])
     assert T_tol == pytest.approx(0.05 * ref["tension"], abs=1e-4)
