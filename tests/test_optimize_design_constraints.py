@@ -108,8 +108,10 @@ def _run(tmp_path, text, out="out", *extra):
 @pytest.mark.slow
 def test_the_fabrication_constraint_is_what_stops_the_optimiser(tmp_path):
     """Without [constraints] the reach pushes the distal bone past +2.5 mm (the bound is 6); with min_wall
-    = 3.5 SLSQP stops it on the constraint, and the result keeps every clearance."""
-    assert _run(tmp_path, PUSH.replace("min_wall = 3.5", ""), "free") == 0
+    = 3.5 SLSQP stops it on the constraint, and the result keeps every clearance. The free run needs 8 of the
+    12 evaluations to pass +2.6 (3.09; 3.11 after 12)."""
+    free_task = PUSH.replace("min_wall = 3.5", "").replace("max_evaluations = 12", "max_evaluations = 8")
+    assert _run(tmp_path, free_task, "free") == 0
     free = json.loads((tmp_path / "free" / "optimize_design.json").read_text())
     assert free["variables"][0]["final"] > 2.6 and free["clearances"] == {}
     assert _run(tmp_path, PUSH) == 0
