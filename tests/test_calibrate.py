@@ -190,7 +190,7 @@ ACTIVE = ["materials.ecoflex.E", "materials.pla.E", "cables.flexor.stiffness",
           "cables.lig1_dorsal.stiffness", "cables.lig2_dorsal.stiffness"]
 
 
-def test_scaling_every_stiffness_is_unidentifiable_from_positions(finger, finger_data):
+def test_scaling_every_stiffness_is_unidentifiable_from_positions(finger, finger_data, no_error_estimate):
     positions = {k: v for k, v in finger_data.items() if k != "cables.flexor.tension"}
     cal = calibrate(finger, positions, STIFFNESSES, model_error=SAME_MESH)
     # the scaling direction: every taut cable and both materials; the slack palmar ligaments do nothing
@@ -233,8 +233,22 @@ def _coverage(finger, seeds, rows=8):
     return true, np.array(est), np.array(std), np.array(inside)
 
 
+@pytest.fixture
+def no_error_estimate(monkeypatch):
+    """model_error "ignore" only reports the model's error: the estimate (a richer solve of every row, at
+    the start and at the estimate: three quarters of these fits' time) changes no value, std, interval or
+    group (measured: the coverage study's estimates and stds bit for bit the same). Tests that read none of
+    the report's model_error skip it (its cells reported as not estimated)."""
+    from skelfem.analysis.calerror import ModelError
+
+    def not_estimated(self, rows, theta, states=None):
+        assert self.mode == "ignore"
+        return np.full(self.data.values.shape, np.nan), np.full(self.data.values.shape, np.nan)
+    monkeypatch.setattr(ModelError, "estimate", not_estimated)
+
+
 @pytest.mark.slow
-def test_noise_coverage_over_twenty_seeds(finger):
+def test_noise_coverage_over_twenty_seeds(finger, no_error_estimate):
     true, est, std, inside = _coverage(finger, range(20))
     assert inside.mean() >= 0.85, inside.mean()
     spread = est.std(axis=0, ddof=1)
@@ -334,7 +348,7 @@ def _from(session, keys, start, **kw):
 
 
 @pytest.mark.slow
-def test_an_exact_invariance_is_one_group_from_any_start(bones):
+def test_an_exact_invariance_is_one_group_from_any_start(bones, no_error_estimate):
     """Contraction-driven, positions only: scaling every stiffness together moves no marker."""
     data = synthesize(bones, {"cables.flexor.contraction": [2.0, 4.0, 6.0, 8.0]}, TIP)
     true = np.array([bones.model.parameters()[k] for k in SCALED])
@@ -384,7 +398,7 @@ def test_intervals_of_positive_parameters_are_positive(finger, finger_data):
     assert "more than a decade" in cal.reasons[2]
 
 
-def test_multiple_starts_keep_the_lowest_misfit(finger, finger_data):
+def test_multiple_starts_keep_the_lowest_misfit(finger, finger_data, no_error_estimate):
     cal = calibrate(finger, finger_data, ["materials.ecoflex.E"], starts=3, seed=1, model_error=SAME_MESH)
     assert len(cal.starts) == 3 and sum(s["best"] for s in cal.starts) == 1
     assert cal.cost == min(s["cost"] for s in cal.starts)
