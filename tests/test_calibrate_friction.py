@@ -17,7 +17,13 @@ LOOP = [2.0, 4.0, 6.0, 8.0, 6.0, 4.0, 2.0]           # contraction up, then down
 
 
 @pytest.mark.slow
-def test_friction_is_recovered_from_a_hysteresis_loop():
+def test_friction_is_recovered_from_a_hysteresis_loop(monkeypatch):
+    """model_error "ignore" only reports the model's error, which this test does not read: its estimate (a
+    quarter of the fit's time) is skipped, its cells reported as not estimated; values and intervals are
+    the same without it."""
+    from skelfem.analysis.calerror import ModelError
+    monkeypatch.setattr(ModelError, "estimate", lambda self, rows, theta, states=None: (
+        np.full(self.data.values.shape, np.nan), np.full(self.data.values.shape, np.nan)))
     with Session(DESIGN, CHANGED + ["cables.flexor.friction=0.2"]) as s:
         data = synthesize(s, {"cables.flexor.contraction": np.array(LOOP)}, COLUMNS,
                           experiments=["a"] * 7, noise=NOISE, rng=np.random.default_rng(5))
