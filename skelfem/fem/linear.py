@@ -357,6 +357,11 @@ class LowRankSolver:
         self._dense = {}
         self.Z = None
 
+    @property
+    def options(self) -> dict:
+        """The PETSc options K is solved with (a copy): the factorisation's, or the Krylov solve's."""
+        return dict(self._options)
+
     def _to_mumps(self) -> None:
         """PETSc's own LU met a zero pivot (it does not pivot): MUMPS's LDL^T factorises K, now and from now on."""
         log.debug("a zero pivot in PETSc's LU: MUMPS's LDL^T from here")

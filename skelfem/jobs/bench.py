@@ -419,7 +419,6 @@ def measure(model, solver, steps: int, repeats: int, options: dict) -> dict:
 def bench_size(path, size: float, degree: int | None = None, overrides=(), repeats: int = 3,
                petsc_options: dict | None = None, steps: int | None = None) -> dict:
     """Every measurement for one mesh size; returns one row of the table."""
-    from ..fem.options import default_petsc_options
     from ..session import Session
 
     sets = [*overrides, f"mesh.size={size}"] + ([f"mesh.degree={degree}"] if degree else [])
@@ -432,7 +431,7 @@ def bench_size(path, size: float, degree: int | None = None, overrides=(), repea
         session.solver.destroy()
         session.solver = NewtonSolver(model, design.solver, petsc_options=petsc_options)
     solver = session.solver
-    options = {**default_petsc_options(), **(petsc_options or {})}
+    options = solver.lin.options          # the floor factorises as Newton does (MUMPS, or PETSc's LU when small)
     n_steps = int(steps or design.solver.steps)
     row = {"size": float(size), "degree": int(design.mesh.degree), "dofs": session.dofs,
            "cells": int(model.mesh.topology.index_map(model.mesh.topology.dim).size_global),
