@@ -72,13 +72,21 @@ function html(tag, props, children) {
 function connect() {
   const ws = new WebSocket(`ws://${location.host}/api/live`);
   ws.onopen = () => { S.ws = ws; S.inflight = null; if (S.queued || S.design) request({ kind: "solve" }); };
-  ws.onmessage = (e) => onAnswer(JSON.parse(e.data, unpacked));
+  ws.onmessage = (e) => onAnswer(unpackMesh(JSON.parse(e.data)));
   ws.onclose = () => { S.ws = null; setStatus("connection lost; retrying…", true); setTimeout(connect, 700); };
 }
 
 // The server packs the mesh's coordinates (the message's "packed"): {"f32": base64 float32, "shape": [n, d]}
-// becomes the nested arrays the rest of the page reads.
-function unpacked(key, v) {
+// becomes the nested arrays the rest of the page reads (the known fields only: a JSON.parse reviver would be
+// called for every value of the answer).
+function unpackMesh(data) {
+  const m = data && data.answer && data.answer.mesh;
+  if (!m) return data;
+  for (const k of ["x", "y"]) if (m[k]) m[k] = unpacked(m[k]);
+  for (const c of m.cables || []) { c.via = unpacked(c.via); c.via_rest = unpacked(c.via_rest); }
+  return data;
+}
+function unpacked(v) {
   if (!v || typeof v !== "object" || typeof v.f32 !== "string" || !Array.isArray(v.shape)) return v;
   const bin = atob(v.f32), bytes = new Uint8Array(bin.length);
   for (let i = 0; i < bin.length; i++) bytes[i] = bin.charCodeAt(i);
