@@ -5,8 +5,7 @@ finite-element Hessian, the cables' curvature parts, contact), the g_i the
 length gradients of taut cables, each coupling every DOF along its cable.
 Putting g_i g_i^T into the matrix would add a dense block per cable; instead
 K alone is factorised (MUMPS LDL^T, symbolic analysis reused across Newton
-iterations; PETSc's own LU for a small serial 2D K, skelfem.fem.options.SMALL_DIRECT,
-MUMPS again after a zero pivot) and the Sherman-Morrison-Woodbury formula gives
+iterations) and the Sherman-Morrison-Woodbury formula gives
 
     H^{-1} b = K^{-1} b - Z (D^{-1} + G^T Z)^{-1} G^T K^{-1} b,   Z = K^{-1} G,
 
@@ -69,7 +68,6 @@ the formulas above for the rest of its solves, counted in ``fallbacks``
 """
 from __future__ import annotations
 
-import logging
 from typing import Any
 
 import numpy as np
@@ -79,18 +77,15 @@ from petsc4py import PETSc
 from ..design.resources import auto_linear
 from .lowrank import Border, columns, dense, sparse_dots, sparse_product
 from .multigrid import GMRES_CYCLES, KRYLOV_RTOL, LOOSE_STEP, REBUILD_RATIO, Coarse, krylov_solve, near_nullspace
-from .options import (default_petsc_options, iterative_petsc_options, options_held, small_direct_options,
-                      two_level_petsc_options)
+from .options import default_petsc_options, iterative_petsc_options, options_held, two_level_petsc_options
 
-log = logging.getLogger("skelfem")
 
 
 class LowRankSolver:
     """Solves (K + G D G^T) x = b with one factorisation of the sparse K per update."""
 
     def __init__(self, K: PETSc.Mat, comm, options: dict | None = None, prefix: str = "skelfem_k_",
-                 modes: np.ndarray | None = None, deflation=None, coarse: Coarse | None = None,
-                 small: bool = False):
+                 modes: np.ndarray | None = None, deflation=None, coarse: Coarse | None = None):
         """modes: the near-nullspace of K (owned rows, one mode per column) for an iterative solve
         (``[solver] linear = "iterative"``), or a function giving it where the nodes are now (a rebuilt
         multigrid follows the body); None: a direct factorisation. coarse: iterative solves by
@@ -100,8 +95,7 @@ class LowRankSolver:
         self.prefix = prefix
         self._nullspace = None
         self.coarse = coarse if modes is not None else None
-        self._small = small and modes is None      # a direct solve by PETSc's own LU (options.SMALL_DIRECT)
-        base = small_direct_options() if self._small else default_petsc_options() if modes is None else \
+        base = default_petsc_options() if modes is None else \
             iterative_petsc_options() if self.coarse is None else two_level_petsc_options()
         self._options = {**base, **(options or {})}
         self._modes = modes
@@ -202,12 +196,7 @@ class LowRankSolver:
         if self.kind == "iterative":
             self._lag_preconditioner()
         self._set_up()
-        try:
-            self._check()
-        except np.linalg.LinAlgError:
-            if not self._small:
-                raise
-            self._to_mumps()
+        self._check()
         self._fallen = False
         if self.kind == "iterative":
             self.krylov.append(0)
@@ -361,18 +350,6 @@ class LowRankSolver:
     def options(self) -> dict:
         """The PETSc options K is solved with (a copy): the factorisation's, or the Krylov solve's."""
         return dict(self._options)
-
-    def _to_mumps(self) -> None:
-        """PETSc's own LU met a zero pivot (it does not pivot): MUMPS's LDL^T factorises K, now and from now on."""
-        log.debug("a zero pivot in PETSc's LU: MUMPS's LDL^T from here")
-        self._small = False
-        self.ksp.destroy()
-        small = small_direct_options()
-        self._options = {**default_petsc_options(), **{k: v for k, v in self._options.items()
-                                                       if k not in small or v != small[k]}}
-        self.ksp = self._make_ksp(self.prefix, self._options)
-        self._set_up()
-        self._check()
 
     def _check(self, ksp: PETSc.KSP | None = None) -> None:
         reason = (ksp or self.ksp).getConvergedReason()

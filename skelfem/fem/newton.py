@@ -47,7 +47,7 @@ from .loadstep import LoadStepper
 from ..design.resources import direct_limit, stiff_elastic_bones
 from .linear import LowRankSolver, choose_linear
 from .multigrid import KRYLOV_RTOL
-from .options import SMALL_DIRECT, options_held, snes_petsc_options
+from .options import options_held, snes_petsc_options
 from ..terms.capabilities import ContactEvents, Lagged, Verdict
 
 log = logging.getLogger("skelfem")
@@ -121,10 +121,8 @@ class NewtonSolver:
         modes = model.rigid_body_modes if self.linear == "iterative" else None   # where the nodes are now
         stiff = stiff_elastic_bones(model.design) if self.linear == "iterative" else []
         W = (lambda: model.stiff_bone_modes(stiff)) if stiff else None
-        small = self.linear == "direct" and model.comm.size == 1 and model.dim == 2 and \
-            self.A.getSize()[0] <= SMALL_DIRECT
         self.lin = LowRankSolver(self.A, model.comm, petsc_options, prefix + "k_", modes, W,
-                                 model.coarse_space() if modes is not None else None, small=small)
+                                 model.coarse_space() if modes is not None else None)
         self.lin.direct_limit = direct_limit(model.dim)     # a fallback MUMPS beyond it: the step fails
         self.b = model.u.vector.duplicate()
         self.x = model.u.vector.copy()      # SNES iterate; model.u is scratch for evaluations

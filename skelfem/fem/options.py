@@ -23,21 +23,6 @@ def default_petsc_options() -> dict:
     return {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "mumps"}
 
 
-# Serial 2D Newton matrices up to this many rows are factorised by PETSc's own sparse LU: MUMPS's fixed cost
-# per call dominates there (finger.toml, 1,480 rows: a factorisation 2.0 ms and a solve 0.9 ms with MUMPS,
-# 1.0 and 0.07 ms with PETSc's LU; 5,066 rows: 8.8 / 2.2 ms against 8.7 / 0.7 ms; at 16k rows MUMPS's
-# factorisation is 1.5-2x faster and in 3D at 7k rows 7x: MUMPS's LDL^T there).
-SMALL_DIRECT = 8000
-
-
-def small_direct_options() -> dict:
-    """A fresh dict of PETSc options for a small serial 2D K (SMALL_DIRECT): PETSc's own sparse LU with
-    quotient minimum degree ordering. It does not pivot: a zero pivot (an indefinite K can meet one) makes
-    the linear solver take MUMPS's LDL^T from then on (skelfem.fem.linear)."""
-    return {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "petsc",
-            "pc_factor_mat_ordering_type": "qmd"}
-
-
 def iterative_petsc_options() -> dict:
     """A fresh dict of PETSc options for CG preconditioned by GAMG (see the module docstring)."""
     return {"ksp_type": "cg", "ksp_norm_type": "unpreconditioned", "ksp_rtol": KRYLOV_RTOL,

@@ -431,7 +431,7 @@ def bench_size(path, size: float, degree: int | None = None, overrides=(), repea
         session.solver.destroy()
         session.solver = NewtonSolver(model, design.solver, petsc_options=petsc_options)
     solver = session.solver
-    options = solver.lin.options          # the floor factorises as Newton does (MUMPS, or PETSc's LU when small)
+    options = solver.lin.options          # the floor factorises as Newton does
     n_steps = int(steps or design.solver.steps)
     row = {"size": float(size), "degree": int(design.mesh.degree), "dofs": session.dofs,
            "cells": int(model.mesh.topology.index_map(model.mesh.topology.dim).size_global),
