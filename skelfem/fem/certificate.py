@@ -5,6 +5,8 @@ its residual is at or below that tolerance.
 """
 from __future__ import annotations
 
+import numpy as np
+
 
 def certificate(solver, steps: int = 1, tol: float | None = None) -> tuple[float, float]:
     """(|R|, tol): the residual at the state of a NewtonSolver's model, and the tolerance a solve from
@@ -42,7 +44,6 @@ def rest_key(solver, steps: int = 1):
     """What the tolerance of :func:`certificate` depends on: the model, its live parameters, its nodes'
     places, the solver's tolerances and the steps; None where it depends on more (a path-dependent model's
     history), so that it is computed again."""
-    import numpy as np
     model = solver.model
     if model.path_dependent:
         return None

@@ -80,7 +80,6 @@ from .multigrid import GMRES_CYCLES, KRYLOV_RTOL, LOOSE_STEP, REBUILD_RATIO, Coa
 from .options import default_petsc_options, iterative_petsc_options, options_held, two_level_petsc_options
 
 
-
 class LowRankSolver:
     """Solves (K + G D G^T) x = b with one factorisation of the sparse K per update."""
 

@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 from typing import Any, TYPE_CHECKING
 
 import numpy as np
+import scipy.sparse as sp
 import ufl
 from dolfinx import fem
 from dolfinx import mesh as dmesh
@@ -56,7 +57,7 @@ if TYPE_CHECKING:
 class CooBlock:
     """A sparse Hessian block in COO form on a term's dofs (duplicates summed): scipy's coo_matrix's
     row, col and data without its checks and index conversions (a cable's curvature, every Newton step:
-    five cables of finger.toml spent half the Newton matrix's assembly building coo_matrix objects)."""
+    building coo_matrix objects for finger.toml's five cables took 0.4 ms of a 2.4 ms assembly)."""
 
     __slots__ = ("data", "row", "col", "shape")
 
@@ -67,8 +68,7 @@ class CooBlock:
     def nnz(self) -> int:
         return len(self.data)
 
-    def tocoo(self):
-        import scipy.sparse as sp
+    def tocoo(self) -> sp.coo_matrix:
         return sp.coo_matrix((self.data, (self.row, self.col)), shape=self.shape)
 
     def tocsr(self):
